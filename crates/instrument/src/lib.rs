@@ -1,0 +1,569 @@
+//! gonio-instrument: the description of a gonioreflectometer, read from an `[instrument]` TOML file.
+//!
+//! Pure data plus validation. The simulator builds its virtual instrument from it, the scheduler its kinematics,
+//! constraints and time model, and the daemon its drivers. All angles are in degrees in the file and in these
+//! types (fields end in `_deg`); lengths in millimetres (`_mm`), times in seconds (`_s`), powers in watts (`_w`).
+//!
+//! # The reference geometry (what the axis angles mean)
+//!
+//! Lab frame: X horizontal, Y horizontal, Z vertical (up). Both arms turn about Z through the sample.
+//! - An arm at physical angle `a` points along `(cos a, sin a, 0)`: the light arm gives the direction towards the
+//!   source, the detector arm the direction towards the detector.
+//! - Sample stage at tilt `t = 0`, rotation `r = 0`: the sample normal is +X, the sample's x axis is +Y and its
+//!   y axis is +Z. So the arms' horizontal plane is the sample's x-z plane (phi = 0 / 180) at zero tilt.
+//! - Tilt `t` turns the sample about lab Y (its own x axis at zero rotation) so that the normal becomes
+//!   `n = (cos t, 0, sin t)` and the sample's y axis `(-sin t, 0, cos t)`; the sample's x axis stays lab Y.
+//! - Rotation `r` then turns the sample about its normal: `x' = cos r x + sin r y`, `y' = -sin r x + cos r y`.
+//! - A lab vector `v` has sample-frame components `(v . x', v . y', v . n)`.
+//!
+//! The `in-plane` geometry has no tilt axis (t = 0 always): only geometries whose incident and outgoing
+//! directions lie in one plane through the normal can be reached.
+//!
+//! Axis calibration: a controller position `p` (degrees, after converting device units) and the physical angle
+//! `a` are related by `a = direction * (p - zero_offset_deg)`, so `p = zero_offset_deg + direction * a`.
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+/// A whole instrument file: `[instrument]`, and for simulated instruments `[simulator]`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InstrumentFile {
+    pub instrument: Instrument,
+    /// Only used when the instrument is simulated: noise and fault settings.
+    #[serde(default)]
+    pub simulator: SimulatorSettings,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Instrument {
+    pub name: String,
+    /// Which kinematic geometry the axes form.
+    pub geometry: GeometryKind,
+    pub devices: Vec<Device>,
+    pub axes: Vec<Axis>,
+    pub source: Source,
+    pub detector: Detector,
+    pub filter_wheel: Option<FilterWheel>,
+    pub sample_holder: SampleHolder,
+    pub safety: Safety,
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum GeometryKind {
+    /// Light arm, detector arm, sample tilt and sample rotation: any pair of directions.
+    Reference,
+    /// Light arm, detector arm and sample rotation: in-plane geometries only.
+    InPlane,
+}
+
+/// A physical device: a controller chain on a serial port, a power meter on USB, a filter wheel.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Device {
+    /// Name other tables refer to (e.g. "arms").
+    pub name: String,
+    pub protocol: Protocol,
+    /// Serial port path, e.g. "/dev/ttyUSB0". Absent or "sim" for the embedded simulator.
+    #[serde(default)]
+    pub port: Option<String>,
+    /// Serial baud rate; defaults to the protocol's factory setting.
+    #[serde(default)]
+    pub baud: Option<u32>,
+    /// USB vendor id (power meters), e.g. 0x1313.
+    #[serde(default)]
+    pub usb_vendor_id: Option<u16>,
+    /// USB product id (power meters), e.g. 0x8072.
+    #[serde(default)]
+    pub usb_product_id: Option<u16>,
+    /// USB serial number, to pick one of several identical meters.
+    #[serde(default)]
+    pub usb_serial: Option<String>,
+}
+
+impl Device {
+    /// True when this device is the embedded simulator rather than a real port or USB device.
+    pub fn is_simulated(&self) -> bool {
+        match &self.port {
+            None => self.usb_vendor_id.is_none(),
+            Some(p) => p == "sim",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Hash)]
+#[serde(rename_all = "kebab-case")]
+pub enum Protocol {
+    Smc100,
+    ZaberAscii,
+    Fw102c,
+    Pm100,
+}
+
+impl Protocol {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Protocol::Smc100 => "smc100",
+            Protocol::ZaberAscii => "zaber-ascii",
+            Protocol::Fw102c => "fw102c",
+            Protocol::Pm100 => "pm100",
+        }
+    }
+
+    pub fn default_baud(&self) -> u32 {
+        match self {
+            Protocol::Smc100 => 57_600,
+            Protocol::ZaberAscii | Protocol::Fw102c => 115_200,
+            Protocol::Pm100 => 0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[serde(rename_all = "kebab-case")]
+pub enum AxisRole {
+    LightArm,
+    DetectorArm,
+    SampleTilt,
+    SampleRotation,
+}
+
+/// One motorised rotation axis.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Axis {
+    /// Name used in CSV column headers (`<name>_deg`) and messages.
+    pub name: String,
+    pub role: AxisRole,
+    /// Name of the device (controller chain) that drives it.
+    pub device: String,
+    /// Controller address on the chain: SMC100 address 1..31, Zaber device number 1..99.
+    pub address: u8,
+    /// Zaber axis number on a multi-axis device (1..); ignored for SMC100.
+    #[serde(default = "one")]
+    pub zaber_axis: u8,
+    /// Degrees per microstep for controllers that count microsteps (Zaber); ignored for SMC100.
+    #[serde(default)]
+    pub microstep_deg: Option<f64>,
+    /// Physical limits of travel.
+    pub min_deg: f64,
+    pub max_deg: f64,
+    pub max_speed_deg_s: f64,
+    pub accel_deg_s2: f64,
+    /// Mechanical backlash; targets are approached from below by more than this when non-zero.
+    #[serde(default)]
+    pub backlash_deg: f64,
+    /// Resolution of the encoder read-back.
+    pub encoder_resolution_deg: f64,
+    /// A position read back within this of the target counts as arrived.
+    pub tolerance_deg: f64,
+    /// Time to wait after arrival for vibrations to die down.
+    #[serde(default)]
+    pub settle_s: f64,
+    /// Controller position of the physical zero.
+    #[serde(default)]
+    pub zero_offset_deg: f64,
+    /// +1 or -1: sense of the controller's positive direction relative to the physical angle.
+    #[serde(default = "plus_one")]
+    pub direction: i8,
+}
+
+impl Axis {
+    /// Controller position (degrees) for a physical angle (degrees).
+    pub fn controller_from_physical_deg(&self, physical_deg: f64) -> f64 {
+        self.zero_offset_deg + f64::from(self.direction) * physical_deg
+    }
+
+    /// Physical angle (degrees) for a controller position (degrees).
+    pub fn physical_from_controller_deg(&self, controller_deg: f64) -> f64 {
+        f64::from(self.direction) * (controller_deg - self.zero_offset_deg)
+    }
+}
+
+fn one() -> u8 {
+    1
+}
+fn plus_one() -> i8 {
+    1
+}
+
+/// The light source: a collimated beam.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Source {
+    /// Beam power reaching the sample, before any filter (watts).
+    pub power_w: f64,
+    /// Radius of the collimated beam (mm).
+    pub beam_radius_mm: f64,
+    /// Full-angle divergence of the beam (degrees); spreads a mirror reflection.
+    #[serde(default)]
+    pub divergence_deg: f64,
+    /// Relative drift of the source power per hour (simulation; e.g. 0.002 = 0.2 %/h).
+    #[serde(default)]
+    pub drift_per_hour: f64,
+    /// Relative standard deviation of the source power from reading to reading (simulation).
+    #[serde(default)]
+    pub relative_noise: f64,
+    /// The wavelength when there is no filter wheel (nm).
+    #[serde(default)]
+    pub wavelength_nm: Option<f64>,
+}
+
+/// The photodiode detector behind a circular aperture.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Detector {
+    /// Name of the power meter device.
+    pub device: String,
+    /// Radius of the limiting aperture (mm).
+    pub aperture_radius_mm: f64,
+    /// Distance from the sample centre to the aperture (mm).
+    pub distance_mm: f64,
+    /// Radius of the spot on the sample the detector sees fully (mm): its field of view.
+    pub field_radius_mm: f64,
+    /// Photodiode responsivity (A/W), a number or a table nm -> A/W. Used by the simulator.
+    #[serde(default)]
+    pub responsivity_a_per_w: Option<toml::Value>,
+    /// Dark current (A); simulation.
+    #[serde(default)]
+    pub dark_current_a: f64,
+    /// Measurement ranges of the power meter (W, full scale), smallest first.
+    pub ranges_w: Vec<f64>,
+    /// Samples averaged per reading (the PM100 takes about 3 ms per sample).
+    #[serde(default = "default_averaging")]
+    pub averaging: u32,
+    /// Enable the simulated noise terms (shot, Johnson, quantisation).
+    #[serde(default)]
+    pub noise: bool,
+}
+
+fn default_averaging() -> u32 {
+    10
+}
+
+/// A filter wheel selecting wavelength bands; one position may be an opaque blank for dark readings.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FilterWheel {
+    pub device: String,
+    /// Time to turn by one position (s).
+    pub seconds_per_position: f64,
+    pub positions: Vec<FilterPosition>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FilterPosition {
+    /// Wheel position, 1-based as the FW102C counts.
+    pub position: u8,
+    /// Centre wavelength (nm); absent for the blank.
+    #[serde(default)]
+    pub band_nm: Option<f64>,
+    /// Full width at half maximum (nm).
+    #[serde(default)]
+    pub bandwidth_nm: Option<f64>,
+    /// Transmission of the filter in its band (0..1).
+    #[serde(default = "unit")]
+    pub transmission: f64,
+    /// True for the opaque blank.
+    #[serde(default)]
+    pub blank: bool,
+}
+
+fn unit() -> f64 {
+    1.0
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SampleHolder {
+    /// Radius of the largest sample the holder takes (mm); a campaign may state a smaller sample.
+    pub max_sample_radius_mm: f64,
+}
+
+/// Limits the scheduler and the daemon enforce.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Safety {
+    /// Minimum angle between the two arms at every instant (arm widths plus margin).
+    pub min_arm_separation_deg: f64,
+    /// The detector blocks the incident beam when it is within this angle of the source direction.
+    pub retro_block_deg: f64,
+    /// Largest polar angle (from the sample normal) for either direction.
+    pub grazing_limit_deg: f64,
+}
+
+/// Settings that only the simulated instrument reads.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SimulatorSettings {
+    /// Seed for every random draw (noise, faults).
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default)]
+    pub faults: Faults,
+}
+
+/// Fault injection; everything off by default.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Faults {
+    #[serde(default)]
+    pub seed: u64,
+    /// Probability that a reply has one byte corrupted.
+    #[serde(default)]
+    pub garble_rate: f64,
+    /// Probability that a reply is lost.
+    #[serde(default)]
+    pub drop_rate: f64,
+    /// Extra latency added to each reply (ms).
+    #[serde(default)]
+    pub delay_ms: f64,
+    /// Probability that a move stops short with the device's own error state.
+    #[serde(default)]
+    pub stall_rate: f64,
+    /// The port or USB device vanishes after this many seconds of instrument time...
+    #[serde(default)]
+    pub disconnect_after_s: Option<f64>,
+    /// ...and comes back this many seconds later.
+    #[serde(default)]
+    pub reconnect_after_s: Option<f64>,
+    /// Force the detector into overload.
+    #[serde(default)]
+    pub saturate: bool,
+}
+
+/// Why an instrument description was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum InstrumentError {
+    #[error("cannot read instrument file {path}: {source}")]
+    Read { path: String, source: std::io::Error },
+    #[error("instrument file {path}: {message}")]
+    Parse { path: String, message: String },
+    #[error("instrument file {path}: {message}")]
+    Invalid { path: String, message: String },
+}
+
+/// The default simulated instrument, embedded so that the binary runs with no file at all.
+pub const SIMULATED_INSTRUMENT_TOML: &str = include_str!("../../../config/instruments/simulated.toml");
+
+impl InstrumentFile {
+    /// Read and validate an instrument file.
+    pub fn load(path: &Path) -> Result<InstrumentFile, InstrumentError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| InstrumentError::Read { path: path.display().to_string(), source })?;
+        InstrumentFile::parse(&text, &path.display().to_string())
+    }
+
+    /// The embedded default: the simulated instrument.
+    pub fn simulated() -> InstrumentFile {
+        // The embedded file is validated by a unit test, so this cannot fail in a released binary.
+        InstrumentFile::parse(SIMULATED_INSTRUMENT_TOML, "<embedded simulated.toml>")
+            .unwrap_or_else(|e| panic!("the embedded simulated instrument is invalid: {e}"))
+    }
+
+    /// Parse and validate TOML text; `origin` names the file in messages.
+    pub fn parse(text: &str, origin: &str) -> Result<InstrumentFile, InstrumentError> {
+        let file: InstrumentFile = toml::from_str(text)
+            .map_err(|e| InstrumentError::Parse { path: origin.to_string(), message: e.to_string() })?;
+        file.instrument
+            .validate()
+            .map_err(|message| InstrumentError::Invalid { path: origin.to_string(), message })?;
+        Ok(file)
+    }
+}
+
+impl Instrument {
+    pub fn axis(&self, role: AxisRole) -> Option<&Axis> {
+        self.axes.iter().find(|a| a.role == role)
+    }
+
+    pub fn device(&self, name: &str) -> Option<&Device> {
+        self.devices.iter().find(|d| d.name == name)
+    }
+
+    /// Bands the filter wheel offers (nm), blank excluded; or the source's single wavelength.
+    pub fn bands_nm(&self) -> Vec<f64> {
+        match &self.filter_wheel {
+            Some(w) => w.positions.iter().filter(|p| !p.blank).filter_map(|p| p.band_nm).collect(),
+            None => self.source.wavelength_nm.into_iter().collect(),
+        }
+    }
+
+    /// Consistency checks that serde cannot express. The message names the table and key.
+    pub fn validate(&self) -> Result<(), String> {
+        let mut names = BTreeSet::new();
+        for d in &self.devices {
+            if !names.insert(d.name.as_str()) {
+                return Err(format!("[[instrument.devices]]: device name {:?} is used twice", d.name));
+            }
+        }
+        let mut roles = BTreeSet::new();
+        let mut axis_names = BTreeSet::new();
+        for a in &self.axes {
+            let at = format!("[[instrument.axes]] {:?}", a.name);
+            if !axis_names.insert(a.name.as_str()) {
+                return Err(format!("{at}: axis name is used twice"));
+            }
+            if !roles.insert(a.role) {
+                return Err(format!("{at}: role {:?} is given to two axes", a.role));
+            }
+            let device =
+                self.device(&a.device).ok_or_else(|| format!("{at}: device {:?} is not declared", a.device))?;
+            match device.protocol {
+                Protocol::Smc100 if !(1..=31).contains(&a.address) => {
+                    return Err(format!("{at}: address {} is outside the SMC100 range 1..31", a.address));
+                }
+                Protocol::ZaberAscii if !(1..=99).contains(&a.address) => {
+                    return Err(format!("{at}: address {} is outside the Zaber range 1..99", a.address));
+                }
+                Protocol::ZaberAscii if !a.microstep_deg.is_some_and(|m| m > 0.0 && m.is_finite()) => {
+                    return Err(format!("{at}: a Zaber axis needs microstep_deg > 0 (degrees per microstep)"));
+                }
+                Protocol::Fw102c | Protocol::Pm100 => {
+                    return Err(format!("{at}: device {:?} is not a motion controller", a.device));
+                }
+                _ => {}
+            }
+            if !(a.min_deg.is_finite() && a.max_deg.is_finite() && a.min_deg < a.max_deg) {
+                return Err(format!("{at}: need min_deg < max_deg, got {} and {}", a.min_deg, a.max_deg));
+            }
+            for (key, v) in [
+                ("max_speed_deg_s", a.max_speed_deg_s),
+                ("accel_deg_s2", a.accel_deg_s2),
+                ("encoder_resolution_deg", a.encoder_resolution_deg),
+                ("tolerance_deg", a.tolerance_deg),
+            ] {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(format!("{at}: {key} must be > 0, got {v}"));
+                }
+            }
+            for (key, v) in [("backlash_deg", a.backlash_deg), ("settle_s", a.settle_s)] {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(format!("{at}: {key} must be >= 0, got {v}"));
+                }
+            }
+            if a.direction != 1 && a.direction != -1 {
+                return Err(format!("{at}: direction must be 1 or -1, got {}", a.direction));
+            }
+        }
+        let needed: &[AxisRole] = match self.geometry {
+            GeometryKind::Reference => {
+                &[AxisRole::LightArm, AxisRole::DetectorArm, AxisRole::SampleTilt, AxisRole::SampleRotation]
+            }
+            GeometryKind::InPlane => &[AxisRole::LightArm, AxisRole::DetectorArm, AxisRole::SampleRotation],
+        };
+        for role in needed {
+            if !roles.contains(role) {
+                return Err(format!("[[instrument.axes]]: the {:?} geometry needs an axis with role {role:?}", self.geometry));
+            }
+        }
+        if self.geometry == GeometryKind::InPlane && roles.contains(&AxisRole::SampleTilt) {
+            return Err("[[instrument.axes]]: the in-plane geometry has no sample-tilt axis".into());
+        }
+        let s = &self.source;
+        if !(s.power_w.is_finite() && s.power_w > 0.0) {
+            return Err(format!("[instrument.source]: power_w must be > 0, got {}", s.power_w));
+        }
+        if !(s.beam_radius_mm.is_finite() && s.beam_radius_mm > 0.0) {
+            return Err(format!("[instrument.source]: beam_radius_mm must be > 0, got {}", s.beam_radius_mm));
+        }
+        let d = &self.detector;
+        match self.device(&d.device).map(|dev| dev.protocol) {
+            Some(Protocol::Pm100) => {}
+            Some(_) => return Err(format!("[instrument.detector]: device {:?} is not a power meter", d.device)),
+            None => return Err(format!("[instrument.detector]: device {:?} is not declared", d.device)),
+        }
+        for (key, v) in [
+            ("aperture_radius_mm", d.aperture_radius_mm),
+            ("distance_mm", d.distance_mm),
+            ("field_radius_mm", d.field_radius_mm),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("[instrument.detector]: {key} must be > 0, got {v}"));
+            }
+        }
+        if d.ranges_w.is_empty() || d.ranges_w.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
+            return Err("[instrument.detector]: ranges_w must list positive full-scale powers in W".into());
+        }
+        if d.ranges_w.windows(2).any(|w| w[0] >= w[1]) {
+            return Err("[instrument.detector]: ranges_w must be increasing".into());
+        }
+        match &self.filter_wheel {
+            Some(w) => {
+                match self.device(&w.device).map(|dev| dev.protocol) {
+                    Some(Protocol::Fw102c) => {}
+                    _ => {
+                        return Err(format!(
+                            "[instrument.filter_wheel]: device {:?} is not a declared fw102c wheel",
+                            w.device
+                        ));
+                    }
+                }
+                let mut seen = BTreeSet::new();
+                for p in &w.positions {
+                    if !seen.insert(p.position) || !(1..=12).contains(&p.position) {
+                        return Err(format!(
+                            "[instrument.filter_wheel]: position {} is repeated or outside 1..12",
+                            p.position
+                        ));
+                    }
+                    if p.blank == p.band_nm.is_some() {
+                        return Err(format!(
+                            "[instrument.filter_wheel]: position {} must be either blank or have band_nm",
+                            p.position
+                        ));
+                    }
+                }
+            }
+            None if s.wavelength_nm.is_none() => {
+                return Err("[instrument.source]: without a filter wheel, wavelength_nm is required".into());
+            }
+            None => {}
+        }
+        let safety = &self.safety;
+        if !(0.0..90.0).contains(&safety.grazing_limit_deg) {
+            return Err(format!(
+                "[instrument.safety]: grazing_limit_deg must be in [0, 90), got {}",
+                safety.grazing_limit_deg
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_simulated_instrument_is_valid() {
+        let file = InstrumentFile::parse(SIMULATED_INSTRUMENT_TOML, "simulated.toml").expect("valid");
+        assert_eq!(file.instrument.geometry, GeometryKind::Reference);
+        assert_eq!(file.instrument.axes.len(), 4);
+        assert!(file.instrument.bands_nm().len() >= 3);
+    }
+
+    #[test]
+    fn unknown_key_is_named_with_its_line() {
+        let text = SIMULATED_INSTRUMENT_TOML.replacen("[instrument.source]", "[instrument.source]\nbogus = 1", 1);
+        let err = InstrumentFile::parse(&text, "x.toml").expect_err("unknown key");
+        let msg = err.to_string();
+        assert!(msg.contains("bogus") && msg.contains("line"), "{msg}");
+    }
+
+    #[test]
+    fn axis_calibration_round_trips() {
+        let file = InstrumentFile::simulated();
+        let mut axis = file.instrument.axes[0].clone();
+        axis.zero_offset_deg = 12.5;
+        axis.direction = -1;
+        let p = axis.controller_from_physical_deg(30.0);
+        assert_eq!(p, -17.5);
+        assert_eq!(axis.physical_from_controller_deg(p), 30.0);
+    }
+}
