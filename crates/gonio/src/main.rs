@@ -1,1 +1,71 @@
-fn main() {}
+//! The `gonio` command line: wires the library crates together and turns their typed errors into messages
+//! that say what went wrong and where.
+//!
+//! One module per subcommand family; each exposes `run(args) -> Result<(), CliError>`.
+
+mod brdf_check;
+mod brdf_eval;
+mod devices;
+mod error;
+mod plan;
+mod sim;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+pub use error::CliError;
+
+#[derive(Debug, Parser)]
+#[command(name = "gonio", version, about = "Acquisition system for gonioreflectometers")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Evaluate and check BRDF models and material files.
+    #[command(subcommand)]
+    Brdf(BrdfCommand),
+    /// List serial ports and USB instruments this machine can see.
+    Devices(devices::DevicesArgs),
+    /// Build, check and order a campaign's measurement plan, and predict its duration.
+    Plan(plan::PlanArgs),
+    /// Serve the simulated instrument's devices on pseudo-terminals until interrupted.
+    Sim(sim::SimArgs),
+}
+
+#[derive(Debug, Subcommand)]
+enum BrdfCommand {
+    /// Read `theta_i phi_i theta_o phi_o` lines (degrees) on stdin, write f in 1/sr per line on stdout.
+    Eval(brdf_eval::EvalArgs),
+    /// Check a material against the physical laws (reciprocity, energy, positivity, finiteness).
+    Check(brdf_check::CheckArgs),
+}
+
+fn main() -> ExitCode {
+    init_tracing();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Brdf(BrdfCommand::Eval(args)) => brdf_eval::run(args),
+        Command::Brdf(BrdfCommand::Check(args)) => brdf_check::run(args),
+        Command::Sim(args) => sim::run(args),
+        Command::Devices(args) => devices::run(args),
+        Command::Plan(args) => plan::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("gonio: {e}");
+            e.exit_code()
+        }
+    }
+}
+
+/// Logs go to stderr; `RUST_LOG` selects them (default: warnings only, so stdout stays clean for data).
+fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+}

@@ -1,0 +1,1 @@
+//! (module map added with the crate)
