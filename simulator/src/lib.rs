@@ -1,1 +1,31 @@
-//! (module map added with the crate)
+//! gonio-simulator: the simulated gonioreflectometer.
+//!
+//! Module map:
+//! - [`scene`]: the seam between devices and optics (`Scene`, `Pose`, `Band`).
+//! - [`kinematics`]: forward kinematics of the reference geometry (axis angles -> wi, wo in the sample frame).
+//! - [`optics`]: the faithful scene: power on the photodiode for a pose, band and sample, with ground truth and
+//!   an integration error estimate (footprint, aperture integral, delta lobes, retro-blocking, source drift/noise).
+//! - [`instrument`]: [`SimInstrument`], the whole simulated instrument and its in-process API (serial streams,
+//!   the USB power meter, pose/band/clock/faults for tests and the daemon).
+//! - [`clock`]: the simulated clock (tokio time x time scale).
+//! - [`motion`]: per-axis motion physics (trapezoidal profiles, backlash, limits, encoder, stalls).
+//! - [`smc100`], [`zaber`], [`fw102c`], [`pm100`]: the device emulators, speaking the real wire protocols.
+//! - [`session`]: the byte-stream session between a host and a serial emulator.
+//! - [`faults`]: seeded fault injection and its counters.
+
+pub mod clock;
+pub mod faults;
+pub mod fw102c;
+pub mod instrument;
+pub mod kinematics;
+pub mod motion;
+pub mod optics;
+pub mod pm100;
+pub mod scene;
+pub mod session;
+pub mod smc100;
+pub mod zaber;
+
+pub use faults::FaultCounts;
+pub use instrument::{SimError, SimInstrument};
+pub use pm100::{SimUsbDevice, UsbSimError};

@@ -40,7 +40,11 @@ pub trait Brdf: Send + Sync + std::fmt::Debug {
     fn is_spectrally_flat(&self) -> bool;
 
     /// The ideal specular lobe for light arriving from `wi`, if the model has one.
-    fn delta_lobe(&self, _wi: &Direction, _wavelength: Wavelength) -> Result<Option<DeltaLobe>, SpectrumError> {
+    fn delta_lobe(
+        &self,
+        _wi: &Direction,
+        _wavelength: Wavelength,
+    ) -> Result<Option<DeltaLobe>, SpectrumError> {
         Ok(None)
     }
 

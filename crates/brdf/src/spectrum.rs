@@ -21,7 +21,11 @@ impl Wavelength {
 
     /// A wavelength in nm; must be finite and positive.
     pub fn from_nm(nm: f64) -> Result<Wavelength, SpectrumError> {
-        if nm.is_finite() && nm > 0.0 { Ok(Wavelength(nm)) } else { Err(SpectrumError::BadWavelength(nm)) }
+        if nm.is_finite() && nm > 0.0 {
+            Ok(Wavelength(nm))
+        } else {
+            Err(SpectrumError::BadWavelength(nm))
+        }
     }
 
     pub fn nm(&self) -> f64 {
@@ -102,7 +106,9 @@ impl Spectral {
             Spectral::Constant(v) => (*v, *v),
             Spectral::Table(t) => t
                 .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &(_, v)| (lo.min(v), hi.max(v))),
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &(_, v)| {
+                    (lo.min(v), hi.max(v))
+                }),
         }
     }
 
@@ -118,10 +124,17 @@ impl Spectral {
 fn interpolate(table: &[(f64, f64)], nm: f64) -> Result<f64, SpectrumError> {
     let (first, last) = (table[0], table[table.len() - 1]);
     if !(nm >= first.0 && nm <= last.0) {
-        return Err(SpectrumError::OutOfRange { nm, min_nm: first.0, max_nm: last.0 });
+        return Err(SpectrumError::OutOfRange {
+            nm,
+            min_nm: first.0,
+            max_nm: last.0,
+        });
     }
     // Tables are short (a handful of entries): a linear scan beats a binary search here.
-    let upper = table.iter().position(|&(w, _)| w >= nm).unwrap_or(table.len() - 1);
+    let upper = table
+        .iter()
+        .position(|&(w, _)| w >= nm)
+        .unwrap_or(table.len() - 1);
     if upper == 0 || table[upper].0 == nm {
         return Ok(table[upper].1);
     }
@@ -131,9 +144,20 @@ fn interpolate(table: &[(f64, f64)], nm: f64) -> Result<f64, SpectrumError> {
     Ok(v0 + t * (v1 - v0))
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, PartialOrd)]
+/// A wavelength key with a total order, so tables can be sorted and deduplicated in a BTreeMap.
+#[derive(Debug, Clone, Copy)]
 struct OrderedNm(f64);
+impl PartialEq for OrderedNm {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other) == std::cmp::Ordering::Equal
+    }
+}
 impl Eq for OrderedNm {}
+impl PartialOrd for OrderedNm {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
 impl Ord for OrderedNm {
     fn cmp(&self, other: &Self) -> std::cmp::Ordering {
         self.0.total_cmp(&other.0)
@@ -149,7 +173,11 @@ impl<'de> Deserialize<'de> for Spectral {
                 f.write_str("a number, or a table of wavelength in nm = value, e.g. { 450 = 0.2, 650 = 0.8 }")
             }
             fn visit_f64<E: de::Error>(self, v: f64) -> Result<Spectral, E> {
-                if v.is_finite() { Ok(Spectral::Constant(v)) } else { Err(E::custom("value is not finite")) }
+                if v.is_finite() {
+                    Ok(Spectral::Constant(v))
+                } else {
+                    Err(E::custom("value is not finite"))
+                }
             }
             fn visit_i64<E: de::Error>(self, v: i64) -> Result<Spectral, E> {
                 Ok(Spectral::Constant(v as f64))

@@ -13,6 +13,9 @@ pub enum CliError {
     /// Reading or writing failed.
     #[error("{context}: {source}")]
     Io { context: String, source: std::io::Error },
+    /// A run stopped before its end (interrupted, paused by a fault); the message says how to resume.
+    #[error("{0}")]
+    Interrupted(String),
 }
 
 impl CliError {
@@ -21,7 +24,10 @@ impl CliError {
     }
 
     pub fn io(context: impl Into<String>, source: std::io::Error) -> CliError {
-        CliError::Io { context: context.into(), source }
+        CliError::Io {
+            context: context.into(),
+            source,
+        }
     }
 
     pub fn exit_code(&self) -> ExitCode {
@@ -29,6 +35,7 @@ impl CliError {
             CliError::CheckFailed(_) => ExitCode::from(1),
             CliError::Input(_) => ExitCode::from(2),
             CliError::Io { .. } => ExitCode::from(3),
+            CliError::Interrupted(_) => ExitCode::from(4),
         }
     }
 }

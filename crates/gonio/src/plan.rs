@@ -1,6 +1,20 @@
-//! `gonio plan`: owned by the scheduler work; see issue 5.
+//! `gonio plan`: build, check and order a campaign's plan, print the summary, optionally write the points as CSV.
+//!
+//! CSV columns: `index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg`, then `<axis>_deg` per instrument
+//! axis in file order (CONTROLLER positions, i.e. after zero offset and direction: what the daemon commands),
+//! then `move_s`: the predicted move time into the point from the previous step, settle included. One row per
+//! measurement step in run order (calibration steps are not rows); with `repeats = N` every point appears N times.
 
-use std::path::PathBuf;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use gonio_brdf::Brdf;
+use gonio_brdf::material::Material;
+use gonio_instrument::InstrumentFile;
+use gonio_scheduler::adaptive::Adaptive;
+use gonio_scheduler::plan::{self, BuildContext, CampaignDoc, SampleTraits};
+use gonio_scheduler::schedule::{self, BandMode, Schedule};
+use gonio_scheduler::timing::TimeModel;
 
 use crate::CliError;
 
@@ -16,6 +30,210 @@ pub struct PlanArgs {
     pub points: Option<PathBuf>,
 }
 
-pub fn run(_args: PlanArgs) -> Result<(), CliError> {
-    Err(CliError::input("gonio plan is not built yet"))
+pub fn run(args: PlanArgs) -> Result<(), CliError> {
+    let file = match &args.instrument {
+        Some(p) => InstrumentFile::load(p).map_err(|e| CliError::input(e.to_string()))?,
+        None => InstrumentFile::simulated(),
+    };
+    let instrument = file.instrument;
+    let origin = args.campaign.display().to_string();
+    let text = std::fs::read_to_string(&args.campaign)
+        .map_err(|e| CliError::io(format!("cannot read campaign file {origin}"), e))?;
+    let doc = CampaignDoc::parse(&text, &origin).map_err(|e| CliError::input(e.to_string()))?;
+    let base_dir = args.campaign.parent().map(Path::to_path_buf).unwrap_or_default();
+    let (traits, material_note) = if doc.material.is_some() {
+        let m =
+            Material::from_document(&text, &origin, &base_dir).map_err(|e| CliError::input(e.to_string()))?;
+        (
+            SampleTraits {
+                isotropic: m.is_isotropic(),
+                spectrally_flat: m.is_spectrally_flat(),
+            },
+            format!(
+                "material: {} ({}, {})",
+                m.model().name(),
+                iso_word(m.is_isotropic()),
+                flat_word(m.is_spectrally_flat())
+            ),
+        )
+    } else {
+        (
+            SampleTraits {
+                isotropic: false,
+                spectrally_flat: false,
+            },
+            "material: none given (treated as anisotropic and spectrally varying)".to_string(),
+        )
+    };
+    let sample_radius_mm = doc.sample.as_ref().and_then(|s| s.radius_mm);
+    let ctx = BuildContext {
+        instrument: &instrument,
+        traits,
+        sample_radius_mm,
+        start: None,
+    };
+    let time = TimeModel::new(&instrument);
+
+    let mut out = String::new();
+    let id = doc
+        .campaign
+        .as_ref()
+        .and_then(|c| c.get("id"))
+        .and_then(|v| v.as_str())
+        .unwrap_or("(no id)")
+        .to_string();
+    let _ = writeln!(
+        out,
+        "campaign {id} on instrument {} ({})",
+        instrument.name,
+        plan::geometry_kind_name(instrument.geometry)
+    );
+    let _ = writeln!(out, "{material_note}");
+
+    let plan = if let Some(spec) = &doc.plan.adaptive {
+        let adaptive = Adaptive::new(spec, &ctx).map_err(|e| CliError::input(e.to_string()))?;
+        let first = adaptive.first_pass();
+        let _ = writeln!(
+            out,
+            "adaptive plan: budget {} points; {} reachable candidates; first pass below, the rest is placed at run time",
+            spec.budget_points,
+            adaptive.candidate_count()
+        );
+        let mut iso_spec = doc.plan.clone();
+        iso_spec.adaptive = None;
+        plan::build_from_geometries(&iso_spec, &ctx, &first, true)
+            .map_err(|e| CliError::input(e.to_string()))?
+    } else {
+        plan::build(&doc.plan, &ctx).map_err(|e| CliError::input(e.to_string()))?
+    };
+    let sched = schedule::schedule(&plan, &time, None);
+
+    let geometries = plan.geometries.len();
+    let _ = writeln!(
+        out,
+        "points requested: {} ({} bands: {})",
+        plan.requested,
+        plan.bands_nm.len().max(1),
+        plan.bands_nm
+            .iter()
+            .map(|b| format!("{b} nm"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let _ = writeln!(
+        out,
+        "points kept: {} ({geometries} geometries x {} bands)",
+        plan.kept(),
+        plan.bands_nm.len()
+    );
+    if plan.repeats > 1 {
+        let _ = writeln!(
+            out,
+            "repeats: {} passes, {} readings",
+            plan.repeats,
+            plan.kept() * plan.repeats as usize
+        );
+    }
+    let _ = writeln!(out, "points skipped: {}", plan.skipped_total() + sched.dropped);
+    for (reason, n) in &plan.skipped {
+        let _ = writeln!(out, "  {:<24} {n}", reason.name());
+    }
+    if sched.dropped > 0 {
+        let _ = writeln!(
+            out,
+            "  {:<24} {} (no safe move found while ordering)",
+            "arm-separation", sched.dropped
+        );
+    }
+    print_times(&mut out, &sched);
+    print!("{out}");
+
+    if let Some(path) = &args.points {
+        let csv = points_csv(&sched, &time);
+        std::fs::write(path, csv).map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
+    }
+    Ok(())
+}
+
+fn iso_word(iso: bool) -> &'static str {
+    if iso { "isotropic" } else { "anisotropic" }
+}
+
+fn flat_word(flat: bool) -> &'static str {
+    if flat {
+        "spectrally flat"
+    } else {
+        "spectrally varying"
+    }
+}
+
+fn hms(s: f64) -> String {
+    let total = s.round() as u64;
+    format!("{}h{:02}m{:02}s", total / 3600, (total / 60) % 60, total % 60)
+}
+
+fn print_times(out: &mut String, sched: &Schedule) {
+    let b = &sched.breakdown;
+    let mode = match sched.mode {
+        BandMode::PerGeometry => "all bands at each geometry",
+        BandMode::PerBand => "one tour per band",
+        BandMode::Raster => "raster order (ordering found nothing better)",
+    };
+    let _ = writeln!(
+        out,
+        "predicted duration: {:.1} s ({}), {mode}",
+        b.total_s(),
+        hms(b.total_s())
+    );
+    for (name, v) in [
+        ("motion", b.motion_s),
+        ("settle", b.settle_s),
+        ("filter wheel", b.wheel_s),
+        ("integration", b.integration_s),
+        ("calibration steps", b.calibration_s),
+    ] {
+        let _ = writeln!(out, "  {name:<18} {v:>10.1} s");
+    }
+    let r = &sched.raster;
+    let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 1.0 };
+    let _ = writeln!(
+        out,
+        "raster order: {:.1} s ({}); ordered/raster total {:.3}, motion+settle {:.3}",
+        r.total_s(),
+        hms(r.total_s()),
+        ratio(b.total_s(), r.total_s()),
+        ratio(b.motion_s + b.settle_s, r.motion_s + r.settle_s)
+    );
+    let _ = writeln!(
+        out,
+        "lower bound: {:.1} s (ordered/lower bound {:.3})",
+        sched.lower_bound_s,
+        ratio(b.total_s(), sched.lower_bound_s)
+    );
+}
+
+/// The CSV text of the measurement steps.
+pub fn points_csv(sched: &Schedule, time: &TimeModel) -> String {
+    let mut s = String::from("index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg");
+    for name in time.axis_names() {
+        let _ = write!(s, ",{name}_deg");
+    }
+    s.push_str(",move_s\n");
+    for (i, step) in sched.measure_steps().enumerate() {
+        let Some(g) = step.geometry else { continue };
+        let band = step.band_nm.map(|b| b.to_string()).unwrap_or_default();
+        let _ = write!(
+            s,
+            "{i},{band},{:.9},{:.9},{:.9},{:.9}",
+            g.theta_i_deg + 0.0,
+            g.phi_i_deg + 0.0,
+            g.theta_o_deg + 0.0,
+            g.phi_o_deg + 0.0
+        );
+        for c in &step.controller_deg {
+            let _ = write!(s, ",{:.9}", c + 0.0);
+        }
+        let _ = writeln!(s, ",{:.6}", step.movement.total_s());
+    }
+    s
 }

@@ -354,8 +354,10 @@ pub const SIMULATED_INSTRUMENT_TOML: &str = include_str!("../../../config/instru
 impl InstrumentFile {
     /// Read and validate an instrument file.
     pub fn load(path: &Path) -> Result<InstrumentFile, InstrumentError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| InstrumentError::Read { path: path.display().to_string(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| InstrumentError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
         InstrumentFile::parse(&text, &path.display().to_string())
     }
 
@@ -368,11 +370,16 @@ impl InstrumentFile {
 
     /// Parse and validate TOML text; `origin` names the file in messages.
     pub fn parse(text: &str, origin: &str) -> Result<InstrumentFile, InstrumentError> {
-        let file: InstrumentFile = toml::from_str(text)
-            .map_err(|e| InstrumentError::Parse { path: origin.to_string(), message: e.to_string() })?;
+        let file: InstrumentFile = toml::from_str(text).map_err(|e| InstrumentError::Parse {
+            path: origin.to_string(),
+            message: e.to_string(),
+        })?;
         file.instrument
             .validate()
-            .map_err(|message| InstrumentError::Invalid { path: origin.to_string(), message })?;
+            .map_err(|message| InstrumentError::Invalid {
+                path: origin.to_string(),
+                message,
+            })?;
         Ok(file)
     }
 }
@@ -389,7 +396,12 @@ impl Instrument {
     /// Bands the filter wheel offers (nm), blank excluded; or the source's single wavelength.
     pub fn bands_nm(&self) -> Vec<f64> {
         match &self.filter_wheel {
-            Some(w) => w.positions.iter().filter(|p| !p.blank).filter_map(|p| p.band_nm).collect(),
+            Some(w) => w
+                .positions
+                .iter()
+                .filter(|p| !p.blank)
+                .filter_map(|p| p.band_nm)
+                .collect(),
             None => self.source.wavelength_nm.into_iter().collect(),
         }
     }
@@ -399,7 +411,10 @@ impl Instrument {
         let mut names = BTreeSet::new();
         for d in &self.devices {
             if !names.insert(d.name.as_str()) {
-                return Err(format!("[[instrument.devices]]: device name {:?} is used twice", d.name));
+                return Err(format!(
+                    "[[instrument.devices]]: device name {:?} is used twice",
+                    d.name
+                ));
             }
         }
         let mut roles = BTreeSet::new();
@@ -412,17 +427,26 @@ impl Instrument {
             if !roles.insert(a.role) {
                 return Err(format!("{at}: role {:?} is given to two axes", a.role));
             }
-            let device =
-                self.device(&a.device).ok_or_else(|| format!("{at}: device {:?} is not declared", a.device))?;
+            let device = self
+                .device(&a.device)
+                .ok_or_else(|| format!("{at}: device {:?} is not declared", a.device))?;
             match device.protocol {
                 Protocol::Smc100 if !(1..=31).contains(&a.address) => {
-                    return Err(format!("{at}: address {} is outside the SMC100 range 1..31", a.address));
+                    return Err(format!(
+                        "{at}: address {} is outside the SMC100 range 1..31",
+                        a.address
+                    ));
                 }
                 Protocol::ZaberAscii if !(1..=99).contains(&a.address) => {
-                    return Err(format!("{at}: address {} is outside the Zaber range 1..99", a.address));
+                    return Err(format!(
+                        "{at}: address {} is outside the Zaber range 1..99",
+                        a.address
+                    ));
                 }
                 Protocol::ZaberAscii if !a.microstep_deg.is_some_and(|m| m > 0.0 && m.is_finite()) => {
-                    return Err(format!("{at}: a Zaber axis needs microstep_deg > 0 (degrees per microstep)"));
+                    return Err(format!(
+                        "{at}: a Zaber axis needs microstep_deg > 0 (degrees per microstep)"
+                    ));
                 }
                 Protocol::Fw102c | Protocol::Pm100 => {
                     return Err(format!("{at}: device {:?} is not a motion controller", a.device));
@@ -430,7 +454,10 @@ impl Instrument {
                 _ => {}
             }
             if !(a.min_deg.is_finite() && a.max_deg.is_finite() && a.min_deg < a.max_deg) {
-                return Err(format!("{at}: need min_deg < max_deg, got {} and {}", a.min_deg, a.max_deg));
+                return Err(format!(
+                    "{at}: need min_deg < max_deg, got {} and {}",
+                    a.min_deg, a.max_deg
+                ));
             }
             for (key, v) in [
                 ("max_speed_deg_s", a.max_speed_deg_s),
@@ -452,14 +479,24 @@ impl Instrument {
             }
         }
         let needed: &[AxisRole] = match self.geometry {
-            GeometryKind::Reference => {
-                &[AxisRole::LightArm, AxisRole::DetectorArm, AxisRole::SampleTilt, AxisRole::SampleRotation]
-            }
-            GeometryKind::InPlane => &[AxisRole::LightArm, AxisRole::DetectorArm, AxisRole::SampleRotation],
+            GeometryKind::Reference => &[
+                AxisRole::LightArm,
+                AxisRole::DetectorArm,
+                AxisRole::SampleTilt,
+                AxisRole::SampleRotation,
+            ],
+            GeometryKind::InPlane => &[
+                AxisRole::LightArm,
+                AxisRole::DetectorArm,
+                AxisRole::SampleRotation,
+            ],
         };
         for role in needed {
             if !roles.contains(role) {
-                return Err(format!("[[instrument.axes]]: the {:?} geometry needs an axis with role {role:?}", self.geometry));
+                return Err(format!(
+                    "[[instrument.axes]]: the {:?} geometry needs an axis with role {role:?}",
+                    self.geometry
+                ));
             }
         }
         if self.geometry == GeometryKind::InPlane && roles.contains(&AxisRole::SampleTilt) {
@@ -467,16 +504,32 @@ impl Instrument {
         }
         let s = &self.source;
         if !(s.power_w.is_finite() && s.power_w > 0.0) {
-            return Err(format!("[instrument.source]: power_w must be > 0, got {}", s.power_w));
+            return Err(format!(
+                "[instrument.source]: power_w must be > 0, got {}",
+                s.power_w
+            ));
         }
         if !(s.beam_radius_mm.is_finite() && s.beam_radius_mm > 0.0) {
-            return Err(format!("[instrument.source]: beam_radius_mm must be > 0, got {}", s.beam_radius_mm));
+            return Err(format!(
+                "[instrument.source]: beam_radius_mm must be > 0, got {}",
+                s.beam_radius_mm
+            ));
         }
         let d = &self.detector;
         match self.device(&d.device).map(|dev| dev.protocol) {
             Some(Protocol::Pm100) => {}
-            Some(_) => return Err(format!("[instrument.detector]: device {:?} is not a power meter", d.device)),
-            None => return Err(format!("[instrument.detector]: device {:?} is not declared", d.device)),
+            Some(_) => {
+                return Err(format!(
+                    "[instrument.detector]: device {:?} is not a power meter",
+                    d.device
+                ));
+            }
+            None => {
+                return Err(format!(
+                    "[instrument.detector]: device {:?} is not declared",
+                    d.device
+                ));
+            }
         }
         for (key, v) in [
             ("aperture_radius_mm", d.aperture_radius_mm),
@@ -550,7 +603,8 @@ mod tests {
 
     #[test]
     fn unknown_key_is_named_with_its_line() {
-        let text = SIMULATED_INSTRUMENT_TOML.replacen("[instrument.source]", "[instrument.source]\nbogus = 1", 1);
+        let text =
+            SIMULATED_INSTRUMENT_TOML.replacen("[instrument.source]", "[instrument.source]\nbogus = 1", 1);
         let err = InstrumentFile::parse(&text, "x.toml").expect_err("unknown key");
         let msg = err.to_string();
         assert!(msg.contains("bogus") && msg.contains("line"), "{msg}");

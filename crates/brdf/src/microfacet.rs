@@ -1,0 +1,457 @@
+//! Microfacet distributions (GGX / Trowbridge-Reitz and Beckmann, anisotropic), Smith masking-shadowing and
+//! importance sampling, as defined in shared/reference/radiometry-and-materials.md ("Models").
+//!
+//! Everything is written in Cartesian components of unit vectors in the sample frame: `alpha_x` is the roughness
+//! along the sample's x axis, `alpha_y` along y. Nothing divides by a cosine before testing it, `sin^2` is
+//! `x^2 + y^2`, and there is no trigonometry of angles, so the pole and the horizon need no special cases.
+//!
+//! # Roughness limits and the delta switch-over
+//! - Every alpha is clamped to `>= ALPHA_MIN` (1e-4) on construction (a NaN becomes `ALPHA_MIN`): below that the
+//!   lobe is narrower than any goniometer can resolve and `D` at the pole (1/(pi alpha^2)) approaches overflow
+//!   territory in products.
+//! - When BOTH alphas are below `ALPHA_DELTA` (1e-3), [`Microfacet::is_delta`] is true and the models that own
+//!   the lobe (conductor, plastic) switch to a delta treatment: their pointwise `eval` leaves the lobe out (it is
+//!   0) and `delta_lobe` reports, for incidence `wi`, the reflectance `F(cos theta_i) * G(wi, mirror(wi), n)`,
+//!   where `G` is this model's masking-shadowing evaluated with the (clamped) alphas at the macro normal
+//!   ([`Microfacet::delta_masking`]). That is the exact limit of the lobe's directional albedo
+//!   `integral f cos(theta_o) d wo` as the lobe narrows (D concentrates at the normal, where the half vector is
+//!   the normal and `wi . h = cos theta_i`), so the power a finite detector aperture collects around the mirror
+//!   direction is continuous across the switch: it changes by O(alpha^2) ~ 1e-6 relative, far below any
+//!   measurement noise (the test `delta_switch_preserves_reflected_power` checks it numerically).
+//!   Only the pointwise values are discontinuous, as they must be: a lobe of width 1e-3 rad has a peak of
+//!   ~3e5 1/sr, a delta has none.
+//! - The switch needs both alphas below the threshold: a lobe that is narrow in one direction only stays a lobe.
+
+use std::f64::consts::PI;
+
+use serde::{Deserialize, Serialize};
+
+use crate::brdf::DirectionSample;
+use crate::geometry::Direction;
+
+/// Smallest roughness used: smaller alphas are clamped to this.
+pub const ALPHA_MIN: f64 = 1e-4;
+/// Below this roughness (in both directions) the lobe is treated as a delta lobe; see the module doc.
+pub const ALPHA_DELTA: f64 = 1e-3;
+
+/// The normal distribution function.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Distribution {
+    /// GGX / Trowbridge-Reitz.
+    Ggx,
+    /// Beckmann (Gaussian slopes).
+    Beckmann,
+}
+
+/// How masking and shadowing are combined.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Masking {
+    /// `G = G1(wi, h) G1(wo, h)`.
+    Separable,
+    /// `G = 1 / (1 + Lambda(wi) + Lambda(wo))`, with the same sidedness test.
+    HeightCorrelated,
+}
+
+impl Distribution {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Distribution::Ggx => "ggx",
+            Distribution::Beckmann => "beckmann",
+        }
+    }
+}
+
+impl Masking {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Masking::Separable => "separable",
+            Masking::HeightCorrelated => "height-correlated",
+        }
+    }
+}
+
+/// A microfacet distribution with its masking function.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Microfacet {
+    distribution: Distribution,
+    masking: Masking,
+    alpha_x: f64,
+    alpha_y: f64,
+}
+
+/// What the pointwise microfacet reflection needs besides the Fresnel factor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LobeValue {
+    /// `D(h) G / (4 cos theta_i cos theta_o)`, in 1/sr.
+    pub value: f64,
+    /// Cosine between the half vector and the directions, for the Fresnel factor: `(wi.h + wo.h) / 2`, written
+    /// symmetrically so that swapping wi and wo gives the same bits.
+    pub cos_d: f64,
+}
+
+impl Microfacet {
+    /// A distribution with roughness `alpha_x`, `alpha_y`; each clamped to `>= ALPHA_MIN` (NaN -> ALPHA_MIN).
+    pub fn new(distribution: Distribution, masking: Masking, alpha_x: f64, alpha_y: f64) -> Microfacet {
+        let clamp = |a: f64| if a >= ALPHA_MIN { a } else { ALPHA_MIN };
+        Microfacet {
+            distribution,
+            masking,
+            alpha_x: clamp(alpha_x),
+            alpha_y: clamp(alpha_y),
+        }
+    }
+
+    pub fn distribution(&self) -> Distribution {
+        self.distribution
+    }
+    pub fn masking(&self) -> Masking {
+        self.masking
+    }
+    /// Roughness along x, after clamping.
+    pub fn alpha_x(&self) -> f64 {
+        self.alpha_x
+    }
+    /// Roughness along y, after clamping.
+    pub fn alpha_y(&self) -> f64 {
+        self.alpha_y
+    }
+
+    pub fn is_isotropic(&self) -> bool {
+        self.alpha_x == self.alpha_y
+    }
+
+    /// True when both alphas are below [`ALPHA_DELTA`]: the owner treats the lobe as a delta (module doc).
+    pub fn is_delta(&self) -> bool {
+        self.alpha_x < ALPHA_DELTA && self.alpha_y < ALPHA_DELTA
+    }
+
+    /// The normal distribution `D(m)` in 1/sr (normalised so that `integral D(m) cos(theta_m) dm = 1`);
+    /// 0 for `m` at or below the horizon.
+    pub fn d(&self, m: &Direction) -> f64 {
+        self.d_xyz(m.x(), m.y(), m.z())
+    }
+
+    /// `D` of the unit vector (mx, my, mz), for callers that hold raw components.
+    fn d_xyz(&self, mx: f64, my: f64, mz: f64) -> f64 {
+        if mz <= 0.0 {
+            return 0.0;
+        }
+        let (ax, ay) = (self.alpha_x, self.alpha_y);
+        let ex = mx / ax;
+        let ey = my / ay;
+        match self.distribution {
+            Distribution::Ggx => {
+                // Cartesian form: no special case at the pole or near the horizon.
+                let t = ex * ex + ey * ey + mz * mz;
+                1.0 / (PI * ax * ay * t * t)
+            }
+            Distribution::Beckmann => {
+                let mz2 = mz * mz;
+                // tan^2(theta) (cos^2 phi / ax^2 + sin^2 phi / ay^2) = (x^2/ax^2 + y^2/ay^2) / z^2.
+                let q = (ex * ex + ey * ey) / mz2;
+                if q >= 745.0 {
+                    // exp(-q) underflows to 0 while mz^4 may also underflow: return the limit, not 0/0.
+                    return 0.0;
+                }
+                (-q).exp() / (PI * ax * ay * mz2 * mz2)
+            }
+        }
+    }
+
+    /// Smith `Lambda(w)`; infinite on the horizon, 0 at the pole.
+    pub fn lambda(&self, w: &Direction) -> f64 {
+        let z = w.z();
+        // alpha(w)^2 tan^2(theta) = (ax^2 x^2 + ay^2 y^2) / z^2.
+        let ax_x = self.alpha_x * w.x();
+        let ay_y = self.alpha_y * w.y();
+        let num = ax_x * ax_x + ay_y * ay_y;
+        if num == 0.0 {
+            return 0.0;
+        }
+        if z == 0.0 {
+            return f64::INFINITY;
+        }
+        match self.distribution {
+            Distribution::Ggx => {
+                let a2t2 = num / (z * z);
+                // (-1 + sqrt(1 + x)) / 2 written without cancellation for small x.
+                if a2t2.is_infinite() {
+                    return f64::INFINITY;
+                }
+                a2t2 / (2.0 * (1.0 + (1.0 + a2t2).sqrt()))
+            }
+            Distribution::Beckmann => {
+                // a = 1 / (alpha(w) tan(theta)) = |z| / sqrt(ax^2 x^2 + ay^2 y^2).
+                let a = z.abs() / num.sqrt();
+                if a == 0.0 {
+                    return f64::INFINITY;
+                }
+                // (erf(a) - 1)/2 + exp(-a^2)/(2 a sqrt(pi)), with erf(a) - 1 = -erfc(a) to keep digits; the
+                // difference of two tiny positive terms can round below 0 for large a: clamp.
+                let l = 0.5 * (-libm::erfc(a) + (-a * a).exp() / (a * PI.sqrt()));
+                l.max(0.0)
+            }
+        }
+    }
+
+    /// Smith `G1(w, m)`: 0 when `w . m` and `cos theta_w` disagree in sign (or either is 0), else
+    /// `1 / (1 + Lambda(w))`.
+    pub fn g1(&self, w: &Direction, m: &Direction) -> f64 {
+        if w.dot(m) * w.z() <= 0.0 {
+            return 0.0;
+        }
+        1.0 / (1.0 + self.lambda(w))
+    }
+
+    /// Masking-shadowing `G(wi, wo, m)` of this model ([`Masking`]), with the sidedness test on both directions.
+    pub fn g(&self, wi: &Direction, wo: &Direction, m: &Direction) -> f64 {
+        self.g_dots(wi, wo, wi.dot(m), wo.dot(m))
+    }
+
+    /// `G` given the cosines `wi . m` and `wo . m` (for the sidedness test).
+    fn g_dots(&self, wi: &Direction, wo: &Direction, wi_m: f64, wo_m: f64) -> f64 {
+        if wi_m * wi.z() <= 0.0 || wo_m * wo.z() <= 0.0 {
+            return 0.0;
+        }
+        let li = self.lambda(wi);
+        let lo = self.lambda(wo);
+        match self.masking {
+            // Products and sums are commutative in IEEE arithmetic: swapping wi and wo gives the same bits.
+            Masking::Separable => (1.0 / (1.0 + li)) * (1.0 / (1.0 + lo)),
+            Masking::HeightCorrelated => 1.0 / (1.0 + (li + lo)),
+        }
+    }
+
+    /// The Fresnel-free part of microfacet reflection, `D(h) G / (4 cos_i cos_o)`, and the cosine for the
+    /// Fresnel factor. `None` when either direction is at or below the horizon (the BRDF is 0 there).
+    pub fn lobe(&self, wi: &Direction, wo: &Direction) -> Option<LobeValue> {
+        let (ci, co) = (wi.z(), wo.z());
+        if ci <= 0.0 || co <= 0.0 {
+            return None;
+        }
+        // The half vector, normalised with a plain square root: its length is in (0, 2] (both directions are
+        // above the horizon, so hz > 0), no overflow care is needed, and this is the hot path of `eval`.
+        // Sums and products of swapped operands give the same bits: h and cos_d are reciprocal exactly.
+        let (sx, sy, sz) = (wi.x() + wo.x(), wi.y() + wo.y(), wi.z() + wo.z());
+        let len = (sx * sx + sy * sy + sz * sz).sqrt();
+        if len.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return None;
+        }
+        let (hx, hy, hz) = (sx / len, sy / len, sz / len);
+        // For unit wi, wo and h = (wi + wo)/|wi + wo|, wi . h = wo . h = |wi + wo| / 2 exactly. Computing the dot
+        // products instead only adds rounding, and for nearly opposite directions on the horizon that rounding
+        // (~1e-8) can exceed the true value and flip the sidedness test, making f jump between 0 and 1e11 under
+        // a rotation about the normal. len / 2 is always positive and exactly reciprocal.
+        let cos_d = (0.5 * len).min(1.0);
+        let d = self.d_xyz(hx, hy, hz);
+        if d == 0.0 {
+            return Some(LobeValue { value: 0.0, cos_d });
+        }
+        let g = self.g_dots(wi, wo, cos_d, cos_d);
+        let value = d * g / (4.0 * (ci * co));
+        Some(LobeValue {
+            value: if value.is_finite() { value } else { 0.0 },
+            cos_d,
+        })
+    }
+
+    /// `G(wi, mirror(wi), n)`: the fraction of the mirror reflection that survives masking and shadowing in the
+    /// delta limit (module doc). 0 at or below the horizon.
+    pub fn delta_masking(&self, wi: &Direction) -> f64 {
+        if wi.z() <= 0.0 {
+            return 0.0;
+        }
+        // Lambda depends on x^2, y^2 and z only: Lambda(mirror(wi)) = Lambda(wi).
+        let l = self.lambda(wi);
+        match self.masking {
+            Masking::Separable => {
+                let g1 = 1.0 / (1.0 + l);
+                g1 * g1
+            }
+            Masking::HeightCorrelated => 1.0 / (1.0 + 2.0 * l),
+        }
+    }
+
+    /// Draws a microfacet normal for light arriving from `wi` (above the horizon), with its density in the
+    /// measure of `m` (1/sr). GGX: the distribution of visible normals `G1(wi, m) max(0, wi.m) D(m) / cos_i`
+    /// (Heitz 2018); Beckmann: `D(m) cos(theta_m)` (Gaussian slopes). `None` for `wi` at or below the horizon.
+    pub fn sample_normal(&self, wi: &Direction, u: [f64; 2]) -> Option<(Direction, f64)> {
+        if wi.z() <= 0.0 {
+            return None;
+        }
+        let (ax, ay) = (self.alpha_x, self.alpha_y);
+        let u0 = u[0].clamp(0.0, 1.0 - f64::EPSILON);
+        let u1 = u[1].clamp(0.0, 1.0);
+        let m = match self.distribution {
+            Distribution::Ggx => {
+                // Stretch to the hemisphere configuration (alpha = 1).
+                let vh = Direction::new(ax * wi.x(), ay * wi.y(), wi.z())?;
+                let lensq = vh.x() * vh.x() + vh.y() * vh.y();
+                let t1 = if lensq > 0.0 {
+                    let inv = 1.0 / lensq.sqrt();
+                    [-vh.y() * inv, vh.x() * inv, 0.0]
+                } else {
+                    [1.0, 0.0, 0.0]
+                };
+                let v = [vh.x(), vh.y(), vh.z()];
+                let t2 = cross(v, t1);
+                // A point on the disk, warped towards the visible half.
+                let r = u0.sqrt();
+                let phi = 2.0 * PI * u1;
+                let p1 = r * phi.cos();
+                let mut p2 = r * phi.sin();
+                let s = 0.5 * (1.0 + vh.z());
+                p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * p2;
+                let pn = (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt();
+                let nh = [
+                    p1 * t1[0] + p2 * t2[0] + pn * v[0],
+                    p1 * t1[1] + p2 * t2[1] + pn * v[1],
+                    p1 * t1[2] + p2 * t2[2] + pn * v[2],
+                ];
+                // Unstretch.
+                Direction::new(ax * nh[0], ay * nh[1], nh[2].max(0.0))?
+            }
+            Distribution::Beckmann => {
+                // Slopes are Gaussian with density exp(-(sx^2/ax^2 + sy^2/ay^2)) / (pi ax ay).
+                let r = (-(1.0 - u0).ln()).max(0.0).sqrt();
+                let phi = 2.0 * PI * u1;
+                let sx = ax * r * phi.cos();
+                let sy = ay * r * phi.sin();
+                Direction::new(-sx, -sy, 1.0)?
+            }
+        };
+        let pdf = self.pdf_normal(wi, &m);
+        Some((m, pdf))
+    }
+
+    /// Density of [`Microfacet::sample_normal`] at `m`, in 1/sr.
+    pub fn pdf_normal(&self, wi: &Direction, m: &Direction) -> f64 {
+        match self.distribution {
+            Distribution::Ggx => {
+                if wi.z() <= 0.0 {
+                    return 0.0;
+                }
+                let wm = wi.dot(m);
+                if wm <= 0.0 {
+                    return 0.0;
+                }
+                self.g1(wi, m) * wm * self.d(m) / wi.z()
+            }
+            Distribution::Beckmann => self.d(m) * m.z().max(0.0),
+        }
+    }
+
+    /// Draws an outgoing direction by reflecting `wi` about a sampled normal. The density is in the measure of
+    /// `wo` (1/sr): `pdf_m / (4 |wi . m|)`. The direction may fall at or below the horizon, where the BRDF is 0:
+    /// such samples contribute nothing and keep estimators of `integral f cos d wo` unbiased.
+    pub fn sample_reflection(&self, wi: &Direction, u: [f64; 2]) -> Option<DirectionSample> {
+        let (m, pdf_m) = self.sample_normal(wi, u)?;
+        let wm = wi.dot(&m);
+        let wo = wi.reflect_about(&m);
+        let pdf = pdf_m / (4.0 * wm.abs().max(f64::MIN_POSITIVE));
+        Some(DirectionSample {
+            wo,
+            pdf_per_sr: if pdf.is_finite() && pdf > 0.0 {
+                pdf
+            } else {
+                f64::MAX
+            },
+        })
+    }
+
+    /// Density of [`Microfacet::sample_reflection`] at `wo` above the horizon, in 1/sr.
+    pub fn pdf_reflection(&self, wi: &Direction, wo: &Direction) -> f64 {
+        if wi.z() <= 0.0 || wo.z() <= 0.0 {
+            return 0.0;
+        }
+        let Some(h) = Direction::new(wi.x() + wo.x(), wi.y() + wo.y(), wi.z() + wo.z()) else {
+            return 0.0;
+        };
+        let wh = wo.dot(&h);
+        if wh <= 0.0 {
+            return 0.0;
+        }
+        self.pdf_normal(wi, &h) / (4.0 * wh)
+    }
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mf(d: Distribution, ax: f64, ay: f64) -> Microfacet {
+        Microfacet::new(d, Masking::Separable, ax, ay)
+    }
+
+    #[test]
+    fn beckmann_cartesian_form_matches_the_angular_formula() {
+        let m = mf(Distribution::Beckmann, 0.3, 0.15);
+        for &(theta, phi) in &[(0.2, 0.3), (0.7, -1.2), (1.2, 2.5)] {
+            let w = Direction::from_spherical(theta, phi);
+            let t2 = f64::tan(theta).powi(2);
+            let e = t2 * (phi.cos().powi(2) / 0.09 + phi.sin().powi(2) / 0.0225);
+            let expect = (-e).exp() / (PI * 0.3 * 0.15 * theta.cos().powi(4));
+            assert!(
+                (m.d(&w) - expect).abs() <= 1e-12 * expect,
+                "{} vs {expect}",
+                m.d(&w)
+            );
+        }
+    }
+
+    #[test]
+    fn lambda_matches_the_reference_formulas() {
+        for &(theta, phi) in &[(0.2f64, 0.3f64), (0.9, -1.2), (1.5, 2.5)] {
+            let w = Direction::from_spherical(theta, phi);
+            let alpha2 = 0.4f64.powi(2) * phi.cos().powi(2) + 0.1f64.powi(2) * phi.sin().powi(2);
+            let ggx = mf(Distribution::Ggx, 0.4, 0.1).lambda(&w);
+            let expect_ggx = (-1.0 + (1.0 + alpha2 * theta.tan().powi(2)).sqrt()) / 2.0;
+            assert!(
+                (ggx - expect_ggx).abs() <= 1e-13 * expect_ggx.max(1e-3),
+                "{ggx} vs {expect_ggx}"
+            );
+            let a = 1.0 / (alpha2.sqrt() * theta.tan());
+            let expect_b = (libm::erf(a) - 1.0) / 2.0 + (-a * a).exp() / (2.0 * a * PI.sqrt());
+            let b = mf(Distribution::Beckmann, 0.4, 0.1).lambda(&w);
+            assert!((b - expect_b).abs() <= 1e-13, "{b} vs {expect_b}");
+        }
+    }
+
+    #[test]
+    fn lambda_limits_at_pole_and_horizon() {
+        for d in [Distribution::Ggx, Distribution::Beckmann] {
+            let m = mf(d, 0.2, 0.2);
+            assert_eq!(m.lambda(&Direction::NORMAL), 0.0);
+            assert_eq!(
+                m.lambda(&Direction::from_spherical_deg(90.0, 10.0)),
+                f64::INFINITY
+            );
+            assert_eq!(
+                m.g1(&Direction::from_spherical_deg(90.0, 10.0), &Direction::NORMAL),
+                0.0
+            );
+            let near = Direction::from_spherical(std::f64::consts::FRAC_PI_2 - 1e-9, 0.3);
+            let l = m.lambda(&near);
+            assert!(l.is_finite() && l > 0.0);
+        }
+    }
+
+    #[test]
+    fn alpha_is_clamped_and_delta_switch_needs_both() {
+        let m = mf(Distribution::Ggx, 0.0, f64::NAN);
+        assert_eq!((m.alpha_x(), m.alpha_y()), (ALPHA_MIN, ALPHA_MIN));
+        assert!(m.is_delta());
+        assert!(!mf(Distribution::Ggx, 5e-4, 2e-3).is_delta());
+        assert!(!mf(Distribution::Ggx, 1e-3, 1e-3).is_delta());
+    }
+}

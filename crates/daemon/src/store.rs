@@ -1,0 +1,837 @@
+//! The durable store: one SQLite file (bundled build) holding campaigns, their resolved configuration, device
+//! identities, calibration readings and every measured point.
+//!
+//! Durability: WAL journal with `synchronous = FULL`, and one transaction per point, so that after a crash or a
+//! power cut (`kill -9` at any moment) a point is either entirely in the store or not at all. The primary key
+//! (campaign, index) makes it impossible to store a point twice; resuming means continuing from
+//! [`Store::next_index`], the first index not committed.
+//!
+//! Values are stored as SQLite REALs, which are IEEE-754 doubles: what is read back is bit-identical to what was
+//! written.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::time::Duration;
+
+use rusqlite::{Connection, OptionalExtension, params};
+use serde::{Deserialize, Serialize};
+
+/// File name of the store inside the data directory.
+pub const STORE_FILE: &str = "gonio.sqlite";
+
+/// Bumped when the schema changes; a store with another version is refused rather than misread.
+const SCHEMA_VERSION: i64 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("cannot open the store {path}: {source}")]
+    Open { path: PathBuf, source: rusqlite::Error },
+    #[error("cannot create the data directory {path}: {source}")]
+    CreateDir { path: PathBuf, source: std::io::Error },
+    #[error("the store {path} has schema version {found}, this gonio understands version {expected}")]
+    SchemaVersion {
+        path: PathBuf,
+        found: i64,
+        expected: i64,
+    },
+    /// Writing failed: disk full, read-only directory, I/O error. Nothing partial was committed.
+    #[error("cannot write to the store {path}: {source}")]
+    Write { path: PathBuf, source: rusqlite::Error },
+    #[error("cannot read from the store {path}: {source}")]
+    Read { path: PathBuf, source: rusqlite::Error },
+    #[error("campaign {0} is not in the store")]
+    NoSuchCampaign(CampaignId),
+    #[error("point {index} of campaign {campaign} is already committed")]
+    DuplicatePoint { campaign: CampaignId, index: u64 },
+    #[error("the store holds a value it cannot interpret: {0}")]
+    Corrupt(String),
+}
+
+impl StoreError {
+    /// True for errors a person can fix without losing data (disk full, read-only directory): the campaign
+    /// should pause, not fail.
+    pub fn is_write_failure(&self) -> bool {
+        matches!(self, StoreError::Write { .. })
+    }
+}
+
+/// Campaign identifier: a positive integer assigned by the store.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct CampaignId(pub i64);
+
+impl fmt::Display for CampaignId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// Lifecycle of a campaign.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CampaignState {
+    Queued,
+    Running,
+    Pausing,
+    Paused,
+    WaitingOperator,
+    Completed,
+    Aborted,
+    Failed,
+}
+
+impl CampaignState {
+    pub const ALL: [CampaignState; 8] = [
+        CampaignState::Queued,
+        CampaignState::Running,
+        CampaignState::Pausing,
+        CampaignState::Paused,
+        CampaignState::WaitingOperator,
+        CampaignState::Completed,
+        CampaignState::Aborted,
+        CampaignState::Failed,
+    ];
+
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            CampaignState::Queued => "queued",
+            CampaignState::Running => "running",
+            CampaignState::Pausing => "pausing",
+            CampaignState::Paused => "paused",
+            CampaignState::WaitingOperator => "waiting-operator",
+            CampaignState::Completed => "completed",
+            CampaignState::Aborted => "aborted",
+            CampaignState::Failed => "failed",
+        }
+    }
+
+    /// A finished campaign never runs again.
+    pub fn is_final(&self) -> bool {
+        matches!(
+            self,
+            CampaignState::Completed | CampaignState::Aborted | CampaignState::Failed
+        )
+    }
+
+    /// States that mean "was in the middle of running" when found after a restart.
+    pub fn was_interrupted(&self) -> bool {
+        matches!(
+            self,
+            CampaignState::Running | CampaignState::Pausing | CampaignState::WaitingOperator
+        )
+    }
+}
+
+impl fmt::Display for CampaignState {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for CampaignState {
+    type Err = StoreError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        CampaignState::ALL
+            .iter()
+            .copied()
+            .find(|st| st.as_str() == s)
+            .ok_or_else(|| StoreError::Corrupt(format!("unknown campaign state {s:?}")))
+    }
+}
+
+/// What is stored when a campaign is submitted: enough to reproduce the run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NewCampaign {
+    pub name: String,
+    /// The campaign file as submitted (TOML text).
+    pub campaign_toml: String,
+    /// The instrument file in force (TOML text).
+    pub instrument_toml: String,
+    /// Number of planned points.
+    pub total_points: u64,
+    /// True when the instrument is the simulator.
+    pub dry_run: bool,
+    pub software_version: String,
+}
+
+/// A campaign as stored.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CampaignRecord {
+    pub id: CampaignId,
+    pub name: String,
+    pub state: CampaignState,
+    pub campaign_toml: String,
+    pub instrument_toml: String,
+    pub total_points: u64,
+    pub points_done: u64,
+    pub dry_run: bool,
+    pub software_version: String,
+    pub created_unix_s: f64,
+    pub last_error: Option<String>,
+    /// Message shown while waiting for the operator.
+    pub operator_message: Option<String>,
+}
+
+/// One measured (or failed) point with everything needed to recompute it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PointRecord {
+    pub index: u64,
+    pub band_nm: f64,
+    pub theta_i_deg: f64,
+    pub phi_i_deg: f64,
+    pub theta_o_deg: f64,
+    pub phi_o_deg: f64,
+    /// Raw detector reading (W).
+    pub signal_w: f64,
+    /// Dark reading subtracted from it (W).
+    pub dark_w: f64,
+    /// Incident power from the direct-beam calibration, interpolated in time (W); or the reference signal
+    /// for the relative method.
+    pub incident_w: f64,
+    /// The BRDF (1/sr); `None` for a failed or flagged point that has no valid value.
+    pub brdf_sr: Option<f64>,
+    /// Standard uncertainty of the BRDF (1/sr).
+    pub brdf_u_sr: Option<f64>,
+    /// Empty for a valid point, else reasons (saturated, overfilled, failed: ...).
+    pub flags: Vec<String>,
+    /// Seconds since the campaign started (instrument time).
+    pub t_s: f64,
+    /// Read-back positions per axis, in the instrument file's axis order (name, physical degrees).
+    pub readback_deg: Vec<(String, f64)>,
+    /// Dry-runs only: the simulator's ground truth at the nominal geometry and averaged over the aperture.
+    pub truth_point_sr: Option<f64>,
+    pub truth_aperture_sr: Option<f64>,
+}
+
+/// A calibration reading (direct beam, reference sample, dark) taken during a campaign.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationRecord {
+    /// "direct-beam", "reference" or "dark".
+    pub kind: String,
+    pub band_nm: Option<f64>,
+    pub t_s: f64,
+    pub value_w: f64,
+    pub u_w: f64,
+}
+
+/// The store. One connection; callers serialise access (the daemon owns it on one task).
+#[derive(Debug)]
+pub struct Store {
+    conn: Connection,
+    path: PathBuf,
+}
+
+impl Store {
+    /// Open (creating if needed) the store in a data directory.
+    pub fn open(dir: &Path) -> Result<Store, StoreError> {
+        std::fs::create_dir_all(dir).map_err(|source| StoreError::CreateDir {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let path = dir.join(STORE_FILE);
+        let conn = Connection::open(&path).map_err(|source| StoreError::Open {
+            path: path.clone(),
+            source,
+        })?;
+        let mut store = Store { conn, path };
+        store.configure()?;
+        store.migrate()?;
+        Ok(store)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn configure(&mut self) -> Result<(), StoreError> {
+        let open_err = |source| StoreError::Open {
+            path: self.path.clone(),
+            source,
+        };
+        // A busy timeout rather than immediate failure when a reader (e.g. an export) holds a lock.
+        self.conn.busy_timeout(Duration::from_secs(5)).map_err(open_err)?;
+        self.conn
+            .execute_batch("PRAGMA journal_mode = WAL; PRAGMA synchronous = FULL; PRAGMA foreign_keys = ON;")
+            .map_err(|source| StoreError::Open {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    fn migrate(&mut self) -> Result<(), StoreError> {
+        let version: i64 = self
+            .conn
+            .query_row("PRAGMA user_version", [], |r| r.get(0))
+            .map_err(|source| StoreError::Read {
+                path: self.path.clone(),
+                source,
+            })?;
+        if version == SCHEMA_VERSION {
+            return Ok(());
+        }
+        if version != 0 {
+            return Err(StoreError::SchemaVersion {
+                path: self.path.clone(),
+                found: version,
+                expected: SCHEMA_VERSION,
+            });
+        }
+        let schema = format!(
+            "BEGIN;
+            CREATE TABLE campaigns (
+                id INTEGER PRIMARY KEY AUTOINCREMENT,
+                name TEXT NOT NULL,
+                state TEXT NOT NULL,
+                campaign_toml TEXT NOT NULL,
+                instrument_toml TEXT NOT NULL,
+                total_points INTEGER NOT NULL,
+                dry_run INTEGER NOT NULL,
+                software_version TEXT NOT NULL,
+                created_unix_s REAL NOT NULL,
+                last_error TEXT,
+                operator_message TEXT
+            );
+            CREATE TABLE devices (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                name TEXT NOT NULL,
+                identity TEXT NOT NULL,
+                PRIMARY KEY (campaign_id, name)
+            );
+            CREATE TABLE calibrations (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                seq INTEGER NOT NULL,
+                kind TEXT NOT NULL,
+                band_nm REAL,
+                t_s REAL NOT NULL,
+                value_w REAL NOT NULL,
+                u_w REAL NOT NULL,
+                PRIMARY KEY (campaign_id, seq)
+            );
+            CREATE TABLE points (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                idx INTEGER NOT NULL,
+                band_nm REAL NOT NULL,
+                theta_i_deg REAL NOT NULL,
+                phi_i_deg REAL NOT NULL,
+                theta_o_deg REAL NOT NULL,
+                phi_o_deg REAL NOT NULL,
+                signal_w REAL NOT NULL,
+                dark_w REAL NOT NULL,
+                incident_w REAL NOT NULL,
+                brdf_sr REAL,
+                brdf_u_sr REAL,
+                flags TEXT NOT NULL,
+                t_s REAL NOT NULL,
+                readback_json TEXT NOT NULL,
+                truth_point_sr REAL,
+                truth_aperture_sr REAL,
+                PRIMARY KEY (campaign_id, idx)
+            );
+            PRAGMA user_version = {SCHEMA_VERSION};
+            COMMIT;"
+        );
+        self.conn
+            .execute_batch(&schema)
+            .map_err(|source| StoreError::Write {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    fn write_err(&self) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
+        |source| StoreError::Write {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    fn read_err(&self) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
+        |source| StoreError::Read {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    /// Store a new campaign in the `queued` state.
+    pub fn create_campaign(&mut self, new: &NewCampaign) -> Result<CampaignId, StoreError> {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs_f64())
+            .unwrap_or(0.0);
+        self.conn
+            .execute(
+                "INSERT INTO campaigns (name, state, campaign_toml, instrument_toml, total_points, dry_run,
+                 software_version, created_unix_s) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![
+                    new.name,
+                    CampaignState::Queued.as_str(),
+                    new.campaign_toml,
+                    new.instrument_toml,
+                    to_i64(new.total_points),
+                    new.dry_run,
+                    new.software_version,
+                    now
+                ],
+            )
+            .map_err(self.write_err())?;
+        Ok(CampaignId(self.conn.last_insert_rowid()))
+    }
+
+    pub fn campaign(&self, id: CampaignId) -> Result<CampaignRecord, StoreError> {
+        self.conn
+            .query_row(
+                &format!("{CAMPAIGN_SELECT} WHERE c.id = ?1"),
+                [id.0],
+                campaign_from_row,
+            )
+            .optional()
+            .map_err(self.read_err())?
+            .ok_or(StoreError::NoSuchCampaign(id))?
+    }
+
+    /// All campaigns, oldest first.
+    pub fn campaigns(&self) -> Result<Vec<CampaignRecord>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare(&format!("{CAMPAIGN_SELECT} ORDER BY c.id"))
+            .map_err(self.read_err())?;
+        let rows = stmt.query_map([], campaign_from_row).map_err(self.read_err())?;
+        let mut out = Vec::new();
+        for row in rows {
+            out.push(row.map_err(self.read_err())??);
+        }
+        Ok(out)
+    }
+
+    pub fn set_state(
+        &mut self,
+        id: CampaignId,
+        state: CampaignState,
+        last_error: Option<&str>,
+    ) -> Result<(), StoreError> {
+        let n = self
+            .conn
+            .execute(
+                "UPDATE campaigns SET state = ?2, last_error = COALESCE(?3, last_error) WHERE id = ?1",
+                params![id.0, state.as_str(), last_error],
+            )
+            .map_err(self.write_err())?;
+        if n == 0 {
+            Err(StoreError::NoSuchCampaign(id))
+        } else {
+            Ok(())
+        }
+    }
+
+    pub fn set_operator_message(&mut self, id: CampaignId, message: Option<&str>) -> Result<(), StoreError> {
+        self.conn
+            .execute(
+                "UPDATE campaigns SET operator_message = ?2 WHERE id = ?1",
+                params![id.0, message],
+            )
+            .map_err(self.write_err())?;
+        Ok(())
+    }
+
+    /// Record the identity string a device reported (e.g. `*IDN?`), replacing an earlier one.
+    pub fn record_device(&mut self, id: CampaignId, name: &str, identity: &str) -> Result<(), StoreError> {
+        self.conn
+            .execute(
+                "INSERT OR REPLACE INTO devices (campaign_id, name, identity) VALUES (?1, ?2, ?3)",
+                params![id.0, name, identity],
+            )
+            .map_err(self.write_err())?;
+        Ok(())
+    }
+
+    pub fn devices(&self, id: CampaignId) -> Result<Vec<(String, String)>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare("SELECT name, identity FROM devices WHERE campaign_id = ?1 ORDER BY name")
+            .map_err(self.read_err())?;
+        let rows = stmt
+            .query_map([id.0], |r| Ok((r.get(0)?, r.get(1)?)))
+            .map_err(self.read_err())?;
+        rows.collect::<Result<_, _>>().map_err(self.read_err())
+    }
+
+    pub fn record_calibration(&mut self, id: CampaignId, cal: &CalibrationRecord) -> Result<(), StoreError> {
+        self.conn
+            .execute(
+                "INSERT INTO calibrations (campaign_id, seq, kind, band_nm, t_s, value_w, u_w)
+                 VALUES (?1, (SELECT COALESCE(MAX(seq), 0) + 1 FROM calibrations WHERE campaign_id = ?1),
+                         ?2, ?3, ?4, ?5, ?6)",
+                params![id.0, cal.kind, cal.band_nm, cal.t_s, cal.value_w, cal.u_w],
+            )
+            .map_err(self.write_err())?;
+        Ok(())
+    }
+
+    pub fn calibrations(&self, id: CampaignId) -> Result<Vec<CalibrationRecord>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT kind, band_nm, t_s, value_w, u_w FROM calibrations WHERE campaign_id = ?1 ORDER BY seq",
+            )
+            .map_err(self.read_err())?;
+        let rows = stmt
+            .query_map([id.0], |r| {
+                Ok(CalibrationRecord {
+                    kind: r.get(0)?,
+                    band_nm: r.get(1)?,
+                    t_s: r.get(2)?,
+                    value_w: r.get(3)?,
+                    u_w: r.get(4)?,
+                })
+            })
+            .map_err(self.read_err())?;
+        rows.collect::<Result<_, _>>().map_err(self.read_err())
+    }
+
+    /// Commit one point durably, in its own transaction. A point already committed is refused, never
+    /// overwritten.
+    pub fn commit_point(&mut self, id: CampaignId, p: &PointRecord) -> Result<(), StoreError> {
+        let readback = serde_json::to_string(&p.readback_deg)
+            .map_err(|e| StoreError::Corrupt(format!("cannot encode read-back positions: {e}")))?;
+        let flags = p.flags.join(";");
+        let result = self.conn.execute(
+            "INSERT INTO points (campaign_id, idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg,
+             signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json, truth_point_sr,
+             truth_aperture_sr) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17)",
+            params![
+                id.0,
+                to_i64(p.index),
+                p.band_nm,
+                p.theta_i_deg,
+                p.phi_i_deg,
+                p.theta_o_deg,
+                p.phi_o_deg,
+                p.signal_w,
+                p.dark_w,
+                p.incident_w,
+                p.brdf_sr,
+                p.brdf_u_sr,
+                flags,
+                p.t_s,
+                readback,
+                p.truth_point_sr,
+                p.truth_aperture_sr
+            ],
+        );
+        match result {
+            Ok(_) => Ok(()),
+            Err(rusqlite::Error::SqliteFailure(e, _))
+                if e.code == rusqlite::ErrorCode::ConstraintViolation =>
+            {
+                Err(StoreError::DuplicatePoint {
+                    campaign: id,
+                    index: p.index,
+                })
+            }
+            Err(source) => Err(StoreError::Write {
+                path: self.path.clone(),
+                source,
+            }),
+        }
+    }
+
+    /// The first point index not yet committed: where a resumed campaign continues.
+    pub fn next_index(&self, id: CampaignId) -> Result<u64, StoreError> {
+        // Points are committed in index order, so the count of rows is the next index; check that the rows
+        // really are 0..count so that a hole (which would mean a bug) is reported rather than skipped.
+        let (count, max): (i64, Option<i64>) = self
+            .conn
+            .query_row(
+                "SELECT COUNT(*), MAX(idx) FROM points WHERE campaign_id = ?1",
+                [id.0],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .map_err(self.read_err())?;
+        match max {
+            None => Ok(0),
+            Some(m) if m + 1 == count => Ok(from_i64(count)),
+            Some(m) => Err(StoreError::Corrupt(format!(
+                "campaign {id} has {count} points but the highest index is {m}: points are missing"
+            ))),
+        }
+    }
+
+    /// All committed points of a campaign in index order.
+    pub fn points(&self, id: CampaignId) -> Result<Vec<PointRecord>, StoreError> {
+        self.points_from(id, 0)
+    }
+
+    /// Committed points with index >= `from`, in index order.
+    pub fn points_from(&self, id: CampaignId, from: u64) -> Result<Vec<PointRecord>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg, signal_w, dark_w,
+                 incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json, truth_point_sr, truth_aperture_sr
+                 FROM points WHERE campaign_id = ?1 AND idx >= ?2 ORDER BY idx",
+            )
+            .map_err(self.read_err())?;
+        let rows = stmt
+            .query_map(params![id.0, to_i64(from)], point_from_row)
+            .map_err(self.read_err())?;
+        let mut out = Vec::new();
+        for row in rows {
+            out.push(row.map_err(self.read_err())??);
+        }
+        Ok(out)
+    }
+
+    /// Campaigns that were running when the daemon last stopped, oldest first.
+    pub fn interrupted_campaigns(&self) -> Result<Vec<CampaignId>, StoreError> {
+        Ok(self
+            .campaigns()?
+            .into_iter()
+            .filter(|c| c.state.was_interrupted())
+            .map(|c| c.id)
+            .collect())
+    }
+}
+
+const CAMPAIGN_SELECT: &str = "SELECT c.id, c.name, c.state, c.campaign_toml, c.instrument_toml, c.total_points,
+    (SELECT COUNT(*) FROM points p WHERE p.campaign_id = c.id), c.dry_run, c.software_version, c.created_unix_s,
+    c.last_error, c.operator_message FROM campaigns c";
+
+fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignRecord, StoreError>> {
+    let state: String = r.get(2)?;
+    let total: i64 = r.get(5)?;
+    let done: i64 = r.get(6)?;
+    let record = |state| CampaignRecord {
+        id: CampaignId(0),
+        name: String::new(),
+        state,
+        campaign_toml: String::new(),
+        instrument_toml: String::new(),
+        total_points: from_i64(total),
+        points_done: from_i64(done),
+        dry_run: false,
+        software_version: String::new(),
+        created_unix_s: 0.0,
+        last_error: None,
+        operator_message: None,
+    };
+    let state = match state.parse::<CampaignState>() {
+        Ok(s) => s,
+        Err(e) => return Ok(Err(e)),
+    };
+    Ok(Ok(CampaignRecord {
+        id: CampaignId(r.get(0)?),
+        name: r.get(1)?,
+        campaign_toml: r.get(3)?,
+        instrument_toml: r.get(4)?,
+        dry_run: r.get(7)?,
+        software_version: r.get(8)?,
+        created_unix_s: r.get(9)?,
+        last_error: r.get(10)?,
+        operator_message: r.get(11)?,
+        ..record(state)
+    }))
+}
+
+fn point_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<PointRecord, StoreError>> {
+    let flags: String = r.get(11)?;
+    let readback: String = r.get(13)?;
+    let readback_deg = match serde_json::from_str(&readback) {
+        Ok(v) => v,
+        Err(e) => {
+            return Ok(Err(StoreError::Corrupt(format!(
+                "read-back positions {readback:?}: {e}"
+            ))));
+        }
+    };
+    Ok(Ok(PointRecord {
+        index: from_i64(r.get(0)?),
+        band_nm: r.get(1)?,
+        theta_i_deg: r.get(2)?,
+        phi_i_deg: r.get(3)?,
+        theta_o_deg: r.get(4)?,
+        phi_o_deg: r.get(5)?,
+        signal_w: r.get(6)?,
+        dark_w: r.get(7)?,
+        incident_w: r.get(8)?,
+        brdf_sr: r.get(9)?,
+        brdf_u_sr: r.get(10)?,
+        flags: if flags.is_empty() {
+            Vec::new()
+        } else {
+            flags.split(';').map(str::to_string).collect()
+        },
+        t_s: r.get(12)?,
+        readback_deg,
+        truth_point_sr: r.get(14)?,
+        truth_aperture_sr: r.get(15)?,
+    }))
+}
+
+/// Counts in the store are SQLite INTEGERs (i64); ours are u64 and far below 2^63.
+fn to_i64(v: u64) -> i64 {
+    i64::try_from(v).unwrap_or(i64::MAX)
+}
+
+fn from_i64(v: i64) -> u64 {
+    u64::try_from(v).unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn new_campaign(total: u64) -> NewCampaign {
+        NewCampaign {
+            name: "gold test".into(),
+            campaign_toml: "[campaign]\nid = \"x\"\n".into(),
+            instrument_toml: "[instrument]\n".into(),
+            total_points: total,
+            dry_run: true,
+            software_version: "0.1.0".into(),
+        }
+    }
+
+    fn point(index: u64) -> PointRecord {
+        PointRecord {
+            index,
+            band_nm: 550.0,
+            theta_i_deg: 30.0,
+            phi_i_deg: 0.0,
+            theta_o_deg: 30.0 + index as f64 * 0.1,
+            phi_o_deg: 180.0,
+            signal_w: 1.234_567_890_123e-7 * (index as f64 + 1.0),
+            dark_w: 1e-11,
+            incident_w: 1e-3,
+            brdf_sr: Some(0.1 / 3.0),
+            brdf_u_sr: Some(1e-5),
+            flags: if index % 2 == 0 {
+                vec![]
+            } else {
+                vec!["saturated".into(), "overfilled".into()]
+            },
+            t_s: index as f64 * 0.5,
+            readback_deg: vec![("light".into(), 30.000_123), ("detector".into(), -0.1 / 3.0)],
+            truth_point_sr: Some(std::f64::consts::FRAC_1_PI),
+            truth_aperture_sr: None,
+        }
+    }
+
+    #[test]
+    fn points_round_trip_bit_exactly_and_resume_index_follows() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut store = Store::open(dir.path()).expect("open");
+        let id = store.create_campaign(&new_campaign(5)).expect("create");
+        assert_eq!(store.next_index(id).expect("next"), 0);
+        for i in 0..3 {
+            store.commit_point(id, &point(i)).expect("commit");
+        }
+        assert_eq!(store.next_index(id).expect("next"), 3);
+        drop(store);
+
+        let store = Store::open(dir.path()).expect("reopen");
+        let points = store.points(id).expect("points");
+        assert_eq!(points, (0..3).map(point).collect::<Vec<_>>());
+        let c = store.campaign(id).expect("campaign");
+        assert_eq!(
+            (c.points_done, c.total_points, c.state),
+            (3, 5, CampaignState::Queued)
+        );
+    }
+
+    #[test]
+    fn a_point_is_never_stored_twice() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut store = Store::open(dir.path()).expect("open");
+        let id = store.create_campaign(&new_campaign(2)).expect("create");
+        store.commit_point(id, &point(0)).expect("commit");
+        let mut changed = point(0);
+        changed.signal_w = 99.0;
+        let err = store.commit_point(id, &changed).expect_err("duplicate");
+        assert!(
+            matches!(err, StoreError::DuplicatePoint { index: 0, .. }),
+            "{err}"
+        );
+        assert_eq!(store.points(id).expect("points")[0], point(0));
+    }
+
+    #[test]
+    fn interrupted_campaigns_are_found_after_reopen() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut store = Store::open(dir.path()).expect("open");
+        let a = store.create_campaign(&new_campaign(1)).expect("a");
+        let b = store.create_campaign(&new_campaign(1)).expect("b");
+        let c = store.create_campaign(&new_campaign(1)).expect("c");
+        store.set_state(a, CampaignState::Running, None).expect("state");
+        store.set_state(b, CampaignState::Completed, None).expect("state");
+        store
+            .set_state(c, CampaignState::WaitingOperator, Some("swap in the reference"))
+            .expect("state");
+        drop(store);
+        let store = Store::open(dir.path()).expect("reopen");
+        assert_eq!(store.interrupted_campaigns().expect("list"), vec![a, c]);
+        assert_eq!(
+            store.campaign(c).expect("c").last_error.as_deref(),
+            Some("swap in the reference")
+        );
+    }
+
+    #[test]
+    fn calibrations_and_devices_are_kept_in_order() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut store = Store::open(dir.path()).expect("open");
+        let id = store.create_campaign(&new_campaign(1)).expect("create");
+        let cal = |t_s, value_w| CalibrationRecord {
+            kind: "direct-beam".into(),
+            band_nm: Some(550.0),
+            t_s,
+            value_w,
+            u_w: 1e-7,
+        };
+        store.record_calibration(id, &cal(0.0, 1e-3)).expect("cal");
+        store.record_calibration(id, &cal(60.0, 1.001e-3)).expect("cal");
+        assert_eq!(
+            store.calibrations(id).expect("cals"),
+            vec![cal(0.0, 1e-3), cal(60.0, 1.001e-3)]
+        );
+        store
+            .record_device(id, "meter", "Thorlabs,PM100USB,P200,1.0")
+            .expect("dev");
+        store
+            .record_device(id, "meter", "Thorlabs,PM100USB,P201,1.0")
+            .expect("dev");
+        assert_eq!(
+            store.devices(id).expect("devs"),
+            vec![("meter".into(), "Thorlabs,PM100USB,P201,1.0".into())]
+        );
+    }
+
+    #[test]
+    fn unknown_campaign_is_a_typed_error() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::open(dir.path()).expect("open");
+        assert!(matches!(
+            store.campaign(CampaignId(42)),
+            Err(StoreError::NoSuchCampaign(CampaignId(42)))
+        ));
+    }
+
+    #[test]
+    fn a_read_only_store_reports_a_write_failure_and_keeps_committed_points() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut store = Store::open(dir.path()).expect("open");
+        let id = store.create_campaign(&new_campaign(3)).expect("create");
+        store.commit_point(id, &point(0)).expect("commit");
+        // Open a second, read-only connection to the same file: writes through it must fail cleanly.
+        let ro = Connection::open_with_flags(store.path(), rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
+            .expect("read-only open");
+        let mut ro_store = Store {
+            conn: ro,
+            path: store.path().to_path_buf(),
+        };
+        let err = ro_store.commit_point(id, &point(1)).expect_err("read-only");
+        assert!(err.is_write_failure(), "{err}");
+        assert_eq!(store.points(id).expect("points"), vec![point(0)]);
+        assert_eq!(store.next_index(id).expect("next"), 1);
+    }
+}

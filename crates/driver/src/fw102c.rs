@@ -1,0 +1,278 @@
+//! Thorlabs FW102C / FW212C filter wheel, written from the FW102C manual (chapter "Software Control").
+//!
+//! Commands end in `\r`. The wheel echoes each command, prints the answer to a query, and then a `> ` prompt;
+//! lines end in `\r`. A position command returns its prompt when the wheel has turned, so the host waits for the
+//! prompt with a deadline that follows from the distance. A bad keyword or argument answers an error string
+//! (the manual does not fix its text; known firmware says `Command error ...`), reported verbatim.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+use crate::error::DriverError;
+use crate::traits::FilterWheel;
+use crate::transport::{BoxFuture, LinePort, TransportError};
+
+const REPLY_TIMEOUT: Duration = Duration::from_millis(500);
+const ATTEMPTS: usize = 3;
+const PROMPT: &[u8] = b"> ";
+
+/// What came back for one command: the echo was checked and removed; the remaining lines.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Answer {
+    Lines(Vec<String>),
+    /// The wheel answered an error string.
+    Error(String),
+}
+
+/// Split what preceded the prompt into the echo and the answer lines. `None` when the echo is not the command
+/// (a garbled or stale exchange). Never panics.
+pub fn parse_answer(command: &str, before_prompt: &[u8]) -> Option<Answer> {
+    let text = std::str::from_utf8(before_prompt).ok()?;
+    if !text
+        .chars()
+        .all(|c| c.is_ascii_graphic() || c == ' ' || c == '\r' || c == '\n')
+    {
+        return None;
+    }
+    let mut lines = text.split(['\r', '\n']).map(str::trim).filter(|l| !l.is_empty());
+    let echo = lines.next()?;
+    if echo != command {
+        return None;
+    }
+    let rest: Vec<String> = lines.map(str::to_string).collect();
+    if let Some(err) = rest
+        .iter()
+        .find(|l| l.to_ascii_lowercase().contains("error") || l.starts_with("CMD_"))
+    {
+        return Some(Answer::Error(err.clone()));
+    }
+    Some(Answer::Lines(rest))
+}
+
+/// Parse a single integer answer line.
+pub fn parse_int(lines: &[String]) -> Option<u32> {
+    match lines {
+        [one] if !one.is_empty() && one.len() <= 3 && one.bytes().all(|b| b.is_ascii_digit()) => {
+            one.parse().ok()
+        }
+        _ => None,
+    }
+}
+
+/// One filter wheel on its own port.
+#[derive(Debug)]
+pub struct Fw102c {
+    name: String,
+    port: Arc<LinePort>,
+    seconds_per_position: f64,
+}
+
+impl Fw102c {
+    /// `seconds_per_position`: time to turn by one position (from the instrument file), for deadlines.
+    pub fn new(name: impl Into<String>, port: Arc<LinePort>, seconds_per_position: f64) -> Fw102c {
+        let s = if seconds_per_position.is_finite() && seconds_per_position > 0.0 {
+            seconds_per_position
+        } else {
+            1.0
+        };
+        Fw102c {
+            name: name.into(),
+            port,
+            seconds_per_position: s,
+        }
+    }
+
+    fn error(&self, request: &str, e: TransportError, timeout: Duration) -> DriverError {
+        match e {
+            TransportError::Timeout => DriverError::Timeout {
+                device: self.name.clone(),
+                request: request.into(),
+                timeout,
+            },
+            TransportError::Disconnected(detail) => DriverError::Disconnected {
+                device: self.name.clone(),
+                detail,
+            },
+            TransportError::Garbled(detail) => DriverError::Protocol {
+                device: self.name.clone(),
+                request: request.into(),
+                detail,
+            },
+        }
+    }
+
+    /// Send a command and collect its answer lines (echo checked). Retried (bounded) only when `idempotent`.
+    pub async fn exchange(
+        &self,
+        command: &str,
+        timeout: Duration,
+        idempotent: bool,
+    ) -> Result<Vec<String>, DriverError> {
+        let attempts = if idempotent { ATTEMPTS } else { 1 };
+        let mut last = TransportError::Timeout;
+        for attempt in 1..=attempts {
+            let mut s = self.port.session().await;
+            let r = async {
+                s.discard_stale().await?;
+                let deadline = Instant::now() + timeout;
+                s.send(format!("{command}\r").as_bytes(), deadline).await?;
+                let raw = s.read_until(PROMPT, deadline).await?;
+                parse_answer(command, &raw).ok_or_else(|| {
+                    TransportError::Garbled(format!(
+                        "echo does not match {command:?}: {}",
+                        crate::transport::escape_bytes(&raw)
+                    ))
+                })
+            }
+            .await;
+            match r {
+                Ok(Answer::Lines(lines)) => return Ok(lines),
+                Ok(Answer::Error(text)) => {
+                    return Err(DriverError::Rejected {
+                        device: self.name.clone(),
+                        request: command.into(),
+                        reason: text,
+                    });
+                }
+                Err(TransportError::Disconnected(d)) => {
+                    return Err(self.error(command, TransportError::Disconnected(d), timeout));
+                }
+                Err(e) => {
+                    if idempotent {
+                        tracing::warn!(wheel = %self.name, command, attempt, error = %e, "exchange failed; retrying");
+                    }
+                    last = e;
+                }
+            }
+        }
+        Err(self.error(command, last, timeout))
+    }
+
+    /// A numeric query; a garbled answer is asked again (queries are idempotent), boundedly.
+    async fn query_int(&self, command: &str) -> Result<u32, DriverError> {
+        let mut last = Vec::new();
+        for attempt in 1..=ATTEMPTS {
+            let lines = self.exchange(command, REPLY_TIMEOUT, true).await?;
+            if let Some(n) = parse_int(&lines) {
+                return Ok(n);
+            }
+            tracing::warn!(wheel = %self.name, command, attempt, ?lines, "not a number; asking again");
+            last = lines;
+        }
+        Err(DriverError::Protocol {
+            device: self.name.clone(),
+            request: command.into(),
+            detail: format!("not a number: {last:?}"),
+        })
+    }
+
+    pub async fn do_position_count(&self) -> Result<u8, DriverError> {
+        let n = self.query_int("pcount?").await?;
+        match n {
+            6 | 12 => Ok(n as u8),
+            other => Err(DriverError::Protocol {
+                device: self.name.clone(),
+                request: "pcount?".into(),
+                detail: format!("{other} positions"),
+            }),
+        }
+    }
+
+    pub async fn do_position(&self) -> Result<u8, DriverError> {
+        let p = self.query_int("pos?").await?;
+        u8::try_from(p)
+            .ok()
+            .filter(|p| (1..=12).contains(p))
+            .ok_or_else(|| DriverError::Protocol {
+                device: self.name.clone(),
+                request: "pos?".into(),
+                detail: format!("position {p}"),
+            })
+    }
+
+    pub async fn do_go_to(&self, position: u8) -> Result<(), DriverError> {
+        let count = self.do_position_count().await?;
+        if !(1..=count).contains(&position) {
+            return Err(DriverError::OutOfRange {
+                device: self.name.clone(),
+                what: "position".into(),
+                value: f64::from(position),
+                min: 1.0,
+                max: f64::from(count),
+            });
+        }
+        let current = self.do_position().await?;
+        // The wheel may turn either way; at worst half a turn. Margin: twice that plus two seconds.
+        let steps = f64::from(current.abs_diff(position).min(count - current.abs_diff(position)));
+        let timeout = Duration::from_secs_f64(2.0 * self.seconds_per_position * steps.max(1.0) + 2.0);
+        tracing::info!(wheel = %self.name, from = current, to = position, "turning");
+        // `pos=N` is idempotent: retried on a lost prompt.
+        self.exchange(&format!("pos={position}"), timeout, true).await?;
+        let now = self.do_position().await?;
+        if now != position {
+            return Err(DriverError::MotionFault {
+                device: self.name.clone(),
+                target_deg: f64::NAN,
+                reason: format!("wheel reports position {now} after pos={position}"),
+            });
+        }
+        Ok(())
+    }
+
+    pub async fn identify(&self) -> Result<String, DriverError> {
+        let lines = self.exchange("*idn?", REPLY_TIMEOUT, true).await?;
+        Ok(lines.join(" "))
+    }
+}
+
+impl FilterWheel for Fw102c {
+    fn name(&self) -> &str {
+        &self.name
+    }
+    fn position_count(&self) -> BoxFuture<'_, Result<u8, DriverError>> {
+        Box::pin(self.do_position_count())
+    }
+    fn go_to(&self, position: u8) -> BoxFuture<'_, Result<(), DriverError>> {
+        Box::pin(self.do_go_to(position))
+    }
+    fn position(&self) -> BoxFuture<'_, Result<u8, DriverError>> {
+        Box::pin(self.do_position())
+    }
+    fn reconnect(&self) -> BoxFuture<'_, Result<(), DriverError>> {
+        Box::pin(async move {
+            self.port
+                .reconnect()
+                .await
+                .map_err(|e| DriverError::Unavailable {
+                    device: self.name.clone(),
+                    detail: e.to_string(),
+                })?;
+            self.do_position().await.map(|_| ())
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn echo_answer_and_errors() {
+        assert_eq!(
+            parse_answer("pos?", b"pos?\r3\r"),
+            Some(Answer::Lines(vec!["3".into()]))
+        );
+        assert_eq!(parse_answer("pos=2", b"pos=2\r"), Some(Answer::Lines(vec![])));
+        assert_eq!(parse_answer("pos?", b"pos=\r3\r"), None);
+        assert_eq!(
+            parse_answer("bogus", b"bogus\rCommand error CMD_NOT_DEFINED\r"),
+            Some(Answer::Error("Command error CMD_NOT_DEFINED".into()))
+        );
+        assert_eq!(parse_answer("pos?", b"pos?\r\xff\r"), None);
+        assert_eq!(parse_int(&["12".into()]), Some(12));
+        assert_eq!(parse_int(&["1".into(), "2".into()]), None);
+        assert_eq!(parse_int(&["-1".into()]), None);
+    }
+}

@@ -1,0 +1,376 @@
+//! Thorlabs PM100-family optical power meters (PM100USB, PM100D, PM100A, PM400, ...) over USBTMC with SCPI,
+//! written from the Thorlabs PM100 SCPI command reference and the USBTMC 1.0 specification.
+//!
+//! Configuration is followed by `SYST:ERR?` until the queue reads `0,"No error"`; any error there is a
+//! rejection. Readings are `MEAS:POW?` (W) with the range from `SENS:POW:RANG?`. A reading at or beyond the
+//! range's full scale (or the SCPI overflow value 9.9E37) is flagged as overload, never passed off as a value.
+
+use std::sync::Arc;
+use std::time::{Duration, SystemTime};
+
+use tokio::sync::Mutex;
+use tokio::time::Instant;
+
+use crate::error::DriverError;
+use crate::traits::{Detector, DetectorConfig, PowerRange, PowerReading};
+use crate::transport::BoxFuture;
+use crate::transport::usb::{UsbError, UsbPipe};
+use crate::usbtmc::{Usbtmc, UsbtmcError};
+
+/// Thorlabs' USB vendor id and the power meters' product ids (normal mode).
+pub const THORLABS_VID: u16 = 0x1313;
+pub const PRODUCTS: [(u16, &str); 6] = [
+    (0x8072, "PM100USB"),
+    (0x8078, "PM100D"),
+    (0x8079, "PM100A"),
+    (0x807D, "PM400"),
+    (0x80B0, "PM200"),
+    (0x80BB, "PM5020"),
+];
+
+const QUERY_TIMEOUT: Duration = Duration::from_millis(1000);
+const ATTEMPTS: usize = 2;
+/// SCPI's "overflow" value (IEEE 488.2 / SCPI 1999, 9.9E37).
+const SCPI_OVERFLOW: f64 = 9.9e37;
+/// One sample takes about 3 ms on the PM100.
+const SAMPLE_S: f64 = 0.003;
+
+/// Parse an SCPI number (`+1.234567E-03`); finite only. Never panics.
+pub fn parse_scpi_number(text: &str) -> Option<f64> {
+    let t = text.trim();
+    if t.is_empty()
+        || t.len() > 32
+        || !t
+            .bytes()
+            .all(|b| b.is_ascii_digit() || matches!(b, b'.' | b'-' | b'+' | b'e' | b'E'))
+    {
+        return None;
+    }
+    t.parse::<f64>().ok().filter(|x| x.is_finite())
+}
+
+/// Parse a `SYST:ERR?` answer: `code,"text"`.
+pub fn parse_scpi_error(text: &str) -> Option<(i32, String)> {
+    let (code, msg) = text.trim().split_once(',')?;
+    let code: i32 = code.trim().parse().ok()?;
+    let msg = msg.trim();
+    let msg = msg
+        .strip_prefix('"')
+        .and_then(|m| m.strip_suffix('"'))
+        .unwrap_or(msg);
+    Some((code, msg.to_string()))
+}
+
+/// Reopens the USB device after it vanished.
+pub type PipeOpener = Arc<dyn Fn() -> Result<Arc<dyn UsbPipe>, UsbError> + Send + Sync>;
+
+/// One power meter.
+pub struct Pm100 {
+    name: String,
+    tmc: Mutex<Usbtmc>,
+    opener: Option<PipeOpener>,
+    averaging: std::sync::Mutex<u32>,
+}
+
+impl std::fmt::Debug for Pm100 {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Pm100")
+            .field("name", &self.name)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Pm100 {
+    /// A meter on an open pipe; `opener` (optional) reopens the device after a disconnect.
+    pub fn new(name: impl Into<String>, pipe: Arc<dyn UsbPipe>, opener: Option<PipeOpener>) -> Pm100 {
+        let name = name.into();
+        Pm100 {
+            tmc: Mutex::new(Usbtmc::new(name.clone(), pipe)),
+            name,
+            opener,
+            averaging: std::sync::Mutex::new(1),
+        }
+    }
+
+    /// Open a real meter by USB ids (blocking enumeration runs on the blocking pool).
+    pub async fn open_usb(
+        name: impl Into<String>,
+        vid: u16,
+        pid: u16,
+        serial: Option<String>,
+    ) -> Result<Pm100, DriverError> {
+        let name = name.into();
+        let opener: PipeOpener = Arc::new(move || {
+            crate::transport::usb::RusbPipe::open(vid, pid, serial.as_deref())
+                .map(|p| Arc::new(p) as Arc<dyn UsbPipe>)
+        });
+        let o = Arc::clone(&opener);
+        let pipe = tokio::task::spawn_blocking(move || o())
+            .await
+            .map_err(|e| DriverError::Unavailable {
+                device: name.clone(),
+                detail: e.to_string(),
+            })?
+            .map_err(|e| DriverError::Unavailable {
+                device: name.clone(),
+                detail: format!("USB {vid:04x}:{pid:04x}: {e}"),
+            })?;
+        Ok(Pm100::new(name, pipe, Some(opener)))
+    }
+
+    fn map(&self, request: &str, e: UsbtmcError, timeout: Duration) -> DriverError {
+        let device = self.name.clone();
+        match e {
+            UsbtmcError::Usb(UsbError::NoDevice) => DriverError::Disconnected {
+                device,
+                detail: "USB device gone".into(),
+            },
+            UsbtmcError::Usb(UsbError::Access(d)) => DriverError::Unavailable { device, detail: d },
+            UsbtmcError::Usb(UsbError::Timeout { .. }) | UsbtmcError::Timeout => DriverError::Timeout {
+                device,
+                request: request.into(),
+                timeout,
+            },
+            other => DriverError::Protocol {
+                device,
+                request: request.into(),
+                detail: other.to_string(),
+            },
+        }
+    }
+
+    /// One SCPI query; on a timeout or a bad frame the I/O is cleared (INITIATE_CLEAR) and the query asked once
+    /// more (SCPI queries here have no side effects beyond taking a new reading).
+    pub async fn query(&self, command: &str, timeout: Duration) -> Result<String, DriverError> {
+        let mut tmc = self.tmc.lock().await;
+        let mut last = None;
+        for attempt in 1..=ATTEMPTS {
+            match tmc.query(command, Instant::now() + timeout).await {
+                Ok(v) => return Ok(v),
+                Err(e @ UsbtmcError::Usb(UsbError::NoDevice | UsbError::Access(_))) => {
+                    return Err(self.map(command, e, timeout));
+                }
+                Err(e) => {
+                    tracing::warn!(meter = %self.name, command, attempt, error = %e, "query failed; clearing the I/O");
+                    if let Err(ce) = tmc.clear().await {
+                        tracing::warn!(meter = %self.name, error = %ce, "INITIATE_CLEAR failed");
+                    }
+                    last = Some(e);
+                }
+            }
+        }
+        Err(self.map(command, last.unwrap_or(UsbtmcError::Timeout), timeout))
+    }
+
+    /// One SCPI command (no reply).
+    pub async fn write(&self, command: &str) -> Result<(), DriverError> {
+        let mut tmc = self.tmc.lock().await;
+        tmc.write(command.as_bytes(), Instant::now() + QUERY_TIMEOUT)
+            .await
+            .map_err(|e| self.map(command, e, QUERY_TIMEOUT))
+    }
+
+    /// Drain the SCPI error queue (bounded); returns the errors found.
+    pub async fn errors(&self) -> Result<Vec<(i32, String)>, DriverError> {
+        let mut found = Vec::new();
+        for _ in 0..16 {
+            let a = self.query("SYST:ERR?", QUERY_TIMEOUT).await?;
+            let (code, text) = parse_scpi_error(&a).ok_or_else(|| DriverError::Protocol {
+                device: self.name.clone(),
+                request: "SYST:ERR?".into(),
+                detail: format!("{a:?}"),
+            })?;
+            if code == 0 {
+                return Ok(found);
+            }
+            found.push((code, text));
+        }
+        Ok(found)
+    }
+
+    async fn number(&self, command: &str, timeout: Duration) -> Result<f64, DriverError> {
+        let a = self.query(command, timeout).await?;
+        parse_scpi_number(&a).ok_or_else(|| DriverError::Protocol {
+            device: self.name.clone(),
+            request: command.into(),
+            detail: format!("not a number: {a:?}"),
+        })
+    }
+
+    pub async fn do_configure(&self, config: DetectorConfig) -> Result<(), DriverError> {
+        if !(config.wavelength_nm.is_finite() && config.wavelength_nm > 0.0) {
+            return Err(DriverError::OutOfRange {
+                device: self.name.clone(),
+                what: "wavelength (nm)".into(),
+                value: config.wavelength_nm,
+                min: 0.0,
+                max: f64::INFINITY,
+            });
+        }
+        if config.averaging == 0 {
+            return Err(DriverError::OutOfRange {
+                device: self.name.clone(),
+                what: "averaging".into(),
+                value: 0.0,
+                min: 1.0,
+                max: f64::INFINITY,
+            });
+        }
+        // Start from an empty error queue so that what we read afterwards is ours.
+        let stale = self.errors().await?;
+        if !stale.is_empty() {
+            tracing::warn!(meter = %self.name, ?stale, "errors queued before configuration");
+        }
+        let mut commands = vec![
+            "SENS:POW:UNIT W".to_string(),
+            format!("SENS:CORR:WAV {}", config.wavelength_nm),
+            format!("SENS:AVER:COUN {}", config.averaging),
+        ];
+        match config.range {
+            PowerRange::Auto => commands.push("SENS:POW:RANG:AUTO ON".into()),
+            PowerRange::Fixed { full_scale_w } => {
+                commands.push("SENS:POW:RANG:AUTO OFF".into());
+                commands.push(format!("SENS:POW:RANG {full_scale_w:E}"));
+            }
+        }
+        commands.push("CONF:POW".into());
+        for c in &commands {
+            self.write(c).await?;
+        }
+        let errors = self.errors().await?;
+        if !errors.is_empty() {
+            let reason = errors
+                .iter()
+                .map(|(c, t)| format!("{c},\"{t}\""))
+                .collect::<Vec<_>>()
+                .join("; ");
+            return Err(DriverError::Rejected {
+                device: self.name.clone(),
+                request: commands.join("; "),
+                reason,
+            });
+        }
+        let wav = self.number("SENS:CORR:WAV?", QUERY_TIMEOUT).await?;
+        if (wav - config.wavelength_nm).abs() > 0.5 {
+            return Err(DriverError::Rejected {
+                device: self.name.clone(),
+                request: format!("SENS:CORR:WAV {}", config.wavelength_nm),
+                reason: format!("the meter reports {wav} nm"),
+            });
+        }
+        if let Ok(mut g) = self.averaging.lock() {
+            *g = config.averaging;
+        }
+        tracing::info!(meter = %self.name, wavelength_nm = config.wavelength_nm, averaging = config.averaging, range = ?config.range, "configured");
+        Ok(())
+    }
+
+    pub async fn do_read_power(&self) -> Result<PowerReading, DriverError> {
+        let n = self.averaging.lock().map(|g| *g).unwrap_or(1);
+        let timeout = Duration::from_secs_f64(f64::from(n) * SAMPLE_S * 2.0) + QUERY_TIMEOUT;
+        let a = self.query("MEAS:POW?", timeout).await?;
+        let timestamp = SystemTime::now();
+        let range_w = self.number("SENS:POW:RANG?", QUERY_TIMEOUT).await?;
+        let t = a.trim();
+        let (power_w, overload) = match parse_scpi_number(t) {
+            Some(p) if p.abs() >= SCPI_OVERFLOW => (f64::NAN, true),
+            Some(p) => (p, p >= range_w),
+            None if t.eq_ignore_ascii_case("inf")
+                || t.eq_ignore_ascii_case("+inf")
+                || t.eq_ignore_ascii_case("nan") =>
+            {
+                (f64::NAN, true)
+            }
+            None => {
+                return Err(DriverError::Protocol {
+                    device: self.name.clone(),
+                    request: "MEAS:POW?".into(),
+                    detail: format!("not a number: {a:?}"),
+                });
+            }
+        };
+        if overload {
+            tracing::warn!(meter = %self.name, reply = %t, range_w, "reading at or beyond full scale (overload)");
+        }
+        Ok(PowerReading {
+            power_w,
+            range_w,
+            overload,
+            timestamp,
+        })
+    }
+
+    pub async fn do_identify(&self) -> Result<String, DriverError> {
+        self.query("*IDN?", QUERY_TIMEOUT).await
+    }
+
+    pub async fn do_reconnect(&self) -> Result<(), DriverError> {
+        {
+            let mut tmc = self.tmc.lock().await;
+            match tmc.clear().await {
+                Ok(()) => {}
+                Err(UsbtmcError::Usb(UsbError::NoDevice)) | Err(UsbtmcError::Usb(UsbError::Access(_))) => {
+                    let opener = self.opener.clone().ok_or_else(|| DriverError::Unavailable {
+                        device: self.name.clone(),
+                        detail: "the device is gone and cannot be reopened".into(),
+                    })?;
+                    let pipe = tokio::task::spawn_blocking(move || opener())
+                        .await
+                        .map_err(|e| DriverError::Unavailable {
+                            device: self.name.clone(),
+                            detail: e.to_string(),
+                        })?
+                        .map_err(|e| DriverError::Unavailable {
+                            device: self.name.clone(),
+                            detail: e.to_string(),
+                        })?;
+                    *tmc = Usbtmc::new(self.name.clone(), pipe);
+                    tracing::info!(meter = %self.name, "USB device reopened");
+                }
+                Err(e) => {
+                    tracing::warn!(meter = %self.name, error = %e, "INITIATE_CLEAR failed; trying to talk anyway")
+                }
+            }
+        }
+        let idn = self.do_identify().await?;
+        tracing::info!(meter = %self.name, %idn, "re-verified after reconnect");
+        Ok(())
+    }
+}
+
+impl Detector for Pm100 {
+    fn name(&self) -> &str {
+        &self.name
+    }
+    fn configure(&self, config: DetectorConfig) -> BoxFuture<'_, Result<(), DriverError>> {
+        Box::pin(self.do_configure(config))
+    }
+    fn read_power(&self) -> BoxFuture<'_, Result<PowerReading, DriverError>> {
+        Box::pin(self.do_read_power())
+    }
+    fn identify(&self) -> BoxFuture<'_, Result<String, DriverError>> {
+        Box::pin(self.do_identify())
+    }
+    fn reconnect(&self) -> BoxFuture<'_, Result<(), DriverError>> {
+        Box::pin(self.do_reconnect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scpi_numbers_and_errors() {
+        assert_eq!(parse_scpi_number("+1.234000E-03\n"), Some(1.234e-3));
+        assert_eq!(parse_scpi_number("9.9E37"), Some(9.9e37));
+        assert_eq!(parse_scpi_number("1e999"), None);
+        assert_eq!(parse_scpi_number("abc"), None);
+        assert_eq!(parse_scpi_error("0,\"No error\""), Some((0, "No error".into())));
+        assert_eq!(
+            parse_scpi_error("-113,\"Undefined header\""),
+            Some((-113, "Undefined header".into()))
+        );
+        assert_eq!(parse_scpi_error("No error"), None);
+    }
+}

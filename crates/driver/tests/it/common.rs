@@ -1,0 +1,190 @@
+//! Helpers shared by the tests.
+
+use std::sync::Once;
+
+/// Route driver traces to the test output (`RUST_LOG=gonio_driver=debug cargo test` to see the bytes).
+pub fn trace() {
+    static INIT: Once = Once::new();
+    INIT.call_once(|| {
+        let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+            .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("off"));
+        let _ = tracing_subscriber::fmt()
+            .with_env_filter(filter)
+            .with_test_writer()
+            .try_init();
+    });
+}
+
+/// The axis named `name` of the default simulated instrument.
+pub fn sim_axis(name: &str) -> gonio_instrument::Axis {
+    gonio_instrument::InstrumentFile::simulated()
+        .instrument
+        .axes
+        .into_iter()
+        .find(|a| a.name == name)
+        .unwrap_or_else(|| panic!("no axis {name} in the simulated instrument"))
+}
+
+use std::os::fd::AsRawFd;
+use std::sync::Arc;
+use std::time::Duration;
+
+use gonio_driver::transport::usb::{BoxFuture, UsbError, UsbPipe};
+use gonio_driver::transport::{LinePort, PortOpener, SerialSettings};
+use gonio_simulator::SimInstrument;
+use gonio_simulator::pm100::{SimUsbDevice, UsbSimError};
+use tokio::io::unix::AsyncFd;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+/// The simulated instrument with its default file and fault knobs set by `faults`.
+pub fn sim_with(faults: impl FnOnce(&mut gonio_instrument::Faults), time_scale: f64) -> SimInstrument {
+    let mut file = gonio_instrument::InstrumentFile::simulated();
+    faults(&mut file.simulator.faults);
+    let scene = Arc::new(gonio_simulator::scene::UniformScene { power_w: 2.0e-6 });
+    SimInstrument::new(&file, scene, time_scale).expect("simulated instrument")
+}
+
+/// A port on the simulator's in-process stream for `device`; reconnecting asks the simulator again.
+pub fn sim_port(sim: &SimInstrument, device: &str) -> Arc<LinePort> {
+    let sim = sim.clone();
+    let dev = device.to_string();
+    let opener = PortOpener::Stream(Arc::new(move || {
+        sim.serial_port(&dev)
+            .map(|s| Box::new(s) as _)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::NotConnected, e.to_string()))
+    }));
+    Arc::new(LinePort::open(device, opener).expect("open the simulated port"))
+}
+
+/// Adapter: the simulator's USB device as a [`UsbPipe`] (the daemon needs the same adapter).
+#[derive(Debug)]
+pub struct SimPipe(pub SimUsbDevice);
+
+fn usb_err(e: UsbSimError) -> UsbError {
+    match e {
+        UsbSimError::Timeout { transferred } => UsbError::Timeout { transferred },
+        UsbSimError::Pipe { .. } => UsbError::Pipe,
+        UsbSimError::NoDevice => UsbError::NoDevice,
+        other => UsbError::Other(other.to_string()),
+    }
+}
+
+impl UsbPipe for SimPipe {
+    fn bulk_out<'a>(&'a self, data: &'a [u8], timeout: Duration) -> BoxFuture<'a, Result<usize, UsbError>> {
+        Box::pin(async move {
+            self.0
+                .bulk_out(self.0.bulk_out_endpoint(), data, timeout)
+                .await
+                .map_err(usb_err)
+        })
+    }
+    fn bulk_in(&self, max_len: usize, timeout: Duration) -> BoxFuture<'_, Result<Vec<u8>, UsbError>> {
+        Box::pin(async move {
+            self.0
+                .bulk_in(self.0.bulk_in_endpoint(), max_len, timeout)
+                .await
+                .map_err(usb_err)
+        })
+    }
+    fn control_in(
+        &self,
+        rt: u8,
+        rq: u8,
+        value: u16,
+        index: u16,
+        max_len: usize,
+        timeout: Duration,
+    ) -> BoxFuture<'_, Result<Vec<u8>, UsbError>> {
+        Box::pin(async move {
+            self.0
+                .control_in(rt, rq, value, index, max_len, timeout)
+                .await
+                .map_err(usb_err)
+        })
+    }
+    fn clear_halt(&self, endpoint: u8) -> BoxFuture<'_, Result<(), UsbError>> {
+        Box::pin(async move { self.0.clear_halt(endpoint).await.map_err(usb_err) })
+    }
+    fn bulk_out_endpoint(&self) -> u8 {
+        self.0.bulk_out_endpoint()
+    }
+    fn bulk_in_endpoint(&self) -> u8 {
+        self.0.bulk_in_endpoint()
+    }
+    fn interface_number(&self) -> u8 {
+        0
+    }
+}
+
+/// A pseudo-terminal whose master side is bridged to the simulator's stream for `device`. Returns the slave's
+/// path (to open with `serialport`, exactly like a real port) and the bridge task.
+pub fn pty_bridge(sim: &SimInstrument, device: &str) -> (String, tokio::task::JoinHandle<()>) {
+    let pty = nix::pty::openpty(None, None).expect("openpty");
+    let path = std::fs::read_link(format!("/proc/self/fd/{}", pty.slave.as_raw_fd()))
+        .expect("slave path")
+        .to_string_lossy()
+        .to_string();
+    nix::fcntl::fcntl(
+        &pty.master,
+        nix::fcntl::FcntlArg::F_SETFL(nix::fcntl::OFlag::O_NONBLOCK),
+    )
+    .expect("nonblocking");
+    // `AsyncFd::new` is deprecated for types that do not own their fd; a `File` made from the `OwnedFd` does, and
+    // the safe constructor is the only one allowed here (unsafe code is denied).
+    #[allow(deprecated)]
+    let master = AsyncFd::new(std::fs::File::from(pty.master)).expect("async fd");
+    let mut stream = sim.serial_port(device).expect("simulated port");
+    let slave = pty.slave;
+    let task = tokio::spawn(async move {
+        use std::io::{Read, Write};
+        // Keep the slave open for the bridge's lifetime so the master never sees a hang-up between host opens.
+        let _slave = slave;
+        let mut from_host = [0u8; 1024];
+        let mut from_dev = [0u8; 1024];
+        loop {
+            tokio::select! {
+                guard = master.readable() => {
+                    let Ok(mut guard) = guard else { return };
+                    match guard.try_io(|f| f.get_ref().read(&mut from_host)) {
+                        Ok(Ok(0)) => return,
+                        Ok(Ok(n)) => { if stream.write_all(&from_host[..n]).await.is_err() { return; } }
+                        Ok(Err(e)) if e.raw_os_error() == Some(nix::libc::EIO) => {
+                            // No one has the slave open right now (between opens): wait and try again.
+                            tokio::time::sleep(Duration::from_millis(10)).await;
+                        }
+                        Ok(Err(_)) => return,
+                        Err(_would_block) => {}
+                    }
+                }
+                r = stream.read(&mut from_dev) => {
+                    let n = match r { Ok(0) | Err(_) => return, Ok(n) => n };
+                    let mut data = &from_dev[..n];
+                    while !data.is_empty() {
+                        let Ok(mut guard) = master.writable().await else { return };
+                        match guard.try_io(|f| f.get_ref().write(data)) {
+                            Ok(Ok(w)) => data = &data[w..],
+                            Ok(Err(_)) => return,
+                            Err(_would_block) => {}
+                        }
+                    }
+                }
+            }
+        }
+    });
+    (path, task)
+}
+
+/// Open a pty path like a real serial port.
+pub fn pty_port(name: &str, path: &str, baud: u32, xon_xoff: bool) -> Arc<LinePort> {
+    Arc::new(
+        LinePort::open(
+            name,
+            PortOpener::Serial(SerialSettings {
+                path: path.to_string(),
+                baud,
+                xon_xoff,
+            }),
+        )
+        .expect("open the pty by path"),
+    )
+}

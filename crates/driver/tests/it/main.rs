@@ -1,0 +1,13 @@
+//! Integration tests of gonio-driver: one test binary (the simulator is linked once).
+//!
+//! - `usbtmc`: framing against the documented byte vectors, bTags, partial transfers, stale replies, recovery.
+//! - `scripted`: the serial drivers against scripted in-memory peers (reply matching, stale lines, priority stop,
+//!   disconnect and reconnect).
+//! - `fuzz`: every reply parser fed random bytes.
+//! - `sim`: every driver against the simulator's emulators, in process and through pseudo-terminals.
+
+mod common;
+mod fuzz;
+mod scripted;
+mod sim;
+mod usbtmc;

@@ -1,0 +1,130 @@
+//! `gonio sim` end to end: start the binary, read its JSON lines, talk to the devices through the printed
+//! pseudo-terminal paths as a plain serial client would, then stop it with SIGTERM.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Read from `port` until `end` appears or the deadline passes.
+fn read_until(port: &mut std::fs::File, end: &[u8], deadline: Duration) -> Vec<u8> {
+    let start = Instant::now();
+    let mut got = Vec::new();
+    let mut buf = [0u8; 256];
+    while start.elapsed() < deadline {
+        match port.read(&mut buf) {
+            Ok(0) => std::thread::sleep(Duration::from_millis(5)),
+            Ok(n) => {
+                got.extend_from_slice(&buf[..n]);
+                if got.windows(end.len()).any(|w| w == end) {
+                    break;
+                }
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(5))
+            }
+            Err(e) => panic!("reading the terminal: {e}"),
+        }
+    }
+    got
+}
+
+fn open_port(path: &str) -> std::fs::File {
+    use std::os::unix::fs::OpenOptionsExt;
+    std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(nix::fcntl::OFlag::O_NONBLOCK.bits() | nix::fcntl::OFlag::O_NOCTTY.bits())
+        .open(path)
+        .unwrap_or_else(|e| panic!("open {path}: {e}"))
+}
+
+#[test]
+fn gonio_sim_serves_devices_on_pseudo_terminals_and_exits_cleanly_on_sigterm() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(["sim", "--time-scale", "100"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start gonio sim");
+    let stdout = child.stdout.take().expect("stdout");
+    let mut lines = BufReader::new(stdout).lines();
+    let mut devices = Vec::new();
+    loop {
+        let line = lines.next().expect("a line before ready").expect("utf-8 line");
+        let v: serde_json::Value = serde_json::from_str(&line).expect("JSON line");
+        if v["ready"] == serde_json::Value::Bool(true) {
+            break;
+        }
+        devices.push(v);
+    }
+    let path_of = |protocol: &str| -> String {
+        devices
+            .iter()
+            .find(|d| d["protocol"] == protocol)
+            .and_then(|d| d["path"].as_str())
+            .unwrap_or_else(|| panic!("no {protocol} device in {devices:?}"))
+            .to_string()
+    };
+    let meter = devices
+        .iter()
+        .find(|d| d["protocol"] == "pm100")
+        .expect("the meter is listed");
+    assert!(meter["path"].is_null());
+
+    // SMC100: status of controller 1 after power-up is NOT REFERENCED from reset; home it and watch it become READY.
+    let mut arms = open_port(&path_of("smc100"));
+    arms.write_all(b"1TS\r\n").expect("write");
+    let reply = read_until(&mut arms, b"\r\n", Duration::from_secs(5));
+    assert_eq!(String::from_utf8_lossy(&reply), "1TS00000A\r\n");
+    arms.write_all(b"1PA10\r\n1TE\r\n").expect("write");
+    let reply = read_until(&mut arms, b"\r\n", Duration::from_secs(5));
+    assert_eq!(
+        String::from_utf8_lossy(&reply),
+        "1TEH\r\n",
+        "PA while NOT REFERENCED is error H"
+    );
+    arms.write_all(b"1OR\r\n").expect("write");
+    let start = Instant::now();
+    let mut state = String::new();
+    while start.elapsed() < Duration::from_secs(10) {
+        arms.write_all(b"1TS\r\n").expect("write");
+        state = String::from_utf8_lossy(&read_until(&mut arms, b"\r\n", Duration::from_secs(5))).into_owned();
+        if state == "1TS000032\r\n" {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(state, "1TS000032\r\n", "READY from HOMING after homing");
+
+    // Zaber: a status request to all devices gets one reply per device.
+    let mut stage = open_port(&path_of("zaber-ascii"));
+    stage.write_all(b"/\n").expect("write");
+    let reply = String::from_utf8_lossy(&read_until(&mut stage, b"@02", Duration::from_secs(5))).into_owned();
+    let reply = reply + &String::from_utf8_lossy(&read_until(&mut stage, b"\r\n", Duration::from_secs(5)));
+    assert_eq!(reply, "@01 0 OK IDLE WR 0\r\n@02 0 OK IDLE WR 0\r\n");
+
+    // FW102C: echo, reply, prompt.
+    let mut wheel = open_port(&path_of("fw102c"));
+    wheel.write_all(b"pos?\r").expect("write");
+    let reply = read_until(&mut wheel, b"> ", Duration::from_secs(5));
+    assert_eq!(String::from_utf8_lossy(&reply), "pos?\r1\r> ");
+
+    drop((arms, stage, wheel));
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(child.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    )
+    .expect("send SIGTERM");
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().expect("wait") {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(10) {
+            let _ = child.kill();
+            panic!("gonio sim did not exit after SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success(), "exit status {status}");
+}

@@ -1,0 +1,321 @@
+//! [`SimInstrument`]: the whole simulated instrument, built from an instrument file, and its in-process API.
+//!
+//! It owns the physical state (where every axis really is, which filter is in the beam), the device emulators
+//! that speak the real protocols over it, the fault injector and the simulated clock. Hosts reach the serial
+//! devices through [`SimInstrument::serial_port`] (a duplex byte stream, exactly what a port would carry) and
+//! the power meter through [`SimInstrument::usb_device`] (bulk and control transfers, as libusb would give).
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+
+use gonio_instrument::{Axis, AxisRole, InstrumentFile, Protocol};
+use tokio::io::DuplexStream;
+
+use crate::clock::SimClock;
+use crate::faults::{FaultCounts, FaultInjector};
+use crate::fw102c::Fw102c;
+use crate::motion::{AxisMotion, AxisParams};
+use crate::pm100::{Pm100, SimUsbDevice};
+use crate::scene::{Band, Pose, Scene};
+use crate::session::{self, SharedEmulator};
+use crate::smc100::Smc100Chain;
+use crate::zaber::ZaberChain;
+
+/// Why the simulated instrument could not be built or a device not reached.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SimError {
+    #[error("simulated instrument: {0}")]
+    Invalid(String),
+    #[error("simulated instrument has no device named {device:?}")]
+    UnknownDevice { device: String },
+    #[error("device {device:?} speaks {protocol}, which is not a {wanted} device")]
+    WrongKind {
+        device: String,
+        protocol: &'static str,
+        wanted: &'static str,
+    },
+    #[error("device {device:?} is disconnected (simulated fault)")]
+    Disconnected { device: String },
+    #[error("the simulated device {device:?} must be opened inside a tokio runtime")]
+    NoRuntime { device: String },
+}
+
+/// The simulated instrument. Cheap to clone: every clone shares the same devices and clock.
+#[derive(Debug, Clone)]
+pub struct SimInstrument {
+    inner: Arc<Inner>,
+}
+
+#[derive(Debug)]
+struct Inner {
+    file: InstrumentFile,
+    world: Arc<World>,
+    faults: Arc<FaultInjector>,
+    serial: BTreeMap<String, (Protocol, SharedEmulator)>,
+    meters: BTreeMap<String, Arc<Pm100>>,
+}
+
+/// The physical state every device shares: the clock, the axes, what is in the beam, and the optics.
+#[derive(Debug)]
+pub(crate) struct World {
+    pub clock: SimClock,
+    pub scene: Arc<dyn Scene>,
+    axes: Vec<(Axis, Arc<Mutex<AxisMotion>>)>,
+    wheel: Option<Arc<Mutex<Fw102c>>>,
+    /// The band when there is no filter wheel.
+    fixed_band: Band,
+}
+
+impl World {
+    pub fn pose(&self, t_s: f64) -> Pose {
+        let mut pose = Pose::default();
+        for (axis, motion) in &self.axes {
+            let controller_deg = motion.lock().unwrap_or_else(|e| e.into_inner()).load_deg(t_s);
+            let physical = axis.physical_from_controller_deg(controller_deg);
+            match axis.role {
+                AxisRole::LightArm => pose.light_deg = physical,
+                AxisRole::DetectorArm => pose.detector_deg = physical,
+                AxisRole::SampleTilt => pose.tilt_deg = physical,
+                AxisRole::SampleRotation => pose.rotation_deg = physical,
+            }
+        }
+        pose
+    }
+
+    pub fn band(&self, t_s: f64) -> Band {
+        match &self.wheel {
+            Some(w) => w.lock().unwrap_or_else(|e| e.into_inner()).band_at(t_s),
+            None => self.fixed_band,
+        }
+    }
+}
+
+impl SimInstrument {
+    /// Build the instrument. `time_scale` is simulated seconds per real (tokio) second, finite and > 0.
+    pub fn new(
+        file: &InstrumentFile,
+        scene: Arc<dyn Scene>,
+        time_scale: f64,
+    ) -> Result<SimInstrument, SimError> {
+        if !(time_scale.is_finite() && time_scale > 0.0) {
+            return Err(SimError::Invalid(format!(
+                "time scale must be finite and > 0, got {time_scale}"
+            )));
+        }
+        file.instrument.validate().map_err(SimError::Invalid)?;
+        FaultInjector::validate(&file.simulator.faults).map_err(SimError::Invalid)?;
+        let inst = &file.instrument;
+        let clock = SimClock::new(time_scale);
+        let faults = Arc::new(FaultInjector::new(file.simulator.faults.clone()));
+
+        let mut axes = Vec::new();
+        for axis in &inst.axes {
+            let a = axis.controller_from_physical_deg(axis.min_deg);
+            let b = axis.controller_from_physical_deg(axis.max_deg);
+            let params = AxisParams {
+                hw_min_deg: a.min(b),
+                hw_max_deg: a.max(b),
+                backlash_deg: axis.backlash_deg,
+                encoder_resolution_deg: axis.encoder_resolution_deg,
+            };
+            // Power-up position: the counter's zero, or the nearest end of travel if zero is outside it.
+            let start = 0.0f64.clamp(params.hw_min_deg, params.hw_max_deg);
+            axes.push((axis.clone(), Arc::new(Mutex::new(AxisMotion::new(params, start)))));
+        }
+
+        let mut serial: BTreeMap<String, (Protocol, SharedEmulator)> = BTreeMap::new();
+        let mut wheel = None;
+        for dev in &inst.devices {
+            let dev_axes: Vec<(Axis, Arc<Mutex<AxisMotion>>)> = axes
+                .iter()
+                .filter(|(a, _)| a.device == dev.name)
+                .cloned()
+                .collect();
+            let dev_faults = faults.for_device(&dev.name);
+            match dev.protocol {
+                Protocol::Smc100 => {
+                    let emu: SharedEmulator =
+                        Arc::new(Mutex::new(Smc100Chain::new(&dev.name, dev_axes, dev_faults)));
+                    serial.insert(dev.name.clone(), (dev.protocol, emu));
+                }
+                Protocol::ZaberAscii => {
+                    let emu: SharedEmulator = Arc::new(Mutex::new(ZaberChain::new(
+                        &dev.name, dev_axes, dev_faults, clock,
+                    )));
+                    serial.insert(dev.name.clone(), (dev.protocol, emu));
+                }
+                Protocol::Fw102c => {
+                    let config = inst.filter_wheel.as_ref().filter(|w| w.device == dev.name);
+                    let w = Arc::new(Mutex::new(Fw102c::new(&dev.name, config)));
+                    if config.is_some() {
+                        wheel = Some(Arc::clone(&w));
+                    }
+                    let emu: SharedEmulator = w;
+                    serial.insert(dev.name.clone(), (dev.protocol, emu));
+                }
+                Protocol::Pm100 => {}
+            }
+        }
+        let fixed_band = Band {
+            band_nm: inst.source.wavelength_nm,
+            transmission: 1.0,
+        };
+        let world = Arc::new(World {
+            clock,
+            scene,
+            axes,
+            wheel,
+            fixed_band,
+        });
+
+        let mut meters = BTreeMap::new();
+        for dev in inst.devices.iter().filter(|d| d.protocol == Protocol::Pm100) {
+            let meter = Pm100::new(
+                dev,
+                inst,
+                &file.simulator,
+                Arc::clone(&world),
+                faults.for_device(&dev.name),
+            )
+            .map_err(SimError::Invalid)?;
+            meters.insert(dev.name.clone(), Arc::new(meter));
+        }
+        Ok(SimInstrument {
+            inner: Arc::new(Inner {
+                file: file.clone(),
+                world,
+                faults,
+                serial,
+                meters,
+            }),
+        })
+    }
+
+    /// The instrument file this simulation was built from.
+    pub fn file(&self) -> &InstrumentFile {
+        &self.inner.file
+    }
+
+    /// Open the named serial device: returns the host end of a byte stream to its emulator (whose task is
+    /// spawned on the current tokio runtime). Fails while the device is disconnected by a fault.
+    pub fn serial_port(&self, device: &str) -> Result<DuplexStream, SimError> {
+        let (protocol, emu) = self.serial_emulator(device)?;
+        let handle = tokio::runtime::Handle::try_current().map_err(|_| SimError::NoRuntime {
+            device: device.to_string(),
+        })?;
+        let now = self.inner.world.clock.now_s();
+        if !self.inner.faults.link_up(now) {
+            self.inner.faults.note_refused_open(device, now);
+            return Err(SimError::Disconnected {
+                device: device.to_string(),
+            });
+        }
+        let (host, dev) = tokio::io::duplex(64 * 1024);
+        tracing::debug!(device, protocol = protocol.name(), "simulated serial port opened");
+        handle.spawn(session::serve(
+            dev,
+            emu,
+            self.inner.faults.for_device(device),
+            self.inner.world.clock,
+            device.to_string(),
+        ));
+        Ok(host)
+    }
+
+    fn serial_emulator(&self, device: &str) -> Result<(Protocol, SharedEmulator), SimError> {
+        if let Some((p, emu)) = self.inner.serial.get(device) {
+            return Ok((*p, Arc::clone(emu)));
+        }
+        match self.inner.file.instrument.device(device) {
+            Some(d) => Err(SimError::WrongKind {
+                device: device.into(),
+                protocol: d.protocol.name(),
+                wanted: "serial",
+            }),
+            None => Err(SimError::UnknownDevice {
+                device: device.into(),
+            }),
+        }
+    }
+
+    /// Open the named USB power meter. Fails while the device is disconnected by a fault.
+    pub fn usb_device(&self, device: &str) -> Result<SimUsbDevice, SimError> {
+        let Some(meter) = self.inner.meters.get(device) else {
+            return match self.inner.file.instrument.device(device) {
+                Some(d) => Err(SimError::WrongKind {
+                    device: device.into(),
+                    protocol: d.protocol.name(),
+                    wanted: "USB",
+                }),
+                None => Err(SimError::UnknownDevice {
+                    device: device.into(),
+                }),
+            };
+        };
+        let now = self.inner.world.clock.now_s();
+        if !self.inner.faults.link_up(now) {
+            self.inner.faults.note_refused_open(device, now);
+            return Err(SimError::Disconnected {
+                device: device.to_string(),
+            });
+        }
+        Ok(SimUsbDevice::open(Arc::clone(meter), now))
+    }
+
+    /// Names and protocols of the serial devices (what `gonio sim` puts on pseudo-terminals).
+    pub fn serial_devices(&self) -> Vec<(String, Protocol)> {
+        self.inner
+            .serial
+            .iter()
+            .map(|(name, (p, _))| (name.clone(), *p))
+            .collect()
+    }
+
+    /// Names of the USB devices (power meters).
+    pub fn usb_devices(&self) -> Vec<String> {
+        self.inner.meters.keys().cloned().collect()
+    }
+
+    /// Where the axes physically are now (degrees, after zero offset and direction): what the optics see.
+    pub fn pose(&self) -> Pose {
+        self.inner.world.pose(self.now_s())
+    }
+
+    /// What the filter wheel puts in the beam now (the blank while the wheel turns between positions).
+    pub fn band(&self) -> Band {
+        self.inner.world.band(self.now_s())
+    }
+
+    /// Simulated seconds since the instrument was built.
+    pub fn now_s(&self) -> f64 {
+        self.inner.world.clock.now_s()
+    }
+
+    /// The simulated clock (for sleeping in simulated time).
+    pub fn clock(&self) -> SimClock {
+        self.inner.world.clock
+    }
+
+    /// The optical power on the detector now (watts), straight from the scene: ground truth for tests.
+    pub fn detector_power_w(&self) -> f64 {
+        let t = self.now_s();
+        self.inner
+            .world
+            .scene
+            .detector_power_w(&self.inner.world.pose(t), &self.inner.world.band(t), t)
+    }
+
+    /// How many faults of each kind were injected so far.
+    pub fn fault_counts(&self) -> FaultCounts {
+        self.inner.faults.counts()
+    }
+
+    /// Stop every axis now, as each controller's own stop does (the controllers' states say so).
+    pub fn estop(&self) {
+        let now = self.now_s();
+        tracing::warn!(t_s = now, "simulated instrument: emergency stop of all axes");
+        for (_, emu) in self.inner.serial.values() {
+            emu.lock().unwrap_or_else(|e| e.into_inner()).estop(now);
+        }
+    }
+}

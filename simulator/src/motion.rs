@@ -1,0 +1,510 @@
+//! Per-axis motion physics, as a function of simulated time.
+//!
+//! A move is a list of constant-acceleration segments (accelerate, cruise, decelerate), so the motor position at
+//! any instant is exact and cheap. Each axis has its own profile, so axes move simultaneously and independently.
+//! Positions here are controller positions in degrees (the device emulators convert to their own units).
+//!
+//! - Trapezoidal profile: `t = d/v + v/a` if `d >= v^2/a`, else `2 sqrt(d/a)`.
+//! - Backlash: the load sits in `[motor, motor + backlash]`: driving up pushes it from below, driving down lets it
+//!   lag until the play is taken up. So an approach from below lands exactly, one from above lands `backlash` high.
+//!   The encoder reads the load, quantised to the encoder resolution.
+//! - Hardware limit switches at the axis limits stop the motor abruptly; a stall (fault injection) stops it short.
+//! - A new move during a move first decelerates to rest, then starts the new profile (a conservative controller).
+
+/// Kinematic parameters of one axis, in controller degrees.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AxisParams {
+    /// Hardware limit switches (controller degrees).
+    pub hw_min_deg: f64,
+    pub hw_max_deg: f64,
+    pub backlash_deg: f64,
+    pub encoder_resolution_deg: f64,
+}
+
+/// Why the last move ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MoveEnd {
+    /// Reached its target.
+    Arrived,
+    /// Decelerated to rest on request (stop).
+    Stopped,
+    /// Stopped instantly on request (emergency stop).
+    Halted,
+    /// Stopped short: stall (following error).
+    Stalled,
+    /// Ran into the negative or positive limit switch.
+    LimitNegative,
+    LimitPositive,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Segment {
+    t0_s: f64,
+    p0_deg: f64,
+    v0_deg_s: f64,
+    a_deg_s2: f64,
+    dur_s: f64,
+}
+
+impl Segment {
+    fn end_s(&self) -> f64 {
+        self.t0_s + self.dur_s
+    }
+    fn pos_at(&self, t_s: f64) -> f64 {
+        let dt = (t_s - self.t0_s).clamp(0.0, self.dur_s);
+        self.p0_deg + self.v0_deg_s * dt + 0.5 * self.a_deg_s2 * dt * dt
+    }
+    fn vel_at(&self, t_s: f64) -> f64 {
+        let dt = (t_s - self.t0_s).clamp(0.0, self.dur_s);
+        self.v0_deg_s + self.a_deg_s2 * dt
+    }
+    fn end_pos(&self) -> f64 {
+        self.pos_at(self.end_s())
+    }
+    /// Earliest time in the segment at which the position equals `p`, if it does.
+    fn time_at_position(&self, p: f64) -> Option<f64> {
+        let (a, v, c) = (0.5 * self.a_deg_s2, self.v0_deg_s, self.p0_deg - p);
+        let dt = if a.abs() < 1e-15 {
+            if v.abs() < 1e-15 {
+                return None;
+            }
+            -c / v
+        } else {
+            let disc = v * v - 4.0 * a * c;
+            if disc < 0.0 {
+                return None;
+            }
+            let s = disc.sqrt();
+            let r1 = (-v - s) / (2.0 * a);
+            let r2 = (-v + s) / (2.0 * a);
+            let (lo, hi) = if r1 <= r2 { (r1, r2) } else { (r2, r1) };
+            if lo >= -1e-12 { lo } else { hi }
+        };
+        (dt >= -1e-12 && dt <= self.dur_s + 1e-12).then(|| self.t0_s + dt.clamp(0.0, self.dur_s))
+    }
+}
+
+/// Duration of a trapezoidal (or triangular) move of `distance` at speed limit `v` and acceleration `a`.
+pub fn trapezoid_time_s(distance_deg: f64, v_deg_s: f64, a_deg_s2: f64) -> f64 {
+    let d = distance_deg.abs();
+    if d == 0.0 || !(v_deg_s > 0.0 && a_deg_s2 > 0.0) {
+        return 0.0;
+    }
+    if d >= v_deg_s * v_deg_s / a_deg_s2 {
+        d / v_deg_s + v_deg_s / a_deg_s2
+    } else {
+        2.0 * (d / a_deg_s2).sqrt()
+    }
+}
+
+/// Segments of a move from rest at `p0` to rest at `p1` starting at `t0`.
+fn trapezoid_segments(t0: f64, p0: f64, p1: f64, v: f64, a: f64) -> Vec<Segment> {
+    let d = (p1 - p0).abs();
+    let s = if p1 >= p0 { 1.0 } else { -1.0 };
+    if d == 0.0 || !(v > 0.0 && a > 0.0) {
+        return Vec::new();
+    }
+    let (t_acc, t_cruise, v_peak) = if d >= v * v / a {
+        (v / a, (d - v * v / a) / v, v)
+    } else {
+        ((d / a).sqrt(), 0.0, (a * d).sqrt())
+    };
+    let mut segs = Vec::with_capacity(3);
+    let acc = Segment {
+        t0_s: t0,
+        p0_deg: p0,
+        v0_deg_s: 0.0,
+        a_deg_s2: s * a,
+        dur_s: t_acc,
+    };
+    segs.push(acc);
+    let mut last = acc;
+    if t_cruise > 0.0 {
+        let cruise = Segment {
+            t0_s: last.end_s(),
+            p0_deg: last.end_pos(),
+            v0_deg_s: s * v_peak,
+            a_deg_s2: 0.0,
+            dur_s: t_cruise,
+        };
+        segs.push(cruise);
+        last = cruise;
+    }
+    segs.push(Segment {
+        t0_s: last.end_s(),
+        p0_deg: last.end_pos(),
+        v0_deg_s: s * v_peak,
+        a_deg_s2: -s * a,
+        dur_s: t_acc,
+    });
+    // Pin the final position exactly to the target (no floating drift).
+    if let Some(lastseg) = segs.last_mut() {
+        let err = p1 - lastseg.end_pos();
+        if err.abs() < 1e-9 {
+            lastseg.p0_deg += err;
+        }
+    }
+    segs
+}
+
+/// One axis: motor profile, load with backlash, encoder read-back.
+#[derive(Debug, Clone)]
+pub struct AxisMotion {
+    params: AxisParams,
+    segments: Vec<Segment>,
+    /// Where the motor ends when the current segments run out.
+    target_deg: f64,
+    /// How the current (or last) move ends.
+    end: MoveEnd,
+    /// Motor and load at `last_t_s`.
+    motor_deg: f64,
+    load_deg: f64,
+    last_t_s: f64,
+}
+
+impl AxisMotion {
+    pub fn new(params: AxisParams, position_deg: f64) -> AxisMotion {
+        AxisMotion {
+            params,
+            segments: Vec::new(),
+            target_deg: position_deg,
+            end: MoveEnd::Arrived,
+            motor_deg: position_deg,
+            load_deg: position_deg,
+            last_t_s: 0.0,
+        }
+    }
+
+    pub fn params(&self) -> &AxisParams {
+        &self.params
+    }
+
+    /// Bring the state up to time `t_s` (earlier times are ignored: time only runs forward).
+    pub fn advance(&mut self, t_s: f64) {
+        if t_s < self.last_t_s {
+            return;
+        }
+        let b = self.params.backlash_deg;
+        // Each segment is monotone, so the load follows with a clamp at every segment boundary.
+        let mut i = 0;
+        while i < self.segments.len() {
+            let seg = self.segments[i];
+            if seg.end_s() <= self.last_t_s {
+                i += 1;
+                continue;
+            }
+            if seg.t0_s > t_s {
+                break;
+            }
+            let m = seg.pos_at(t_s.min(seg.end_s()));
+            self.load_deg = self.load_deg.clamp(m, m + b);
+            self.motor_deg = m;
+            i += 1;
+        }
+        self.segments.retain(|s| s.end_s() > t_s);
+        if self.segments.is_empty() {
+            self.motor_deg = self.target_deg;
+            self.load_deg = self.load_deg.clamp(self.motor_deg, self.motor_deg + b);
+        }
+        self.last_t_s = t_s;
+    }
+
+    pub fn is_moving(&mut self, t_s: f64) -> bool {
+        self.advance(t_s);
+        !self.segments.is_empty()
+    }
+
+    /// When the current move ends (None when at rest).
+    pub fn end_time_s(&self) -> Option<f64> {
+        self.segments.last().map(Segment::end_s)
+    }
+
+    /// How the current or last move ends.
+    pub fn end_reason(&self) -> MoveEnd {
+        self.end
+    }
+
+    pub fn motor_deg(&mut self, t_s: f64) -> f64 {
+        self.advance(t_s);
+        self.motor_deg
+    }
+
+    /// Where the load (what the optics see) really is.
+    pub fn load_deg(&mut self, t_s: f64) -> f64 {
+        self.advance(t_s);
+        self.load_deg
+    }
+
+    /// The encoder read-back: the load quantised to the encoder resolution.
+    pub fn encoder_deg(&mut self, t_s: f64) -> f64 {
+        let load = self.load_deg(t_s);
+        let r = self.params.encoder_resolution_deg;
+        if r > 0.0 { (load / r).round() * r } else { load }
+    }
+
+    pub fn velocity_deg_s(&mut self, t_s: f64) -> f64 {
+        self.advance(t_s);
+        self.segments.first().map(|s| s.vel_at(t_s)).unwrap_or(0.0)
+    }
+
+    /// Where the motor is heading (the set-point once the move ends).
+    pub fn target_deg(&self) -> f64 {
+        self.target_deg
+    }
+
+    /// Start a move to `target_deg`; returns when it ends (simulated seconds). A move in progress first
+    /// decelerates to rest. `stall_fraction` stops the move abruptly after that fraction of the distance;
+    /// a target beyond a limit switch stops there.
+    pub fn start_move(
+        &mut self,
+        t_s: f64,
+        target_deg: f64,
+        v_deg_s: f64,
+        a_deg_s2: f64,
+        stall_fraction: Option<f64>,
+    ) -> f64 {
+        self.advance(t_s);
+        let (t_start, p_start) = self.decelerate_segments(t_s, a_deg_s2);
+        let mut segs = self.segments.clone();
+        segs.extend(trapezoid_segments(
+            t_start, p_start, target_deg, v_deg_s, a_deg_s2,
+        ));
+        self.segments = segs;
+        self.target_deg = target_deg;
+        self.end = MoveEnd::Arrived;
+        if let Some(f) = stall_fraction {
+            let stop_at = p_start + f.clamp(0.0, 1.0) * (target_deg - p_start);
+            self.truncate_at(stop_at, MoveEnd::Stalled);
+        }
+        let (lo, hi) = (self.params.hw_min_deg, self.params.hw_max_deg);
+        if self.target_deg > hi {
+            self.truncate_at(hi, MoveEnd::LimitPositive);
+        } else if self.target_deg < lo {
+            self.truncate_at(lo, MoveEnd::LimitNegative);
+        }
+        self.end_time_s().unwrap_or(t_s)
+    }
+
+    /// A pause at rest (e.g. the slow final approach of a homing search) appended to the current profile.
+    pub fn dwell(&mut self, t_s: f64, dur_s: f64) -> f64 {
+        self.advance(t_s);
+        let t0 = self.end_time_s().unwrap_or(t_s);
+        if dur_s > 0.0 {
+            self.segments.push(Segment {
+                t0_s: t0,
+                p0_deg: self.target_deg,
+                v0_deg_s: 0.0,
+                a_deg_s2: 0.0,
+                dur_s,
+            });
+        }
+        t0 + dur_s.max(0.0)
+    }
+
+    /// Replace the profile with a deceleration to rest from the current velocity; returns when it ends.
+    pub fn stop(&mut self, t_s: f64, a_deg_s2: f64) -> f64 {
+        self.advance(t_s);
+        if self.segments.is_empty() {
+            return t_s;
+        }
+        self.decelerate_segments(t_s, a_deg_s2);
+        self.end = MoveEnd::Stopped;
+        self.target_deg = self
+            .segments
+            .last()
+            .map(Segment::end_pos)
+            .unwrap_or(self.motor_deg);
+        self.end_time_s().unwrap_or(t_s)
+    }
+
+    /// Stop dead (emergency stop, power removed).
+    pub fn halt(&mut self, t_s: f64) {
+        self.advance(t_s);
+        if !self.segments.is_empty() {
+            self.segments.clear();
+            self.end = MoveEnd::Halted;
+        }
+        self.target_deg = self.motor_deg;
+    }
+
+    /// Redefine the position counter without moving (homing sets the reference): motor and load shift together.
+    pub fn set_position(&mut self, t_s: f64, position_deg: f64) {
+        self.advance(t_s);
+        let shift = position_deg - self.motor_deg;
+        self.segments.clear();
+        self.motor_deg = position_deg;
+        self.load_deg += shift;
+        self.target_deg = position_deg;
+    }
+
+    /// Make the current segments end with a deceleration to rest from the velocity at `t_s`; returns
+    /// (when rest is reached, where).
+    fn decelerate_segments(&mut self, t_s: f64, a_deg_s2: f64) -> (f64, f64) {
+        let Some(seg) = self.segments.first().copied() else {
+            return (t_s, self.motor_deg);
+        };
+        let v = seg.vel_at(t_s);
+        let p = seg.pos_at(t_s);
+        if v.abs() < 1e-12 || a_deg_s2.is_nan() || a_deg_s2 <= 0.0 {
+            self.segments.clear();
+            self.target_deg = p;
+            return (t_s, p);
+        }
+        let a = -v.signum() * a_deg_s2;
+        let dur = v.abs() / a_deg_s2;
+        let dec = Segment {
+            t0_s: t_s,
+            p0_deg: p,
+            v0_deg_s: v,
+            a_deg_s2: a,
+            dur_s: dur,
+        };
+        self.segments = vec![dec];
+        self.target_deg = dec.end_pos();
+        (dec.end_s(), dec.end_pos())
+    }
+
+    /// Cut the profile where it first reaches `p` (abrupt stop there), marking why.
+    fn truncate_at(&mut self, p: f64, why: MoveEnd) {
+        for i in 0..self.segments.len() {
+            let seg = self.segments[i];
+            if let Some(t) = seg.time_at_position(p) {
+                // A zero-length cut (already there) means the move never starts.
+                self.segments.truncate(i + 1);
+                if let Some(last) = self.segments.last_mut() {
+                    last.dur_s = t - last.t0_s;
+                }
+                self.segments.retain(|s| s.dur_s > 0.0);
+                self.target_deg = p;
+                self.end = why;
+                return;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn params() -> AxisParams {
+        AxisParams {
+            hw_min_deg: -100.0,
+            hw_max_deg: 100.0,
+            backlash_deg: 0.0,
+            encoder_resolution_deg: 0.0005,
+        }
+    }
+
+    #[test]
+    fn trapezoid_and_triangle_times_follow_the_formula() {
+        // d >= v^2/a: 30/20 + 20/80
+        assert!((trapezoid_time_s(30.0, 20.0, 80.0) - (1.5 + 0.25)).abs() < 1e-12);
+        // d < v^2/a = 5: 2 sqrt(1/80)
+        assert!((trapezoid_time_s(1.0, 20.0, 80.0) - 2.0 * (1.0f64 / 80.0).sqrt()).abs() < 1e-12);
+        assert_eq!(trapezoid_time_s(0.0, 20.0, 80.0), 0.0);
+    }
+
+    #[test]
+    fn profile_ends_at_target_at_formula_time_and_is_continuous() {
+        for (d, v, a) in [
+            (30.0, 20.0, 80.0),
+            (1.0, 20.0, 80.0),
+            (-45.0, 10.0, 15.0),
+            (5.0, 20.0, 80.0),
+        ] {
+            let mut m = AxisMotion::new(params(), 0.0);
+            let end = m.start_move(0.0, d, v, a, None);
+            assert!((end - trapezoid_time_s(d, v, a)).abs() < 1e-12);
+            let mut prev = 0.0;
+            let n = 1000;
+            for k in 1..=n {
+                let t = end * f64::from(k) / f64::from(n);
+                let p = m.motor_deg(t);
+                // Monotone and never faster than v.
+                assert!((p - prev) * d.signum() >= -1e-12);
+                assert!((p - prev).abs() <= v * end / f64::from(n) + 1e-9);
+                prev = p;
+            }
+            assert_eq!(m.motor_deg(end + 1.0), d);
+            assert!(!m.is_moving(end + 1.0));
+            assert_eq!(m.end_reason(), MoveEnd::Arrived);
+        }
+    }
+
+    #[test]
+    fn midpoint_of_symmetric_profile_is_half_way() {
+        let mut m = AxisMotion::new(params(), 10.0);
+        let end = m.start_move(0.0, 40.0, 20.0, 80.0, None);
+        assert!((m.motor_deg(end / 2.0) - 25.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn backlash_lands_high_when_approaching_from_above() {
+        let p = AxisParams {
+            backlash_deg: 0.01,
+            ..params()
+        };
+        let mut m = AxisMotion::new(p, 0.0);
+        let t = m.start_move(0.0, 10.0, 20.0, 80.0, None);
+        assert!((m.load_deg(t) - 10.0).abs() < 1e-12, "from below: exact");
+        let t2 = m.start_move(t, 5.0, 20.0, 80.0, None);
+        assert!(
+            (m.load_deg(t2) - 5.01).abs() < 1e-12,
+            "from above: lags by the backlash"
+        );
+        assert!((m.encoder_deg(t2) - 5.01).abs() < 1e-9);
+        // A tiny move up inside the play does not move the load.
+        let t3 = m.start_move(t2, 5.004, 20.0, 80.0, None);
+        assert!((m.load_deg(t3) - 5.01).abs() < 1e-12);
+        let t4 = m.start_move(t3, 6.0, 20.0, 80.0, None);
+        assert!((m.load_deg(t4) - 6.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn encoder_quantises_to_its_resolution() {
+        let mut m = AxisMotion::new(params(), 0.0);
+        let t = m.start_move(0.0, 1.23456, 20.0, 80.0, None);
+        let e = m.encoder_deg(t);
+        assert!((e - 1.2345).abs() < 1e-9 || (e - 1.235).abs() < 1e-9, "{e}");
+        assert!((e / 0.0005 - (e / 0.0005).round()).abs() < 1e-6);
+    }
+
+    #[test]
+    fn limit_switch_stops_the_axis_at_the_limit() {
+        let mut m = AxisMotion::new(params(), 90.0);
+        let end = m.start_move(0.0, 120.0, 20.0, 80.0, None);
+        assert!(end < trapezoid_time_s(30.0, 20.0, 80.0));
+        assert!((m.motor_deg(end + 1.0) - 100.0).abs() < 1e-9);
+        assert_eq!(m.end_reason(), MoveEnd::LimitPositive);
+    }
+
+    #[test]
+    fn stall_stops_short_at_the_fraction() {
+        let mut m = AxisMotion::new(params(), 0.0);
+        let end = m.start_move(0.0, 50.0, 20.0, 80.0, Some(0.5));
+        assert!((m.motor_deg(end + 1.0) - 25.0).abs() < 1e-9);
+        assert_eq!(m.end_reason(), MoveEnd::Stalled);
+    }
+
+    #[test]
+    fn stop_decelerates_over_v_squared_over_2a() {
+        let mut m = AxisMotion::new(params(), 0.0);
+        m.start_move(0.0, 90.0, 20.0, 80.0, None);
+        // Cruising at 20 deg/s from t = 0.25 on.
+        let p1 = m.motor_deg(1.0);
+        let end = m.stop(1.0, 80.0);
+        assert!((end - 1.25).abs() < 1e-12);
+        assert!((m.motor_deg(2.0) - (p1 + 400.0 / 160.0)).abs() < 1e-9);
+        assert_eq!(m.end_reason(), MoveEnd::Stopped);
+    }
+
+    #[test]
+    fn new_move_during_a_move_decelerates_then_goes() {
+        let mut m = AxisMotion::new(params(), 0.0);
+        m.start_move(0.0, 90.0, 20.0, 80.0, None);
+        let end = m.start_move(1.0, 0.0, 20.0, 80.0, None);
+        assert_eq!(m.motor_deg(end + 0.1), 0.0);
+        assert!(end > 1.25);
+    }
+}
