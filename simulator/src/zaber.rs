@@ -11,6 +11,21 @@
 //! Warning flags: WR (no reference position) until homed, FS (stalled and stopped) after a stall, WL
 //! (unexpected limit) after running into a limit switch, NI (movement interrupted) after a stop or a new
 //! movement command during a movement. Absolute movements are refused (BADCOMMAND) while WR is set.
+//!
+//! Checked against the vendor host library (zaber-motion 10.3, `tests/zaber_host_library.py`): it opens the
+//! port, detects both devices (`/0 0 00` broadcast, then per device `get comm.packet.size.max`, and with
+//! identification `get deviceid`, `system.serial`, `version`, `version.build`, `device.hw.modified`,
+//! `comm.command.packets.max`, `comm.word.size.max`, `get.settings.max`, `system.axiscount`, per axis
+//! `resolution` and `peripheralid`), homes (`home`, `warnings clear`, empty-command polls, alert), moves
+//! (`move abs`, `move rel`, `move vel`, `stop`), reads `pos` and settings, maps `RJ BADDATA` to its
+//! BadDataException and verifies reply checksums after `set comm.checksum 1`. It sends a message id and a
+//! checksum on every command. Settings this emulation rejects as unknown (`device.hw.modified`,
+//! `comm.command.packets.max`, `comm.word.size.max`, `get.settings.max`, `peripheralid`) are tolerated by the
+//! library; in every exchange observed it then sent single-packet commands and single-setting gets, so `cont`
+//! packets and `#` info messages are not emulated. Identification itself needs Zaber's online device database (not
+//! reachable offline), so the library test runs with `identify_devices=False`, in native units.
+//! Still unconfirmed against the manual: silence on a bad checksum, the flag field of a `warnings clear`
+//! reply, BADCOMMAND for absolute moves without reference, and the `device.id`/`version` values.
 
 use std::collections::BTreeSet;
 use std::sync::{Arc, Mutex};
@@ -26,9 +41,10 @@ use crate::session::{Output, SerialEmulator};
 const MAX_COMMAND: usize = 256;
 /// Largest packet the device sends or accepts, as reported by `get comm.packet.size.max`.
 const PACKET_SIZE_MAX: u32 = 80;
-/// Firmware version reported by `get version`.
+/// Firmware version reported by `get version` (a real firmware release; the build number is made up).
 const FIRMWARE_VERSION: &str = "7.38";
-/// Device id reported by `get device.id` (an integrated rotary stage).
+/// Device id reported by `get device.id` / `get deviceid`. UNCONFIRMED: not checked against Zaber's device
+/// database (unreachable here); a host library that identifies devices online would look this id up.
 const DEVICE_ID: u32 = 50081;
 const VELOCITY_DATA_PER_USTEP_S: f64 = 1.6384;
 const ACCEL_DATA_PER_USTEP_S2: f64 = 1.6384 / 10_000.0;
@@ -106,7 +122,8 @@ impl ZAxis {
         }
     }
 
-    fn start(&mut self, now: f64, target_deg: f64, faults: &DeviceFaults) {
+    /// Start a movement to `target_deg` at `speed_deg_s` (the axis' `maxspeed` for every move but `move vel`).
+    fn start(&mut self, now: f64, target_deg: f64, speed_deg_s: f64, faults: &DeviceFaults) {
         if self.motion().is_moving(now) {
             self.flags.insert("NI");
         }
@@ -117,8 +134,8 @@ impl ZAxis {
         } else {
             None
         };
-        let (v, a) = (self.speed_deg_s, self.accel_deg_s2);
-        self.motion().start_move(now, target_deg, v, a, stall);
+        let a = self.accel_deg_s2;
+        self.motion().start_move(now, target_deg, speed_deg_s, a, stall);
         self.busy = true;
         self.alert_due_s = None;
     }
@@ -346,13 +363,14 @@ fn execute(dev: &mut ZDevice, cmd: &Command<'_>, now: f64, faults: &DeviceFaults
         ("home", 1) => {
             for i in targets(dev) {
                 let a = &mut dev.axes[i];
-                a.start(now, 0.0, faults);
+                let v = a.speed_deg_s;
+                a.start(now, 0.0, v, faults);
                 a.motion().dwell(now, HOMING_SEARCH_S);
                 a.homing = true;
             }
             Outcome::Ok("0".into())
         }
-        ("move", 2) | ("move", 3) => {
+        ("move", 2) | ("move", 3) if words[1] != "vel" => {
             let kind = words[1];
             let arg: Option<i64> = words.get(2).and_then(|w| w.parse().ok());
             if words.len() == 3 && arg.is_none() {
@@ -384,7 +402,31 @@ fn execute(dev: &mut ZDevice, cmd: &Command<'_>, now: f64, faults: &DeviceFaults
             for (i, steps) in plan {
                 let a = &mut dev.axes[i];
                 let target = steps as f64 * a.microstep_deg;
-                a.start(now, target, faults);
+                let v = a.speed_deg_s;
+                a.start(now, target, v, faults);
+            }
+            Outcome::Ok("0".into())
+        }
+        // `move vel N`: turn at N (velocity data units, sign = direction) until stopped or until the travel
+        // limit, where the device stops by itself. Velocity moves need no reference position. `move vel 0`
+        // decelerates to rest. The vendor host library sends this for `Axis.move_velocity`.
+        ("move", 3) if words[1] == "vel" => {
+            let Some(data) = words.get(2).and_then(|w| w.parse::<i64>().ok()) else {
+                return Outcome::Rejected("BADDATA");
+            };
+            for i in targets(dev) {
+                let a = &mut dev.axes[i];
+                let speed_deg_s = data.unsigned_abs() as f64 / VELOCITY_DATA_PER_USTEP_S * a.microstep_deg;
+                if data == 0 {
+                    if a.motion().is_moving(now) {
+                        let acc = a.accel_deg_s2;
+                        a.motion().stop(now, acc);
+                    }
+                    continue;
+                }
+                let limit = if data > 0 { a.limit_max } else { a.limit_min };
+                let target = limit as f64 * a.microstep_deg;
+                a.start(now, target, speed_deg_s, faults);
             }
             Outcome::Ok("0".into())
         }
@@ -472,7 +514,10 @@ fn get(dev: &mut ZDevice, cmd: &Command<'_>, setting: &str, now: f64) -> Outcome
             "limit.max" => a.limit_max.to_string(),
             "limit.home.pos" => "0".into(),
             "resolution" => "64".into(),
-            "peripheral.id" => "0".into(),
+            // An integrated device has no peripheral: `peripheral.id` (FW7 name) and `peripheralid` (the older
+            // name, still the one the vendor host library asks) are both rejected as unknown settings.
+            // UNCONFIRMED against a real X-series device; the library accepts BADCOMMAND here.
+            "peripheral.id" | "peripheralid" => return Outcome::Rejected("BADCOMMAND"),
             _ => return Outcome::Rejected("BADCOMMAND"),
         };
         values.push(v);

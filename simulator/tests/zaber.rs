@@ -277,3 +277,75 @@ async fn stall_stops_short_idle_with_fs() {
         Some("@01 0 OK IDLE -- 00\r\n")
     );
 }
+
+/// The position (microsteps) in a `get pos` reply.
+fn reply_pos(reply: &str) -> i64 {
+    reply
+        .trim_end()
+        .rsplit(' ')
+        .next()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no position in {reply:?}"))
+}
+
+#[tokio::test(start_paused = true)]
+async fn move_vel_turns_at_the_commanded_speed_and_stops_at_the_travel_limit() {
+    let sim = sim();
+    let mut p = Port::open(&sim, "stage");
+    home_all(&mut p, &sim).await;
+    let ustep_deg = 0.000_234_375;
+    // 10 deg/s in velocity data units (microsteps/s x 1.6384).
+    let v_deg_s = 10.0;
+    let data = (v_deg_s / ustep_deg * 1.6384f64).round() as i64;
+    let t0 = sim.now_s();
+    assert_eq!(
+        p.query(&format!("/1 1 move vel {data}\n")).await.as_deref(),
+        Some("@01 1 OK BUSY -- 0\r\n")
+    );
+    // Past the acceleration (v / a = 83 ms), two reads 1 s apart are v * 1 s apart. (Each read is handled
+    // when its last byte has arrived, the same delay for both.)
+    sim.clock().sleep_until_s(t0 + 1.0).await;
+    let r = p.query("/1 1 get pos\n").await.expect("reply");
+    assert!(r.starts_with("@01 1 OK BUSY --"), "{r}");
+    let first = reply_pos(&r);
+    assert!(
+        first as f64 * ustep_deg > 0.9 * v_deg_s,
+        "moving forward: {first}"
+    );
+    sim.clock().sleep_until_s(t0 + 2.0).await;
+    let second = reply_pos(&p.query("/1 1 get pos\n").await.expect("reply"));
+    // The data unit rounds the speed to 1/1.6384 microstep/s; positions round to a microstep.
+    let travelled_deg = (second - first) as f64 * ustep_deg;
+    assert!(
+        (travelled_deg - v_deg_s).abs() < 2.0 * ustep_deg,
+        "{travelled_deg} deg in 1 s, expected {v_deg_s}"
+    );
+    // `move vel 0` brings the axis to rest.
+    assert!(
+        p.query("/1 1 move vel 0\n")
+            .await
+            .expect("reply")
+            .starts_with("@01 1 OK")
+    );
+    sim.clock().sleep_s(1.0).await;
+    let r = p.query("/1 1 get pos\n").await.expect("reply");
+    assert!(r.starts_with("@01 1 OK IDLE --"), "{r}");
+    // Backwards: the device stops by itself at limit.min (-90 deg), without a limit warning.
+    let limit_min = reply_pos(&p.query("/1 1 get limit.min\n").await.expect("reply"));
+    assert!(
+        p.query(&format!("/1 1 move vel -{data}\n"))
+            .await
+            .expect("reply")
+            .starts_with("@01 1 OK BUSY")
+    );
+    sim.clock().sleep_s(15.0).await;
+    assert_eq!(
+        p.query("/1 1 get pos\n").await,
+        Some(format!("@01 1 OK IDLE -- {limit_min}\r\n"))
+    );
+    assert!((sim.pose().tilt_deg + 90.0).abs() < 1e-9);
+    assert_eq!(
+        p.query("/1 1 move vel x\n").await.as_deref(),
+        Some("@01 1 RJ IDLE -- BADDATA\r\n")
+    );
+}

@@ -232,8 +232,13 @@ fn check_geometry(
 ) -> Result<(f64, f64), MeasurementError> {
     non_negative("angle_std_rad", geometry.angle_std_rad)?;
     let min_cos = finite("min_cos_theta_o", limits.min_cos_theta_o)?;
-    let cos_i = geometry.wi.cos_theta();
-    let cos_o = geometry.wo.cos_theta();
+    // A direction built from a NaN angle (e.g. "nan" in a plan file) has NaN components, and NaN passes every
+    // `<`/`<=` test below: refuse it by name here (found by tests/stress.rs; it used to surface only as a
+    // non-finite "result").
+    let cos_i = finite("wi.cos_theta", geometry.wi.cos_theta())?;
+    let cos_o = finite("wo.cos_theta", geometry.wo.cos_theta())?;
+    finite("wi.sin_theta", geometry.wi.sin_theta())?;
+    finite("wo.sin_theta", geometry.wo.sin_theta())?;
     if cos_o < min_cos || cos_o <= 0.0 {
         return Err(MeasurementError::GrazingDetector {
             cos_theta_o: cos_o,

@@ -15,9 +15,14 @@
 //!   where `G` is this model's masking-shadowing evaluated with the (clamped) alphas at the macro normal
 //!   ([`Microfacet::delta_masking`]). That is the exact limit of the lobe's directional albedo
 //!   `integral f cos(theta_o) d wo` as the lobe narrows (D concentrates at the normal, where the half vector is
-//!   the normal and `wi . h = cos theta_i`), so the power a finite detector aperture collects around the mirror
-//!   direction is continuous across the switch: it changes by O(alpha^2) ~ 1e-6 relative, far below any
-//!   measurement noise (the test `delta_switch_preserves_reflected_power` checks it numerically).
+//!   the normal and `wi . h = cos theta_i`), so the total reflected power is continuous across the switch: it
+//!   changes by O(alpha^2) ~ 1e-6 relative (tests `delta_switch_preserves_reflected_power` and, in
+//!   tests/stress.rs, `alpha_clamp_and_delta_switch_are_continuous_in_reflected_power`).
+//!   The power inside a finite aperture of half-angle beta around the mirror direction is continuous to the
+//!   same order for Beckmann (Gaussian tail) but NOT for GGX, whose power-law tail puts a fraction
+//!   `alpha^2 / (alpha^2 + tan^2(beta/2))` of the lobe outside the aperture (at normal incidence): at alpha = 1e-3
+//!   that is 1.6e-3 for beta = 0.05 rad and 3.8% for a 0.01 rad aperture; the delta puts it all inside. (Found by
+//!   the stress suite; an earlier version of this comment claimed O(alpha^2) for the aperture too.)
 //!   Only the pointwise values are discontinuous, as they must be: a lobe of width 1e-3 rad has a peak of
 //!   ~3e5 1/sr, a delta has none.
 //! - The switch needs both alphas below the threshold: a lobe that is narrow in one direction only stays a lobe.

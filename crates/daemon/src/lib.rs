@@ -2,5 +2,26 @@
 //!
 //! Module map:
 //! - [`store`]: the durable SQLite store (campaigns, configuration, devices, calibrations, points) and resume.
+//! - [`campaign`]: the campaign file (schema, validation with file/line/key messages, plan and schedule).
+//! - [`rig`]: the connected instrument (drivers for every device; the in-process simulator for dry-runs).
+//! - [`control`]: the seam to whoever drives a run: [`control::Control`] requests in, [`control::Event`]s out.
+//! - [`engine`]: [`engine::run_campaign`], [`engine::prepare_campaign`], [`engine::EngineError`].
+//! - `runner`: the run loop itself (calibration, per-point acquisition, faults, resume).
+//! - [`export`]: the points CSV (shared by `gonio run` and the HTTP API).
+//! - [`service`]: the daemon's core: the campaign queue (one at a time, interrupted ones first), request routing,
+//!   emergency stop, graceful shutdown.
+//! - [`api`]: the HTTP/JSON control API (axum) with server-sent events, the token rule, and the server loop.
 
+pub mod api;
+pub mod campaign;
+pub mod control;
+pub mod engine;
+pub mod export;
+pub mod rig;
+mod runner;
+pub mod service;
 pub mod store;
+
+pub use control::{Control, Event};
+pub use engine::{EngineError, PreparedCampaign, prepare_campaign, run_campaign};
+pub use rig::Rig;

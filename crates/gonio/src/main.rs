@@ -5,9 +5,12 @@
 
 mod brdf_check;
 mod brdf_eval;
+mod ctl;
+mod daemon;
 mod devices;
 mod error;
 mod plan;
+mod run;
 mod sim;
 
 use std::process::ExitCode;
@@ -34,6 +37,12 @@ enum Command {
     Plan(plan::PlanArgs),
     /// Serve the simulated instrument's devices on pseudo-terminals until interrupted.
     Sim(sim::SimArgs),
+    /// Run one campaign in the foreground (resuming it if interrupted), then write points.csv and run.json.
+    Run(run::RunArgs),
+    /// Run the acquisition service: campaign queue and HTTP/JSON control API (loopback unless given a token).
+    Daemon(daemon::DaemonArgs),
+    /// Control a running daemon: submit, status, pause, resume, abort, confirm, estop, watch, points.
+    Ctl(ctl::CtlArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -51,8 +60,11 @@ fn main() -> ExitCode {
         Command::Brdf(BrdfCommand::Eval(args)) => brdf_eval::run(args),
         Command::Brdf(BrdfCommand::Check(args)) => brdf_check::run(args),
         Command::Sim(args) => sim::run(args),
+        Command::Run(args) => run::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Plan(args) => plan::run(args),
+        Command::Daemon(args) => daemon::run(args),
+        Command::Ctl(args) => ctl::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

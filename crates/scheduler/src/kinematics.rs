@@ -291,8 +291,21 @@ impl Kinematics {
             } else {
                 self.hint_vertical(hint)
             };
-            let d = dot(h, wi);
-            let mut p = [h[0] - d * wi.x(), h[1] - d * wi.y(), h[2] - d * wi.z()];
+            // The component of h perpendicular to wi, as wi x (h x wi) rather than h - (h . wi) wi: when h is nearly
+            // parallel to wi the subtraction cancels (1 - 1 = 0 where the true value is 1e-18), leaving an arm plane
+            // that misses wi by up to its elevation (tests/stress.rs: wi 1e-9 rad above the horizon, forward
+            // kinematics 1e-9 rad off). The double cross product has no cancellation.
+            let w = [wi.x(), wi.y(), wi.z()];
+            let c = [
+                h[1] * w[2] - h[2] * w[1],
+                h[2] * w[0] - h[0] * w[2],
+                h[0] * w[1] - h[1] * w[0],
+            ];
+            let mut p = [
+                w[1] * c[2] - w[2] * c[1],
+                w[2] * c[0] - w[0] * c[2],
+                w[0] * c[1] - w[1] * c[0],
+            ];
             if self.kind == GeometryKind::InPlane {
                 // Perpendicular to both wi and the normal: wi x n, unless wi is the normal itself.
                 let q = [wi.y(), -wi.x(), 0.0];

@@ -1,0 +1,116 @@
+//! SVG plots of the benchmark report (plotters, SVG backend only).
+
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use crate::readings::{FixedComparison, ReadingPoint};
+
+/// Errors below this are drawn at it (an exact result has no place on a log axis).
+const ERROR_FLOOR: f64 = 1e-17;
+
+type PlotResult = Result<(), Box<dyn std::error::Error>>;
+
+/// Time per reading against actual relative error, one line per (material, geometry) over the tolerances.
+pub fn reading_time_vs_error(path: &Path, points: &[ReadingPoint]) -> PlotResult {
+    let root = SVGBackend::new(path, (960, 640)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let t_max = points.iter().map(|p| p.time_us).fold(1.0, f64::max) * 2.0;
+    let t_min = points
+        .iter()
+        .map(|p| p.time_us)
+        .fold(f64::INFINITY, f64::min)
+        .max(1e-3)
+        / 2.0;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Simulator reading: time against actual error (tolerances 1e-2..1e-8)",
+            ("sans-serif", 20),
+        )
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d((ERROR_FLOOR..1.0).log_scale(), (t_min..t_max).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc("actual relative error vs brute-force reference")
+        .y_desc("time per reading (us)")
+        .draw()?;
+    let mut series: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    for p in points {
+        let key = format!("{} / {}", p.material, p.geometry);
+        let xy = (p.rel_error.max(ERROR_FLOOR), p.time_us);
+        match series.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, v)) => v.push(xy),
+            None => series.push((key, vec![xy])),
+        }
+    }
+    for (i, (name, xy)) in series.into_iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        chart
+            .draw_series(LineSeries::new(xy.clone(), colour.stroke_width(2)))?
+            .label(name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+        chart.draw_series(xy.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}
+
+/// The fixed tensor rule's error against its time (lines) and the adaptive reading at tolerance 1e-6 (points).
+pub fn adaptive_vs_fixed(path: &Path, comparisons: &[FixedComparison]) -> PlotResult {
+    let root = SVGBackend::new(path, (960, 640)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let all_t = comparisons
+        .iter()
+        .flat_map(|c| c.curve.iter().map(|p| p.time_us).chain([c.adaptive_time_us]));
+    let (t_min, t_max) = all_t.fold((f64::INFINITY, 1.0f64), |(a, b), t| (a.min(t), b.max(t)));
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Fixed Gauss x trapezoid rule (lines) vs adaptive reading at tol 1e-6 (dots)",
+            ("sans-serif", 20),
+        )
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(
+            ((t_min.max(1e-3)) / 2.0..t_max * 2.0).log_scale(),
+            (ERROR_FLOOR..1.0).log_scale(),
+        )?;
+    chart
+        .configure_mesh()
+        .x_desc("time (us)")
+        .y_desc("actual relative error")
+        .draw()?;
+    for (i, c) in comparisons.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        let xy: Vec<(f64, f64)> = c
+            .curve
+            .iter()
+            .map(|p| (p.time_us, p.rel_error.max(ERROR_FLOOR)))
+            .collect();
+        chart
+            .draw_series(LineSeries::new(xy, colour.stroke_width(2)))?
+            .label(format!("{} / {}", c.material, c.geometry))
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+        chart.draw_series(std::iter::once(Circle::new(
+            (c.adaptive_time_us, c.adaptive_error.max(ERROR_FLOOR)),
+            6,
+            colour.filled(),
+        )))?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}

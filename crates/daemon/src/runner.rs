@@ -1,0 +1,1056 @@
+//! The run loop behind [`crate::engine::run_campaign`].
+//!
+//! Order of work: rebuild the campaign (plan and schedule) from the texts stored with it, never from current
+//! files; connect the sample (dry-runs); home axes that lost their reference; a calibration preamble (darks for
+//! every band, direct-beam readings for every band) on every start and resume; then the schedule's steps from
+//! the first uncommitted point, with the schedule's own dark and direct-beam steps in between.
+//!
+//! Per point: plan the move from where the axes really are (read-back) to the step's pose with the scheduler's
+//! time model (arm-collision-safe phases, backlash approach waypoints), run each phase's axes concurrently
+//! (`start_move` on each, then `wait_arrived`), settle, select the band, read, subtract the dark, apply the
+//! absolute measurement equation with the direct-beam power extrapolated in time (source drift), commit.
+//!
+//! Faults: transient errors (timeouts, garbled replies) are retried a bounded number of times; a lost device
+//! is reconnected (and re-homed when it lost its reference); what still fails becomes a failed-point record with
+//! the device's reason, and three failed points in a row, any calibration failure, a device that cannot be
+//! reconnected, or a store write failure pause the campaign with the reason. Nothing waits without a deadline:
+//! the drivers bound every exchange.
+
+use std::collections::BTreeMap;
+use std::future::Future;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+use gonio_brdf::measurement::{
+    AbsoluteReadings, Footprint, MeasurementError, MeasurementGeometry, Reading, ValidityLimits,
+    absolute_brdf,
+};
+use gonio_brdf::{Direction, Wavelength};
+use gonio_driver::{DetectorConfig, DriverError, ErrorKind, PowerRange};
+use gonio_instrument::InstrumentFile;
+use gonio_scheduler::kinematics::{Pose, ROLES};
+use gonio_scheduler::schedule::{Step, StepKind};
+use gonio_simulator::optics::{Optics, SampleSpec};
+
+use crate::campaign::{self, Campaign, Method, Range};
+use crate::control::{Control, Event};
+use crate::engine::EngineError;
+use crate::rig::{Rig, RigAxis, futures_join_all};
+use crate::store::{CalibrationRecord, CampaignId, CampaignState, PointRecord, Store, StoreError};
+
+/// Failed points in a row after which the campaign pauses instead of recording more failures.
+const MAX_FAILED_IN_ROW: u32 = 3;
+/// Relative standard uncertainty of one reading from the source's short-term noise and the meter's linearity.
+const READING_REL_STD: f64 = 2.0e-4;
+/// Standard uncertainty of one reading from the range (converter resolution, offset), relative to full scale.
+const READING_RANGE_STD: f64 = 2.0e-5;
+/// Relative standard uncertainty of the detector's solid angle (aperture radius and distance as calibrated).
+const SOLID_ANGLE_REL_STD: f64 = 1.0e-3;
+/// Direct-beam readings closer in time than this are not used to extrapolate drift (s).
+const MIN_DRIFT_BASE_S: f64 = 30.0;
+
+/// Why the loop stopped before the end.
+#[derive(Debug)]
+enum Interrupt {
+    Pause(String),
+    Abort,
+    Estop,
+    /// Store write failure (disk full, read-only): pause with the reason.
+    StoreWrite(String),
+    /// Anything else the engine cannot continue after.
+    Fatal(EngineError),
+}
+
+/// Instrument time: the simulator's clock in dry-runs, else tokio's.
+#[derive(Debug, Clone, Copy)]
+enum Clock {
+    Sim(gonio_simulator::clock::SimClock),
+    Tokio(tokio::time::Instant),
+}
+
+impl Clock {
+    fn now_s(&self) -> f64 {
+        match self {
+            Clock::Sim(c) => c.now_s(),
+            Clock::Tokio(t0) => t0.elapsed().as_secs_f64(),
+        }
+    }
+    async fn sleep_s(&self, s: f64) {
+        if !(s.is_finite() && s > 0.0) {
+            return;
+        }
+        match self {
+            Clock::Sim(c) => c.sleep_s(s).await,
+            Clock::Tokio(_) => tokio::time::sleep(std::time::Duration::from_secs_f64(s.min(3600.0))).await,
+        }
+    }
+}
+
+/// Which device an operation talks to (for recovery).
+#[derive(Clone, Copy)]
+enum Dev<'a> {
+    Axis(&'a RigAxis),
+    Detector,
+    Wheel,
+}
+
+fn band_key(nm: f64) -> u64 {
+    nm.to_bits()
+}
+
+struct Run<'a> {
+    store: Arc<Mutex<Store>>,
+    id: CampaignId,
+    rig: &'a Rig,
+    control: Control,
+    c: Campaign,
+    file: InstrumentFile,
+    axis_names: Vec<String>,
+    clock: Clock,
+    /// Instrument time of this session's start in campaign time (continues across resumes).
+    t_base: f64,
+    t_clock0: f64,
+    /// Where the axes are (physical degrees, read back).
+    current: Pose,
+    readback: Vec<f64>,
+    configured_nm: Option<f64>,
+    wheel_at: Option<u8>,
+    darks: BTreeMap<u64, (f64, Reading)>,
+    direct: BTreeMap<u64, Vec<(f64, Reading)>>,
+    failed_in_row: u32,
+    optics: Option<Arc<Optics>>,
+    done: u64,
+    total: u64,
+}
+
+pub(crate) async fn run(
+    store: Arc<Mutex<Store>>,
+    id: CampaignId,
+    rig: &Rig,
+    control: Control,
+) -> Result<CampaignState, EngineError> {
+    control.clear_requests();
+    control.attach_rig(rig);
+    let rec = lock(&store).campaign(id)?;
+    if rec.state.is_final() {
+        return Ok(rec.state);
+    }
+    let not_runnable = |message: String| EngineError::NotRunnable { id, message };
+    let file = InstrumentFile::parse(&rec.instrument_toml, "<stored instrument file>")
+        .map_err(|e| not_runnable(format!("its stored instrument file is no longer valid: {e}")))?;
+    if file.instrument != rig.file().instrument {
+        return Err(not_runnable(format!(
+            "it was submitted for instrument {:?}, the connected instrument is {:?} with a different description",
+            file.instrument.name,
+            rig.file().instrument.name
+        )));
+    }
+    let origin = format!("<stored campaign {id}>");
+    let c = campaign::parse(&rec.campaign_toml, &origin, Path::new("."), &file)
+        .map_err(|e| not_runnable(format!("its stored campaign file no longer validates: {e}")))?;
+    let total = c.total_points();
+    if total != rec.total_points {
+        return Err(not_runnable(format!(
+            "the stored campaign plans {total} points now but {} when submitted",
+            rec.total_points
+        )));
+    }
+    if c.calibration.method == Method::Relative {
+        return Err(not_runnable(
+            "[calibration] method = \"relative\" is not supported by this engine yet; use \"absolute\""
+                .into(),
+        ));
+    }
+    if c.dry_run != rig.is_dry_run() {
+        return Err(not_runnable(
+            "the campaign's dry-run flag does not match the connected instrument".into(),
+        ));
+    }
+    let optics = match (&c.material, rig.is_dry_run()) {
+        (Some(m), true) => Some(rig.mount_sample(
+            SampleSpec {
+                material: m.clone(),
+                radius_mm: c.sample_radius_mm,
+                orientation_deg: 0.0,
+            },
+            file.simulator.seed,
+        )?),
+        _ => None,
+    };
+    let clock = match rig.sim() {
+        Some(s) => Clock::Sim(s.clock()),
+        None => Clock::Tokio(tokio::time::Instant::now()),
+    };
+    let (done, t_last) = {
+        let s = lock(&store);
+        let done = s.next_index(id)?;
+        let last_point = s
+            .points_from(id, done.saturating_sub(1))?
+            .last()
+            .map(|p| p.t_s)
+            .unwrap_or(0.0);
+        let last_cal = s.calibrations(id)?.iter().map(|c| c.t_s).fold(0.0f64, f64::max);
+        (done, last_point.max(last_cal))
+    };
+    let axis_names = file.instrument.axes.iter().map(|a| a.name.clone()).collect();
+    let mut run = Run {
+        store,
+        id,
+        rig,
+        control,
+        c,
+        file,
+        axis_names,
+        clock,
+        t_base: if done > 0 || t_last > 0.0 {
+            t_last + 1.0
+        } else {
+            0.0
+        },
+        t_clock0: clock.now_s(),
+        current: Pose::new(0.0, 0.0, 0.0, 0.0),
+        readback: Vec::new(),
+        configured_nm: None,
+        wheel_at: None,
+        darks: BTreeMap::new(),
+        direct: BTreeMap::new(),
+        failed_in_row: 0,
+        optics,
+        done,
+        total,
+    };
+    let outcome = run.go().await;
+    run.finish(outcome).await
+}
+
+fn lock(store: &Arc<Mutex<Store>>) -> std::sync::MutexGuard<'_, Store> {
+    store.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl<'a> Run<'a> {
+    fn t(&self) -> f64 {
+        self.t_base + (self.clock.now_s() - self.t_clock0)
+    }
+
+    fn emit_state(&self, state: CampaignState, message: Option<String>) {
+        self.control.emit(Event::State {
+            campaign: self.id,
+            state,
+            message,
+        });
+    }
+
+    fn fault(&self, message: String) {
+        tracing::warn!(campaign = %self.id, "{message}");
+        self.control.emit(Event::Fault {
+            campaign: self.id,
+            message,
+        });
+    }
+
+    /// A store operation; write failures pause, anything else is fatal.
+    fn st<T>(&self, f: impl FnOnce(&mut Store) -> Result<T, StoreError>) -> Result<T, Interrupt> {
+        let mut s = lock(&self.store);
+        f(&mut s).map_err(|e| {
+            if e.is_write_failure() {
+                Interrupt::StoreWrite(e.to_string())
+            } else {
+                Interrupt::Fatal(e.into())
+            }
+        })
+    }
+
+    /// A pending request at a safe point.
+    fn safe_point(&self) -> Result<(), Interrupt> {
+        if self.control.estop_requested() {
+            return Err(Interrupt::Estop);
+        }
+        if self.control.abort_requested() {
+            return Err(Interrupt::Abort);
+        }
+        if self.control.pause_requested() {
+            return Err(Interrupt::Pause("paused by request".into()));
+        }
+        Ok(())
+    }
+
+    /// Resolves when an emergency stop is requested.
+    async fn estop_signal(&self) {
+        loop {
+            let n = self.control.notified();
+            tokio::pin!(n);
+            n.as_mut().enable();
+            if self.control.estop_requested() {
+                return;
+            }
+            n.await;
+        }
+    }
+
+    /// Run a device operation with bounded retries and recovery; an emergency stop cancels it at once.
+    async fn device<T, F, Fut>(&self, dev: Dev<'_>, what: &str, mut op: F) -> Result<T, Interrupt>
+    where
+        F: FnMut() -> Fut,
+        Fut: Future<Output = Result<T, DriverError>>,
+    {
+        let attempts = self.c.acquisition.retries + 1;
+        let mut last = String::new();
+        for attempt in 1..=attempts {
+            let r = tokio::select! {
+                r = op() => r,
+                _ = self.estop_signal() => return Err(Interrupt::Estop),
+            };
+            let e = match r {
+                Ok(v) => return Ok(v),
+                Err(e) => e,
+            };
+            if self.control.estop_requested() {
+                return Err(Interrupt::Estop);
+            }
+            last = e.to_string();
+            self.fault(format!("{what}: {e} (attempt {attempt} of {attempts})"));
+            match e.kind() {
+                ErrorKind::Timeout
+                | ErrorKind::Protocol
+                | ErrorKind::Disconnected
+                | ErrorKind::Unavailable => {
+                    if matches!(e.kind(), ErrorKind::Disconnected | ErrorKind::Unavailable) || attempt > 1 {
+                        self.recover(dev).await?;
+                    }
+                }
+                ErrorKind::NotReferenced => {
+                    if let Dev::Axis(a) = dev {
+                        self.home(a).await?;
+                    }
+                }
+                // An absolute move that stopped short is safe to command again once.
+                ErrorKind::MotionFault if matches!(dev, Dev::Axis(_)) => {
+                    self.recover(dev).await?;
+                }
+                _ => break,
+            }
+        }
+        // Out of attempts: the device's own reason, for a failed point (or a pause, during calibration).
+        Err(Interrupt::Fatal(EngineError::Device(last)))
+    }
+
+    /// Reconnect a device, with a few spaced attempts; re-home an axis that lost its reference.
+    async fn recover(&self, dev: Dev<'_>) -> Result<(), Interrupt> {
+        let mut last = String::new();
+        for wait_s in [0.0, 0.5, 2.0, 5.0, 10.0] {
+            self.clock.sleep_s(wait_s).await;
+            if self.control.estop_requested() {
+                return Err(Interrupt::Estop);
+            }
+            let r = match dev {
+                Dev::Axis(a) => match a.driver.reconnect().await {
+                    Ok(_) => Ok(()),
+                    Err(e) if e.kind() == ErrorKind::NotReferenced => return self.home(a).await,
+                    Err(e) => Err(e),
+                },
+                Dev::Detector => self.rig.detector().reconnect().await,
+                Dev::Wheel => match self.rig.wheel() {
+                    Some(w) => w.reconnect().await,
+                    None => Ok(()),
+                },
+            };
+            match r {
+                Ok(()) => {
+                    tracing::info!("device reconnected");
+                    return Ok(());
+                }
+                Err(e) => {
+                    last = e.to_string();
+                    self.fault(format!("reconnect: {e}"));
+                }
+            }
+        }
+        Err(Interrupt::Pause(format!(
+            "a device cannot be reconnected: {last}"
+        )))
+    }
+
+    async fn home(&self, a: &RigAxis) -> Result<(), Interrupt> {
+        tracing::info!(axis = %a.config.name, "homing");
+        tokio::select! {
+            r = a.driver.home() => r.map_err(|e| Interrupt::Pause(format!("homing {}: {e}", a.config.name))),
+            _ = self.estop_signal() => Err(Interrupt::Estop),
+        }
+    }
+
+    async fn go(&mut self) -> Result<(), Interrupt> {
+        self.st(|s| s.set_state(self.id, CampaignState::Running, None))?;
+        self.emit_state(CampaignState::Running, None);
+        self.progress(None);
+
+        let ids = self.rig.identities().await;
+        for (name, identity) in &ids {
+            self.st(|s| s.record_device(self.id, name, identity))?;
+        }
+        // Reference every axis and learn where it is.
+        for a in self.rig.axes() {
+            let status = self
+                .device(Dev::Axis(a), &format!("status of {}", a.config.name), || {
+                    a.driver.status()
+                })
+                .await?;
+            if !status.referenced {
+                self.home(a).await?;
+            }
+        }
+        self.read_positions().await?;
+
+        if self.done >= self.total {
+            return Ok(());
+        }
+        let steps: Vec<Step> = self.c.schedule.steps.clone();
+        let mut measure_seen = 0u64;
+        let mut start = steps.len();
+        for (i, s) in steps.iter().enumerate() {
+            if s.kind == StepKind::Measure {
+                if measure_seen == self.done {
+                    start = i;
+                    break;
+                }
+                measure_seen += 1;
+            }
+        }
+        if self.done > 0 {
+            tracing::info!(campaign = %self.id, from = self.done, "resuming");
+        }
+
+        // Calibration preamble: darks and the direct beam for every band, on every (re)start.
+        let bands = self.c.plan.bands_nm.clone();
+        self.darks_all(&bands).await?;
+        self.direct_beam(&bands, None).await?;
+
+        let mut i = start;
+        while i < steps.len() {
+            self.safe_point()?;
+            let Some(step) = steps.get(i) else { break };
+            match step.kind {
+                StepKind::Dark => {
+                    self.darks_all(&bands).await?;
+                    i += 1;
+                }
+                StepKind::Reference => {
+                    // One operator session for a run of consecutive reference steps.
+                    let mut group = Vec::new();
+                    let pose = step.pose;
+                    while let Some(s) = steps.get(i).filter(|s| s.kind == StepKind::Reference) {
+                        if let Some(b) = s.band_nm {
+                            group.push(b);
+                        }
+                        i += 1;
+                    }
+                    if group.is_empty() {
+                        group = bands.clone();
+                    }
+                    self.direct_beam(&group, Some(pose)).await?;
+                }
+                StepKind::Measure => {
+                    let next_start = steps.get(i + 1).map(|s| s.start_s);
+                    self.measure(step, next_start).await?;
+                    i += 1;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn progress(&self, next_start_s: Option<f64>) {
+        let eta_s = next_start_s.map(|s| (self.c.schedule.breakdown.total_s() - s).max(0.0));
+        self.control.emit(Event::Progress {
+            campaign: self.id,
+            done: self.done,
+            total: self.total,
+            eta_s,
+        });
+    }
+
+    async fn read_positions(&mut self) -> Result<(), Interrupt> {
+        let mut readback = Vec::new();
+        for a in self.rig.axes() {
+            let p = self
+                .device(Dev::Axis(a), &format!("position of {}", a.config.name), || {
+                    a.driver.position_deg()
+                })
+                .await?;
+            self.current.set(a.config.role, p);
+            readback.push(p);
+        }
+        self.readback = readback;
+        Ok(())
+    }
+
+    /// Move to `target` (physical pose) along a safe, backlash-aware move planned from where the axes are.
+    async fn move_to(&mut self, target: &Pose) -> Result<(), Interrupt> {
+        let movement = match self.c.time.plan_move(&self.current, target) {
+            Ok(m) => m,
+            Err(reason) => self.separating_move(target).ok_or_else(|| {
+                Interrupt::Fatal(EngineError::Device(format!(
+                    "no safe move from {:?} to {:?}: {}",
+                    self.current,
+                    target,
+                    reason.name()
+                )))
+            })?,
+        };
+        let axes = self.rig.axes();
+        let mut arrived = Vec::new();
+        for phase in &movement.phases {
+            let this = &*self;
+            let moves = phase.iter().map(|m| async move {
+                let a = axes.get(m.axis_index).ok_or_else(|| {
+                    Interrupt::Fatal(EngineError::Instrument(format!(
+                        "the move plan names axis #{}",
+                        m.axis_index
+                    )))
+                })?;
+                let Some(last) = m.waypoints_deg.last() else {
+                    return Ok((m.axis_index, f64::NAN));
+                };
+                let phys = a.config.physical_from_controller_deg(*last);
+                let what = format!("move {} to {phys:.4} deg", a.config.name);
+                // With a backlash overshoot the driver's own approach (overshoot, then up to the target) runs
+                // the same waypoints; an overshoot point itself cannot be verified (the load lags by the
+                // backlash), only the final arrival can.
+                let backlash = m.waypoints_deg.len() > 1;
+                let pos = this
+                    .device(Dev::Axis(a), &what, || async {
+                        if backlash {
+                            a.driver.move_to(phys).await
+                        } else {
+                            a.driver.start_move(phys).await?;
+                            a.driver.wait_arrived(phys).await
+                        }
+                    })
+                    .await?;
+                Ok::<(usize, f64), Interrupt>((m.axis_index, pos))
+            });
+            let results = futures_join_all(moves).await;
+            for r in results {
+                arrived.push(r?);
+            }
+            for (idx, pos) in arrived.drain(..).filter(|(_, p)| p.is_finite()) {
+                if let (Some(a), Some(slot)) = (axes.get(idx), self.readback.get_mut(idx)) {
+                    *slot = pos;
+                    self.current.set(a.config.role, pos);
+                }
+            }
+        }
+        if !movement.phases.is_empty() {
+            self.clock
+                .sleep_s(movement.settle_s + self.c.acquisition.extra_settle_s)
+                .await;
+        }
+        // Physical targets the plan reached: nominal pose for axes that did not need to move.
+        for r in ROLES {
+            if self.rig.axes().iter().all(|a| a.config.role != r) {
+                self.current.set(r, target.get(r));
+            }
+        }
+        Ok(())
+    }
+
+    /// The arms start closer than the safety separation (e.g. both at zero after power-up): the scheduler's
+    /// planner refuses any move from there. Moving both arms at once is safe when each moves away from the other
+    /// (or stays), so that their separation only grows; then one phase with every axis, backlash waypoints
+    /// included.
+    fn separating_move(&self, target: &Pose) -> Option<gonio_scheduler::timing::Move> {
+        let (l0, d0) = (self.current.light_deg, self.current.detector_deg);
+        let (l1, d1) = (target.light_deg, target.detector_deg);
+        if (l0 - d0).abs() >= self.c.time.min_arm_separation_deg {
+            return None;
+        }
+        // Which side each arm ends on decides "away"; both must move apart (or not at all).
+        let side = (l1 - d1).signum();
+        if side == 0.0 || (l1 - d1).abs() < self.c.time.min_arm_separation_deg {
+            return None;
+        }
+        let away = |from: f64, to: f64, sign: f64| (to - from) * sign >= 0.0;
+        if !(away(l0, l1, side) && away(d0, d1, -side)) {
+            return None;
+        }
+        let mut phase = Vec::new();
+        let mut settle = 0.0f64;
+        for (i, role) in ROLES.iter().enumerate() {
+            let Some(model) = self.c.time.axes.get(i).and_then(|m| m.as_ref()) else {
+                continue;
+            };
+            let from = model.controller_deg(self.current.get(*role));
+            let to = model.controller_deg(target.get(*role));
+            let waypoints = model.waypoints(from, to);
+            if waypoints.is_empty() {
+                continue;
+            }
+            settle = settle.max(model.settle_s);
+            phase.push(gonio_scheduler::timing::AxisMotion {
+                role: *role,
+                axis_index: model.axis_index,
+                duration_s: model.travel_time_s(from, &waypoints),
+                waypoints_deg: waypoints,
+            });
+        }
+        tracing::info!("arms closer than the safety separation: separating them in one simultaneous move");
+        Some(gonio_scheduler::timing::Move {
+            phases: vec![phase],
+            motion_s: 0.0,
+            settle_s: settle,
+        })
+    }
+
+    async fn wheel_to(&mut self, position: u8) -> Result<(), Interrupt> {
+        if self.wheel_at == Some(position) {
+            return Ok(());
+        }
+        if let Some(w) = self.rig.wheel() {
+            self.device(
+                Dev::Wheel,
+                &format!("filter wheel to position {position}"),
+                || w.go_to(position),
+            )
+            .await?;
+        }
+        self.wheel_at = Some(position);
+        Ok(())
+    }
+
+    fn blank_position(&self) -> Option<u8> {
+        self.file
+            .instrument
+            .filter_wheel
+            .as_ref()?
+            .positions
+            .iter()
+            .find(|p| p.blank)
+            .map(|p| p.position)
+    }
+
+    fn band_position(&self, nm: f64) -> Option<u8> {
+        self.file
+            .instrument
+            .filter_wheel
+            .as_ref()?
+            .positions
+            .iter()
+            .find(|p| !p.blank && p.band_nm == Some(nm))
+            .map(|p| p.position)
+    }
+
+    /// One detector reading at wavelength `nm`: (value, standard uncertainty, overload).
+    async fn read(&mut self, nm: f64) -> Result<(f64, f64, bool), Interrupt> {
+        let det = self.rig.detector();
+        if self.configured_nm != Some(nm) {
+            let config = DetectorConfig {
+                wavelength_nm: nm,
+                averaging: self.c.acquisition.averaging,
+                range: match self.c.acquisition.range {
+                    Range::Auto => PowerRange::Auto,
+                    Range::FixedW(w) => PowerRange::Fixed { full_scale_w: w },
+                },
+            };
+            self.device(Dev::Detector, "configure the detector", || det.configure(config))
+                .await?;
+            self.configured_nm = Some(nm);
+        }
+        let r = self
+            .device(Dev::Detector, "read the detector", || async {
+                let r = det.read_power().await;
+                if let Err(e) = &r
+                    && matches!(e.kind(), ErrorKind::Disconnected | ErrorKind::Unavailable)
+                {
+                    // After a reconnect the meter is back at its defaults.
+                    det.configure(config_for(nm, &self.c)).await?;
+                }
+                r
+            })
+            .await?;
+        // Under auto-range the meter may report its largest range; the resolution is that of the smallest range
+        // holding the reading, which is what auto-ranging settles on.
+        let range_w = match self.c.acquisition.range {
+            Range::Auto => self
+                .file
+                .instrument
+                .detector
+                .ranges_w
+                .iter()
+                .copied()
+                .find(|fs| *fs > r.power_w.abs())
+                .unwrap_or(r.range_w)
+                .min(r.range_w),
+            Range::FixedW(_) => r.range_w,
+        };
+        let u = ((range_w * READING_RANGE_STD).powi(2) + (r.power_w * READING_REL_STD).powi(2)).sqrt();
+        Ok((r.power_w, u, r.overload))
+    }
+
+    /// Dark readings (wheel on the blank) at every band's wavelength setting.
+    async fn darks_all(&mut self, bands: &[f64]) -> Result<(), Interrupt> {
+        let Some(blank) = self.blank_position() else {
+            // No blank: darks are zero with no uncertainty (the instrument file says there is no way to take one).
+            for b in bands {
+                self.darks.insert(band_key(*b), (self.t(), Reading::exact(0.0)));
+            }
+            return Ok(());
+        };
+        self.wheel_to(blank).await.map_err(calibration_failure)?;
+        for b in bands {
+            let (v, u, overload) = self.read(*b).await.map_err(calibration_failure)?;
+            if overload {
+                return Err(Interrupt::Pause(format!(
+                    "dark reading at {b} nm overloads the detector"
+                )));
+            }
+            let t = self.t();
+            self.darks.insert(band_key(*b), (t, Reading::new(v, u)));
+            let rec = CalibrationRecord {
+                kind: "dark".into(),
+                band_nm: Some(*b),
+                t_s: t,
+                value_w: v,
+                u_w: u,
+            };
+            self.st(|s| s.record_calibration(self.id, &rec))?;
+        }
+        Ok(())
+    }
+
+    /// Ask the operator to do something and wait for the confirmation; in dry-runs with the simulated operator,
+    /// `action` does it at once.
+    async fn operator(&mut self, message: &str, mounted: bool) -> Result<(), Interrupt> {
+        let simulated = self.optics.is_some() && self.c.calibration.simulate_operator;
+        if !simulated {
+            self.st(|s| s.set_state(self.id, CampaignState::WaitingOperator, None))?;
+            self.st(|s| s.set_operator_message(self.id, Some(message)))?;
+            self.emit_state(CampaignState::WaitingOperator, Some(message.to_string()));
+            // A confirmation given before the question does not count.
+            let _ = self.control.take_confirm();
+            loop {
+                let n = self.control.notified();
+                tokio::pin!(n);
+                n.as_mut().enable();
+                if self.control.take_confirm() {
+                    break;
+                }
+                if self.control.estop_requested() {
+                    return Err(Interrupt::Estop);
+                }
+                if self.control.abort_requested() {
+                    return Err(Interrupt::Abort);
+                }
+                if self.control.pause_requested() {
+                    return Err(Interrupt::Pause("paused while waiting for the operator".into()));
+                }
+                n.await;
+            }
+            self.st(|s| s.set_operator_message(self.id, None))?;
+            self.st(|s| s.set_state(self.id, CampaignState::Running, None))?;
+            self.emit_state(CampaignState::Running, None);
+        }
+        if let Some(o) = &self.optics {
+            o.set_sample_mounted(mounted);
+        }
+        Ok(())
+    }
+
+    /// Direct-beam readings of `bands`: sample out, detector facing the source, one reading per band.
+    async fn direct_beam(&mut self, bands: &[f64], pose: Option<Pose>) -> Result<(), Interrupt> {
+        let pose = match pose {
+            Some(p) => p,
+            None if !self.c.plan.calibration.reference_overrides.is_empty() => {
+                self.c.plan.calibration.reference_pose(&self.current)
+            }
+            // No reference pose in the plan: the detector arm facing the light arm at -90 deg, stage at zero.
+            None => {
+                let p = Optics::direct_beam_pose(-90.0);
+                Pose::new(p.light_deg, p.detector_deg, 0.0, 0.0)
+            }
+        };
+        // Close the beam while the operator works.
+        if let Some(blank) = self.blank_position() {
+            self.wheel_to(blank).await.map_err(calibration_failure)?;
+        }
+        self.operator(
+            "Direct-beam calibration: remove the sample from the holder, then confirm.",
+            false,
+        )
+        .await?;
+        let result = async {
+            self.move_to(&pose).await?;
+            for b in bands {
+                let pos = self.band_position(*b);
+                if let Some(p) = pos {
+                    self.wheel_to(p).await?;
+                }
+                let (v, u, overload) = self.read(*b).await?;
+                if overload {
+                    return Err(Interrupt::Pause(format!(
+                        "the direct beam at {b} nm overloads the detector: choose a larger range or attenuate"
+                    )));
+                }
+                let dark = self.darks.get(&band_key(*b)).map(|d| d.1).unwrap_or(Reading::exact(0.0));
+                let net = Reading::new(v - dark.value_w, u.hypot(dark.std_w));
+                if net.value_w <= 0.0 {
+                    return Err(Interrupt::Pause(format!(
+                        "no direct beam at {b} nm ({v} W read, dark {} W): is the source on and the path clear?",
+                        dark.value_w
+                    )));
+                }
+                let t = self.t();
+                self.direct.entry(band_key(*b)).or_default().push((t, net));
+                let rec =
+                    CalibrationRecord { kind: "direct-beam".into(), band_nm: Some(*b), t_s: t, value_w: v, u_w: u };
+                self.st(|s| s.record_calibration(self.id, &rec))?;
+            }
+            Ok(())
+        }
+        .await;
+        result.map_err(calibration_failure)?;
+        if let Some(blank) = self.blank_position() {
+            self.wheel_to(blank).await.map_err(calibration_failure)?;
+        }
+        self.operator(
+            "Direct-beam calibration done: mount the sample again, then confirm.",
+            true,
+        )
+        .await
+    }
+
+    /// Incident (net direct-beam) power at time `t` for a band, extrapolating the drift from the last two
+    /// readings of this session when they are far enough apart.
+    fn incident(&self, nm: f64, t: f64) -> Option<Reading> {
+        let list = self.direct.get(&band_key(nm))?;
+        let (t2, r2) = *list.last()?;
+        if list.len() >= 2
+            && let Some((t1, r1)) = list.get(list.len() - 2).copied()
+            && t2 - t1 >= MIN_DRIFT_BASE_S
+        {
+            let slope = (r2.value_w - r1.value_w) / (t2 - t1);
+            let x = (t - t2) / (t2 - t1);
+            let value = r2.value_w + slope * (t - t2);
+            let std = (r2.std_w * (1.0 + x)).hypot(r1.std_w * x);
+            return Some(Reading::new(value, std));
+        }
+        Some(r2)
+    }
+
+    async fn measure(&mut self, step: &Step, next_start_s: Option<f64>) -> Result<(), Interrupt> {
+        let index = self.done;
+        let Some(g) = step.geometry else {
+            return Err(Interrupt::Fatal(EngineError::NotRunnable {
+                id: self.id,
+                message: format!("measure step for point {index} has no geometry"),
+            }));
+        };
+        let band_nm = step
+            .band_nm
+            .or(self.file.instrument.source.wavelength_nm)
+            .unwrap_or(f64::NAN);
+        let acquired = async {
+            self.move_to(&step.pose).await?;
+            if let Some(p) = step.wheel_position {
+                self.wheel_to(p).await?;
+            }
+            self.read(band_nm).await
+        }
+        .await;
+        let mut flags = Vec::new();
+        let (signal, u_signal, overload) = match acquired {
+            Ok(r) => r,
+            Err(Interrupt::Fatal(EngineError::Device(reason))) => {
+                self.failed_in_row += 1;
+                if self.failed_in_row >= MAX_FAILED_IN_ROW {
+                    return Err(Interrupt::Pause(format!(
+                        "{MAX_FAILED_IN_ROW} points in a row failed; last: {reason}"
+                    )));
+                }
+                flags.push(format!("failed: {reason}"));
+                // Where the axes are now is uncertain after a failure: ask them.
+                let _ = self.read_positions().await;
+                (f64::NAN, f64::NAN, false)
+            }
+            Err(other) => return Err(other),
+        };
+        let t = self.t();
+        let dark = self
+            .darks
+            .get(&band_key(band_nm))
+            .map(|d| d.1)
+            .unwrap_or(Reading::exact(0.0));
+        let incident = self.incident(band_nm, t).unwrap_or(Reading::exact(f64::NAN));
+        let wi = Direction::from_spherical_deg(g.theta_i_deg, g.phi_i_deg);
+        let wo = Direction::from_spherical_deg(g.theta_o_deg, g.phi_o_deg);
+        let (mut brdf, mut brdf_u) = (None, None);
+        if flags.is_empty() {
+            self.failed_in_row = 0;
+            if overload {
+                flags.push("saturated".to_string());
+            } else {
+                match self.equation(signal, u_signal, dark, incident, wi, wo) {
+                    Ok(v) => {
+                        brdf = Some(v.value_per_sr);
+                        brdf_u = Some(v.std_per_sr);
+                    }
+                    Err(e) => flags.push(flag_for(&e)),
+                }
+            }
+        }
+        let (truth_point_sr, truth_aperture_sr) = match (&self.optics, Wavelength::from_nm(band_nm)) {
+            (Some(o), Ok(wl)) => (
+                o.truth(&wi, &wo, wl).ok(),
+                o.truth_aperture(&wi, &wo, wl).ok().map(|a| a.average_sr),
+            ),
+            _ => (None, None),
+        };
+        let point = PointRecord {
+            index,
+            band_nm,
+            theta_i_deg: g.theta_i_deg,
+            phi_i_deg: g.phi_i_deg,
+            theta_o_deg: g.theta_o_deg,
+            phi_o_deg: g.phi_o_deg,
+            signal_w: signal,
+            dark_w: dark.value_w,
+            incident_w: incident.value_w,
+            brdf_sr: brdf,
+            brdf_u_sr: brdf_u,
+            flags,
+            t_s: t,
+            readback_deg: self
+                .axis_names
+                .iter()
+                .cloned()
+                .zip(self.readback.iter().copied())
+                .collect(),
+            truth_point_sr,
+            truth_aperture_sr,
+        };
+        self.st(|s| s.commit_point(self.id, &point))?;
+        self.done += 1;
+        self.control.emit(Event::Point {
+            campaign: self.id,
+            point,
+        });
+        self.progress(next_start_s);
+        Ok(())
+    }
+
+    fn equation(
+        &self,
+        signal: f64,
+        u_signal: f64,
+        dark: Reading,
+        incident: Reading,
+        wi: Direction,
+        wo: Direction,
+    ) -> Result<gonio_brdf::measurement::BrdfValue, MeasurementError> {
+        let inst = &self.file.instrument;
+        let omega = gonio_brdf::radiometry::aperture_solid_angle_sr(
+            inst.detector.aperture_radius_mm,
+            inst.detector.distance_mm,
+        );
+        // Positioning: the arms' arrival tolerance as a uniform distribution.
+        let tol_deg = inst.axes.iter().map(|a| a.tolerance_deg).fold(0.0f64, f64::max);
+        absolute_brdf(
+            &AbsoluteReadings {
+                signal: Reading::new(signal, u_signal),
+                signal_dark: dark,
+                direct_beam: incident,
+                direct_beam_dark: Reading::exact(0.0),
+                detector_solid_angle_sr: omega,
+                detector_solid_angle_std_sr: omega * SOLID_ANGLE_REL_STD,
+            },
+            &MeasurementGeometry {
+                wi,
+                wo,
+                angle_std_rad: tol_deg.to_radians() / 3f64.sqrt(),
+            },
+            &Footprint {
+                beam_radius_mm: inst.source.beam_radius_mm,
+                sample_radius_mm: self.c.sample_radius_mm,
+                detector_field_radius_mm: Some(inst.detector.field_radius_mm),
+            },
+            &ValidityLimits {
+                min_cos_theta_o: inst.safety.grazing_limit_deg.to_radians().cos(),
+            },
+        )
+    }
+
+    /// Leave the run in a consistent state and say how it ended.
+    async fn finish(mut self, outcome: Result<(), Interrupt>) -> Result<CampaignState, EngineError> {
+        // Close the beam whatever happened (best effort: the wheel may be the device that failed).
+        if let Some(blank) = self.blank_position()
+            && let Some(w) = self.rig.wheel()
+            && self.wheel_at != Some(blank)
+        {
+            match tokio::time::timeout(std::time::Duration::from_secs(10), w.go_to(blank)).await {
+                Ok(Ok(())) => self.wheel_at = Some(blank),
+                Ok(Err(e)) => tracing::warn!("closing the beam: {e}"),
+                Err(_) => tracing::warn!("closing the beam: the filter wheel did not answer in 10 s"),
+            }
+        }
+        let (state, message) = match outcome {
+            Ok(()) => (CampaignState::Completed, None),
+            Err(Interrupt::Abort) => (CampaignState::Aborted, Some("aborted by request".to_string())),
+            Err(Interrupt::Estop) => (CampaignState::Paused, Some("emergency stop".to_string())),
+            Err(Interrupt::Pause(reason)) => (CampaignState::Paused, Some(reason)),
+            Err(Interrupt::StoreWrite(reason)) => (
+                CampaignState::Paused,
+                Some(format!("the store cannot be written: {reason}")),
+            ),
+            Err(Interrupt::Fatal(EngineError::Device(reason))) => (CampaignState::Paused, Some(reason)),
+            Err(Interrupt::Fatal(e)) => {
+                let msg = e.to_string();
+                let _ = lock(&self.store).set_state(self.id, CampaignState::Failed, Some(&msg));
+                self.emit_state(CampaignState::Failed, Some(msg));
+                return Err(e);
+            }
+        };
+        if let Some(m) = &message {
+            tracing::warn!(campaign = %self.id, state = %state, "{m}");
+        }
+        {
+            let mut s = lock(&self.store);
+            let _ = s.set_operator_message(self.id, None);
+            if let Err(e) = s.set_state(self.id, state, message.as_deref()) {
+                // A read-only store cannot record the pause; it stays "running", which a restart resumes.
+                tracing::warn!("cannot record the campaign state {state}: {e}");
+            }
+        }
+        self.emit_state(state, message);
+        Ok(state)
+    }
+}
+
+fn config_for(nm: f64, c: &Campaign) -> DetectorConfig {
+    DetectorConfig {
+        wavelength_nm: nm,
+        averaging: c.acquisition.averaging,
+        range: match c.acquisition.range {
+            Range::Auto => PowerRange::Auto,
+            Range::FixedW(w) => PowerRange::Fixed { full_scale_w: w },
+        },
+    }
+}
+
+/// A device failure during calibration pauses the campaign (there is no valid normalisation without it).
+fn calibration_failure(i: Interrupt) -> Interrupt {
+    match i {
+        Interrupt::Fatal(EngineError::Device(reason)) => Interrupt::Pause(format!("calibration: {reason}")),
+        other => other,
+    }
+}
+
+/// The flag for a refused measurement.
+fn flag_for(e: &MeasurementError) -> String {
+    match e {
+        MeasurementError::OverfillsSample { .. } | MeasurementError::OverfillsDetectorField { .. } => {
+            "overfilled".into()
+        }
+        MeasurementError::GrazingDetector { .. } => "grazing".into(),
+        MeasurementError::SourceBelowHorizon { .. } => "below-horizon".into(),
+        MeasurementError::NoDirectBeam { .. } => "no-direct-beam".into(),
+        other => format!("invalid: {other}"),
+    }
+}

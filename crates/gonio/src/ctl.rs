@@ -1,0 +1,534 @@
+//! `gonio ctl`: the command-line client of the daemon's HTTP/JSON API.
+//!
+//! A small HTTP/1.1 client on hyper (already in the binary through the daemon's server): one connection per
+//! request, a deadline on every call, and the server's `{"error": ...}` message as the command's error.
+
+use std::io::Write as _;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use clap::{Args, Subcommand};
+use http_body_util::{BodyExt, Full};
+use hyper::body::{Bytes, Incoming};
+use hyper::{Method, Request, Response, StatusCode, header};
+use hyper_util::rt::TokioIo;
+use serde_json::Value;
+
+use crate::CliError;
+
+/// Deadline to connect to the daemon.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
+/// Deadline for a whole request/response (everything but `watch`).
+const CALL_TIMEOUT: Duration = Duration::from_secs(60);
+/// `watch` gives up when the stream is silent this long (the daemon sends a keep-alive every 15 s).
+const WATCH_IDLE_TIMEOUT: Duration = Duration::from_secs(60);
+
+#[derive(Debug, Args)]
+pub struct CtlArgs {
+    /// The daemon's address.
+    #[arg(long, default_value = "http://127.0.0.1:7878")]
+    pub url: String,
+    /// Token for a daemon that requires one; default: the GONIO_TOKEN variable.
+    #[arg(long)]
+    pub token: Option<String>,
+    #[command(subcommand)]
+    pub command: CtlCommand,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum CtlCommand {
+    /// Submit a campaign file; prints its id.
+    Submit { file: PathBuf },
+    /// All campaigns, or one in detail.
+    Status { id: Option<i64> },
+    /// Pause a campaign (at its next safe point when running; a queued one leaves the queue).
+    Pause { id: i64 },
+    /// Resume a paused campaign (it goes back into the queue).
+    Resume { id: i64 },
+    /// Abort a campaign.
+    Abort { id: i64 },
+    /// Confirm that the operator did what a waiting campaign asked.
+    Confirm { id: i64 },
+    /// Emergency stop: halt the instrument now and hold the queue.
+    Estop,
+    /// Follow the daemon's events; with an id, until that campaign ends (exit 0 if it completed).
+    Watch { id: Option<i64> },
+    /// Download a campaign's points as CSV.
+    Points {
+        id: i64,
+        /// Write here instead of standard output.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+pub fn run(args: CtlArgs) -> Result<(), CliError> {
+    let token = args.token.clone().or_else(|| std::env::var("GONIO_TOKEN").ok());
+    let client = Client::new(&args.url, token)?;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| CliError::io("cannot start the async runtime", e))?;
+    runtime.block_on(execute(&client, args.command))
+}
+
+async fn execute(client: &Client, command: CtlCommand) -> Result<(), CliError> {
+    match command {
+        CtlCommand::Submit { file } => {
+            let text = std::fs::read(&file)
+                .map_err(|e| CliError::io(format!("cannot read {}", file.display()), e))?;
+            let origin = file.display().to_string();
+            let body = client
+                .json(
+                    Method::POST,
+                    "/api/campaigns",
+                    Some((text, "application/toml", origin)),
+                )
+                .await?;
+            let id = body
+                .get("id")
+                .and_then(Value::as_i64)
+                .ok_or_else(|| bad_reply("no id", &body))?;
+            println!("submitted campaign {id} ({})", file.display());
+        }
+        CtlCommand::Status { id: None } => {
+            let body = client.json(Method::GET, "/api/campaigns", None).await?;
+            let list = body.as_array().ok_or_else(|| bad_reply("not a list", &body))?;
+            if list.is_empty() {
+                println!("no campaigns");
+            }
+            for c in list {
+                println!("{}", summary_line(c));
+            }
+        }
+        CtlCommand::Status { id: Some(id) } => {
+            let c = client
+                .json(Method::GET, &format!("/api/campaigns/{id}"), None)
+                .await?;
+            print!("{}", details(&c));
+        }
+        CtlCommand::Pause { id } => action(client, id, "pause").await?,
+        CtlCommand::Resume { id } => action(client, id, "resume").await?,
+        CtlCommand::Abort { id } => action(client, id, "abort").await?,
+        CtlCommand::Confirm { id } => action(client, id, "confirm").await?,
+        CtlCommand::Estop => {
+            client.json(Method::POST, "/api/estop", None).await?;
+            println!("emergency stop sent: the instrument is halted and queued campaigns are paused");
+        }
+        CtlCommand::Watch { id } => watch(client, id).await?,
+        CtlCommand::Points { id, out } => {
+            let csv = client.text(&format!("/api/campaigns/{id}/points.csv")).await?;
+            match out {
+                Some(path) => {
+                    std::fs::write(&path, csv.as_bytes())
+                        .map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
+                    let rows = csv.lines().count().saturating_sub(1);
+                    println!("wrote {rows} points to {}", path.display());
+                }
+                None => {
+                    let mut stdout = std::io::stdout().lock();
+                    stdout
+                        .write_all(csv.as_bytes())
+                        .map_err(|e| CliError::io("cannot write to stdout", e))?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+async fn action(client: &Client, id: i64, what: &str) -> Result<(), CliError> {
+    let c = client
+        .json(Method::POST, &format!("/api/campaigns/{id}/{what}"), None)
+        .await?;
+    println!(
+        "campaign {id}: {what} accepted (state {})",
+        str_field(&c, "state")
+    );
+    Ok(())
+}
+
+fn str_field<'a>(v: &'a Value, key: &str) -> &'a str {
+    v.get(key).and_then(Value::as_str).unwrap_or("?")
+}
+
+fn u64_field(v: &Value, key: &str) -> u64 {
+    v.get(key).and_then(Value::as_u64).unwrap_or(0)
+}
+
+fn summary_line(c: &Value) -> String {
+    let id = c.get("id").and_then(Value::as_i64).unwrap_or(0);
+    let (done, total) = (u64_field(c, "points_done"), u64_field(c, "total_points"));
+    let mut line = format!(
+        "{id:>4}  {:<16}  {done:>6}/{total:<6}  {}",
+        str_field(c, "state"),
+        str_field(c, "name")
+    );
+    if let Some(eta) = c.get("eta_s").and_then(Value::as_f64) {
+        line.push_str(&format!("  ETA {}", duration_text(eta)));
+    }
+    line
+}
+
+fn details(c: &Value) -> String {
+    let mut s = String::new();
+    let id = c.get("id").and_then(Value::as_i64).unwrap_or(0);
+    s.push_str(&format!("campaign {id}: {}\n", str_field(c, "name")));
+    s.push_str(&format!("  state:  {}\n", str_field(c, "state")));
+    let (done, total) = (u64_field(c, "points_done"), u64_field(c, "total_points"));
+    s.push_str(&format!("  points: {done}/{total}\n"));
+    if let Some(eta) = c.get("eta_s").and_then(Value::as_f64) {
+        s.push_str(&format!("  ETA:    {}\n", duration_text(eta)));
+    }
+    if c.get("dry_run").and_then(Value::as_bool) == Some(true) {
+        s.push_str("  dry-run on the simulator\n");
+    }
+    if let Some(m) = c.get("operator_message").and_then(Value::as_str) {
+        s.push_str(&format!("  operator: {m}\n"));
+    }
+    if let Some(e) = c.get("last_error").and_then(Value::as_str) {
+        s.push_str(&format!("  last error: {e}\n"));
+    }
+    s
+}
+
+/// `1h02m03s`, `4m05s`, `6s`.
+fn duration_text(seconds: f64) -> String {
+    if !seconds.is_finite() || seconds < 0.0 {
+        return "?".into();
+    }
+    let total = seconds.round() as u64;
+    let (h, m, s) = (total / 3600, total / 60 % 60, total % 60);
+    match (h, m) {
+        (0, 0) => format!("{s}s"),
+        (0, _) => format!("{m}m{s:02}s"),
+        _ => format!("{h}h{m:02}m{s:02}s"),
+    }
+}
+
+/// Follow the event stream. With an id: print that campaign's events until it ends.
+async fn watch(client: &Client, id: Option<i64>) -> Result<(), CliError> {
+    // Subscribe first, then look at the current state, so that no change in between is missed.
+    let response = client.send(Method::GET, "/api/events", None).await?;
+    if !response.status().is_success() {
+        let status = response.status();
+        let body = collect(response).await?;
+        return Err(server_error(status, &body));
+    }
+    if let Some(id) = id {
+        let c = client
+            .json(Method::GET, &format!("/api/campaigns/{id}"), None)
+            .await?;
+        println!("{}", summary_line(&c));
+        if let Some(end) = final_outcome(id, str_field(&c, "state")) {
+            return end;
+        }
+    }
+    let mut body = response.into_body();
+    let mut buffer = String::new();
+    loop {
+        let frame = match tokio::time::timeout(WATCH_IDLE_TIMEOUT, body.frame()).await {
+            Err(_) => {
+                return Err(CliError::input(format!(
+                    "no event nor keep-alive from {} for {} s: giving up",
+                    client.authority,
+                    WATCH_IDLE_TIMEOUT.as_secs()
+                )));
+            }
+            Ok(None) => {
+                return Err(CliError::input(
+                    "the daemon closed the event stream (shutting down?)",
+                ));
+            }
+            Ok(Some(Err(e))) => return Err(CliError::input(format!("event stream broken: {e}"))),
+            Ok(Some(Ok(frame))) => frame,
+        };
+        let Ok(data) = frame.into_data() else { continue };
+        buffer.push_str(&String::from_utf8_lossy(&data).replace('\r', ""));
+        while let Some(end) = buffer.find("\n\n") {
+            let block: String = buffer.drain(..end + 2).collect();
+            let Some(event) = parse_sse_data(&block) else {
+                continue;
+            };
+            if let Some(done) = print_event(&event, id) {
+                return done;
+            }
+        }
+    }
+}
+
+/// The JSON in an SSE block's `data:` lines (none for comments and keep-alives).
+fn parse_sse_data(block: &str) -> Option<Value> {
+    let data: Vec<&str> = block
+        .lines()
+        .filter_map(|l| l.strip_prefix("data:"))
+        .map(|d| d.strip_prefix(' ').unwrap_or(d))
+        .collect();
+    if data.is_empty() {
+        return None;
+    }
+    serde_json::from_str(&data.join("\n")).ok()
+}
+
+/// Print one event (when it concerns the watched campaign); `Some` ends the watch with that result.
+fn print_event(event: &Value, watched: Option<i64>) -> Option<Result<(), CliError>> {
+    let campaign = event.get("campaign").and_then(Value::as_i64);
+    if watched.is_some() && campaign.is_some() && campaign != watched {
+        return None;
+    }
+    let c = campaign.map(|c| c.to_string()).unwrap_or_else(|| "-".into());
+    match str_field(event, "type") {
+        "state" => {
+            let state = str_field(event, "state");
+            match event.get("message").and_then(Value::as_str) {
+                Some(m) => println!("campaign {c}: {state}: {m}"),
+                None => println!("campaign {c}: {state}"),
+            }
+            if state == "waiting-operator" {
+                println!("campaign {c}: when done, run `gonio ctl confirm {c}`");
+            }
+            if let (Some(id), Some(w)) = (campaign, watched)
+                && id == w
+            {
+                return final_outcome(id, state);
+            }
+        }
+        "progress" => {
+            let (done, total) = (u64_field(event, "done"), u64_field(event, "total"));
+            let percent = if total > 0 {
+                100.0 * done as f64 / total as f64
+            } else {
+                0.0
+            };
+            let eta = event
+                .get("eta_s")
+                .and_then(Value::as_f64)
+                .map(|e| format!(", ETA {}", duration_text(e)));
+            println!(
+                "campaign {c}: {done}/{total} points ({percent:.0}%){}",
+                eta.unwrap_or_default()
+            );
+        }
+        "fault" => println!("campaign {c}: fault: {}", str_field(event, "message")),
+        "lagged" => println!("(missed {} events: too slow)", u64_field(event, "missed")),
+        // Every point also comes with a progress event: that is the line to show.
+        _ => {}
+    }
+    let _ = std::io::stdout().flush();
+    None
+}
+
+/// For a watched campaign: `Some` once it is in a final state (Ok when completed).
+fn final_outcome(id: i64, state: &str) -> Option<Result<(), CliError>> {
+    match state {
+        "completed" => Some(Ok(())),
+        "aborted" | "failed" => Some(Err(CliError::CheckFailed(format!("campaign {id} ended {state}")))),
+        _ => None,
+    }
+}
+
+fn bad_reply(what: &str, body: &Value) -> CliError {
+    CliError::input(format!("unexpected reply from the daemon ({what}): {body}"))
+}
+
+fn server_error(status: StatusCode, body: &Bytes) -> CliError {
+    let message = serde_json::from_slice::<Value>(body)
+        .ok()
+        .and_then(|v| v.get("error").and_then(Value::as_str).map(str::to_string))
+        .unwrap_or_else(|| String::from_utf8_lossy(body).trim().to_string());
+    if message.is_empty() {
+        CliError::input(format!("the daemon answered {status}"))
+    } else {
+        CliError::input(format!("the daemon answered {status}: {message}"))
+    }
+}
+
+async fn collect(response: Response<Incoming>) -> Result<Bytes, CliError> {
+    response
+        .into_body()
+        .collect()
+        .await
+        .map(|c| c.to_bytes())
+        .map_err(|e| CliError::input(format!("cannot read the daemon's reply: {e}")))
+}
+
+/// The daemon's address and token.
+#[derive(Debug)]
+struct Client {
+    /// `host:port`.
+    authority: String,
+    token: Option<String>,
+}
+
+impl Client {
+    fn new(url: &str, token: Option<String>) -> Result<Client, CliError> {
+        let rest = url.strip_prefix("http://").ok_or_else(|| {
+            CliError::input(format!(
+                "--url {url:?}: expected http://HOST:PORT (the daemon speaks plain HTTP)"
+            ))
+        })?;
+        let authority = rest.trim_end_matches('/');
+        if authority.is_empty() || authority.contains('/') {
+            return Err(CliError::input(format!(
+                "--url {url:?}: expected http://HOST:PORT with no path"
+            )));
+        }
+        let authority = if authority
+            .rsplit_once(':')
+            .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
+        {
+            authority.to_string()
+        } else {
+            format!("{authority}:80")
+        };
+        Ok(Client { authority, token })
+    }
+
+    /// Send one request on a new connection and return the response head (the body still streaming).
+    async fn send(
+        &self,
+        method: Method,
+        path: &str,
+        body: Option<(Vec<u8>, &str, String)>,
+    ) -> Result<Response<Incoming>, CliError> {
+        let unreachable =
+            |e: std::io::Error| CliError::io(format!("cannot reach the daemon at {}", self.authority), e);
+        let stream = tokio::time::timeout(CONNECT_TIMEOUT, tokio::net::TcpStream::connect(&self.authority))
+            .await
+            .map_err(|_| {
+                unreachable(std::io::Error::new(
+                    std::io::ErrorKind::TimedOut,
+                    "connect timed out",
+                ))
+            })?
+            .map_err(unreachable)?;
+        let (mut sender, conn) = hyper::client::conn::http1::handshake(TokioIo::new(stream))
+            .await
+            .map_err(|e| CliError::input(format!("HTTP handshake with {} failed: {e}", self.authority)))?;
+        tokio::spawn(async move {
+            if let Err(e) = conn.await {
+                tracing::debug!("connection to the daemon ended: {e}");
+            }
+        });
+        let mut request = Request::builder()
+            .method(method)
+            .uri(path)
+            .header(header::HOST, &self.authority);
+        if let Some(token) = &self.token {
+            request = request.header(header::AUTHORIZATION, format!("Bearer {token}"));
+        }
+        let payload = match body {
+            Some((bytes, content_type, origin)) => {
+                request = request.header(header::CONTENT_TYPE, content_type);
+                if origin.len() <= 256 && !origin.chars().any(char::is_control) {
+                    request = request.header(gonio_daemon::api::ORIGIN_HEADER, origin);
+                }
+                Bytes::from(bytes)
+            }
+            None => Bytes::new(),
+        };
+        let request = request
+            .body(Full::new(payload))
+            .map_err(|e| CliError::input(format!("cannot build the request for {path}: {e}")))?;
+        sender
+            .send_request(request)
+            .await
+            .map_err(|e| CliError::input(format!("request {path} to {} failed: {e}", self.authority)))
+    }
+
+    /// A whole call with a deadline: status checked, body returned.
+    async fn call(
+        &self,
+        method: Method,
+        path: &str,
+        body: Option<(Vec<u8>, &str, String)>,
+    ) -> Result<Bytes, CliError> {
+        let exchange = async {
+            let response = self.send(method, path, body).await?;
+            let status = response.status();
+            let bytes = collect(response).await?;
+            if status.is_success() {
+                Ok(bytes)
+            } else {
+                Err(server_error(status, &bytes))
+            }
+        };
+        tokio::time::timeout(CALL_TIMEOUT, exchange).await.map_err(|_| {
+            CliError::input(format!(
+                "no answer from {} within {} s",
+                self.authority,
+                CALL_TIMEOUT.as_secs()
+            ))
+        })?
+    }
+
+    async fn json(
+        &self,
+        method: Method,
+        path: &str,
+        body: Option<(Vec<u8>, &str, String)>,
+    ) -> Result<Value, CliError> {
+        let bytes = self.call(method, path, body).await?;
+        serde_json::from_slice(&bytes)
+            .map_err(|e| CliError::input(format!("the daemon's reply to {path} is not JSON: {e}")))
+    }
+
+    async fn text(&self, path: &str) -> Result<String, CliError> {
+        let bytes = self.call(Method::GET, path, None).await?;
+        String::from_utf8(bytes.to_vec())
+            .map_err(|e| CliError::input(format!("the reply to {path} is not UTF-8: {e}")))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls_are_parsed_into_an_authority() {
+        assert_eq!(
+            Client::new("http://127.0.0.1:7878", None).expect("url").authority,
+            "127.0.0.1:7878"
+        );
+        assert_eq!(
+            Client::new("http://127.0.0.1:7878/", None)
+                .expect("url")
+                .authority,
+            "127.0.0.1:7878"
+        );
+        assert_eq!(
+            Client::new("http://localhost", None).expect("url").authority,
+            "localhost:80"
+        );
+        assert!(Client::new("https://127.0.0.1:7878", None).is_err());
+        assert!(Client::new("127.0.0.1:7878", None).is_err());
+        assert!(Client::new("http://127.0.0.1:7878/api", None).is_err());
+    }
+
+    #[test]
+    fn sse_blocks_yield_their_json() {
+        let block =
+            "event: progress\ndata: {\"type\":\"progress\",\"campaign\":3,\"done\":2,\"total\":4}\n\n";
+        let v = parse_sse_data(block).expect("json");
+        assert_eq!(v["done"], 2);
+        assert_eq!(parse_sse_data(":\n\n"), None);
+    }
+
+    #[test]
+    fn durations_read_like_a_clock() {
+        assert_eq!(duration_text(5.4), "5s");
+        assert_eq!(duration_text(245.0), "4m05s");
+        assert_eq!(duration_text(3723.0), "1h02m03s");
+        assert_eq!(duration_text(f64::NAN), "?");
+    }
+
+    #[test]
+    fn watch_ends_only_on_final_states() {
+        assert!(matches!(final_outcome(1, "completed"), Some(Ok(()))));
+        assert!(matches!(final_outcome(1, "aborted"), Some(Err(_))));
+        assert!(matches!(final_outcome(1, "failed"), Some(Err(_))));
+        for s in ["queued", "running", "pausing", "paused", "waiting-operator"] {
+            assert!(final_outcome(1, s).is_none(), "{s}");
+        }
+    }
+}

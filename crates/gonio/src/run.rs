@@ -1,0 +1,405 @@
+//! `gonio run CAMPAIGN [--instrument FILE] [--out DIR]`: one campaign in the foreground.
+//!
+//! The store lives in DIR (default `out/<campaign id>`). Running the same command again on the same DIR resumes
+//! an interrupted campaign from its first uncommitted point, with the configuration stored when it started (the
+//! current files are not re-read). A progress bar on stderr (points, rate, ETA from the time model), then a
+//! summary; `DIR/points.csv` and `DIR/run.json` are written at the end (also after an interruption, with the
+//! points so far).
+//!
+//! Dry-runs (every device simulated) run on a paused tokio clock: the simulated instrument takes its real
+//! instrument time, and no wall time is spent waiting for it. SIGINT/SIGTERM stop all motion, close the beam,
+//! leave the store consistent and exit with code 4 and a message saying how to resume.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use gonio_daemon::engine::{self, Control, Event, Rig};
+use gonio_daemon::export;
+use gonio_daemon::store::{CampaignId, CampaignState, Store};
+use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+
+use crate::CliError;
+
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
+    /// Campaign file (TOML: [campaign], [sample], [plan], [calibration], [acquisition], [material]).
+    pub campaign: PathBuf,
+    /// Instrument file (default: the embedded simulated instrument).
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Output directory holding the store, points.csv and run.json (default: out/<campaign id>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// No progress bar (for logs and tests).
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+pub fn run(args: RunArgs) -> Result<(), CliError> {
+    let wall = Instant::now();
+    let origin = args.campaign.display().to_string();
+    let text = std::fs::read_to_string(&args.campaign)
+        .map_err(|e| CliError::io(format!("cannot read campaign file {origin}"), e))?;
+    let (instrument_text, instrument_origin) = match &args.instrument {
+        Some(p) => (
+            std::fs::read_to_string(p)
+                .map_err(|e| CliError::io(format!("cannot read instrument file {}", p.display()), e))?,
+            p.display().to_string(),
+        ),
+        None => (
+            SIMULATED_INSTRUMENT_TOML.to_string(),
+            "<embedded simulated instrument>".to_string(),
+        ),
+    };
+    let file = InstrumentFile::parse(&instrument_text, &instrument_origin)
+        .map_err(|e| CliError::input(e.to_string()))?;
+    let base_dir = args.campaign.parent().map(Path::to_path_buf).unwrap_or_default();
+    let prepared = engine::prepare_campaign(&text, &origin, &base_dir, &file)
+        .map_err(|e| CliError::input(e.to_string()))?;
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("out").join(&prepared.name));
+    let mut store = Store::open(&out).map_err(|e| CliError::input(e.to_string()))?;
+
+    // One campaign per output directory: the one with this name, resumed; else a new one.
+    let existing = store
+        .campaigns()
+        .map_err(|e| CliError::input(e.to_string()))?
+        .into_iter()
+        .rfind(|c| c.name == prepared.name);
+    let id = match existing {
+        Some(c) if c.state == CampaignState::Completed => {
+            eprintln!(
+                "gonio: campaign {} in {} is already complete; writing its results again",
+                c.name,
+                out.display()
+            );
+            c.id
+        }
+        Some(c) if !c.state.is_final() => {
+            if c.campaign_toml != text || c.instrument_toml != instrument_text {
+                eprintln!(
+                    "gonio: note: {} changed since the campaign started; resuming with the configuration stored then",
+                    if c.campaign_toml != text {
+                        origin.as_str()
+                    } else {
+                        instrument_origin.as_str()
+                    }
+                );
+            }
+            eprintln!(
+                "gonio: resuming campaign {} ({}) in {} at point {} of {}",
+                c.name,
+                c.state,
+                out.display(),
+                c.points_done,
+                c.total_points
+            );
+            c.id
+        }
+        Some(c) => {
+            return Err(CliError::input(format!(
+                "campaign {} in {} ended {}{}; use another --out directory to run it again",
+                c.name,
+                out.display(),
+                c.state,
+                c.last_error.map(|e| format!(" ({e})")).unwrap_or_default()
+            )));
+        }
+        None => store
+            .create_campaign(&prepared.new_campaign(&text, &instrument_text))
+            .map_err(|e| CliError::input(e.to_string()))?,
+    };
+    let record = store.campaign(id).map_err(|e| CliError::input(e.to_string()))?;
+    // The run uses the stored instrument text (the same on a first run).
+    let file = InstrumentFile::parse(&record.instrument_toml, "<stored instrument file>")
+        .map_err(|e| CliError::input(e.to_string()))?;
+    let store = Arc::new(Mutex::new(store));
+
+    let dry_run = record.dry_run;
+    let runtime = if dry_run {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .start_paused(true)
+            .build()
+    } else {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+    }
+    .map_err(|e| CliError::io("cannot start the async runtime", e))?;
+
+    let outcome = if record.state == CampaignState::Completed {
+        Ok((CampaignState::Completed, Vec::new(), false))
+    } else {
+        runtime.block_on(drive(Arc::clone(&store), id, &file, dry_run, args.quiet))
+    };
+    runtime.shutdown_timeout(std::time::Duration::from_millis(200));
+    let (state, identities, interrupted) = outcome?;
+
+    let wall_s = wall.elapsed().as_secs_f64();
+    let summary = write_results(&store, id, &file, &out, &identities, wall_s, &prepared)?;
+    eprintln!("{summary}");
+    match state {
+        CampaignState::Completed => {
+            println!("{}", out.display());
+            Ok(())
+        }
+        _ => {
+            let rec = lock(&store).campaign(id).ok();
+            let why = rec
+                .and_then(|r| r.last_error)
+                .unwrap_or_else(|| state.to_string());
+            let how = format!(
+                "re-run `gonio run {}{} --out {}` to resume from the first uncommitted point",
+                args.campaign.display(),
+                args.instrument
+                    .as_ref()
+                    .map(|p| format!(" --instrument {}", p.display()))
+                    .unwrap_or_default(),
+                out.display()
+            );
+            let head = if interrupted {
+                "interrupted: motion stopped, beam closed, store consistent".to_string()
+            } else {
+                format!("campaign {state}: {why}")
+            };
+            Err(CliError::Interrupted(format!("{head}; {how}")))
+        }
+    }
+}
+
+fn lock(store: &Arc<Mutex<Store>>) -> std::sync::MutexGuard<'_, Store> {
+    store.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Connect, run with a progress bar, stop cleanly on SIGINT/SIGTERM. Returns the final state, the device
+/// identities and whether a signal interrupted the run.
+async fn drive(
+    store: Arc<Mutex<Store>>,
+    id: CampaignId,
+    file: &InstrumentFile,
+    dry_run: bool,
+    quiet: bool,
+) -> Result<(CampaignState, Vec<(String, String)>, bool), CliError> {
+    let rig = if dry_run {
+        // Paused clock: simulated time advances as fast as the run can go.
+        Rig::connect_with_time_scale(file, None, 1.0).await
+    } else {
+        Rig::connect(file, None).await
+    }
+    .map_err(|e| CliError::input(e.to_string()))?;
+    let identities = rig.identities().await;
+    let control = Control::new();
+    control.attach_rig(&rig);
+    let (done0, total) = {
+        let s = lock(&store);
+        let c = s.campaign(id).map_err(|e| CliError::input(e.to_string()))?;
+        (c.points_done, c.total_points)
+    };
+
+    let bar = if quiet {
+        indicatif::ProgressBar::hidden()
+    } else {
+        let b =
+            indicatif::ProgressBar::with_draw_target(Some(total), indicatif::ProgressDrawTarget::stderr());
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} points  {msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b.set_position(done0);
+        b
+    };
+    let mut events = control.subscribe();
+    let bar2 = bar.clone();
+    let ctl2 = control.clone();
+    let started = Instant::now();
+    let listener = tokio::spawn(async move {
+        let mut last_done = done0;
+        loop {
+            match events.recv().await {
+                Ok(Event::Progress { done, eta_s, .. }) => {
+                    bar2.set_position(done);
+                    let rate = (done - done0.min(done)) as f64 / started.elapsed().as_secs_f64().max(1e-3);
+                    let eta = eta_s
+                        .map(|s| format!("instrument ETA {:.0} s", s))
+                        .unwrap_or_default();
+                    bar2.set_message(format!("{rate:.1} points/s wall, {eta}"));
+                    last_done = done;
+                }
+                Ok(Event::State {
+                    state: CampaignState::WaitingOperator,
+                    message,
+                    ..
+                }) => {
+                    bar2.suspend(|| {
+                        eprintln!(
+                            "operator: {} (press Enter to confirm)",
+                            message.unwrap_or_default()
+                        )
+                    });
+                    let c = ctl2.clone();
+                    tokio::task::spawn_blocking(move || {
+                        let mut line = String::new();
+                        if std::io::stdin().read_line(&mut line).is_ok() {
+                            c.confirm();
+                        }
+                    });
+                }
+                Ok(Event::Fault { message, .. }) => bar2.suspend(|| eprintln!("device fault: {message}")),
+                Ok(_) => {}
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                Err(_) => break,
+            }
+        }
+        last_done
+    });
+
+    let run = engine::run_campaign(Arc::clone(&store), id, &rig, control.clone());
+    tokio::pin!(run);
+    let mut interrupted = false;
+    let result = loop {
+        tokio::select! {
+            r = &mut run => break r,
+            _ = signal() => {
+                if !interrupted {
+                    interrupted = true;
+                    bar.suspend(|| eprintln!("gonio: signal received: stopping all motion"));
+                    control.estop();
+                }
+            }
+        }
+    };
+    bar.finish_and_clear();
+    listener.abort();
+    let state = result.map_err(|e| CliError::input(e.to_string()))?;
+    Ok((state, identities, interrupted))
+}
+
+/// SIGINT or SIGTERM.
+async fn signal() {
+    use tokio::signal::unix::{SignalKind, signal};
+    let (Ok(mut int), Ok(mut term)) = (signal(SignalKind::interrupt()), signal(SignalKind::terminate()))
+    else {
+        // Without signal handlers the default action (terminate) applies; the store stays consistent anyway.
+        std::future::pending::<()>().await;
+        return;
+    };
+    tokio::select! {
+        _ = int.recv() => {}
+        _ = term.recv() => {}
+    }
+}
+
+/// Write points.csv and run.json; returns the summary text.
+fn write_results(
+    store: &Arc<Mutex<Store>>,
+    id: CampaignId,
+    file: &InstrumentFile,
+    out: &Path,
+    identities: &[(String, String)],
+    wall_s: f64,
+    prepared: &engine::PreparedCampaign,
+) -> Result<String, CliError> {
+    let s = lock(store);
+    let rec = s.campaign(id).map_err(|e| CliError::input(e.to_string()))?;
+    let points = s.points(id).map_err(|e| CliError::input(e.to_string()))?;
+    let calibrations = s.calibrations(id).map_err(|e| CliError::input(e.to_string()))?;
+    let stored_devices = s.devices(id).map_err(|e| CliError::input(e.to_string()))?;
+    drop(s);
+    let axis_names: Vec<String> = file.instrument.axes.iter().map(|a| a.name.clone()).collect();
+    let csv = export::points_csv(&points, &axis_names, rec.dry_run);
+    let csv_path = out.join("points.csv");
+    std::fs::write(&csv_path, csv)
+        .map_err(|e| CliError::io(format!("cannot write {}", csv_path.display()), e))?;
+
+    let valid = points
+        .iter()
+        .filter(|p| p.flags.is_empty() && p.brdf_sr.is_some())
+        .count();
+    let failed = points
+        .iter()
+        .filter(|p| p.flags.iter().any(|f| f.starts_with("failed")))
+        .count();
+    let mut flag_counts = std::collections::BTreeMap::<String, usize>::new();
+    for p in &points {
+        for f in &p.flags {
+            let key = f.split(':').next().unwrap_or(f).to_string();
+            *flag_counts.entry(key).or_default() += 1;
+        }
+    }
+    let actual_s = points.iter().map(|p| p.t_s).fold(0.0f64, f64::max);
+    let errors_aperture = export::truth_errors(&points, |p| p.truth_aperture_sr);
+    let errors_point = export::truth_errors(&points, |p| p.truth_point_sr);
+    let devices = if identities.is_empty() {
+        stored_devices
+    } else {
+        identities.to_vec()
+    };
+    let json = serde_json::json!({
+        "campaign": {
+            "id": rec.id,
+            "name": rec.name,
+            "state": rec.state,
+            "last_error": rec.last_error,
+            "dry_run": rec.dry_run,
+            "total_points": rec.total_points,
+            "points_done": rec.points_done,
+            "valid_points": valid,
+            "failed_points": failed,
+            "flags": flag_counts,
+        },
+        "software_version": rec.software_version,
+        "config": {
+            "campaign_toml": rec.campaign_toml,
+            "instrument_toml": rec.instrument_toml,
+        },
+        "devices": devices.iter().map(|(n, i)| serde_json::json!({"name": n, "identity": i})).collect::<Vec<_>>(),
+        "calibrations": calibrations,
+        "timing": {
+            "predicted_instrument_s": prepared.predicted_s,
+            "actual_instrument_s": actual_s,
+            "wall_s": wall_s,
+        },
+        "truth": {
+            "against_aperture_average": errors_aperture,
+            "against_point_value": errors_point,
+        },
+    });
+    let json_path = out.join("run.json");
+    let text = serde_json::to_string_pretty(&json).unwrap_or_default();
+    std::fs::write(&json_path, text)
+        .map_err(|e| CliError::io(format!("cannot write {}", json_path.display()), e))?;
+
+    let mut summary = format!(
+        "campaign {} {}: {} of {} points ({valid} valid, {failed} failed{})\n",
+        rec.name,
+        rec.state,
+        points.len(),
+        rec.total_points,
+        flag_counts
+            .iter()
+            .filter(|(k, _)| k.as_str() != "failed")
+            .map(|(k, n)| format!(", {n} {k}"))
+            .collect::<String>()
+    );
+    summary.push_str(&format!(
+        "instrument time {:.0} s (predicted {:.0} s), wall time {wall_s:.1} s\n",
+        actual_s, prepared.predicted_s
+    ));
+    if let Some(e) = errors_aperture {
+        summary.push_str(&format!(
+            "dry-run error vs aperture-averaged truth: cos-weighted relative RMS {:.2e}, log RMS {:.2e}, max relative {:.2e} ({} points)\n",
+            e.cos_weighted_relative_rms, e.log_rms, e.max_relative_error, e.points
+        ));
+    }
+    summary.push_str(&format!(
+        "results: {} and {}",
+        csv_path.display(),
+        json_path.display()
+    ));
+    Ok(summary)
+}

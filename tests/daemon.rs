@@ -1,0 +1,302 @@
+//! `gonio daemon` and `gonio ctl` end to end: the real binary on an ephemeral loopback port, a dry-run campaign
+//! on the simulated instrument, driven through the command-line client. Every child process is killed at the
+//! end of its test, even on failure (a guard with Drop), and every wait is bounded.
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+const GONIO: &str = env!("CARGO_BIN_EXE_gonio");
+
+/// A small dry-run campaign on the simulated instrument.
+fn campaign(id: &str, points: usize) -> String {
+    let to = 10.0 + 5.0 * (points as f64 - 1.0);
+    format!(
+        r#"[campaign]
+id = "{id}"
+[sample]
+radius_mm = 12.5
+[plan]
+bands_nm = [550.0]
+repeats = 1
+reciprocity = false
+[plan.grid]
+kind = "in-plane"
+theta_i_deg = [30.0]
+theta_o_deg = {{ from = 10.0, to = {to}, step = 5.0 }}
+[plan.calibration]
+dark_every_points = 1000
+reference_every_s = 100000.0
+reference_pose_deg = {{ light = -90.0, detector = 90.0 }}
+[acquisition]
+averaging = 2
+[material]
+preset = "coloured-plastic"
+"#
+    )
+}
+
+/// The daemon child: killed on drop.
+struct Daemon {
+    child: Child,
+    url: String,
+    stdout: mpsc::Receiver<String>,
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `time_scale`: simulated seconds per real second for the simulated instrument.
+fn start_daemon(data: &Path, time_scale: &str, env: &[(&str, &str)]) -> Daemon {
+    let mut cmd = Command::new(GONIO);
+    cmd.args(["daemon", "--listen", "127.0.0.1:0", "--data"])
+        .arg(data)
+        .args(["--sim-time-scale", time_scale, "--shutdown-grace-s", "5"])
+        .env_remove("GONIO_TOKEN")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null());
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let mut child = cmd.spawn().expect("start gonio daemon");
+    let stdout = child.stdout.take().expect("stdout");
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let mut daemon = Daemon {
+        child,
+        url: String::new(),
+        stdout: rx,
+    };
+    let line = daemon
+        .stdout
+        .recv_timeout(Duration::from_secs(30))
+        .expect("the daemon prints its address");
+    let addr = line
+        .strip_prefix("gonio daemon listening on ")
+        .and_then(|rest| rest.split_whitespace().next())
+        .unwrap_or_else(|| panic!("unexpected first line {line:?}"));
+    assert!(addr.starts_with("http://127.0.0.1:"), "{addr}");
+    daemon.url = addr.to_string();
+    daemon
+}
+
+/// Run `gonio ctl` with a deadline.
+fn ctl(daemon: &Daemon, args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut cmd = Command::new(GONIO);
+    cmd.args(["ctl", "--url", &daemon.url])
+        .args(args)
+        .env_remove("GONIO_TOKEN");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let mut child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start gonio ctl");
+    let start = Instant::now();
+    loop {
+        if child.try_wait().expect("wait").is_some() {
+            return child.wait_with_output().expect("output");
+        }
+        if start.elapsed() > Duration::from_secs(120) {
+            let _ = child.kill();
+            let out = child.wait_with_output().expect("output");
+            panic!(
+                "gonio ctl {args:?} did not finish: {}",
+                String::from_utf8_lossy(&out.stdout)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+#[test]
+fn ctl_submits_watches_and_downloads_a_campaign_from_a_running_daemon() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let daemon = start_daemon(&dir.path().join("data"), "1000", &[]);
+    let file = dir.path().join("small.toml");
+    std::fs::write(&file, campaign("small", 5)).expect("write campaign");
+
+    let out = ctl(&daemon, &["submit", file.to_str().expect("path")], &[]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stdout).starts_with("submitted campaign 1"),
+        "{}",
+        text(&out.stdout)
+    );
+
+    let out = ctl(&daemon, &["watch", "1"], &[]);
+    assert!(
+        out.status.success(),
+        "watch: {} {}",
+        text(&out.stdout),
+        text(&out.stderr)
+    );
+    let watched = text(&out.stdout);
+    assert!(
+        watched.lines().last().is_some_and(|l| l.contains("completed")),
+        "{watched}"
+    );
+
+    let out = ctl(&daemon, &["status"], &[]);
+    assert!(out.status.success());
+    let status = text(&out.stdout);
+    assert!(
+        status.contains("completed") && status.contains("5/5") && status.contains("small"),
+        "{status}"
+    );
+    let out = ctl(&daemon, &["status", "1"], &[]);
+    assert!(text(&out.stdout).contains("points: 5/5"), "{}", text(&out.stdout));
+
+    let csv_path = dir.path().join("points.csv");
+    let out = ctl(
+        &daemon,
+        &["points", "1", "--out", csv_path.to_str().expect("path")],
+        &[],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let csv = std::fs::read_to_string(&csv_path).expect("csv");
+    let mut lines = csv.lines();
+    assert!(
+        lines
+            .next()
+            .is_some_and(|h| h.starts_with("index,band_nm,theta_i_deg")),
+        "{csv}"
+    );
+    assert_eq!(lines.count(), 5);
+
+    // Errors: the server's message and a non-zero exit.
+    let out = ctl(&daemon, &["pause", "99"], &[]);
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("no campaign with id 99"),
+        "{}",
+        text(&out.stderr)
+    );
+    let out = ctl(&daemon, &["confirm", "1"], &[]);
+    assert!(!out.status.success());
+    assert!(text(&out.stderr).contains("409"), "{}", text(&out.stderr));
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[campaign]\nid = \"bad\"\nspeed = 3\n").expect("write");
+    let out = ctl(&daemon, &["submit", bad.to_str().expect("path")], &[]);
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert!(err.contains("400") && err.contains("bad.toml"), "{err}");
+}
+
+#[test]
+fn listening_beyond_loopback_without_a_token_is_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The refusal comes before any socket is opened.
+    let out = Command::new(GONIO)
+        .args(["daemon", "--listen", "0.0.0.0:0", "--data"])
+        .arg(dir.path())
+        .env_remove("GONIO_TOKEN")
+        .output()
+        .expect("run gonio daemon");
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert!(err.contains("0.0.0.0:0") && err.contains("token"), "{err}");
+    assert!(
+        !dir.path().join("gonio.sqlite").exists(),
+        "refused before opening the store"
+    );
+}
+
+#[test]
+fn with_a_token_ctl_needs_the_same_token() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let daemon = start_daemon(dir.path(), "1000", &[("GONIO_TOKEN", "e2e-token-123")]);
+    let out = ctl(&daemon, &["status"], &[]);
+    assert!(!out.status.success());
+    assert!(text(&out.stderr).contains("401"), "{}", text(&out.stderr));
+    let out = ctl(&daemon, &["--token", "wrong", "status"], &[]);
+    assert!(!out.status.success());
+    assert!(text(&out.stderr).contains("401"), "{}", text(&out.stderr));
+    let out = ctl(&daemon, &["--token", "e2e-token-123", "status"], &[]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(text(&out.stdout).contains("no campaigns"));
+    let out = ctl(&daemon, &["status"], &[("GONIO_TOKEN", "e2e-token-123")]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+}
+
+#[test]
+fn sigterm_stops_the_daemon_cleanly_and_the_campaign_resumes_on_restart() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().join("data");
+    let file = dir.path().join("long.toml");
+    std::fs::write(&file, campaign("long", 14)).expect("write");
+    let mut daemon = start_daemon(&data, "20", &[]);
+    let out = ctl(&daemon, &["submit", file.to_str().expect("path")], &[]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    // Wait until it is running, then stop the daemon.
+    let start = Instant::now();
+    loop {
+        let out = ctl(&daemon, &["status", "1"], &[]);
+        let s = text(&out.stdout);
+        if s.contains("state:  running") {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(60), "never ran: {s}");
+        assert!(!s.contains("completed"), "too fast to interrupt: {s}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let pid = nix::unistd::Pid::from_raw(i32::try_from(daemon.child.id()).expect("pid"));
+    nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM).expect("SIGTERM");
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = daemon.child.try_wait().expect("wait") {
+            break status;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "the daemon did not stop on SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success(), "{status:?}");
+    let last = daemon
+        .stdout
+        .recv_timeout(Duration::from_secs(5))
+        .expect("a last line");
+    assert_eq!(last, "gonio daemon stopped");
+    drop(daemon);
+
+    // Restarted, it resumes the interrupted campaign first and finishes it.
+    let daemon = start_daemon(&data, "1000", &[]);
+    let out = ctl(&daemon, &["watch", "1"], &[]);
+    assert!(
+        out.status.success(),
+        "{} {}",
+        text(&out.stdout),
+        text(&out.stderr)
+    );
+    let csv = ctl(&daemon, &["points", "1"], &[]);
+    let indices: Vec<String> = text(&csv.stdout)
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split(',').next().map(str::to_string))
+        .collect();
+    assert_eq!(
+        indices,
+        (0..14).map(|i| i.to_string()).collect::<Vec<_>>(),
+        "each point exactly once"
+    );
+}
