@@ -238,6 +238,36 @@ fn kill_9_at_random_moments_then_resume_loses_and_repeats_nothing() {
     assert_eq!(csv.lines().count() as u64, total + 1);
 }
 
+/// Without `[plan.calibration]` there is no reference pose in the plan: the direct-beam readings taken at the
+/// start must still find a safe pose (the engine's default, detector facing the source), never "stay where the
+/// arms are" (both at 0 deg after power-up, which no safe move can reach).
+#[test]
+fn a_campaign_without_calibration_settings_runs_to_completion() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = SMALL.replace(
+        "[plan.calibration]\ndark_every_points = 20\nreference_every_s = 20.0\n",
+        "",
+    );
+    assert!(!text.contains("plan.calibration"));
+    let campaign = write_campaign(dir.path(), &text);
+    let out = dir.path().join("out");
+    let o = gonio()
+        .arg("run")
+        .arg(&campaign)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .output()
+        .expect("run");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "gonio run failed: {stderr}");
+    let json = run_json(&out);
+    let total = json["campaign"]["total_points"].as_u64().expect("total");
+    let csv = std::fs::read_to_string(out.join("points.csv")).expect("csv");
+    assert!(total > 0);
+    assert_eq!(csv.lines().count() as u64, total + 1, "{stderr}");
+}
+
 #[test]
 fn bad_campaign_files_are_refused_with_file_line_and_key() {
     let dir = tempfile::tempdir().expect("tempdir");
