@@ -313,3 +313,60 @@ fn bad_campaign_files_are_refused_with_file_line_and_key() {
         "{msg}"
     );
 }
+
+/// Issue #6: `gonio run` with every serial device of the simulated instrument on a real pseudo-terminal
+/// (`port = "sim-pty"`), opened by path through the driver's ordinary serial opener; the USB meter in process.
+/// The run is on the real clock (sped-up simulator), and every value still matches the ground truth.
+#[test]
+fn dry_run_with_serial_devices_on_pseudo_terminals_matches_ground_truth() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let campaign = write_campaign(dir.path(), SMALL);
+    let mut instrument = gonio_instrument::SIMULATED_INSTRUMENT_TOML.to_string();
+    for protocol in ["smc100", "zaber-ascii", "fw102c"] {
+        let from = format!("protocol = \"{protocol}\"\nport = \"sim\"");
+        assert!(
+            instrument.contains(&from),
+            "simulated.toml layout changed: {from}"
+        );
+        instrument = instrument.replace(&from, &format!("protocol = \"{protocol}\"\nport = \"sim-pty\""));
+    }
+    let instrument_path = dir.path().join("sim-pty.toml");
+    std::fs::write(&instrument_path, &instrument).expect("write instrument");
+    let out = dir.path().join("out");
+    let o = gonio()
+        .arg("run")
+        .arg(&campaign)
+        .arg("--instrument")
+        .arg(&instrument_path)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .output()
+        .expect("run");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "gonio run failed: {stderr}");
+
+    let json = run_json(&out);
+    // The three serial devices really were on pseudo-terminals (the rig records where each device is).
+    let devices = json["devices"].to_string();
+    assert_eq!(
+        devices.matches("on simulated, pseudo-terminal").count(),
+        3,
+        "devices: {devices}"
+    );
+    let total = json["campaign"]["total_points"].as_u64().expect("total_points");
+    let csv = std::fs::read_to_string(out.join("points.csv")).expect("csv");
+    let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len() as u64, total);
+    for (i, r) in rows.iter().enumerate() {
+        assert_eq!(r.len(), 19, "row {i}");
+        assert_eq!(r[11], "", "row {i} is flagged: {r:?}");
+        let f: f64 = r[9].parse().expect("brdf");
+        let u: f64 = r[10].parse().expect("u");
+        let truth: f64 = r[18].parse().expect("truth");
+        assert!(
+            (f - truth).abs() <= 5.0 * u + 1e-6 * truth.abs(),
+            "row {i}: f {f} truth {truth} u {u}"
+        );
+    }
+}

@@ -38,6 +38,8 @@ pub enum SimError {
     Disconnected { device: String },
     #[error("the simulated device {device:?} must be opened inside a tokio runtime")]
     NoRuntime { device: String },
+    #[error("simulated device {device:?}: pseudo-terminal: {message}")]
+    Pty { device: String, message: String },
 }
 
 /// The simulated instrument. Cheap to clone: every clone shares the same devices and clock.

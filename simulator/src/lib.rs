@@ -10,6 +10,7 @@
 //! - [`clock`]: the simulated clock (tokio time x time scale).
 //! - [`motion`]: per-axis motion physics (trapezoidal profiles, backlash, limits, encoder, stalls).
 //! - [`smc100`], [`zaber`], [`fw102c`], [`pm100`]: the device emulators, speaking the real wire protocols.
+//! - [`pty`]: a serial device served on a real pseudo-terminal ([`pty::PtyDevice`]).
 //! - [`session`]: the byte-stream session between a host and a serial emulator.
 //! - [`faults`]: seeded fault injection and its counters.
 
@@ -21,6 +22,7 @@ pub mod kinematics;
 pub mod motion;
 pub mod optics;
 pub mod pm100;
+pub mod pty;
 pub mod scene;
 pub mod session;
 pub mod smc100;

@@ -428,7 +428,13 @@ pub fn parse(
         plan::build(&doc.plan, &ctx)
     }
     .map_err(|e| CampaignError(plan_error(&e, origin, text)))?;
-    let time = TimeModel::new(instrument);
+    let mut time = TimeModel::new(instrument);
+    // The engine reads with the campaign's averaging (not the instrument file's default) and waits the
+    // campaign's extra settling after every move: the prediction must use the same numbers.
+    time.reading_s = gonio_scheduler::timing::reading_time_s(averaging);
+    for axis in time.axes.iter_mut().flatten() {
+        axis.settle_s += extra_settle_s;
+    }
     let sched = schedule::schedule(&built, &time, None);
     if sched.measure_steps().next().is_none() {
         return Err(CampaignError(format!(

@@ -2,7 +2,8 @@
 //! in-process simulator with a sample that can be changed per campaign.
 //!
 //! Every device of the instrument file is opened: `port = "sim"` (or no port) means the embedded simulator,
-//! anything else a real serial port or pseudo-terminal (USB for the power meter). Axes keep the instrument
+//! `port = "sim-pty"` the embedded simulator with its serial devices served on pseudo-terminals and opened by
+//! path like real ports (the power meter stays in process; needs a runtime on the real clock), anything else a real serial port or pseudo-terminal (USB for the power meter). Axes keep the instrument
 //! file's order, which is also the order of the read-back columns.
 
 pub mod sim_link;
@@ -18,6 +19,7 @@ use gonio_driver::{Axis, Detector, FilterWheel};
 use gonio_instrument::{InstrumentFile, Protocol};
 use gonio_simulator::SimInstrument;
 use gonio_simulator::optics::{Optics, SampleSpec};
+use gonio_simulator::pty::PtyDevice;
 use gonio_simulator::scene::{Band, Pose, Scene};
 
 use crate::engine::EngineError;
@@ -62,6 +64,8 @@ struct Inner {
     scene: Arc<SwitchScene>,
     /// True when every device is simulated: a dry-run, with ground truth.
     all_simulated: bool,
+    /// The pseudo-terminals of `port = "sim-pty"` devices: alive as long as the rig.
+    ptys: Vec<PtyDevice>,
 }
 
 /// The simulator's scene, replaceable per campaign (each dry-run campaign mounts its own material).
@@ -111,11 +115,30 @@ impl Rig {
         };
 
         let mut ports = std::collections::BTreeMap::new();
+        let mut ptys = Vec::new();
         for dev in &inst.devices {
             if dev.protocol == Protocol::Pm100 {
                 continue;
             }
-            let opener = if dev.is_simulated() {
+            let opener = if dev.is_sim_pty() {
+                // The simulated device on a real pseudo-terminal, opened by path like a real port.
+                let sim = sim
+                    .as_ref()
+                    .ok_or_else(|| EngineError::Instrument("no simulator".into()))?;
+                let pty = PtyDevice::serve(sim, &dev.name).map_err(|e| {
+                    EngineError::Device(format!(
+                        "device {:?}: cannot serve it on a pseudo-terminal: {e}",
+                        dev.name
+                    ))
+                })?;
+                let mut on_pty = dev.clone();
+                on_pty.port = Some(pty.path().display().to_string());
+                let settings = SerialSettings::for_device(&on_pty).ok_or_else(|| {
+                    EngineError::Instrument(format!("device {:?}: not a serial device", dev.name))
+                })?;
+                ptys.push(pty);
+                PortOpener::Serial(settings)
+            } else if dev.is_simulated() {
                 let sim = sim
                     .clone()
                     .ok_or_else(|| EngineError::Instrument("no simulator".into()))?;
@@ -250,6 +273,7 @@ impl Rig {
                 sim,
                 scene,
                 all_simulated,
+                ptys,
             }),
         };
         if let Some(sample) = dry_run_sample {
@@ -279,6 +303,15 @@ impl Rig {
     /// The simulator, when any device is simulated.
     pub fn sim(&self) -> Option<&SimInstrument> {
         self.inner.sim.as_ref()
+    }
+
+    /// Paths of the pseudo-terminals serving `port = "sim-pty"` devices: (device name, path).
+    pub fn sim_ptys(&self) -> Vec<(String, std::path::PathBuf)> {
+        self.inner
+            .ptys
+            .iter()
+            .map(|p| (p.device().to_string(), p.path().to_path_buf()))
+            .collect()
     }
 
     /// True when every device is simulated: campaigns are dry-runs with ground truth.
@@ -316,7 +349,9 @@ impl Rig {
         let mut out = Vec::new();
         let inst = &self.inner.file.instrument;
         for dev in &inst.devices {
-            let place = if dev.is_simulated() {
+            let place = if dev.is_sim_pty() && dev.protocol != Protocol::Pm100 {
+                "simulated, pseudo-terminal".to_string()
+            } else if dev.is_simulated() {
                 "simulated".to_string()
             } else {
                 dev.port.clone().unwrap_or_else(|| "usb".into())

@@ -419,12 +419,25 @@ impl<'a> Run<'a> {
             tracing::info!(campaign = %self.id, from = self.done, "resuming");
         }
 
-        // Calibration preamble: darks and the direct beam for every band, on every (re)start.
         let bands = self.c.plan.bands_nm.clone();
-        self.darks_all(&bands).await?;
-        self.direct_beam(&bands, None).await?;
-
-        let mut i = start;
+        let fresh = self.done == 0 && self.t_base == 0.0;
+        if fresh {
+            self.start_up(&steps).await?;
+        }
+        // Calibration preamble: darks and the direct beam for every band, on every (re)start. On a fresh start
+        // the schedule's own leading dark and reference steps are that preamble (so the run follows the
+        // predicted steps); a resume, or a plan without them, gets the engine's own.
+        let leading = steps.get(..start).unwrap_or_default();
+        let scheduled_preamble = fresh
+            && leading.iter().any(|s| s.kind == StepKind::Dark)
+            && leading.iter().any(|s| s.kind == StepKind::Reference);
+        let mut i = if scheduled_preamble {
+            0
+        } else {
+            self.darks_all(&bands).await?;
+            self.direct_beam(&bands, None).await?;
+            start
+        };
         while i < steps.len() {
             self.safe_point()?;
             let Some(step) = steps.get(i) else { break };
@@ -458,6 +471,23 @@ impl<'a> Run<'a> {
         Ok(())
     }
 
+    /// Bring the instrument to the state the schedule starts from (its first step's pose, the wheel on its first
+    /// step's position), then start the campaign's clock. Homing before this and the move here depend on where
+    /// the devices were found, which no plan can know: they are start-up, logged, and not instrument time of
+    /// the plan (so that the schedule's predicted duration is comparable with the run's).
+    async fn start_up(&mut self, steps: &[Step]) -> Result<(), Interrupt> {
+        if let Some(first) = steps.first() {
+            self.move_to(&first.pose).await?;
+        }
+        if let Some(p) = steps.iter().find_map(|s| s.wheel_position) {
+            self.wheel_to(p).await?;
+        }
+        let now = self.clock.now_s();
+        tracing::info!(campaign = %self.id, start_up_s = now - self.t_clock0, "instrument referenced and at the schedule's start");
+        self.t_clock0 = now;
+        Ok(())
+    }
+
     fn progress(&self, next_start_s: Option<f64>) {
         let eta_s = next_start_s.map(|s| (self.c.schedule.breakdown.total_s() - s).max(0.0));
         self.control.emit(Event::Progress {
@@ -485,7 +515,18 @@ impl<'a> Run<'a> {
 
     /// Move to `target` (physical pose) along a safe, backlash-aware move planned from where the axes are.
     async fn move_to(&mut self, target: &Pose) -> Result<(), Interrupt> {
-        let movement = match self.c.time.plan_move(&self.current, target) {
+        // An axis already within its arrival tolerance of the target does not move: the read-back differs from
+        // the nominal pose by up to that tolerance after every move, and re-commanding it would cost a move,
+        // a status poll and a settle at every reading of a pose (each band, each repeat at one geometry) that
+        // the schedule rightly predicts as free.
+        let mut from = self.current;
+        for a in self.rig.axes() {
+            let r = a.config.role;
+            if (from.get(r) - target.get(r)).abs() <= a.config.tolerance_deg {
+                from.set(r, target.get(r));
+            }
+        }
+        let movement = match self.c.time.plan_move(&from, target) {
             Ok(m) => m,
             Err(reason) => self.separating_move(target).ok_or_else(|| {
                 Interrupt::Fatal(EngineError::Device(format!(
@@ -540,9 +581,9 @@ impl<'a> Run<'a> {
             }
         }
         if !movement.phases.is_empty() {
-            self.clock
-                .sleep_s(movement.settle_s + self.c.acquisition.extra_settle_s)
-                .await;
+            // The campaign's extra settling is already part of each axis's settle time in `self.c.time`
+            // (see `campaign::parse`), hence of `movement.settle_s`.
+            self.clock.sleep_s(movement.settle_s).await;
         }
         // Physical targets the plan reached: nominal pose for axes that did not need to move.
         for r in ROLES {

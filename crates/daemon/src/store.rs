@@ -21,7 +21,9 @@ use serde::{Deserialize, Serialize};
 pub const STORE_FILE: &str = "gonio.sqlite";
 
 /// Bumped when the schema changes; a store with another version is refused rather than misread.
-const SCHEMA_VERSION: i64 = 1;
+/// Version 2: `signal_w`, `dark_w` and `incident_w` may be NULL (a failed point has no reading; SQLite cannot
+/// store NaN and turns it into NULL).
+const SCHEMA_VERSION: i64 = 2;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
@@ -259,6 +261,43 @@ impl Store {
             })
     }
 
+    /// Version 1 declared the readings NOT NULL, so a failed point (NaN reading) could not be committed.
+    /// SQLite cannot drop a NOT NULL constraint in place: rebuild the table, keeping every row.
+    fn migrate_v1_to_v2(&mut self) -> Result<(), StoreError> {
+        let sql = format!(
+            "BEGIN;
+            CREATE TABLE points_v2 (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                idx INTEGER NOT NULL,
+                band_nm REAL NOT NULL,
+                theta_i_deg REAL NOT NULL,
+                phi_i_deg REAL NOT NULL,
+                theta_o_deg REAL NOT NULL,
+                phi_o_deg REAL NOT NULL,
+                signal_w REAL,
+                dark_w REAL,
+                incident_w REAL,
+                brdf_sr REAL,
+                brdf_u_sr REAL,
+                flags TEXT NOT NULL,
+                t_s REAL NOT NULL,
+                readback_json TEXT NOT NULL,
+                truth_point_sr REAL,
+                truth_aperture_sr REAL,
+                PRIMARY KEY (campaign_id, idx)
+            );
+            INSERT INTO points_v2 SELECT * FROM points;
+            DROP TABLE points;
+            ALTER TABLE points_v2 RENAME TO points;
+            PRAGMA user_version = {SCHEMA_VERSION};
+            COMMIT;"
+        );
+        self.conn.execute_batch(&sql).map_err(|source| StoreError::Write {
+            path: self.path.clone(),
+            source,
+        })
+    }
+
     fn migrate(&mut self) -> Result<(), StoreError> {
         let version: i64 = self
             .conn
@@ -269,6 +308,9 @@ impl Store {
             })?;
         if version == SCHEMA_VERSION {
             return Ok(());
+        }
+        if version == 1 {
+            return self.migrate_v1_to_v2();
         }
         if version != 0 {
             return Err(StoreError::SchemaVersion {
@@ -316,9 +358,9 @@ impl Store {
                 phi_i_deg REAL NOT NULL,
                 theta_o_deg REAL NOT NULL,
                 phi_o_deg REAL NOT NULL,
-                signal_w REAL NOT NULL,
-                dark_w REAL NOT NULL,
-                incident_w REAL NOT NULL,
+                signal_w REAL,
+                dark_w REAL,
+                incident_w REAL,
                 brdf_sr REAL,
                 brdf_u_sr REAL,
                 flags TEXT NOT NULL,
@@ -521,8 +563,9 @@ impl Store {
         );
         match result {
             Ok(_) => Ok(()),
+            // Only the primary key means "already committed"; any other constraint is a bug, not a duplicate.
             Err(rusqlite::Error::SqliteFailure(e, _))
-                if e.code == rusqlite::ErrorCode::ConstraintViolation =>
+                if e.extended_code == rusqlite::ffi::SQLITE_CONSTRAINT_PRIMARYKEY =>
             {
                 Err(StoreError::DuplicatePoint {
                     campaign: id,
@@ -651,9 +694,10 @@ fn point_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<PointRecord,
         phi_i_deg: r.get(3)?,
         theta_o_deg: r.get(4)?,
         phi_o_deg: r.get(5)?,
-        signal_w: r.get(6)?,
-        dark_w: r.get(7)?,
-        incident_w: r.get(8)?,
+        // NULL: no reading (a failed point), stored from NaN.
+        signal_w: r.get::<_, Option<f64>>(6)?.unwrap_or(f64::NAN),
+        dark_w: r.get::<_, Option<f64>>(7)?.unwrap_or(f64::NAN),
+        incident_w: r.get::<_, Option<f64>>(8)?.unwrap_or(f64::NAN),
         brdf_sr: r.get(9)?,
         brdf_u_sr: r.get(10)?,
         flags: if flags.is_empty() {
@@ -737,6 +781,68 @@ mod tests {
             (c.points_done, c.total_points, c.state),
             (3, 5, CampaignState::Queued)
         );
+    }
+
+    fn failed_point(index: u64) -> PointRecord {
+        PointRecord {
+            signal_w: f64::NAN,
+            brdf_sr: None,
+            brdf_u_sr: None,
+            flags: vec!["failed: arms/1: motion fault: DISABLE from MOVING".into()],
+            ..point(index)
+        }
+    }
+
+    #[test]
+    fn a_failed_point_without_a_reading_is_committed_and_read_back() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut store = Store::open(dir.path()).expect("open");
+        let id = store.create_campaign(&new_campaign(2)).expect("create");
+        store
+            .commit_point(id, &failed_point(0))
+            .expect("a failed point commits");
+        let back = store.points(id).expect("points");
+        assert_eq!(back.len(), 1);
+        assert!(back[0].signal_w.is_nan());
+        assert_eq!(back[0].flags, failed_point(0).flags);
+        assert_eq!(back[0].brdf_sr, None);
+        assert_eq!(store.next_index(id).expect("next"), 1);
+    }
+
+    #[test]
+    fn a_version_1_store_is_migrated_keeping_its_points() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let id = {
+            let mut store = Store::open(dir.path()).expect("open");
+            let id = store.create_campaign(&new_campaign(3)).expect("create");
+            store.commit_point(id, &point(0)).expect("commit");
+            id
+        };
+        // Turn the file back into version 1 (readings NOT NULL), as stores written before the change are.
+        let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
+        let v1_table = conn
+            .query_row("SELECT sql FROM sqlite_master WHERE name = 'points'", [], |r| {
+                r.get::<_, String>(0)
+            })
+            .expect("schema")
+            .replace("signal_w REAL,", "signal_w REAL NOT NULL,")
+            .replace("dark_w REAL,", "dark_w REAL NOT NULL,")
+            .replace("incident_w REAL,", "incident_w REAL NOT NULL,")
+            .replace("CREATE TABLE points", "CREATE TABLE points_v1");
+        assert!(v1_table.contains("signal_w REAL NOT NULL"), "{v1_table}");
+        conn.execute_batch(&format!(
+            "{v1_table}; INSERT INTO points_v1 SELECT * FROM points; DROP TABLE points;
+             ALTER TABLE points_v1 RENAME TO points; PRAGMA user_version = 1;"
+        ))
+        .expect("downgrade");
+        drop(conn);
+
+        let mut store = Store::open(dir.path()).expect("migrates");
+        assert_eq!(store.points(id).expect("points"), vec![point(0)]);
+        store
+            .commit_point(id, &failed_point(1))
+            .expect("a failed point commits after migration");
+        assert_eq!(store.next_index(id).expect("next"), 2);
     }
 
     #[test]

@@ -692,6 +692,14 @@ impl Smc100Axis {
                 device: self.dev(),
                 detail: e.to_string(),
             })?;
+        // A stall (following error) or a stop leaves the controller in DISABLE, where it refuses every move
+        // (error J). Reconnecting means "ready to be commanded again": leave DISABLE with MM1, which keeps the
+        // reference, so that the caller's retry of an absolute move is not refused.
+        let ts = self.chain.ts(self.addr).await?;
+        if let State::Disable(_) = ts.state {
+            tracing::warn!(axis = %self.dev(), reason = %ts_reason(&ts), "controller in DISABLE after a fault; re-enabling");
+            self.do_home().await?;
+        }
         let status = self.read_status().await?;
         if !status.referenced {
             return Err(DriverError::NotReferenced {

@@ -7,7 +7,8 @@
 //! points so far).
 //!
 //! Dry-runs (every device simulated) run on a paused tokio clock: the simulated instrument takes its real
-//! instrument time, and no wall time is spent waiting for it. SIGINT/SIGTERM stop all motion, close the beam,
+//! instrument time, and no wall time is spent waiting for it; except with `port = "sim-pty"` devices (real
+//! pseudo-terminal I/O), which run on the real clock with the simulator sped up. SIGINT/SIGTERM stop all motion, close the beam,
 //! leave the store consistent and exit with code 4 and a message saying how to resume.
 
 use std::path::{Path, PathBuf};
@@ -118,8 +119,11 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
         .map_err(|e| CliError::input(e.to_string()))?;
     let store = Arc::new(Mutex::new(store));
 
-    let dry_run = record.dry_run;
-    let runtime = if dry_run {
+    // A paused clock cannot drive real terminal I/O (`port = "sim-pty"`): the serial reads happen in blocking
+    // threads, and auto-advance would fire read timeouts while bytes are in flight. Those dry-runs run the
+    // simulator on the real clock, sped up instead.
+    let paused_clock = record.dry_run && !file.instrument.devices.iter().any(|d| d.is_sim_pty());
+    let runtime = if paused_clock {
         tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .start_paused(true)
@@ -135,7 +139,7 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
     let outcome = if record.state == CampaignState::Completed {
         Ok((CampaignState::Completed, Vec::new(), false))
     } else {
-        runtime.block_on(drive(Arc::clone(&store), id, &file, dry_run, args.quiet))
+        runtime.block_on(drive(Arc::clone(&store), id, &file, paused_clock, args.quiet))
     };
     runtime.shutdown_timeout(std::time::Duration::from_millis(200));
     let (state, identities, interrupted) = outcome?;
@@ -182,13 +186,14 @@ async fn drive(
     store: Arc<Mutex<Store>>,
     id: CampaignId,
     file: &InstrumentFile,
-    dry_run: bool,
+    paused_clock: bool,
     quiet: bool,
 ) -> Result<(CampaignState, Vec<(String, String)>, bool), CliError> {
-    let rig = if dry_run {
+    let rig = if paused_clock {
         // Paused clock: simulated time advances as fast as the run can go.
         Rig::connect_with_time_scale(file, None, 1.0).await
     } else {
+        // Real hardware, or simulated devices on pseudo-terminals at the default dry-run time scale.
         Rig::connect(file, None).await
     }
     .map_err(|e| CliError::input(e.to_string()))?;
@@ -331,7 +336,13 @@ fn write_results(
             *flag_counts.entry(key).or_default() += 1;
         }
     }
-    let actual_s = points.iter().map(|p| p.t_s).fold(0.0f64, f64::max);
+    // The run ends with the schedule's final calibration, after the last point: its last record, as the
+    // predicted duration counts it (both from the end of start-up; see the daemon's runner).
+    let actual_s = points
+        .iter()
+        .map(|p| p.t_s)
+        .chain(calibrations.iter().map(|c| c.t_s))
+        .fold(0.0f64, f64::max);
     let errors_aperture = export::truth_errors(&points, |p| p.truth_aperture_sr);
     let errors_point = export::truth_errors(&points, |p| p.truth_point_sr);
     let devices = if identities.is_empty() {

@@ -68,7 +68,10 @@ pub struct Device {
     /// Name other tables refer to (e.g. "arms").
     pub name: String,
     pub protocol: Protocol,
-    /// Serial port path, e.g. "/dev/ttyUSB0". Absent or "sim" for the embedded simulator.
+    /// Serial port path, e.g. "/dev/ttyUSB0". Absent or "sim" for the embedded simulator, reached in process.
+    /// "sim-pty": also the embedded simulator, but a serial device is served on a real pseudo-terminal and
+    /// opened by its path like a real port (the whole serial path of real hardware is exercised); a USB device
+    /// (the power meter) stays in process.
     #[serde(default)]
     pub port: Option<String>,
     /// Serial baud rate; defaults to the protocol's factory setting.
@@ -85,13 +88,21 @@ pub struct Device {
     pub usb_serial: Option<String>,
 }
 
+/// The `port` value for a simulated device served on a pseudo-terminal (see [`Device::port`]).
+pub const SIM_PTY_PORT: &str = "sim-pty";
+
 impl Device {
     /// True when this device is the embedded simulator rather than a real port or USB device.
     pub fn is_simulated(&self) -> bool {
         match &self.port {
             None => self.usb_vendor_id.is_none(),
-            Some(p) => p == "sim",
+            Some(p) => p == "sim" || p == SIM_PTY_PORT,
         }
+    }
+
+    /// True for `port = "sim-pty"`: simulated, and (for a serial device) served on a pseudo-terminal.
+    pub fn is_sim_pty(&self) -> bool {
+        self.port.as_deref() == Some(SIM_PTY_PORT)
     }
 }
 

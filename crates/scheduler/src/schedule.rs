@@ -8,8 +8,9 @@
 //!   tours join without a move ([`BandMode::PerBand`]). Both are computed and the quicker kept: a slow wheel
 //!   groups the bands.
 //! - Repeats: each further pass runs the previous one backwards.
-//! - Calibration: a dark step (wheel on the blank, one reading) and a reference step (move to the reference pose,
-//!   one reading per band) at the start, whenever `every_points` measured points or `every_s` seconds have
+//! - Calibration: a dark step (wheel on the blank, one reading per band's wavelength setting) and a reference step (move to the reference pose,
+//!   one reading per band, the wheel on the blank before and after while the operator handles the sample)
+//!   at the start, whenever `every_points` measured points or `every_s` seconds have
 //!   passed since the last one, and at the end.
 //! - The raster time is the same walk over the plan's request order, bands in their listed order at each
 //!   geometry, passes repeated as they are. The ordered schedule is never longer: if it were, raster order would
@@ -222,7 +223,10 @@ impl<'a> Walker<'a> {
                 settle_s: 0.0,
             },
             wheel_s,
-            reading_s: self.time.reading_s,
+            // One dark reading at each band's wavelength setting: the meter converts current to watts with the
+            // responsivity at the wavelength it is set to, so each band needs its own dark (the daemon reads
+            // them all).
+            reading_s: self.time.reading_s * self.plan.bands_nm.len().max(1) as f64,
             pass: 0,
             start_s: 0.0,
         });
@@ -239,6 +243,14 @@ impl<'a> Walker<'a> {
             self.last_reference_s = self.t;
             return;
         };
+        // The daemon closes the beam (wheel on the blank) while the operator removes the sample, and again while
+        // they mount it back: a turn to the blank before the bands' walk and one after it.
+        let blank = self.time.wheel.as_ref().and_then(|w| w.blank);
+        let mut blank_before_s = 0.0;
+        if blank.is_some() {
+            blank_before_s = self.wheel_to(blank);
+            self.wheel = blank;
+        }
         let bands = self.plan.bands_nm.clone();
         let positions: Vec<u8> = bands.iter().filter_map(|b| self.band_position(*b)).collect();
         let order: Vec<(f64, Option<u8>)> = match &self.time.wheel {
@@ -250,7 +262,7 @@ impl<'a> Walker<'a> {
             _ => bands.iter().map(|b| (*b, None)).collect(),
         };
         for (band, pos) in order {
-            let wheel_s = self.wheel_to(pos);
+            let wheel_s = self.wheel_to(pos) + std::mem::take(&mut blank_before_s);
             self.push(Step {
                 kind: StepKind::Reference,
                 geometry_index: None,
@@ -272,6 +284,15 @@ impl<'a> Walker<'a> {
                 pass: 0,
                 start_s: 0.0,
             });
+        }
+        if blank.is_some() {
+            let back_s = self.wheel_to(blank);
+            if let Some(last) = self.steps.last_mut().filter(|s| s.kind == StepKind::Reference) {
+                last.wheel_s += back_s;
+                self.t += back_s;
+                self.breakdown.calibration_s += back_s;
+            }
+            self.wheel = blank;
         }
         self.points_since_reference = 0;
         self.last_reference_s = self.t;

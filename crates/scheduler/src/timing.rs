@@ -14,7 +14,9 @@
 //!   axis has settled. `motion_s` is the time until the last arrival, `settle_s` the remainder.
 //! - Filter wheel: `seconds_per_position` per step, the shortest way round. The wheel has 6 slots when no
 //!   configured position exceeds 6, else 12 (the FW102C's two models).
-//! - Reading: `averaging x` [`DETECTOR_SAMPLE_S`].
+//! - Reading: `averaging x` [`DETECTOR_SAMPLE_S`], plus the driver's range query ([`reading_time_s`]).
+//! - Driver overheads the daemon really pays: arrival seen at the next status poll
+//!   ([`ARRIVAL_POLL_LATENCY_S`] per waypoint), about [`EXCHANGE_S`] per request/reply (a filter change is four).
 //! - The wheel and the axes do not move at the same time (the daemon changes the filter once the axes have
 //!   settled), so the parts of the breakdown add up.
 
@@ -25,6 +27,28 @@ use crate::kinematics::{Pose, ROLES};
 
 /// Time for one detector sample: the PM100 takes about 3 ms per averaged sample.
 pub const DETECTOR_SAMPLE_S: f64 = 0.003;
+
+/// How late, on average, the daemon sees an axis arrive at one commanded waypoint: the motion drivers (SMC100,
+/// Zaber) poll the controller's status every 50 ms while waiting, so an arrival is seen half a period late on
+/// average. Part of the move as the daemon executes it (the next phase, the settle wait and the reading start
+/// from the seen arrival).
+pub const ARRIVAL_POLL_LATENCY_S: f64 = 0.025;
+
+/// One request/reply round trip with a device: a USB transaction with the meter, or a short line and its echo
+/// and prompt at 115200 baud on the wheel (about 1 ms).
+pub const EXCHANGE_S: f64 = 0.001;
+
+/// Exchanges of one reading beyond the measurement itself (the range query after `MEAS:POW?`).
+const READING_EXCHANGES: f64 = 1.0;
+
+/// Exchanges of one filter change: the driver asks the position count and the position, commands `pos=N`, and
+/// checks the position after the prompt.
+const WHEEL_EXCHANGES: f64 = 4.0;
+
+/// Duration of one detector reading with `averaging` samples, as the daemon takes it.
+pub fn reading_time_s(averaging: u32) -> f64 {
+    f64::from(averaging) * DETECTOR_SAMPLE_S + READING_EXCHANGES * EXCHANGE_S
+}
 
 /// A backlash approach starts this many backlash widths below the target.
 pub const BACKLASH_OVERSHOOT: f64 = 2.0;
@@ -206,7 +230,10 @@ impl WheelModel {
     }
 
     pub fn time_s(&self, from: u8, to: u8) -> f64 {
-        f64::from(self.steps(from, to)) * self.seconds_per_position
+        match self.steps(from, to) {
+            0 => 0.0,
+            n => f64::from(n) * self.seconds_per_position + WHEEL_EXCHANGES * EXCHANGE_S,
+        }
     }
 
     pub fn position_of(&self, band_nm: f64) -> Option<u8> {
@@ -283,7 +310,7 @@ impl TimeModel {
             axis_count: instrument.axes.len(),
             min_arm_separation_deg: instrument.safety.min_arm_separation_deg,
             wheel,
-            reading_s: f64::from(instrument.detector.averaging) * DETECTOR_SAMPLE_S,
+            reading_s: reading_time_s(instrument.detector.averaging),
         }
     }
 
@@ -347,7 +374,7 @@ impl TimeModel {
                 continue;
             }
             let segments = m.segments(a, &waypoints, 0.0);
-            let duration_s = m.travel_time_s(a, &waypoints);
+            let duration_s = m.travel_time_s(a, &waypoints) + ARRIVAL_POLL_LATENCY_S * waypoints.len() as f64;
             out.push((
                 AxisMotion {
                     role: m.role,
@@ -535,8 +562,9 @@ impl TimeModel {
                 reach = o;
                 trapezoid_time_s(b - o - a, m.max_speed_deg_s, m.accel_deg_s2)
                     + trapezoid_time_s(o, m.max_speed_deg_s, m.accel_deg_s2)
+                    + 2.0 * ARRIVAL_POLL_LATENCY_S
             } else {
-                trapezoid_time_s(b - a, m.max_speed_deg_s, m.accel_deg_s2)
+                trapezoid_time_s(b - a, m.max_speed_deg_s, m.accel_deg_s2) + ARRIVAL_POLL_LATENCY_S
             };
             if t > 0.0 {
                 motion = motion.max(t);

@@ -57,7 +57,11 @@ impl SerialSettings {
     /// Settings for an instrument-file device on a real port or pty path (`None` for the embedded simulator or
     /// a USB device): the file's baud rate or the protocol's factory default, XON/XOFF for the SMC100.
     pub fn for_device(device: &gonio_instrument::Device) -> Option<SerialSettings> {
-        let path = device.port.as_deref().filter(|p| *p != "sim")?;
+        // "sim" and "sim-pty" name the simulator, not a path (the rig opens a sim-pty device by its terminal).
+        let path = device
+            .port
+            .as_deref()
+            .filter(|p| *p != "sim" && *p != gonio_instrument::SIM_PTY_PORT)?;
         if device.protocol == gonio_instrument::Protocol::Pm100 {
             return None;
         }

@@ -89,6 +89,50 @@ async fn smc100_stall_ends_in_a_motion_fault_with_the_controller_reason() {
 }
 
 #[tokio::test(start_paused = true)]
+async fn smc100_reconnect_after_a_stall_leaves_disable_so_the_move_can_be_retried() {
+    trace();
+    let sim = sim_with(
+        |f| {
+            f.stall_rate = 0.5;
+            f.seed = 7;
+        },
+        1.0,
+    );
+    let (light, _) = arms(sim_port(&sim, "arms"));
+    for i in 0..40 {
+        let status = light.status().await.expect("status");
+        if !status.referenced || status.fault.is_some() {
+            // A stalled homing search: try again (homing from DISABLE is MM1).
+            let _ = light.home().await;
+            continue;
+        }
+        let target = if i % 2 == 0 { 20.0 } else { -20.0 };
+        match light.move_to(target).await {
+            Ok(_) => continue,
+            Err(e) if e.kind() == ErrorKind::MotionFault => {
+                // The stall left the controller in DISABLE, which refuses moves (error J)...
+                let stalled = light.status().await.expect("status");
+                assert!(stalled.fault.is_some(), "{stalled:?}");
+                // ...and reconnecting brings it back to READY with its reference kept.
+                let after = light
+                    .reconnect()
+                    .await
+                    .expect("reconnect re-enables the controller");
+                assert!(after.referenced && after.fault.is_none(), "{after:?}");
+                light
+                    .start_move(0.0)
+                    .await
+                    .expect("the retried move is accepted, not refused in DISABLE");
+                assert!(sim.fault_counts().stalls > 0);
+                return;
+            }
+            Err(e) => panic!("unexpected error: {e}"),
+        }
+    }
+    panic!("no stalled move in 40 moves at a 50 % stall rate");
+}
+
+#[tokio::test(start_paused = true)]
 async fn smc100_stop_reaches_a_moving_axis() {
     trace();
     let sim = sim_with(|_| {}, 1.0);
