@@ -12,7 +12,7 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use crate::error::DriverError;
-use crate::motion::{approach_from_below, move_deadline, trapezoid_time_s};
+use crate::motion::{approach_waypoints, check_speed, move_deadline, trapezoid_time_s};
 use crate::traits::{Axis, AxisLimits, AxisStatus};
 use crate::transport::{BoxFuture, LinePort, TransportError, escape_bytes};
 
@@ -633,44 +633,16 @@ impl Smc100Axis {
     pub async fn do_move_to(&self, target_deg: f64) -> Result<f64, DriverError> {
         self.check_limits(target_deg)?;
         let current = self.chain.number(self.addr, "TP", "").await?;
-        let target_c = self.cfg.controller_from_physical_deg(target_deg);
-        // Approach from below in *controller* coordinates (the mechanics' sense), within the controller limits.
-        let lower_c = self
-            .cfg
-            .controller_from_physical_deg(self.cfg.min_deg)
-            .min(self.cfg.controller_from_physical_deg(self.cfg.max_deg));
-        let steps = approach_from_below(current, target_c, self.cfg.backlash_deg, lower_c);
         let mut read = f64::NAN;
-        let last = steps.len().saturating_sub(1);
-        for (i, step_c) in steps.into_iter().enumerate() {
-            let step_deg = self.cfg.physical_from_controller_deg(step_c);
+        for (step_deg, tolerance) in approach_waypoints(&self.cfg, current, target_deg) {
             self.do_start_move(step_deg).await?;
-            // The overshoot point is a via point: the load may sit up to the backlash away from the motor there.
-            let tolerance = if i < last {
-                self.cfg.tolerance_deg + 2.0 * self.cfg.backlash_deg
-            } else {
-                self.cfg.tolerance_deg
-            };
             read = self.wait_arrived_within(step_deg, tolerance).await?;
         }
         Ok(read)
     }
 
     pub async fn do_set_speed(&self, speed_deg_s: f64, accel_deg_s2: f64) -> Result<(), DriverError> {
-        for (what, v) in [
-            ("speed (deg/s)", speed_deg_s),
-            ("acceleration (deg/s^2)", accel_deg_s2),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(DriverError::OutOfRange {
-                    device: self.dev(),
-                    what: what.into(),
-                    value: v,
-                    min: 0.0,
-                    max: f64::INFINITY,
-                });
-            }
-        }
+        check_speed(self.dev(), speed_deg_s, accel_deg_s2)?;
         self.chain
             .command(self.addr, "VA", &wire_number(speed_deg_s), true)
             .await?;

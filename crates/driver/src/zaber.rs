@@ -14,7 +14,7 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use crate::error::DriverError;
-use crate::motion::{approach_from_below, move_deadline};
+use crate::motion::{approach_waypoints, check_speed, move_deadline};
 use crate::traits::{Axis, AxisLimits, AxisStatus};
 use crate::transport::{BoxFuture, LinePort, TransportError, escape_bytes};
 
@@ -730,43 +730,16 @@ impl ZaberAxis {
         self.check_limits(target_deg)?;
         let (steps, _, _) = self.get_pos().await?;
         let current_c = steps as f64 * self.microstep_deg;
-        let target_c = self.cfg.controller_from_physical_deg(target_deg);
-        let lower_c = self
-            .cfg
-            .controller_from_physical_deg(self.cfg.min_deg)
-            .min(self.cfg.controller_from_physical_deg(self.cfg.max_deg));
         let mut read = f64::NAN;
-        let steps = approach_from_below(current_c, target_c, self.cfg.backlash_deg, lower_c);
-        let last = steps.len().saturating_sub(1);
-        for (i, step_c) in steps.into_iter().enumerate() {
-            let step_deg = self.cfg.physical_from_controller_deg(step_c);
+        for (step_deg, tolerance) in approach_waypoints(&self.cfg, current_c, target_deg) {
             self.do_start_move(step_deg).await?;
-            // The overshoot point is a via point: the load may sit up to the backlash away from the motor there.
-            let tolerance = if i < last {
-                self.cfg.tolerance_deg + 2.0 * self.cfg.backlash_deg
-            } else {
-                self.cfg.tolerance_deg
-            };
             read = self.wait_arrived_within(step_deg, tolerance).await?;
         }
         Ok(read)
     }
 
     pub async fn do_set_speed(&self, speed_deg_s: f64, accel_deg_s2: f64) -> Result<(), DriverError> {
-        for (what, v) in [
-            ("speed (deg/s)", speed_deg_s),
-            ("acceleration (deg/s^2)", accel_deg_s2),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(DriverError::OutOfRange {
-                    device: self.dev(),
-                    what: what.into(),
-                    value: v,
-                    min: 0.0,
-                    max: f64::INFINITY,
-                });
-            }
-        }
+        check_speed(self.dev(), speed_deg_s, accel_deg_s2)?;
         let speed = (speed_deg_s / self.microstep_deg * SPEED_UNIT).round().max(1.0) as i64;
         let accel = (accel_deg_s2 / self.microstep_deg * ACCEL_UNIT).round().max(1.0) as i64;
         self.ok(&format!("set maxspeed {speed}"), true).await?;
