@@ -128,3 +128,117 @@ fn gonio_sim_serves_devices_on_pseudo_terminals_and_exits_cleanly_on_sigterm() {
     };
     assert!(status.success(), "exit status {status}");
 }
+
+/// With `--link-dir`, a disconnect fault makes the port vanish as an unplugged USB-serial adapter does: the link
+/// disappears, an open descriptor hangs up, and after `reconnect_after_s` the same path serves the device again.
+#[test]
+fn with_link_dir_a_disconnected_port_vanishes_and_comes_back_at_the_same_path() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let instrument = dir.path().join("faulty.toml");
+    // Simulated seconds at --time-scale 100: gone after 3 s of real time, back 3 s later.
+    let text = gonio_instrument::SIMULATED_INSTRUMENT_TOML.replace(
+        "[simulator.faults]",
+        "[simulator.faults]\ndisconnect_after_s = 300.0\nreconnect_after_s = 300.0",
+    );
+    std::fs::write(&instrument, text).expect("write instrument");
+    let links = dir.path().join("ports");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(["sim", "--time-scale", "100", "--instrument"])
+        .arg(&instrument)
+        .arg("--link-dir")
+        .arg(&links)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start gonio sim");
+    let stdout = child.stdout.take().expect("stdout");
+    let mut lines = BufReader::new(stdout).lines();
+    let mut wheel_path = None;
+    loop {
+        let line = lines.next().expect("a line before ready").expect("utf-8 line");
+        let v: serde_json::Value = serde_json::from_str(&line).expect("JSON line");
+        if v["ready"] == serde_json::Value::Bool(true) {
+            break;
+        }
+        if v["protocol"] == "fw102c" {
+            wheel_path = v["path"].as_str().map(str::to_string);
+        }
+    }
+    let wheel_path = wheel_path.expect("the wheel is listed");
+    assert_eq!(std::path::Path::new(&wheel_path), links.join("wheel"));
+
+    let mut wheel = open_port(&wheel_path);
+    wheel.write_all(b"pos?\r").expect("write");
+    assert_eq!(
+        String::from_utf8_lossy(&read_until(&mut wheel, b"> ", Duration::from_secs(5))),
+        "pos?\r1\r> "
+    );
+
+    let wait_for = |present: bool| {
+        let start = Instant::now();
+        while std::fs::symlink_metadata(&wheel_path).is_ok() != present {
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "the link never became {}",
+                if present { "present" } else { "absent" }
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    wait_for(false);
+    // The descriptor opened before the disconnect is hung up: reads end (EOF or EIO), they do not just block.
+    let start = Instant::now();
+    let hung_up = loop {
+        let mut b = [0u8; 64];
+        match wheel.read(&mut b) {
+            Ok(0) => break true,
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+            Err(_) => break true,
+            Ok(_) => {}
+        }
+        if start.elapsed() > Duration::from_secs(5) {
+            break false;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    assert!(
+        hung_up,
+        "the old terminal still reads as live after the port vanished"
+    );
+    assert!(
+        std::fs::OpenOptions::new().read(true).open(&wheel_path).is_err(),
+        "the vanished port cannot be opened"
+    );
+
+    wait_for(true);
+    let mut wheel = open_port(&wheel_path);
+    wheel.write_all(b"pos?\r").expect("write");
+    assert_eq!(
+        String::from_utf8_lossy(&read_until(&mut wheel, b"> ", Duration::from_secs(5))),
+        "pos?\r1\r> ",
+        "the device answers again behind the same path"
+    );
+    drop(wheel);
+
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(child.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    )
+    .expect("send SIGTERM");
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().expect("wait") {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(10) {
+            let _ = child.kill();
+            panic!("gonio sim did not exit after SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success(), "exit status {status}");
+    assert!(
+        std::fs::symlink_metadata(links.join("wheel")).is_err(),
+        "the links are removed on exit"
+    );
+}

@@ -5,6 +5,12 @@
 //! paths can be opened by any program exactly like real serial ports. The USB power meter exists in process only
 //! and says so. SIGINT or SIGTERM ends the program cleanly (exit 0).
 //!
+//! With `--link-dir DIR`, each printed path is instead a stable symbolic link `DIR/<device>` to the current
+//! terminal, and a disconnect fault (`[simulator.faults] disconnect_after_s`) makes the port vanish as an unplugged
+//! USB-serial adapter does: the link disappears and the terminal hangs up, and when the device comes back
+//! (`reconnect_after_s`) the same link leads to a fresh terminal. Without it the terminal stays and the device
+//! just falls silent while disconnected.
+//!
 //! The terminals and their bridges are `gonio_simulator::pty::PtyDevice`s (see there for the details).
 
 use std::io::Write;
@@ -30,6 +36,10 @@ pub struct SimArgs {
     /// Sample material: a material file or a preset name.
     #[arg(long, default_value = "spectralon")]
     pub material: String,
+    /// Serve each device behind a stable link DIR/<device> that vanishes while the device is disconnected
+    /// (created if missing; the links are removed on exit).
+    #[arg(long, value_name = "DIR")]
+    pub link_dir: Option<PathBuf>,
 }
 
 pub fn run(args: SimArgs) -> Result<(), CliError> {
@@ -49,7 +59,11 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
         .enable_all()
         .build()
         .map_err(|e| CliError::io("cannot start the async runtime", e))?;
-    let result = runtime.block_on(serve(file, scene, args.time_scale));
+    if let Some(dir) = &args.link_dir {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| CliError::io(format!("cannot create --link-dir {}", dir.display()), e))?;
+    }
+    let result = runtime.block_on(serve(file, scene, args.time_scale, args.link_dir.as_deref()));
     // The bridges are idle reads: cancel them at once rather than waiting for the default shutdown.
     runtime.shutdown_timeout(std::time::Duration::from_millis(100));
     // The terminals close only now, so no bridge sees its slave vanish (EIO) while the runtime still runs.
@@ -77,13 +91,18 @@ async fn serve(
     file: InstrumentFile,
     scene: Arc<dyn Scene>,
     time_scale: f64,
+    link_dir: Option<&std::path::Path>,
 ) -> Result<Vec<PtyDevice>, CliError> {
     let sim = SimInstrument::new(&file, scene, time_scale).map_err(|e| CliError::input(e.to_string()))?;
     let mut stdout = std::io::stdout().lock();
     let mut keep = Vec::new();
     for (name, protocol) in sim.serial_devices() {
-        let pty = PtyDevice::serve(&sim, &name)
-            .map_err(|e| CliError::io(format!("cannot serve {name}"), std::io::Error::other(e)))?;
+        let served = match link_dir {
+            Some(dir) => PtyDevice::serve_linked(&sim, &name, &dir.join(&name)),
+            None => PtyDevice::serve(&sim, &name),
+        };
+        let pty =
+            served.map_err(|e| CliError::io(format!("cannot serve {name}"), std::io::Error::other(e)))?;
         let line = serde_json::json!({"device": name, "protocol": protocol.name(), "path": pty.path().display().to_string()});
         writeln!(stdout, "{line}").map_err(|e| CliError::io("stdout", e))?;
         keep.push(pty);
