@@ -242,3 +242,184 @@ fn with_link_dir_a_disconnected_port_vanishes_and_comes_back_at_the_same_path() 
         "the links are removed on exit"
     );
 }
+
+/// Writes lines to a child's stdin; panics with context if the child went away.
+fn say(stdin: &mut std::process::ChildStdin, line: &str) {
+    stdin
+        .write_all(format!("{line}\n").as_bytes())
+        .and_then(|()| stdin.flush())
+        .unwrap_or_else(|e| panic!("writing {line:?}: {e}"));
+}
+
+/// The whole real-hardware path: `gonio run` against a SEPARATE `gonio sim` process, every device opened by path
+/// (serial links, the power meter's USB socket), an absolute calibration with the operator's steps done by hand
+/// (the sample taken out of the simulator and put back through its stdin, each prompt confirmed with Enter),
+/// and BRDF values that match the material the simulator holds.
+#[test]
+fn gonio_run_against_a_separate_gonio_sim_through_the_real_hardware_path_matches_the_material() {
+    use gonio_brdf::brdf::Brdf;
+    use gonio_brdf::geometry::Direction;
+    use gonio_brdf::spectrum::Wavelength;
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let links = dir.path().join("ports");
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args([
+            "sim",
+            "--time-scale",
+            "50",
+            "--material",
+            "spectralon",
+            "--link-dir",
+        ])
+        .arg(&links)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start gonio sim");
+    let mut sim_in = sim.stdin.take().expect("sim stdin");
+    let mut sim_out = BufReader::new(sim.stdout.take().expect("sim stdout")).lines();
+    let mut ports = std::collections::HashMap::new();
+    loop {
+        let line = sim_out.next().expect("a line before ready").expect("utf-8");
+        let v: serde_json::Value = serde_json::from_str(&line).expect("JSON line");
+        if v["ready"] == serde_json::Value::Bool(true) {
+            break;
+        }
+        let port = v["port"]
+            .as_str()
+            .or(v["path"].as_str())
+            .expect("a path")
+            .to_string();
+        ports.insert(v["device"].as_str().expect("device").to_string(), port);
+    }
+    assert_eq!(ports.len(), 4, "{ports:?}");
+    assert!(ports["meter"].starts_with("usb-socket:"), "{ports:?}");
+
+    // The simulated instrument's file with every device on a real path instead of "sim".
+    let mut text = gonio_instrument::SIMULATED_INSTRUMENT_TOML.to_string();
+    for device in ["arms", "stage", "wheel", "meter"] {
+        let block = format!("name = \"{device}\"");
+        let at = text.find(&block).expect("device block");
+        let port_at = at + text[at..].find("port = \"sim\"").expect("port line");
+        text.replace_range(
+            port_at..port_at + "port = \"sim\"".len(),
+            &format!("port = {:?}", ports[device]),
+        );
+    }
+    assert!(!text.contains("port = \"sim\""));
+    let instrument = dir.path().join("lab.toml");
+    std::fs::write(&instrument, text).expect("write instrument");
+    let campaign = dir.path().join("separate.toml");
+    std::fs::write(
+        &campaign,
+        r#"
+[campaign]
+id = "separate"
+[sample]
+radius_mm = 12.5
+[plan]
+bands_nm = [550.0]
+[plan.grid]
+kind = "isotropic"
+theta_i_deg = { from = 0.0, to = 50.0, step = 25.0 }
+theta_o_deg = { from = 10.0, to = 70.0, step = 30.0 }
+delta_phi_deg = { from = 0.0, to = 180.0, step = 90.0 }
+[acquisition]
+averaging = 4
+"#,
+    )
+    .expect("write campaign");
+
+    let out = dir.path().join("out");
+    let mut run = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .arg("run")
+        .arg(&campaign)
+        .arg("--instrument")
+        .arg(&instrument)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start gonio run");
+    let mut run_in = run.stdin.take().expect("run stdin");
+    let run_err = BufReader::new(run.stderr.take().expect("run stderr"));
+    // The operator: read each prompt, do what it says on the simulator, confirm.
+    let mut prompts = Vec::new();
+    let mut log = Vec::new();
+    for line in run_err.lines() {
+        let line = line.expect("utf-8");
+        log.push(line.clone());
+        let Some(prompt) = line.strip_prefix("operator: ") else {
+            continue;
+        };
+        let command = if prompt.contains("remove the sample") {
+            "sample out"
+        } else if prompt.contains("mount the sample again") {
+            "sample in"
+        } else {
+            panic!("unexpected operator prompt {prompt:?}");
+        };
+        say(&mut sim_in, command);
+        let ack = sim_out.next().expect("simulator answers").expect("utf-8");
+        assert_eq!(
+            ack,
+            format!("{{\"sample_mounted\":{}}}", command == "sample in"),
+            "simulator acknowledgement"
+        );
+        say(&mut run_in, "");
+        prompts.push(command);
+    }
+    let status = run.wait().expect("wait run");
+    assert!(status.success(), "gonio run failed: {}", log.join("\n"));
+    assert_eq!(&prompts[..2], ["sample out", "sample in"], "{log:?}");
+
+    let csv = std::fs::read_to_string(out.join("points.csv")).expect("points.csv");
+    let mut rows = csv.lines();
+    let header: Vec<&str> = rows.next().expect("header").split(',').collect();
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .unwrap_or_else(|| panic!("no {name}"))
+    };
+    assert!(
+        !header.contains(&"brdf_true_sr"),
+        "not a dry-run from gonio run's point of view"
+    );
+    let material = gonio_brdf::material::Material::preset("spectralon").expect("preset");
+    let wl = Wavelength::from_nm(550.0).expect("wavelength");
+    let mut compared = 0;
+    for row in rows {
+        let f: Vec<&str> = row.split(',').collect();
+        let num = |name: &str| {
+            f[col(name)]
+                .parse::<f64>()
+                .unwrap_or_else(|e| panic!("{name} in {row}: {e}"))
+        };
+        assert_eq!(f[col("flags")], "", "a valid point: {row}");
+        let wi = Direction::from_spherical_deg(num("theta_i_deg"), num("phi_i_deg"));
+        let wo = Direction::from_spherical_deg(num("theta_o_deg"), num("phi_o_deg"));
+        let truth = material.eval(&wi, &wo, wl).expect("eval");
+        let measured = num("brdf_sr");
+        assert!(
+            (measured - truth).abs() <= 0.03 * truth,
+            "measured {measured} vs spectralon {truth} 1/sr at {row}"
+        );
+        compared += 1;
+    }
+    assert!(compared >= 10, "only {compared} points");
+
+    drop(sim_in);
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(sim.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    )
+    .expect("send SIGTERM");
+    let status = sim.wait().expect("wait sim");
+    assert!(status.success(), "gonio sim exit {status}");
+}

@@ -11,6 +11,7 @@
 //! - [`motion`]: per-axis motion physics (trapezoidal profiles, backlash, limits, encoder, stalls).
 //! - [`smc100`], [`zaber`], [`fw102c`], [`pm100`]: the device emulators, speaking the real wire protocols.
 //! - [`pty`]: a serial device served on a real pseudo-terminal ([`pty::PtyDevice`]).
+//! - [`usb_socket`]: the USB power meter served on a Unix socket, for hosts in another process.
 //! - [`session`]: the byte-stream session between a host and a serial emulator.
 //! - [`faults`]: seeded fault injection and its counters.
 
@@ -26,6 +27,7 @@ pub mod pty;
 pub mod scene;
 pub mod session;
 pub mod smc100;
+pub mod usb_socket;
 pub mod zaber;
 
 pub use faults::FaultCounts;

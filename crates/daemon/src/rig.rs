@@ -3,8 +3,10 @@
 //!
 //! Every device of the instrument file is opened: `port = "sim"` (or no port) means the embedded simulator,
 //! `port = "sim-pty"` the embedded simulator with its serial devices served on pseudo-terminals and opened by
-//! path like real ports (the power meter stays in process; needs a runtime on the real clock), anything else a real serial port or pseudo-terminal (USB for the power meter). Axes keep the instrument
-//! file's order, which is also the order of the read-back columns.
+//! path like real ports (the power meter stays in process; needs a runtime on the real clock), anything else a
+//! real serial port or pseudo-terminal, and for the power meter USB by vendor/product id, or
+//! `port = "usb-socket:PATH"` for a meter served on a Unix socket (a separate `gonio sim --link-dir`). Axes keep
+//! the instrument file's order, which is also the order of the read-back columns.
 
 pub mod sim_link;
 
@@ -248,6 +250,16 @@ impl Rig {
                 .map_err(|e| EngineError::Device(format!("detector {name:?}: {e}")))?;
             let opener: PipeOpener = sim_link::pipe_opener(sim.clone(), name.clone());
             Arc::new(Pm100::new(name, pipe, Some(opener)))
+        } else if let Some(socket) = det_dev
+            .port
+            .as_deref()
+            .and_then(|p| p.strip_prefix(gonio_driver::transport::usb_socket::PORT_PREFIX))
+        {
+            Arc::new(
+                Pm100::open_socket(det_dev.name.clone(), socket.into())
+                    .await
+                    .map_err(|e| EngineError::Device(e.to_string()))?,
+            )
         } else {
             let (Some(vid), Some(pid)) = (det_dev.usb_vendor_id, det_dev.usb_product_id) else {
                 return Err(EngineError::Instrument(format!(

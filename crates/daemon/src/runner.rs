@@ -27,7 +27,7 @@ use gonio_brdf::measurement::{
 };
 use gonio_brdf::{Direction, Wavelength};
 use gonio_driver::{DetectorConfig, DriverError, ErrorKind, PowerRange};
-use gonio_instrument::InstrumentFile;
+use gonio_instrument::{AxisRole, InstrumentFile};
 use gonio_scheduler::kinematics::{Pose, ROLES};
 use gonio_scheduler::schedule::{Step, StepKind};
 use gonio_simulator::optics::{Optics, SampleSpec};
@@ -596,32 +596,79 @@ impl<'a> Run<'a> {
 
     /// The arms start closer than the safety separation (e.g. both at zero after power-up): the scheduler's
     /// planner refuses any move from there. Moving both arms at once is safe when each moves away from the other
-    /// (or stays), so that their separation only grows; then one phase with every axis, backlash waypoints
-    /// included.
+    /// (or stays), so that their separation only grows. When the target has each arm on its side of the other,
+    /// that is the whole move (one phase, every axis, backlash waypoints included). Otherwise the arms are first
+    /// parted about their midpoint into the target's order (each moving away from the other), and the planner
+    /// takes it from there. None when neither is possible (e.g. the parted pose is beyond a limit).
     fn separating_move(&self, target: &Pose) -> Option<gonio_scheduler::timing::Move> {
+        let min_sep = self.c.time.min_arm_separation_deg;
         let (l0, d0) = (self.current.light_deg, self.current.detector_deg);
         let (l1, d1) = (target.light_deg, target.detector_deg);
-        if (l0 - d0).abs() >= self.c.time.min_arm_separation_deg {
+        if (l0 - d0).abs() >= min_sep {
             return None;
         }
         // Which side each arm ends on decides "away"; both must move apart (or not at all).
         let side = (l1 - d1).signum();
-        if side == 0.0 || (l1 - d1).abs() < self.c.time.min_arm_separation_deg {
+        if side == 0.0 || (l1 - d1).abs() < min_sep {
             return None;
         }
         let away = |from: f64, to: f64, sign: f64| (to - from) * sign >= 0.0;
-        if !(away(l0, l1, side) && away(d0, d1, -side)) {
+        if away(l0, l1, side) && away(d0, d1, -side) {
+            let (phase, settle_s) = self.simultaneous_phase(&self.current, target);
+            tracing::info!(
+                "arms closer than the safety separation: separating them in one simultaneous move"
+            );
+            return Some(gonio_scheduler::timing::Move {
+                phases: vec![phase],
+                motion_s: 0.0,
+                settle_s,
+            });
+        }
+        // Part them: a quarter more than the separation (room for a backlash overshoot), about their midpoint.
+        let half = 0.5 * 1.25 * min_sep;
+        let mid = 0.5 * (l0 + d0);
+        let mut parted = self.current;
+        parted.light_deg = mid + side * half;
+        parted.detector_deg = mid - side * half;
+        let within = |role: AxisRole, v: f64| {
+            self.rig
+                .axes()
+                .iter()
+                .filter(|a| a.config.role == role)
+                .all(|a| (a.config.min_deg..=a.config.max_deg).contains(&v))
+        };
+        if !(within(AxisRole::LightArm, parted.light_deg)
+            && within(AxisRole::DetectorArm, parted.detector_deg))
+        {
             return None;
         }
+        let rest = self.c.time.plan_move(&parted, target).ok()?;
+        let (phase, settle_s) = self.simultaneous_phase(&self.current, &parted);
+        tracing::info!(
+            ?parted,
+            "arms closer than the safety separation: parting them into the target's order first"
+        );
+        let mut phases = vec![phase];
+        phases.extend(rest.phases);
+        Some(gonio_scheduler::timing::Move {
+            phases,
+            motion_s: rest.motion_s,
+            settle_s: settle_s.max(rest.settle_s),
+        })
+    }
+
+    /// One phase moving every axis from `from` to `to` at once (backlash waypoints included), and the longest
+    /// settle time of the axes that move.
+    fn simultaneous_phase(&self, from: &Pose, to: &Pose) -> (Vec<gonio_scheduler::timing::AxisMotion>, f64) {
         let mut phase = Vec::new();
         let mut settle = 0.0f64;
         for (i, role) in ROLES.iter().enumerate() {
             let Some(model) = self.c.time.axes.get(i).and_then(|m| m.as_ref()) else {
                 continue;
             };
-            let from = model.controller_deg(self.current.get(*role));
-            let to = model.controller_deg(target.get(*role));
-            let waypoints = model.waypoints(from, to);
+            let start = model.controller_deg(from.get(*role));
+            let end = model.controller_deg(to.get(*role));
+            let waypoints = model.waypoints(start, end);
             if waypoints.is_empty() {
                 continue;
             }
@@ -629,16 +676,11 @@ impl<'a> Run<'a> {
             phase.push(gonio_scheduler::timing::AxisMotion {
                 role: *role,
                 axis_index: model.axis_index,
-                duration_s: model.travel_time_s(from, &waypoints),
+                duration_s: model.travel_time_s(start, &waypoints),
                 waypoints_deg: waypoints,
             });
         }
-        tracing::info!("arms closer than the safety separation: separating them in one simultaneous move");
-        Some(gonio_scheduler::timing::Move {
-            phases: vec![phase],
-            motion_s: 0.0,
-            settle_s: settle,
-        })
+        (phase, settle)
     }
 
     async fn wheel_to(&mut self, position: u8) -> Result<(), Interrupt> {

@@ -118,6 +118,30 @@ impl Pm100 {
         Ok(Pm100::new(name, pipe, Some(opener)))
     }
 
+    /// Open a meter served on a Unix socket (`gonio sim --link-dir`; see [`crate::transport::usb_socket`]);
+    /// reconnecting connects again.
+    pub async fn open_socket(
+        name: impl Into<String>,
+        path: std::path::PathBuf,
+    ) -> Result<Pm100, DriverError> {
+        let name = name.into();
+        let opener: PipeOpener = Arc::new(move || {
+            crate::transport::usb_socket::SocketUsbPipe::open(&path).map(|p| Arc::new(p) as Arc<dyn UsbPipe>)
+        });
+        let o = Arc::clone(&opener);
+        let pipe = tokio::task::spawn_blocking(move || o())
+            .await
+            .map_err(|e| DriverError::Unavailable {
+                device: name.clone(),
+                detail: e.to_string(),
+            })?
+            .map_err(|e| DriverError::Unavailable {
+                device: name.clone(),
+                detail: format!("USB socket: {e}"),
+            })?;
+        Ok(Pm100::new(name, pipe, Some(opener)))
+    }
+
     fn map(&self, request: &str, e: UsbtmcError, timeout: Duration) -> DriverError {
         let device = self.name.clone();
         match e {

@@ -2,14 +2,17 @@
 //!
 //! One pseudo-terminal per serial device (SMC100 chain, Zaber chain, FW102C wheel), its slave in raw mode, its
 //! master bridged to the device's emulator. stdout gets one JSON line per device, then `{"ready":true}`; the
-//! paths can be opened by any program exactly like real serial ports. The USB power meter exists in process only
-//! and says so. SIGINT or SIGTERM ends the program cleanly (exit 0).
+//! paths can be opened by any program exactly like real serial ports. Without `--link-dir` the USB power meter
+//! exists in process only and says so. SIGINT or SIGTERM ends the program cleanly (exit 0).
 //!
 //! With `--link-dir DIR`, each printed path is instead a stable symbolic link `DIR/<device>` to the current
 //! terminal, and a disconnect fault (`[simulator.faults] disconnect_after_s`) makes the port vanish as an unplugged
 //! USB-serial adapter does: the link disappears and the terminal hangs up, and when the device comes back
 //! (`reconnect_after_s`) the same link leads to a fresh terminal. Without it the terminal stays and the device
-//! just falls silent while disconnected.
+//! just falls silent while disconnected. `--link-dir` also serves the USB power meter on a Unix socket
+//! `DIR/<meter>` (instrument file: `port = "usb-socket:DIR/<meter>"`), so that another process can run a whole
+//! campaign against this simulator through exactly the code path of real hardware. The simulated operator
+//! takes commands on stdin: `sample out` / `sample in` (see [`simulated_operator`]).
 //!
 //! The terminals and their bridges are `gonio_simulator::pty::PtyDevice`s (see there for the details).
 
@@ -22,6 +25,7 @@ use gonio_simulator::SimInstrument;
 use gonio_simulator::optics::{Optics, SampleSpec};
 use gonio_simulator::pty::PtyDevice;
 use gonio_simulator::scene::Scene;
+use gonio_simulator::usb_socket::UsbSocketDevice;
 
 use crate::CliError;
 
@@ -53,7 +57,7 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
             args.time_scale
         )));
     }
-    let scene = build_scene(&file, &args.material)?;
+    let optics = build_optics(&file, &args.material)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -63,7 +67,7 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
         std::fs::create_dir_all(dir)
             .map_err(|e| CliError::io(format!("cannot create --link-dir {}", dir.display()), e))?;
     }
-    let result = runtime.block_on(serve(file, scene, args.time_scale, args.link_dir.as_deref()));
+    let result = runtime.block_on(serve(file, optics, args.time_scale, args.link_dir.as_deref()));
     // The bridges are idle reads: cancel them at once rather than waiting for the default shutdown.
     runtime.shutdown_timeout(std::time::Duration::from_millis(100));
     // The terminals close only now, so no bridge sees its slave vanish (EIO) while the runtime still runs.
@@ -73,7 +77,7 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
 
 /// The optical scene: the faithful optics with the sample `material` (a file or a preset), sized to the
 /// holder's largest sample, seeded from `[simulator] seed`.
-fn build_scene(file: &InstrumentFile, material: &str) -> Result<Arc<dyn Scene>, CliError> {
+fn build_optics(file: &InstrumentFile, material: &str) -> Result<Arc<Optics>, CliError> {
     let material = gonio_brdf::material::Material::from_file_or_preset(material)
         .map_err(|e| CliError::input(format!("--material {material:?}: {e}")))?;
     let sample = SampleSpec {
@@ -89,10 +93,11 @@ fn build_scene(file: &InstrumentFile, material: &str) -> Result<Arc<dyn Scene>, 
 /// Serve until SIGINT/SIGTERM; returns the terminals, to be closed after the runtime stopped.
 async fn serve(
     file: InstrumentFile,
-    scene: Arc<dyn Scene>,
+    optics: Arc<Optics>,
     time_scale: f64,
     link_dir: Option<&std::path::Path>,
-) -> Result<Vec<PtyDevice>, CliError> {
+) -> Result<(Vec<PtyDevice>, Vec<UsbSocketDevice>), CliError> {
+    let scene: Arc<dyn Scene> = optics.clone();
     let sim = SimInstrument::new(&file, scene, time_scale).map_err(|e| CliError::input(e.to_string()))?;
     let mut stdout = std::io::stdout().lock();
     let mut keep = Vec::new();
@@ -107,13 +112,27 @@ async fn serve(
         writeln!(stdout, "{line}").map_err(|e| CliError::io("stdout", e))?;
         keep.push(pty);
     }
+    let mut sockets = Vec::new();
     for name in sim.usb_devices() {
-        let line = serde_json::json!({"device": name, "protocol": "pm100", "path": null, "note": "USB device: in-process only"});
+        let line = match link_dir {
+            Some(dir) => {
+                let socket = UsbSocketDevice::serve(&sim, &name, &dir.join(&name))
+                    .map_err(|e| CliError::io(format!("cannot serve {name}"), std::io::Error::other(e)))?;
+                let path = socket.path().display().to_string();
+                sockets.push(socket);
+                serde_json::json!({"device": name, "protocol": "pm100", "path": path, "transport": "usb-socket",
+                    "port": format!("{}{path}", gonio_driver::transport::usb_socket::PORT_PREFIX)})
+            }
+            None => serde_json::json!({"device": name, "protocol": "pm100", "path": null,
+                "note": "USB device: in-process only (--link-dir serves it on a socket)"}),
+        };
         writeln!(stdout, "{line}").map_err(|e| CliError::io("stdout", e))?;
     }
     writeln!(stdout, "{}", serde_json::json!({"ready": true})).map_err(|e| CliError::io("stdout", e))?;
     stdout.flush().map_err(|e| CliError::io("stdout", e))?;
     drop(stdout);
+    // Detached: it blocks on stdin, and ends with the process.
+    std::thread::spawn(move || simulated_operator(optics));
 
     let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
         .map_err(|e| CliError::io("cannot listen for SIGTERM", e))?;
@@ -123,5 +142,35 @@ async fn serve(
         _ = term.recv() => tracing::info!("gonio sim: SIGTERM, stopping"),
         _ = int.recv() => tracing::info!("gonio sim: SIGINT, stopping"),
     }
-    Ok(keep)
+    Ok((keep, sockets))
+}
+
+/// The simulated operator of a separate simulator: stdin lines `sample out` and `sample in` take the sample out
+/// of the holder (the detector then sees the direct beam, for an absolute calibration) and put it back; each
+/// answered by a JSON line `{"sample_mounted":...}`, anything else by `{"error":...}`. End of input ends this,
+/// not the simulator. Runs on its own thread (blocking reads of stdin).
+fn simulated_operator(optics: Arc<Optics>) {
+    use std::io::BufRead;
+    for line in std::io::stdin().lock().lines() {
+        let Ok(line) = line else { return };
+        let reply = match line.trim() {
+            "" => continue,
+            "sample out" => {
+                optics.set_sample_mounted(false);
+                serde_json::json!({"sample_mounted": false})
+            }
+            "sample in" => {
+                optics.set_sample_mounted(true);
+                serde_json::json!({"sample_mounted": true})
+            }
+            other => serde_json::json!({
+                "error": format!("unknown command {other:?}; expected \"sample out\" or \"sample in\"")
+            }),
+        };
+        tracing::info!(%reply, "simulated operator");
+        let mut stdout = std::io::stdout().lock();
+        if writeln!(stdout, "{reply}").and_then(|()| stdout.flush()).is_err() {
+            return;
+        }
+    }
 }

@@ -71,7 +71,8 @@ pub struct Device {
     /// Serial port path, e.g. "/dev/ttyUSB0". Absent or "sim" for the embedded simulator, reached in process.
     /// "sim-pty": also the embedded simulator, but a serial device is served on a real pseudo-terminal and
     /// opened by its path like a real port (the whole serial path of real hardware is exercised); a USB device
-    /// (the power meter) stays in process.
+    /// (the power meter) stays in process. For a USB device, "usb-socket:PATH" reaches it on a Unix socket
+    /// instead of the bus (the simulated meter of a separate `gonio sim --link-dir`).
     #[serde(default)]
     pub port: Option<String>,
     /// Serial baud rate; defaults to the protocol's factory setting.

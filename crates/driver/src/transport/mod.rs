@@ -1,8 +1,10 @@
 //! Byte transports: [`line`] for serial devices (real ports, pseudo-terminals, in-memory streams) and
-//! [`usb`] for USB bulk/control pipes (rusb, or an in-memory device for tests).
+//! [`usb`] for USB bulk/control pipes (rusb, or an in-memory device for tests), and [`usb_socket`] for a USB
+//! device reached over a Unix socket (the simulator's power meter in another process).
 
 pub mod line;
 pub mod usb;
+pub mod usb_socket;
 
 pub use line::{LinePort, PortOpener, SerialSettings, TransportError};
 pub use usb::{BoxFuture, UsbError, UsbPipe};
