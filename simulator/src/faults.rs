@@ -25,8 +25,10 @@ pub struct FaultCounts {
     pub delayed: u64,
     /// Moves stopped short by a stall.
     pub stalls: u64,
-    /// Open connections cut when the device vanished.
+    /// Open connections cut when the device vanished (one per open connection and outage).
     pub disconnects: u64,
+    /// Outages (link-down windows) that some host noticed, by a cut connection or a refused open.
+    pub outages: u64,
     /// Opens refused while the device was gone.
     pub refused_opens: u64,
     /// Readings forced into overload (`saturate`).
@@ -38,6 +40,8 @@ pub struct FaultCounts {
 pub struct FaultInjector {
     cfg: Faults,
     counts: Mutex<FaultCounts>,
+    /// The last outage (window index) counted in [`FaultCounts::outages`].
+    last_outage: Mutex<Option<u64>>,
 }
 
 /// What happens to one reply.
@@ -54,6 +58,7 @@ impl FaultInjector {
         FaultInjector {
             cfg,
             counts: Mutex::new(FaultCounts::default()),
+            last_outage: Mutex::new(None),
         }
     }
 
@@ -68,11 +73,13 @@ impl FaultInjector {
                 return Err(format!("[simulator.faults] {key} must be in [0, 1], got {v}"));
             }
         }
-        if !(cfg.delay_ms.is_finite() && cfg.delay_ms >= 0.0) {
-            return Err(format!(
-                "[simulator.faults] delay_ms must be >= 0, got {}",
-                cfg.delay_ms
-            ));
+        for (key, v) in [
+            ("delay_ms", cfg.delay_ms),
+            ("delay_jitter_ms", cfg.delay_jitter_ms),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("[simulator.faults] {key} must be >= 0, got {v}"));
+            }
         }
         for (key, v) in [
             ("disconnect_after_s", cfg.disconnect_after_s),
@@ -82,6 +89,24 @@ impl FaultInjector {
                 && !(v.is_finite() && v >= 0.0)
             {
                 return Err(format!("[simulator.faults] {key} must be >= 0, got {v}"));
+            }
+        }
+        if let Some(every) = cfg.disconnect_every_s {
+            let Some(back) = cfg.reconnect_after_s else {
+                return Err(
+                    "[simulator.faults] disconnect_every_s needs reconnect_after_s (a device that never comes \
+                     back cannot vanish again)"
+                        .into(),
+                );
+            };
+            if cfg.disconnect_after_s.is_none() {
+                return Err("[simulator.faults] disconnect_every_s needs disconnect_after_s".into());
+            }
+            if !(every.is_finite() && every > back) {
+                return Err(format!(
+                    "[simulator.faults] disconnect_every_s must be finite and greater than reconnect_after_s \
+                     ({back} s), got {every}"
+                ));
             }
         }
         Ok(())
@@ -115,21 +140,69 @@ impl FaultInjector {
         }
     }
 
+    /// The latest outage that began at or before `t_s`: (its index, its start time), if any. Outages begin at
+    /// `disconnect_after_s`, then every `disconnect_every_s` when that is set.
+    fn latest_outage(&self, t_s: f64) -> Option<(u64, f64)> {
+        let after = self.cfg.disconnect_after_s?;
+        if t_s < after {
+            return None;
+        }
+        match self.cfg.disconnect_every_s {
+            None => Some((0, after)),
+            Some(every) => {
+                // `validate` guarantees every > 0; the float floor may land one period high at a boundary.
+                let mut k = ((t_s - after) / every).floor().max(0.0);
+                if after + k * every > t_s && k >= 1.0 {
+                    k -= 1.0;
+                }
+                Some((k as u64, after + k * every))
+            }
+        }
+    }
+
+    /// When the latest outage at or before `t_s` began (a handle opened before it is dead), if any.
+    pub fn latest_outage_start_s(&self, t_s: f64) -> Option<f64> {
+        self.latest_outage(t_s).map(|(_, start)| start)
+    }
+
     /// Is the device link (port or USB) present at simulated time `t_s`?
     pub fn link_up(&self, t_s: f64) -> bool {
-        match self.cfg.disconnect_after_s {
+        match self.latest_outage(t_s) {
             None => true,
-            Some(after) if t_s < after => true,
-            Some(after) => match self.cfg.reconnect_after_s {
-                Some(back) => t_s >= after + back,
+            Some((_, start)) => match self.cfg.reconnect_after_s {
+                Some(back) => t_s >= start + back,
                 None => false,
             },
         }
     }
 
-    /// The next simulated time after `t_s` at which the link goes down, if any.
+    /// The first simulated time at or after `t_s` at which the link goes down, if any.
     pub fn next_disconnect_s(&self, t_s: f64) -> Option<f64> {
-        self.cfg.disconnect_after_s.filter(|after| *after >= t_s)
+        let after = self.cfg.disconnect_after_s?;
+        match self.cfg.disconnect_every_s {
+            None => Some(after).filter(|after| *after >= t_s),
+            Some(_) if t_s <= after => Some(after),
+            Some(every) => {
+                let mut k = ((t_s - after) / every).ceil();
+                if after + k * every < t_s {
+                    k += 1.0;
+                }
+                Some(after + k * every)
+            }
+        }
+    }
+
+    /// Count the outage in force at `t_s` once, however many hosts notice it.
+    fn count_outage(&self, t_s: f64) {
+        let Some((k, _)) = self.latest_outage(t_s) else {
+            return;
+        };
+        let mut last = self.last_outage.lock().unwrap_or_else(|e| e.into_inner());
+        if last.is_none_or(|l| k > l) {
+            *last = Some(k);
+            drop(last);
+            self.count(|c| c.outages += 1);
+        }
     }
 
     pub fn note_disconnect(&self, device: &str, t_s: f64) {
@@ -139,6 +212,7 @@ impl FaultInjector {
             "fault injected: device disconnected, connection closed"
         );
         self.count(|c| c.disconnects += 1);
+        self.count_outage(t_s);
     }
 
     pub fn note_refused_open(&self, device: &str, t_s: f64) {
@@ -148,6 +222,7 @@ impl FaultInjector {
             "fault injected: open refused, device is disconnected"
         );
         self.count(|c| c.refused_opens += 1);
+        self.count_outage(t_s);
     }
 
     /// Whether readings are forced into overload; counts one saturated reading when true.
@@ -180,9 +255,14 @@ impl DeviceFaults {
         self.rng.lock().unwrap_or_else(|e| e.into_inner()).random::<f64>() < p
     }
 
-    /// Extra latency for a reply (simulated seconds); counts a delayed reply when non-zero.
+    /// Extra latency for a reply (simulated seconds): `delay_ms` plus a uniform draw in [0, `delay_jitter_ms`];
+    /// counts a delayed reply when non-zero.
     pub fn reply_delay_s(&self) -> f64 {
-        let d = self.injector.cfg.delay_ms;
+        let jitter = self.injector.cfg.delay_jitter_ms;
+        let mut d = self.injector.cfg.delay_ms;
+        if jitter > 0.0 {
+            d += jitter * self.rng.lock().unwrap_or_else(|e| e.into_inner()).random::<f64>();
+        }
         if d > 0.0 {
             tracing::info!(device = %self.device, delay_ms = d, "fault injected: reply delayed");
             self.injector.count(|c| c.delayed += 1);
@@ -315,6 +395,101 @@ mod tests {
         assert!(inj.link_up(15.0));
         let forever = faults(|c| c.disconnect_after_s = Some(1.0));
         assert!(!forever.link_up(1e6));
+    }
+
+    #[test]
+    fn periodic_disconnects_repeat_and_are_counted_once_each() {
+        let inj = faults(|c| {
+            c.disconnect_after_s = Some(100.0);
+            c.reconnect_after_s = Some(5.0);
+            c.disconnect_every_s = Some(60.0);
+        });
+        // Down in [100, 105), [160, 165), [220, 225), ...; up elsewhere.
+        for (t, up) in [
+            (99.9, true),
+            (100.0, false),
+            (104.9, false),
+            (105.0, true),
+            (159.9, true),
+            (160.0, false),
+            (164.9, false),
+            (165.0, true),
+            (3700.0, false),
+            (3705.0, true),
+        ] {
+            assert_eq!(inj.link_up(t), up, "t = {t}");
+        }
+        assert_eq!(inj.next_disconnect_s(0.0), Some(100.0));
+        assert_eq!(inj.next_disconnect_s(100.0), Some(100.0));
+        assert_eq!(inj.next_disconnect_s(100.5), Some(160.0));
+        assert_eq!(inj.next_disconnect_s(160.0), Some(160.0));
+        assert_eq!(inj.latest_outage_start_s(99.0), None);
+        assert_eq!(inj.latest_outage_start_s(170.0), Some(160.0));
+        // Three devices notice the first outage, one the second: two outages.
+        inj.note_disconnect("arms", 100.0);
+        inj.note_disconnect("stage", 100.0);
+        inj.note_refused_open("arms", 101.0);
+        inj.note_disconnect("arms", 160.0);
+        let c = inj.counts();
+        assert_eq!((c.outages, c.disconnects, c.refused_opens), (2, 3, 1));
+        // Without a period there is one outage only (the original behaviour).
+        let once = faults(|c| {
+            c.disconnect_after_s = Some(100.0);
+            c.reconnect_after_s = Some(5.0);
+        });
+        assert!(once.link_up(160.0));
+        assert_eq!(once.next_disconnect_s(100.5), None);
+    }
+
+    #[test]
+    fn jitter_delays_every_reply_within_its_bounds() {
+        let inj = faults(|c| {
+            c.delay_ms = 2.0;
+            c.delay_jitter_ms = 10.0;
+        });
+        let dev = inj.for_device("arms");
+        let delays: Vec<f64> = (0..500).map(|_| dev.reply_delay_s()).collect();
+        assert!(delays.iter().all(|d| (0.002..=0.012).contains(d)), "{delays:?}");
+        let mean = delays.iter().sum::<f64>() / 500.0;
+        assert!((mean - 0.007).abs() < 0.001, "mean {mean}");
+        assert_eq!(inj.counts().delayed, 500);
+    }
+
+    #[test]
+    fn periodic_disconnect_settings_are_checked() {
+        let base = Faults {
+            disconnect_after_s: Some(10.0),
+            reconnect_after_s: Some(5.0),
+            disconnect_every_s: Some(60.0),
+            ..Faults::default()
+        };
+        assert_eq!(FaultInjector::validate(&base), Ok(()));
+        for (cfg, key) in [
+            (
+                Faults {
+                    disconnect_every_s: Some(5.0),
+                    ..base.clone()
+                },
+                "disconnect_every_s",
+            ),
+            (
+                Faults {
+                    reconnect_after_s: None,
+                    ..base.clone()
+                },
+                "reconnect_after_s",
+            ),
+            (
+                Faults {
+                    delay_jitter_ms: -1.0,
+                    ..Faults::default()
+                },
+                "delay_jitter_ms",
+            ),
+        ] {
+            let msg = FaultInjector::validate(&cfg).expect_err("refused");
+            assert!(msg.contains(key), "{msg}");
+        }
     }
 
     #[test]

@@ -16,6 +16,7 @@ use crate::faults::{FaultCounts, FaultInjector};
 use crate::fw102c::Fw102c;
 use crate::motion::{AxisMotion, AxisParams};
 use crate::pm100::{Pm100, SimUsbDevice};
+use crate::recording::MotionRecord;
 use crate::scene::{Band, Pose, Scene};
 use crate::session::{self, SharedEmulator};
 use crate::smc100::Smc100Chain;
@@ -310,6 +311,32 @@ impl SimInstrument {
     /// How many faults of each kind were injected so far.
     pub fn fault_counts(&self) -> FaultCounts {
         self.inner.faults.counts()
+    }
+
+    /// Start recording, on every axis, the motion commands the emulators receive and every change of the
+    /// motor's profile (see [`crate::recording`]); an earlier record is discarded.
+    pub fn start_motion_recording(&self) {
+        let now = self.now_s();
+        for (_, motion) in &self.inner.world.axes {
+            motion
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .start_recording(now);
+        }
+    }
+
+    /// The records so far (recording goes on), per axis in instrument-file order; empty records when recording
+    /// was never started.
+    pub fn motion_records(&self) -> Vec<(Axis, MotionRecord)> {
+        self.inner
+            .world
+            .axes
+            .iter()
+            .map(|(axis, motion)| {
+                let m = motion.lock().unwrap_or_else(|e| e.into_inner());
+                (axis.clone(), m.record().cloned().unwrap_or_default())
+            })
+            .collect()
     }
 
     /// Stop every axis now, as each controller's own stop does (the controllers' states say so).

@@ -9,6 +9,7 @@
 //!   the USB power meter, pose/band/clock/faults for tests and the daemon).
 //! - [`clock`]: the simulated clock (tokio time x time scale).
 //! - [`motion`]: per-axis motion physics (trapezoidal profiles, backlash, limits, encoder, stalls).
+//! - [`recording`]: what each axis was commanded and its exact trajectory, for safety audits.
 //! - [`smc100`], [`zaber`], [`fw102c`], [`pm100`]: the device emulators, speaking the real wire protocols.
 //! - [`pty`]: a serial device served on a real pseudo-terminal ([`pty::PtyDevice`]).
 //! - [`usb_socket`]: the USB power meter served on a Unix socket, for hosts in another process.
@@ -24,6 +25,7 @@ pub mod motion;
 pub mod optics;
 pub mod pm100;
 pub mod pty;
+pub mod recording;
 pub mod scene;
 pub mod session;
 pub mod smc100;

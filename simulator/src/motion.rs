@@ -10,6 +10,11 @@
 //!   The encoder reads the load, quantised to the encoder resolution.
 //! - Hardware limit switches at the axis limits stop the motor abruptly; a stall (fault injection) stops it short.
 //! - A new move during a move first decelerates to rest, then starts the new profile (a conservative controller).
+//! - Optionally, every command and profile change is recorded ([`crate::recording`]) for safety audits.
+
+use crate::recording::{
+    ChangeKind, CommandRecord, MotionCommand, MotionRecord, ProfileChange, ProfileSegment,
+};
 
 /// Kinematic parameters of one axis, in controller degrees.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -160,6 +165,8 @@ pub struct AxisMotion {
     motor_deg: f64,
     load_deg: f64,
     last_t_s: f64,
+    /// What the axis was told and how its profile changed, while recording.
+    record: Option<Box<MotionRecord>>,
 }
 
 impl AxisMotion {
@@ -172,6 +179,59 @@ impl AxisMotion {
             motor_deg: position_deg,
             load_deg: position_deg,
             last_t_s: 0.0,
+            record: None,
+        }
+    }
+
+    /// Start recording commands and profile changes from `t_s` (an earlier record is discarded).
+    pub fn start_recording(&mut self, t_s: f64) {
+        self.record = Some(Box::default());
+        self.note_change(t_s, ChangeKind::Started);
+    }
+
+    /// The record so far, if recording.
+    pub fn record(&self) -> Option<&MotionRecord> {
+        self.record.as_deref()
+    }
+
+    /// Stop recording and return the record.
+    pub fn take_record(&mut self) -> Option<MotionRecord> {
+        self.record.take().map(|r| *r)
+    }
+
+    /// Note a command as the device received it (the emulators call this before their own checks).
+    pub fn note_command(&mut self, t_s: f64, command: MotionCommand) {
+        if let Some(r) = &mut self.record {
+            r.push_command(CommandRecord { t_s, command });
+        }
+    }
+
+    fn note_change(&mut self, t_s: f64, kind: ChangeKind) {
+        if self.record.is_none() {
+            return;
+        }
+        self.advance(t_s);
+        let change = ProfileChange {
+            t_s,
+            kind,
+            motor_deg: self.motor_deg,
+            load_deg: self.load_deg,
+            segments: self
+                .segments
+                .iter()
+                .map(|s| ProfileSegment {
+                    t0_s: s.t0_s,
+                    p0_deg: s.p0_deg,
+                    v0_deg_s: s.v0_deg_s,
+                    a_deg_s2: s.a_deg_s2,
+                    dur_s: s.dur_s,
+                })
+                .collect(),
+            rest_deg: self.target_deg,
+            end: self.end,
+        };
+        if let Some(r) = &mut self.record {
+            r.push_change(change);
         }
     }
 
@@ -282,6 +342,12 @@ impl AxisMotion {
         } else if self.target_deg < lo {
             self.truncate_at(lo, MoveEnd::LimitNegative);
         }
+        self.note_change(
+            t_s,
+            ChangeKind::Move {
+                requested_deg: target_deg,
+            },
+        );
         self.end_time_s().unwrap_or(t_s)
     }
 
@@ -298,6 +364,7 @@ impl AxisMotion {
                 dur_s,
             });
         }
+        self.note_change(t_s, ChangeKind::Dwell);
         t0 + dur_s.max(0.0)
     }
 
@@ -314,6 +381,7 @@ impl AxisMotion {
             .last()
             .map(Segment::end_pos)
             .unwrap_or(self.motor_deg);
+        self.note_change(t_s, ChangeKind::Stop);
         self.end_time_s().unwrap_or(t_s)
     }
 
@@ -325,6 +393,7 @@ impl AxisMotion {
             self.end = MoveEnd::Halted;
         }
         self.target_deg = self.motor_deg;
+        self.note_change(t_s, ChangeKind::Halt);
     }
 
     /// Redefine the position counter without moving (homing sets the reference): motor and load shift together.
@@ -335,6 +404,7 @@ impl AxisMotion {
         self.motor_deg = position_deg;
         self.load_deg += shift;
         self.target_deg = position_deg;
+        self.note_change(t_s, ChangeKind::SetPosition);
     }
 
     /// Make the current segments end with a deceleration to rest from the velocity at `t_s`; returns

@@ -313,8 +313,9 @@ impl Pm100 {
         if !inj.link_up(now) {
             return false;
         }
-        match inj.settings().disconnect_after_s {
-            Some(after) => !(opened_s < after && now >= after),
+        // A disconnect since the handle was opened invalidates it (the device re-enumerated meanwhile).
+        match inj.latest_outage_start_s(now) {
+            Some(start) => opened_s >= start,
             None => true,
         }
     }
@@ -891,9 +892,8 @@ impl Pm100 {
     /// Power the meter up again if it was unplugged since it last powered up (a fault reconnect).
     fn reopen(&self, now: f64) {
         let mut st = self.lock();
-        if let Some(after) = self.faults.injector().settings().disconnect_after_s
-            && st.powered_up_at_s <= after
-            && now >= after
+        if let Some(start) = self.faults.injector().latest_outage_start_s(now)
+            && st.powered_up_at_s <= start
         {
             tracing::info!(meter = %self.name, "PM100 re-enumerated after disconnect: power-up state");
             *st = Self::power_up_state(&self.detector, self.seed.wrapping_add(1), now);

@@ -15,6 +15,7 @@ use gonio_instrument::Axis;
 
 use crate::faults::DeviceFaults;
 use crate::motion::{AxisMotion, MoveEnd, trapezoid_time_s};
+use crate::recording::MotionCommand;
 use crate::session::{Output, SerialEmulator};
 
 /// Longest command line the controller buffers; longer input is discarded up to the next terminator.
@@ -303,6 +304,7 @@ impl Smc100Chain {
                 None
             }
             "OR" => {
+                ctrl.motion().note_command(now, MotionCommand::Home);
                 match g {
                     Group::NotReferenced => {
                         let home = 0.0f64.clamp(ctrl.sl_deg.min(0.0), ctrl.sr_deg.max(0.0));
@@ -337,15 +339,17 @@ impl Smc100Chain {
                     ctrl.last_error = 'C';
                     return None;
                 };
-                if g != Group::Ready {
-                    ctrl.last_error = wrong_state_error(ctrl.state);
-                    return None;
-                }
                 let target = if code == "PA" {
                     x
                 } else {
                     ctrl.motion().motor_deg(now) + x
                 };
+                ctrl.motion()
+                    .note_command(now, MotionCommand::MoveTo { target_deg: target });
+                if g != Group::Ready {
+                    ctrl.last_error = wrong_state_error(ctrl.state);
+                    return None;
+                }
                 ctrl.start_move(now, target, &faults);
                 None
             }
@@ -365,6 +369,8 @@ impl Smc100Chain {
                 )))
             }
             "ST" => {
+                ctrl.motion()
+                    .note_command(now, MotionCommand::Stop { abrupt: false });
                 match g {
                     Group::Moving | Group::Homing => {
                         let a = ctrl.accel_deg_s2;

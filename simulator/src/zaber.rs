@@ -35,6 +35,7 @@ use gonio_instrument::Axis;
 use crate::clock::SimClock;
 use crate::faults::DeviceFaults;
 use crate::motion::{AxisMotion, MoveEnd};
+use crate::recording::MotionCommand;
 use crate::session::{Output, SerialEmulator};
 
 /// Longest command the device buffers before discarding it.
@@ -363,6 +364,7 @@ fn execute(dev: &mut ZDevice, cmd: &Command<'_>, now: f64, faults: &DeviceFaults
         ("home", 1) => {
             for i in targets(dev) {
                 let a = &mut dev.axes[i];
+                a.motion().note_command(now, MotionCommand::Home);
                 let v = a.speed_deg_s;
                 a.start(now, 0.0, v, faults);
                 a.motion().dwell(now, HOMING_SEARCH_S);
@@ -391,6 +393,8 @@ fn execute(dev: &mut ZDevice, cmd: &Command<'_>, now: f64, faults: &DeviceFaults
                     ("min", None) => a.limit_min,
                     _ => return Outcome::Rejected("BADCOMMAND"),
                 };
+                let target_deg = steps as f64 * a.microstep_deg;
+                a.motion().note_command(now, MotionCommand::MoveTo { target_deg });
                 if kind != "rel" && !a.referenced {
                     return Outcome::Rejected("BADCOMMAND");
                 }
@@ -418,6 +422,8 @@ fn execute(dev: &mut ZDevice, cmd: &Command<'_>, now: f64, faults: &DeviceFaults
                 let a = &mut dev.axes[i];
                 let speed_deg_s = data.unsigned_abs() as f64 / VELOCITY_DATA_PER_USTEP_S * a.microstep_deg;
                 if data == 0 {
+                    a.motion()
+                        .note_command(now, MotionCommand::Stop { abrupt: false });
                     if a.motion().is_moving(now) {
                         let acc = a.accel_deg_s2;
                         a.motion().stop(now, acc);
@@ -426,6 +432,8 @@ fn execute(dev: &mut ZDevice, cmd: &Command<'_>, now: f64, faults: &DeviceFaults
                 }
                 let limit = if data > 0 { a.limit_max } else { a.limit_min };
                 let target = limit as f64 * a.microstep_deg;
+                a.motion()
+                    .note_command(now, MotionCommand::MoveTo { target_deg: target });
                 a.start(now, target, speed_deg_s, faults);
             }
             Outcome::Ok("0".into())
@@ -433,6 +441,8 @@ fn execute(dev: &mut ZDevice, cmd: &Command<'_>, now: f64, faults: &DeviceFaults
         ("stop", 1) | ("estop", 1) => {
             for i in targets(dev) {
                 let a = &mut dev.axes[i];
+                let abrupt = *first == "estop";
+                a.motion().note_command(now, MotionCommand::Stop { abrupt });
                 if a.motion().is_moving(now) {
                     a.flags.insert("NI");
                     let acc = a.accel_deg_s2;

@@ -4,6 +4,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
+use crate::campaigns::{CampaignPoint, Strategy};
 use crate::readings::{FixedComparison, ReadingPoint};
 
 /// Errors below this are drawn at it (an exact result has no place on a log axis).
@@ -111,6 +112,82 @@ pub fn adaptive_vs_fixed(path: &Path, comparisons: &[FixedComparison]) -> PlotRe
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
         .draw()?;
+    root.present()?;
+    Ok(())
+}
+
+/// One material's campaign strategies: error (relative RMS, log) against points and against predicted time.
+pub fn campaign(path: &Path, material: &str, points: &[CampaignPoint]) -> PlotResult {
+    let root = SVGBackend::new(path, (1200, 900)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let root = root.titled(
+        &format!("{material}: BRDF error on the validation set against plan size and predicted time"),
+        ("sans-serif", 22),
+    )?;
+    let panels = root.split_evenly((2, 2));
+    let strategies = [Strategy::FullGrid, Strategy::IsotropicGrid, Strategy::Adaptive];
+    for (k, panel) in panels.iter().enumerate() {
+        let by_time = k % 2 == 1;
+        let log_metric = k >= 2;
+        let xy = |p: &CampaignPoint| -> Option<(f64, f64)> {
+            let x = if by_time { p.predicted_s } else { p.points as f64 };
+            let y = if log_metric { Some(p.log_rms) } else { p.rel_rms }?;
+            (x > 0.0).then_some((x, y.max(ERROR_FLOOR)))
+        };
+        let all: Vec<(f64, f64)> = points.iter().filter_map(xy).collect();
+        let y_name = if log_metric {
+            "log error"
+        } else {
+            "cos-weighted relative RMS"
+        };
+        let x_name = if by_time {
+            "predicted instrument time (s)"
+        } else {
+            "points measured"
+        };
+        if all.is_empty() {
+            panel.draw(&Text::new(
+                format!("{y_name}: undefined (the reference is 0 everywhere)"),
+                (40, 200),
+                ("sans-serif", 16),
+            ))?;
+            continue;
+        }
+        let (x0, x1) = all
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(a, b), p| (a.min(p.0), b.max(p.0)));
+        let (y0, y1) = all
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(a, b), p| (a.min(p.1), b.max(p.1)));
+        let mut chart = ChartBuilder::on(panel)
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d((x0 / 1.5..x1 * 1.5).log_scale(), (y0 / 1.5..y1 * 1.5).log_scale())?;
+        chart.configure_mesh().x_desc(x_name).y_desc(y_name).draw()?;
+        for (i, s) in strategies.iter().enumerate() {
+            let colour = Palette99::pick(i).to_rgba();
+            let line: Vec<(f64, f64)> = points
+                .iter()
+                .filter(|p| p.strategy == *s)
+                .filter_map(xy)
+                .collect();
+            if line.is_empty() {
+                continue;
+            }
+            chart
+                .draw_series(LineSeries::new(line.clone(), colour.stroke_width(2)))?
+                .label(s.name())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+            chart.draw_series(line.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+    }
     root.present()?;
     Ok(())
 }

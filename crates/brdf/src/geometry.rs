@@ -208,7 +208,14 @@ pub fn half_vector(wi: &Direction, wo: &Direction) -> Option<Direction> {
 
 /// sin and cos of an angle in degrees, exact at multiples of 90 degrees.
 pub fn sin_cos_deg(deg: f64) -> (f64, f64) {
-    let r = deg.rem_euclid(360.0);
+    // rem_euclid without its fmod for the usual angles: for |deg| < 360, deg % 360 is deg itself (exact), so
+    // this is the same computation, bit for bit, at a fraction of the cost (`gonio brdf eval` calls this four
+    // times per line).
+    let r = if deg.abs() < 360.0 {
+        if deg < 0.0 { deg + 360.0 } else { deg }
+    } else {
+        deg.rem_euclid(360.0)
+    };
     if r == 0.0 {
         (0.0, 1.0)
     } else if r == 90.0 {

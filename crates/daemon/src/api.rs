@@ -1,6 +1,6 @@
 //! The HTTP/JSON control API of `gonio daemon` (axum), and the server loop that serves it.
 //!
-//! Routes (all JSON; errors are `{"error": "..."}` with 400, 401, 404, 409, 413 or 500):
+//! Routes (all JSON; errors are `{"error": "..."}` with 400, 401, 404, 405, 408, 409, 413, 503 or 500):
 //! - `POST /api/campaigns` (campaign TOML body) -> 201 `{"id": N}`
 //! - `GET /api/campaigns`, `GET /api/campaigns/{id}` -> state, points done/total, ETA, last error, operator message
 //! - `POST /api/campaigns/{id}/pause|resume|abort|confirm` -> 200 with the campaign (409 when its state does not
@@ -9,14 +9,23 @@
 //! - `POST /api/estop` -> 200
 //! - `GET /api/events` -> server-sent events, one per engine event, `data` the JSON of
 //!   [`Event`](crate::control::Event) with its `type`
+//! - `GET /` and `/assets/*`: the live status page ([`crate::status_page`]), the only routes without the token
 //!
 //! Safety of the service itself:
 //! - The token rule: the daemon listens on loopback by default; listening on any other address needs a token
 //!   ([`check_listen`] refuses to start without one), and when a token is set every request must carry it as
-//!   `Authorization: Bearer <token>`, compared in constant time.
-//! - Request bodies are limited ([`ApiConfig::body_limit_bytes`], 413 beyond), requests other than the event
-//!   stream time out, headers must arrive within [`HEADER_READ_TIMEOUT`], and the number of open connections is
-//!   bounded, so a slow or hostile client cannot take the daemon down.
+//!   `Authorization: Bearer <token>`, compared in constant time ([`constant_time_eq`]), before any body is read.
+//! - Request bodies are limited ([`ApiConfig::body_limit_bytes`], 413 beyond, announced or streamed) and must
+//!   arrive within [`ApiConfig::body_read_timeout`] (408); requests other than the event stream time out;
+//!   headers must arrive within [`ApiConfig::header_read_timeout`]; at most [`ApiConfig::max_event_streams`]
+//!   event streams are open (503 beyond); the number of open connections is bounded, and when it is reached the
+//!   oldest connection that is not being served (idle, or a client still trickling its headers or body) is
+//!   closed to admit the newcomer; a client that stops reading is dropped after [`ApiConfig::write_timeout`]
+//!   (see [`connections`]). So a slow or hostile client can neither take the daemon down nor lock others out.
+
+mod connections;
+
+pub use connections::ConnectionLimits;
 
 use std::convert::Infallible;
 use std::net::SocketAddr;
@@ -33,7 +42,6 @@ use axum::routing::{get, post};
 use serde_json::json;
 use tokio::net::TcpListener;
 use tokio::sync::{Semaphore, broadcast, mpsc};
-use tower_http::timeout::TimeoutLayer;
 
 use crate::service::{Service, ServiceError, Shutdown};
 use crate::store::CampaignId;
@@ -46,9 +54,16 @@ pub const DEFAULT_BODY_LIMIT_BYTES: usize = 1 << 20;
 pub const DEFAULT_REQUEST_TIMEOUT: Duration = Duration::from_secs(30);
 /// Time a client has to send its request headers.
 pub const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(10);
+/// Time a client has to send a request body (a campaign file).
+pub const BODY_READ_TIMEOUT: Duration = Duration::from_secs(20);
+/// A response write blocked this long (the client stopped reading) ends the connection.
+pub const WRITE_TIMEOUT: Duration = Duration::from_secs(20);
+/// Event streams open at most (each holds a connection for as long as its client listens).
+pub const MAX_EVENT_STREAMS: usize = 64;
 /// Request header naming the submitted file, used in validation messages.
 pub const ORIGIN_HEADER: &str = "x-gonio-origin";
-/// Open connections at most; further clients wait in the kernel's backlog.
+/// Open connections at most; past it the oldest idle connection is closed to admit a new client (or the new
+/// client waits while every connection is serving a request).
 pub const MAX_CONNECTIONS: usize = 256;
 /// Time a connection is given to finish at shutdown.
 const CONNECTION_DRAIN: Duration = Duration::from_secs(5);
@@ -60,6 +75,33 @@ pub struct ApiConfig {
     pub token: Option<String>,
     pub body_limit_bytes: usize,
     pub request_timeout: Duration,
+    /// Time a client has to send its request headers.
+    pub header_read_timeout: Duration,
+    /// Time a client has to send a request body.
+    pub body_read_timeout: Duration,
+    /// A response write blocked this long ends the connection.
+    pub write_timeout: Duration,
+    /// Open connections at most.
+    pub max_connections: usize,
+    /// Open event streams at most (fewer than `max_connections`, so that they cannot take every connection).
+    pub max_event_streams: usize,
+}
+
+impl ApiConfig {
+    /// The server loop's part of the configuration.
+    pub fn connection_limits(&self) -> ConnectionLimits {
+        ConnectionLimits {
+            max_connections: self.max_connections.max(1),
+            header_read_timeout: self.header_read_timeout,
+            write_timeout: self.write_timeout,
+        }
+    }
+}
+
+impl Default for ConnectionLimits {
+    fn default() -> Self {
+        ApiConfig::default().connection_limits()
+    }
 }
 
 impl std::fmt::Debug for ApiConfig {
@@ -69,6 +111,11 @@ impl std::fmt::Debug for ApiConfig {
             .field("token", &self.token.as_ref().map(|_| "<set>"))
             .field("body_limit_bytes", &self.body_limit_bytes)
             .field("request_timeout", &self.request_timeout)
+            .field("header_read_timeout", &self.header_read_timeout)
+            .field("body_read_timeout", &self.body_read_timeout)
+            .field("write_timeout", &self.write_timeout)
+            .field("max_connections", &self.max_connections)
+            .field("max_event_streams", &self.max_event_streams)
             .finish()
     }
 }
@@ -79,6 +126,11 @@ impl Default for ApiConfig {
             token: None,
             body_limit_bytes: DEFAULT_BODY_LIMIT_BYTES,
             request_timeout: DEFAULT_REQUEST_TIMEOUT,
+            header_read_timeout: HEADER_READ_TIMEOUT,
+            body_read_timeout: BODY_READ_TIMEOUT,
+            write_timeout: WRITE_TIMEOUT,
+            max_connections: MAX_CONNECTIONS,
+            max_event_streams: MAX_EVENT_STREAMS,
         }
     }
 }
@@ -105,12 +157,19 @@ pub fn check_listen(addr: SocketAddr, token: Option<&str>) -> Result<(), ListenE
     }
 }
 
-/// Compare two byte strings in time that depends only on their lengths, not on where they differ.
-pub fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
-    use subtle::ConstantTimeEq;
-    // `ct_eq` on slices of different lengths returns false at once; the length of a token is not a secret
-    // worth hiding (a good token is long and random).
-    a.ct_eq(b).into()
+/// Compare a given token with the expected one in time that depends only on the lengths, never on the
+/// contents: every byte of `expected` is compared (against zero past the end of `given`), with `subtle`'s
+/// branch-free comparisons, and the length check is folded in at the end. The length of a token is not a secret
+/// worth hiding (a good token is long and random).
+pub fn constant_time_eq(given: &[u8], expected: &[u8]) -> bool {
+    use subtle::{Choice, ConstantTimeEq};
+    let mut equal = Choice::from(1u8);
+    for (i, e) in expected.iter().enumerate() {
+        let g = given.get(i).copied().unwrap_or(0);
+        equal &= g.ct_eq(e);
+    }
+    equal &= (given.len() as u64).ct_eq(&(expected.len() as u64));
+    equal.into()
 }
 
 #[derive(Clone)]
@@ -118,6 +177,11 @@ struct AppState {
     service: Service,
     token: Option<Arc<str>>,
     body_limit_bytes: usize,
+    body_read_timeout: Duration,
+    request_timeout: Duration,
+    /// One permit per open event stream.
+    event_streams: Arc<Semaphore>,
+    max_event_streams: usize,
     shutdown: Shutdown,
 }
 
@@ -127,6 +191,10 @@ pub fn router(service: Service, config: &ApiConfig, shutdown: Shutdown) -> Route
         service,
         token: config.token.as_deref().map(Arc::from),
         body_limit_bytes: config.body_limit_bytes,
+        body_read_timeout: config.body_read_timeout,
+        request_timeout: config.request_timeout,
+        event_streams: Arc::new(Semaphore::new(config.max_event_streams)),
+        max_event_streams: config.max_event_streams,
         shutdown,
     };
     let timed = Router::new()
@@ -135,17 +203,20 @@ pub fn router(service: Service, config: &ApiConfig, shutdown: Shutdown) -> Route
         .route("/api/campaigns/{id}/points.csv", get(points_csv))
         .route("/api/campaigns/{id}/{action}", post(action))
         .route("/api/estop", post(estop))
-        .layer(TimeoutLayer::with_status_code(
-            StatusCode::REQUEST_TIMEOUT,
-            config.request_timeout,
-        ));
+        .layer(middleware::from_fn_with_state(state.clone(), request_deadline));
     // The event stream lives as long as the client listens: no request timeout on it.
     Router::new()
         .route("/api/events", get(events))
         .merge(timed)
         .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
         .layer(middleware::from_fn_with_state(state.clone(), require_token))
         .with_state(state)
+        // The status page's embedded files hold no data: outside the token check (the page sends the token).
+        .merge(crate::status_page::router())
+        // A wrong method on the status page's routes answers JSON too (the API's own routes have theirs, behind
+        // the token check, which this does not replace).
+        .method_not_allowed_fallback(method_not_allowed)
 }
 
 /// An error as the API returns it: a status and `{"error": "..."}`.
@@ -192,7 +263,7 @@ async fn require_token(State(state): State<AppState>, request: Request, next: Ne
     let given = request
         .headers()
         .get(header::AUTHORIZATION)
-        .and_then(|v| v.as_bytes().strip_prefix(b"Bearer "))
+        .and_then(|v| bearer_token(v.as_bytes()))
         .unwrap_or_default();
     if constant_time_eq(given, expected.as_bytes()) {
         return next.run(request).await;
@@ -207,6 +278,27 @@ async fn require_token(State(state): State<AppState>, request: Request, next: Ne
         .headers_mut()
         .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
     response
+}
+
+/// The token of an `Authorization: Bearer <token>` value (the scheme name is case-insensitive, RFC 9110).
+fn bearer_token(value: &[u8]) -> Option<&[u8]> {
+    let (scheme, token) = value.split_at_checked(7)?;
+    scheme.eq_ignore_ascii_case(b"bearer ").then_some(token)
+}
+
+/// Requests (other than the event stream) end within the request timeout, with a JSON 408 past it.
+async fn request_deadline(State(state): State<AppState>, request: Request, next: Next) -> Response {
+    match tokio::time::timeout(state.request_timeout, next.run(request)).await {
+        Ok(response) => response,
+        Err(_) => ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            format!(
+                "the request took longer than {} s",
+                state.request_timeout.as_secs_f64()
+            ),
+        )
+        .into_response(),
+    }
 }
 
 fn parse_id(raw: &str) -> Result<CampaignId, ApiError> {
@@ -236,20 +328,37 @@ async fn submit(State(state): State<AppState>, request: Request) -> Result<Respo
         return Err(too_large());
     }
     let origin = request.headers().clone();
-    let bytes = axum::body::to_bytes(request.into_body(), limit)
+    // While the body arrives the daemon only waits for the client: its connection may be closed under pressure
+    // (see `connections`), and the whole body must come within the deadline.
+    let waiting = request
+        .extensions()
+        .get::<connections::ConnTag>()
+        .map(connections::ConnTag::waiting_for_client);
+    let read_timeout = state.body_read_timeout;
+    let read = tokio::time::timeout(read_timeout, axum::body::to_bytes(request.into_body(), limit))
         .await
-        .map_err(|e| {
-            if std::error::Error::source(&e).is_some_and(|s| s.is::<http_body_util::LengthLimitError>())
-                || e.to_string().contains("length limit")
-            {
-                too_large()
-            } else {
-                ApiError::new(
-                    StatusCode::BAD_REQUEST,
-                    format!("cannot read the request body: {e}"),
-                )
-            }
+        .map_err(|_| {
+            ApiError::new(
+                StatusCode::REQUEST_TIMEOUT,
+                format!(
+                    "the campaign file did not arrive within {} s",
+                    read_timeout.as_secs_f64()
+                ),
+            )
         })?;
+    drop(waiting);
+    let bytes = read.map_err(|e| {
+        if std::error::Error::source(&e).is_some_and(|s| s.is::<http_body_util::LengthLimitError>())
+            || e.to_string().contains("length limit")
+        {
+            too_large()
+        } else {
+            ApiError::new(
+                StatusCode::BAD_REQUEST,
+                format!("cannot read the request body: {e}"),
+            )
+        }
+    })?;
     let text = std::str::from_utf8(&bytes).map_err(|e| {
         ApiError::new(
             StatusCode::BAD_REQUEST,
@@ -329,6 +438,13 @@ async fn estop(State(state): State<AppState>) -> Result<Response, ApiError> {
     Ok(axum::Json(json!({ "estop": true })).into_response())
 }
 
+async fn method_not_allowed(request: Request) -> ApiError {
+    ApiError::new(
+        StatusCode::METHOD_NOT_ALLOWED,
+        format!("{} is not allowed on {}", request.method(), request.uri().path()),
+    )
+}
+
 async fn not_found(request: Request) -> ApiError {
     ApiError::new(
         StatusCode::NOT_FOUND,
@@ -340,9 +456,23 @@ async fn not_found(request: Request) -> ApiError {
 /// shuts down. A client too slow to keep up gets a `lagged` event saying how many it missed.
 async fn events(
     State(state): State<AppState>,
-) -> Sse<impl futures_util::Stream<Item = Result<SseEvent, Infallible>>> {
+) -> Result<Sse<impl futures_util::Stream<Item = Result<SseEvent, Infallible>>>, ApiError> {
+    // Each stream holds a connection as long as its client listens: bounded, so that streams cannot take every
+    // connection.
+    let permit = Arc::clone(&state.event_streams)
+        .try_acquire_owned()
+        .map_err(|_| {
+            ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!(
+                    "{} event streams are open, the most this daemon serves: close one and retry",
+                    state.max_event_streams
+                ),
+            )
+        })?;
     let rx = state.service.subscribe();
-    let stream = futures_util::stream::unfold((rx, state.shutdown), |(mut rx, mut shutdown)| async move {
+    let start = (rx, state.shutdown, permit);
+    let stream = futures_util::stream::unfold(start, |(mut rx, mut shutdown, permit)| async move {
         let received = tokio::select! {
             r = rx.recv() => r,
             _ = shutdown.recv() => return None,
@@ -363,23 +493,28 @@ async fn events(
                 .data(json!({ "type": "lagged", "missed": missed }).to_string()),
             Err(broadcast::error::RecvError::Closed) => return None,
         };
-        Some((Ok(event), (rx, shutdown)))
+        Some((Ok(event), (rx, shutdown, permit)))
     });
-    Sse::new(stream).keep_alive(KeepAlive::new().interval(Duration::from_secs(15)))
+    Ok(Sse::new(stream).keep_alive(KeepAlive::new().interval(Duration::from_secs(15))))
+}
+
+/// Serve `app` on `listener` until `shutdown` with the default [`ConnectionLimits`] (see [`serve_with`]).
+pub async fn serve(listener: TcpListener, app: Router, shutdown: Shutdown, complete: mpsc::Sender<()>) {
+    serve_with(listener, app, ConnectionLimits::default(), shutdown, complete).await;
 }
 
 /// Serve `app` on `listener` until `shutdown`, then let open connections finish (bounded). `_complete` is
-/// dropped when every connection has ended.
-pub async fn serve(listener: TcpListener, app: Router, mut shutdown: Shutdown, complete: mpsc::Sender<()>) {
-    use hyper_util::rt::{TokioIo, TokioTimer};
-    use hyper_util::service::TowerToHyperService;
-
-    let slots = Arc::new(Semaphore::new(MAX_CONNECTIONS));
+/// dropped when every connection has ended. Connections are bounded and policed as [`connections`] says.
+pub async fn serve_with(
+    listener: TcpListener,
+    app: Router,
+    limits: ConnectionLimits,
+    mut shutdown: Shutdown,
+    complete: mpsc::Sender<()>,
+) {
+    let slots = Arc::new(Semaphore::new(limits.max_connections.max(1)));
+    let registry = Arc::new(connections::Registry::default());
     loop {
-        let permit = tokio::select! {
-            p = slots.clone().acquire_owned() => match p { Ok(p) => p, Err(_) => break },
-            _ = shutdown.recv() => break,
-        };
         let (stream, peer) = tokio::select! {
             accepted = listener.accept() => match accepted {
                 Ok(a) => a,
@@ -392,40 +527,111 @@ pub async fn serve(listener: TcpListener, app: Router, mut shutdown: Shutdown, c
             },
             _ = shutdown.recv() => break,
         };
-        let service = TowerToHyperService::new(app.clone());
+        let permit = match Arc::clone(&slots).try_acquire_owned() {
+            Ok(p) => p,
+            Err(_) => {
+                // Full: close the oldest connection that is not being served, else wait for one to end.
+                if registry.evict_oldest_idle() {
+                    tracing::warn!(%peer, open = registry.len(), "connection limit reached: closing the oldest idle connection");
+                } else {
+                    tracing::warn!(%peer, open = registry.len(), "connection limit reached: every connection is busy, waiting");
+                }
+                tokio::select! {
+                    p = Arc::clone(&slots).acquire_owned() => match p { Ok(p) => p, Err(_) => break },
+                    _ = shutdown.recv() => break,
+                }
+            }
+        };
+        let entry = registry.open();
         let mut conn_shutdown = shutdown.clone();
         let complete = complete.clone();
+        let app = app.clone();
         tokio::spawn(async move {
             let _permit = permit;
             let _complete = complete;
-            let mut builder = hyper::server::conn::http1::Builder::new();
-            builder
-                .timer(TokioTimer::new())
-                .header_read_timeout(HEADER_READ_TIMEOUT);
-            let conn = builder.serve_connection(TokioIo::new(stream), service);
-            let mut conn = std::pin::pin!(conn);
-            tokio::select! {
-                r = conn.as_mut() => {
-                    if let Err(e) = r { tracing::debug!(%peer, "connection ended: {e}"); }
-                }
-                _ = conn_shutdown.recv() => {
-                    conn.as_mut().graceful_shutdown();
-                    let _ = tokio::time::timeout(CONNECTION_DRAIN, conn).await;
-                }
-            }
+            serve_connection(stream, peer, app, entry, limits, &mut conn_shutdown).await;
         });
     }
     tracing::info!("no longer accepting connections");
 }
 
+/// One connection: HTTP/1.1 with the header deadline, the write deadline, eviction, and the requests marked
+/// busy while they are served.
+async fn serve_connection(
+    stream: tokio::net::TcpStream,
+    peer: SocketAddr,
+    app: Router,
+    entry: connections::Entry,
+    limits: ConnectionLimits,
+    shutdown: &mut Shutdown,
+) {
+    use http_body_util::BodyExt;
+    use hyper_util::rt::{TokioIo, TokioTimer};
+    use hyper_util::service::TowerToHyperService;
+
+    let conn = Arc::clone(entry.conn());
+    let inner = TowerToHyperService::new(app);
+    let tracked = Arc::clone(&conn);
+    let service = hyper::service::service_fn(move |mut request: hyper::Request<hyper::body::Incoming>| {
+        let busy = connections::Busy::new(&tracked);
+        request
+            .extensions_mut()
+            .insert(connections::ConnTag(Arc::clone(&tracked)));
+        let response = hyper::service::Service::call(&inner, request);
+        async move {
+            let response = response.await?;
+            // The request counts as served until its response body is sent (event streams: until they end).
+            Ok::<_, Infallible>(response.map(|body| {
+                axum::body::Body::new(body.map_frame(move |frame| {
+                    let _ = &busy;
+                    frame
+                }))
+            }))
+        }
+    });
+    let io = TokioIo::new(connections::WriteDeadline::new(stream, limits.write_timeout));
+    let mut builder = hyper::server::conn::http1::Builder::new();
+    builder
+        .timer(TokioTimer::new())
+        .header_read_timeout(limits.header_read_timeout);
+    let http = builder.serve_connection(io, service);
+    let mut http = std::pin::pin!(http);
+    tokio::select! {
+        r = http.as_mut() => {
+            if let Err(e) = r { tracing::debug!(%peer, "connection ended: {e}"); }
+        }
+        _ = conn.evicted() => {
+            tracing::debug!(%peer, "connection closed to admit a new client");
+        }
+        _ = shutdown.recv() => {
+            http.as_mut().graceful_shutdown();
+            let _ = tokio::time::timeout(CONNECTION_DRAIN, http).await;
+        }
+    }
+    drop(entry);
+}
+
 /// Run the daemon on a bound listener: the campaign queue and the API, until `signal` completes; then stop the
-/// running campaign at a safe point and wait for every task to finish.
+/// running campaign at a safe point and wait for every task to finish. A listener that breaks the token rule
+/// ([`check_listen`]) is refused: nothing is served.
 pub async fn run_daemon(
     listener: TcpListener,
     service: Service,
     config: &ApiConfig,
     signal: impl std::future::Future<Output = ()>,
 ) {
+    match listener.local_addr() {
+        Ok(addr) => {
+            if let Err(e) = check_listen(addr, config.token.as_deref()) {
+                tracing::error!("{e}");
+                return;
+            }
+        }
+        Err(e) => {
+            tracing::error!("cannot read the listening address: {e}");
+            return;
+        }
+    }
     let trigger = crate::service::ShutdownTrigger::new();
     let (complete_tx, mut complete_rx) = mpsc::channel::<()>(1);
     let queue = {
@@ -435,7 +641,13 @@ pub async fn run_daemon(
         tokio::spawn(async move { service.run_queue(shutdown, complete).await })
     };
     let app = router(service, config, trigger.subscribe());
-    let server = tokio::spawn(serve(listener, app, trigger.subscribe(), complete_tx.clone()));
+    let server = tokio::spawn(serve_with(
+        listener,
+        app,
+        config.connection_limits(),
+        trigger.subscribe(),
+        complete_tx.clone(),
+    ));
     drop(complete_tx);
     signal.await;
     tracing::info!("shutting down");

@@ -1,29 +1,48 @@
 //! The campaign file: what to measure and how, validated with messages that name the file, the line, the key
 //! and what was expected.
 //!
-//! Tables (see config/campaigns/demo.toml and template.toml for commented examples):
+//! Tables (see config/campaigns/demo.toml, relative.toml and template.toml for commented examples):
 //! - `[campaign]` `id` (the sample id; names the run), `description`.
 //! - `[sample]` `radius_mm`.
 //! - `[plan]` the scheduler's schema (grid, bands, repeats, `[plan.calibration]` cadence of darks and
-//!   direct-beam readings).
+//!   normalisation readings: direct-beam readings for the absolute method, reference-sample readings for the
+//!   relative one).
 //! - `[calibration]` `method` ("absolute": direct-beam readings; "relative": against a reference sample),
-//!   `reference` (relative: a material preset name or file), `reference_rel_std`, `simulate_operator`
-//!   (dry-runs: the simulated operator removes and remounts the sample; default true).
+//!   `reference` (relative: a material preset name or a material file), `reference_rel_std` (relative standard
+//!   uncertainty of the reference's BRDF, default 0.005), `reference_geometry_deg` (relative: the geometry
+//!   `[theta_i, phi_i, theta_o, phi_o]` the reference is read at, default `[0.0, 0.0, 45.0, 180.0]`, the 0/45
+//!   geometry of reflectance standards), `simulate_operator` (dry-runs: the simulated operator swaps samples;
+//!   default true).
 //! - `[acquisition]` `averaging` (samples per reading), `range` ("auto" or a full-scale power in W),
 //!   `settle_s` (extra settling after arrival, on top of each axis' own), `retries` (per device operation).
 //! - `[material]` the simulated sample for dry-runs: a material table as in config/materials/, or
 //!   `preset = "<name>"`.
+//! - `[resolved]` is not written by people: gonio appends it when it stores a campaign (see [`sources`]).
+//!
+//! Material and reference names resolve by [`Sources`]: against the campaign file's directory for a local file,
+//! inside the daemon's data directory only for a submitted one, and from the stored `[resolved]` table (never
+//! the file system) when a stored campaign is read back to run or resume.
 
-use std::path::Path;
+pub mod sources;
 
-use gonio_brdf::Brdf;
+use std::path::{Path, PathBuf};
+
 use gonio_brdf::material::Material;
+use gonio_brdf::{Brdf, Wavelength};
 use gonio_instrument::InstrumentFile;
 use gonio_scheduler::adaptive::Adaptive;
+use gonio_scheduler::constraints::Constraints;
+use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
 use gonio_scheduler::plan::{self, BuildContext, CampaignDoc, Plan, PlanError, SampleTraits};
 use gonio_scheduler::schedule::{self, Schedule};
 use gonio_scheduler::timing::TimeModel;
 use serde::Deserialize;
+
+pub use sources::Sources;
+use sources::{Resolved, is_preset};
+
+/// The default reference geometry of the relative method: normal incidence, detector at 45 degrees (0/45).
+pub const DEFAULT_REFERENCE_GEOMETRY_DEG: [f64; 4] = [0.0, 0.0, 45.0, 180.0];
 
 /// Top-level tables a campaign file may hold.
 const TABLES: [&str; 6] = [
@@ -65,6 +84,8 @@ struct CalibrationSection {
     reference: Option<String>,
     #[serde(default)]
     reference_rel_std: Option<f64>,
+    #[serde(default)]
+    reference_geometry_deg: Option<toml::Value>,
     #[serde(default = "yes")]
     simulate_operator: bool,
 }
@@ -113,12 +134,24 @@ pub struct Acquisition {
     pub retries: u32,
 }
 
+/// The relative method's reference sample.
+#[derive(Debug, Clone)]
+pub struct Reference {
+    /// As written in the campaign (`[calibration] reference`): a preset name or a file name.
+    pub name: String,
+    /// Its BRDF, angular shape included.
+    pub material: Material,
+    /// Where it is read: a geometry every band's reading of the reference is taken at.
+    pub geometry: Geometry,
+}
+
 /// Calibration settings, defaults applied.
 #[derive(Debug, Clone)]
 pub struct CalibrationSettings {
     pub method: Method,
-    /// Relative method: the reference sample's BRDF and the relative uncertainty of its calibration.
-    pub reference: Option<(String, Material)>,
+    /// Relative method: the reference sample.
+    pub reference: Option<Reference>,
+    /// Relative standard uncertainty of the reference's BRDF (its calibration certificate).
     pub reference_rel_std: f64,
     pub simulate_operator: bool,
 }
@@ -137,6 +170,8 @@ pub struct Campaign {
     pub time: TimeModel,
     /// True when every device of the instrument is simulated.
     pub dry_run: bool,
+    /// The materials as resolved: what [`sources::resolved_trailer`] stores with the campaign.
+    pub resolved: Resolved,
 }
 
 impl Campaign {
@@ -194,10 +229,11 @@ fn err(origin: &str, text: &str, table: &str, key: &str, message: impl std::fmt:
 
 /// Parse and validate a campaign file against an instrument; builds its plan and schedule (deterministic:
 /// the same texts always give the same points in the same order, which is what resuming relies on).
+/// `sources` says how material and reference names resolve (module doc).
 pub fn parse(
     text: &str,
     origin: &str,
-    base_dir: &Path,
+    sources: &Sources,
     file: &InstrumentFile,
 ) -> Result<Campaign, CampaignError> {
     let instrument = &file.instrument;
@@ -205,23 +241,42 @@ pub fn parse(
     let raw: toml::Table = toml::from_str(text)
         .map_err(|e| CampaignError(format!("{origin}: not valid TOML: {}", e.to_string().trim())))?;
     for key in raw.keys() {
+        if key == "resolved" {
+            continue;
+        }
         if !TABLES.contains(&key.as_str()) {
-            let line = text
-                .lines()
-                .position(|l| {
-                    let l = l.trim();
-                    l.starts_with(&format!("[{key}"))
-                        || l.starts_with(&format!("{key} "))
-                        || l.starts_with(&format!("{key}="))
-                })
-                .map(|i| format!(":{}", i + 1))
-                .unwrap_or_default();
             return Err(CampaignError(format!(
-                "{origin}{line}: unknown table or key `{key}`: expected one of {}",
+                "{origin}{}: unknown table or key `{key}`: expected one of {}",
+                top_level_line(text, key),
                 TABLES.join(", ")
             )));
         }
     }
+    // `[resolved]`: only in a stored campaign (gonio wrote it). A stored campaign without it predates it: its
+    // names resolve as they always did, against the current directory.
+    let stored: Option<Resolved> = match (sources, raw.get("resolved")) {
+        (Sources::Stored, Some(v)) => Some(v.clone().try_into::<Resolved>().map_err(|e| {
+            CampaignError(format!(
+                "{origin}{}: [resolved]: {}",
+                top_level_line(text, "resolved"),
+                e.to_string().trim()
+            ))
+        })?),
+        (_, Some(_)) => {
+            return Err(CampaignError(format!(
+                "{origin}{}: unknown table `resolved`: gonio adds it when it stores a campaign; remove it (the \
+                 [material] and [calibration] reference it was made from are resolved again)",
+                top_level_line(text, "resolved")
+            )));
+        }
+        _ => None,
+    };
+    let sources = match (sources, &stored) {
+        (Sources::Stored, None) => Sources::Local(PathBuf::from(".")),
+        (s, _) => s.clone(),
+    };
+    let base = sources::base_dir(&sources).map_err(|e| CampaignError(format!("{origin}: {e}")))?;
+
     let sections: Sections =
         toml::from_str(text).map_err(|e| CampaignError(format!("{origin}: {}", e.to_string().trim())))?;
     let Some(campaign) = sections.campaign else {
@@ -249,24 +304,14 @@ pub fn parse(
     let doc = CampaignDoc::parse(text, origin).map_err(|e| CampaignError(plan_error(&e, origin, text)))?;
 
     let dry_run = instrument.devices.iter().all(|d| d.is_simulated());
-    let material = match raw.get("material") {
-        None => None,
-        Some(toml::Value::Table(t)) if t.contains_key("preset") => {
-            if t.len() != 1 {
-                return Err(err(
-                    origin,
-                    text,
-                    "material",
-                    "preset",
-                    "expected `preset` alone (a preset is a complete material)",
-                ));
-            }
-            let name = t.get("preset").and_then(|v| v.as_str()).unwrap_or_default();
-            Some(Material::preset(name).map_err(|e| err(origin, text, "material", "preset", e))?)
-        }
-        Some(_) => {
-            Some(Material::from_document(text, origin, base_dir).map_err(|e| CampaignError(e.to_string()))?)
-        }
+    let material = match &stored {
+        Some(r) => r
+            .material
+            .as_ref()
+            .map(sources::material_from_stored)
+            .transpose()
+            .map_err(|e| CampaignError(format!("{origin}: [resolved] material: {e}")))?,
+        None => sample_material(&raw, text, origin, &sources, &base)?,
     };
     if dry_run && material.is_none() {
         return Err(CampaignError(format!(
@@ -295,6 +340,7 @@ pub fn parse(
         method: Method::Absolute,
         reference: None,
         reference_rel_std: None,
+        reference_geometry_deg: None,
         simulate_operator: true,
     });
     let reference = match (cal.method, &cal.reference) {
@@ -308,14 +354,22 @@ pub fn parse(
             ));
         }
         (Method::Relative, Some(r)) => {
-            let path = base_dir.join(r);
-            let m = if r.ends_with(".toml") || path.is_file() {
-                Material::load(&path)
-            } else {
-                Material::preset(r)
+            let m = match &stored {
+                Some(s) => s
+                    .reference
+                    .as_ref()
+                    .ok_or_else(|| "the stored campaign has no [resolved] reference".to_string())
+                    .and_then(sources::material_from_stored),
+                None => reference_material(r, &sources, &base),
             }
             .map_err(|e| err(origin, text, "calibration", "reference", e))?;
-            Some((r.clone(), m))
+            let geometry = reference_geometry(cal.reference_geometry_deg.as_ref())
+                .map_err(|e| err(origin, text, "calibration", "reference_geometry_deg", e))?;
+            Some(Reference {
+                name: r.clone(),
+                material: m,
+                geometry,
+            })
         }
         (Method::Absolute, Some(_)) => {
             return Err(err(
@@ -328,14 +382,24 @@ pub fn parse(
         }
         (Method::Absolute, None) => None,
     };
-    if cal.method == Method::Relative {
-        // Parsed and checked above so the schema is stable; the engine does not run it yet.
+    if cal.method == Method::Absolute && cal.reference_geometry_deg.is_some() {
         return Err(err(
             origin,
             text,
             "calibration",
-            "method",
-            "\"relative\" is not supported by this engine yet; expected \"absolute\"",
+            "reference_geometry_deg",
+            "only used with method = \"relative\" (the absolute method reads the direct beam at \
+             [plan.calibration] reference_pose_deg)",
+        ));
+    }
+    if cal.method == Method::Relative && doc.plan.calibration.reference_pose_deg.is_some() {
+        return Err(err(
+            origin,
+            text,
+            "plan.calibration",
+            "reference_pose_deg",
+            "is the direct-beam pose of the absolute method; with method = \"relative\" the reference sample is \
+             read at [calibration] reference_geometry_deg",
         ));
     }
     let reference_rel_std = cal.reference_rel_std.unwrap_or(0.005);
@@ -444,6 +508,18 @@ pub fn parse(
             built.skipped
         )));
     }
+    if let Some(r) = &reference {
+        let mut bands = built.bands_nm.clone();
+        if bands.is_empty() {
+            bands.extend(instrument.source.wavelength_nm);
+        }
+        check_reference(r, &bands, instrument, sample_radius_mm)
+            .map_err(|(key, e)| err(origin, text, "calibration", key, e))?;
+    }
+    let resolved = Resolved {
+        material: material.as_ref().map(Material::spec),
+        reference: reference.as_ref().map(|r| r.material.spec()),
+    };
     Ok(Campaign {
         id,
         description: campaign.description,
@@ -465,7 +541,159 @@ pub fn parse(
         schedule: sched,
         time,
         dry_run,
+        resolved,
     })
+}
+
+/// The `: LINE` of the first line that opens top-level table or key `key`, or nothing.
+fn top_level_line(text: &str, key: &str) -> String {
+    text.lines()
+        .position(|l| {
+            let l = l.trim();
+            l.starts_with(&format!("[{key}"))
+                || l.starts_with(&format!("{key} "))
+                || l.starts_with(&format!("{key}="))
+                || l.starts_with(&format!("{key}."))
+        })
+        .map(|i| format!(":{}", i + 1))
+        .unwrap_or_default()
+}
+
+/// The `[material]` table (the simulated sample), with its names resolved under `sources`.
+fn sample_material(
+    raw: &toml::Table,
+    text: &str,
+    origin: &str,
+    sources: &Sources,
+    base: &Path,
+) -> Result<Option<Material>, CampaignError> {
+    match raw.get("material") {
+        None => Ok(None),
+        Some(toml::Value::Table(t)) if t.contains_key("preset") => {
+            if t.len() != 1 {
+                return Err(err(
+                    origin,
+                    text,
+                    "material",
+                    "preset",
+                    "expected `preset` alone (a preset is a complete material)",
+                ));
+            }
+            let name = t.get("preset").and_then(|v| v.as_str()).unwrap_or_default();
+            Ok(Some(
+                Material::preset(name).map_err(|e| err(origin, text, "material", "preset", e))?,
+            ))
+        }
+        Some(t) => {
+            // A measured material reads its data file: check the name against the policy first.
+            if let Some(f) = t.get("file").and_then(|v| v.as_str()) {
+                sources::file_path(sources, base, f).map_err(|e| err(origin, text, "material", "file", e))?;
+            }
+            Ok(Some(
+                Material::from_document(text, origin, base).map_err(|e| CampaignError(e.to_string()))?,
+            ))
+        }
+    }
+}
+
+/// `[calibration] reference`: a preset name or a material file (whose own data file, for a measured material,
+/// resolves against its directory), under `sources`.
+fn reference_material(name: &str, sources: &Sources, base: &Path) -> Result<Material, String> {
+    let is_file = match sources {
+        // Nothing outside the data directory may be probed: a name is a preset, or a path to confine.
+        Sources::Confined(_) => !is_preset(name),
+        _ => name.ends_with(".toml") || base.join(name).is_file(),
+    };
+    if !is_file {
+        return Material::preset(name).map_err(|e| e.to_string());
+    }
+    let path = sources::file_path(sources, base, name).map_err(|e| {
+        if name.ends_with(".toml") || name.contains(['/', '\\']) {
+            e
+        } else {
+            format!(
+                "{e} (nor is it a preset: {})",
+                Material::preset_names().join(", ")
+            )
+        }
+    })?;
+    let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| format!("cannot read the reference material file {}: {e}", path.display()))?;
+    if let Some(f) = sources::material_data_file(&text) {
+        sources::file_path(sources, &dir, &f)
+            .map_err(|e| format!("{}: [material] file: {e}", path.display()))?;
+    }
+    Material::from_document(&text, &path.display().to_string(), &dir).map_err(|e| e.to_string())
+}
+
+/// `[calibration] reference_geometry_deg = [theta_i, phi_i, theta_o, phi_o]`, default 0/45.
+fn reference_geometry(v: Option<&toml::Value>) -> Result<Geometry, String> {
+    let Some(v) = v else {
+        let [ti, pi, to, po] = DEFAULT_REFERENCE_GEOMETRY_DEG;
+        return Ok(Geometry::new(ti, pi, to, po));
+    };
+    let expected = "expected [theta_i, phi_i, theta_o, phi_o] in degrees";
+    let items = v.as_array().ok_or_else(|| format!("{expected}, got {v}"))?;
+    let numbers: Vec<f64> = items
+        .iter()
+        .map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64)))
+        .collect::<Option<Vec<f64>>>()
+        .filter(|n| n.len() == 4 && n.iter().all(|x| x.is_finite()))
+        .ok_or_else(|| format!("{expected}, got {v}"))?;
+    match numbers.as_slice() {
+        [ti, pi, to, po] => Ok(Geometry::new(*ti, *pi, *to, *po)),
+        _ => Err(format!("{expected}, got {v}")),
+    }
+}
+
+/// The reference can be read where it is asked to be, and normalises every band: the geometry passes the
+/// instrument's rules and has an axis solution, the material covers every band, and its BRDF there is positive.
+/// Err: (key, message).
+fn check_reference(
+    r: &Reference,
+    bands_nm: &[f64],
+    instrument: &gonio_instrument::Instrument,
+    sample_radius_mm: f64,
+) -> Result<(), (&'static str, String)> {
+    let (wi, wo) = r.geometry.directions();
+    Constraints::new(instrument, Some(sample_radius_mm))
+        .check_directions(&wi, &wo)
+        .map_err(|reason| {
+            (
+                "reference_geometry_deg",
+                format!(
+                    "the reference cannot be read at {:?} on instrument {:?}: {}",
+                    r.geometry,
+                    instrument.name,
+                    reason.name()
+                ),
+            )
+        })?;
+    let poses = Kinematics::new(instrument)
+        .solutions(&wi, &wo, &Pose::new(0.0, 0.0, 0.0, 0.0))
+        .map_err(|e| ("reference_geometry_deg", format!("no axis solution: {e}")))?;
+    if poses.is_empty() {
+        return Err(("reference_geometry_deg", "no axis solution".into()));
+    }
+    for nm in bands_nm {
+        let wl = Wavelength::from_nm(*nm).map_err(|e| ("reference", e.to_string()))?;
+        let f = r
+            .material
+            .eval(&wi, &wo, wl)
+            .map_err(|e| ("reference", format!("{:?} at {nm} nm: {e}", r.name)))?;
+        if !(f.is_finite() && f > 0.0) {
+            return Err((
+                "reference",
+                format!(
+                    "{:?} has BRDF {f} 1/sr at the reference geometry at {nm} nm: a reference must reflect \
+                     there to normalise",
+                    r.name
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// A scheduler error with the file and line of its key.

@@ -7,11 +7,14 @@
 //! [`Rig`] at once.
 //!
 //! Semantics (what the service can rely on):
-//! - `pause()`: the running campaign goes `pausing` now and `paused` at the next safe point, where
-//!   [`run_campaign`](crate::engine::run_campaign) returns `Ok(Paused)`. To continue, call `resume()` and
-//!   `run_campaign` again: it continues from the first uncommitted point.
-//! - `resume()`: clears a pending pause (also one requested while nothing ran). Starting `run_campaign` clears
-//!   a stale pause, abort, estop or confirmation too: starting a run is itself the resume.
+//! - `pause()`: the running campaign goes `pausing` now (recorded in the store and announced by a `State`
+//!   event as soon as the engine's task runs, even in the middle of a move or a settle) and `paused` at the next
+//!   safe point, where [`run_campaign`](crate::engine::run_campaign) returns `Ok(Paused)`. While waiting for the
+//!   operator it goes `paused` directly. To continue, call `resume()` and `run_campaign` again: it continues
+//!   from the first uncommitted point.
+//! - `resume()`: clears a pending pause (also one requested while nothing ran); a campaign still `pausing` goes
+//!   back to `running` and carries on. Starting `run_campaign` clears a stale pause, abort, estop or
+//!   confirmation too: starting a run is itself the resume.
 //! - `abort()`: the campaign ends `aborted` at the next safe point (also while waiting for the operator).
 //! - `confirm()`: the operator did what the `waiting-operator` message asked; ignored at other times.
 //! - `estop()`: halts all axes now (and the simulator's, in dry-runs); the point in progress is not committed;

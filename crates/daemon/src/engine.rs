@@ -1,10 +1,15 @@
 //! The campaign engine: runs one stored campaign on a connected [`Rig`], point by point, committing each point
 //! durably, obeying [`Control`] requests at safe points, and resuming from the first uncommitted point.
+//!
+//! Preparing a campaign resolves the materials it names once ([`Sources`]): [`prepare_campaign`] for a local
+//! file (`gonio run`: names relative to the file's directory), [`prepare_submitted_campaign`] for one submitted
+//! to the daemon (presets and files inside its data directory only). What is stored is the file's text with the
+//! resolved materials appended ([`PreparedCampaign::new_campaign`]), so that running and resuming read no file.
 
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 
-pub use crate::campaign::CampaignError;
+pub use crate::campaign::{CampaignError, Sources};
 pub use crate::control::{Control, Event};
 pub use crate::rig::Rig;
 use crate::store::{CampaignId, CampaignState, NewCampaign, Store, StoreError};
@@ -40,19 +45,27 @@ pub struct PreparedCampaign {
     pub dry_run: bool,
     /// Predicted instrument time (s) from the time model.
     pub predicted_s: f64,
+    /// Appended to the campaign text when it is stored: the `[resolved]` materials (empty when it names none).
+    pub resolved_toml: String,
 }
 
 impl PreparedCampaign {
-    /// The store record for this campaign with its texts.
+    /// The store record for this campaign with its texts: `campaign_toml` (the text that was prepared) followed
+    /// by [`PreparedCampaign::resolved_toml`].
     pub fn new_campaign(&self, campaign_toml: &str, instrument_toml: &str) -> NewCampaign {
         NewCampaign {
             name: self.name.clone(),
-            campaign_toml: campaign_toml.to_string(),
+            campaign_toml: self.stored_campaign_toml(campaign_toml),
             instrument_toml: instrument_toml.to_string(),
             total_points: self.total_points,
             dry_run: self.dry_run,
             software_version: software_version(),
         }
+    }
+
+    /// The campaign text as it is stored: `campaign_toml` followed by the resolved materials.
+    pub fn stored_campaign_toml(&self, campaign_toml: &str) -> String {
+        format!("{campaign_toml}{}", self.resolved_toml)
     }
 }
 
@@ -61,20 +74,49 @@ pub fn software_version() -> String {
     format!("gonio {}", env!("CARGO_PKG_VERSION"))
 }
 
-/// Validate a campaign file against an instrument: every error names file, line, key and what was expected.
+/// Validate a local campaign file against an instrument: every error names file, line, key and what was
+/// expected. Material and reference files resolve against `base_dir` (the campaign file's directory).
 pub fn prepare_campaign(
     text: &str,
     origin: &str,
     base_dir: &Path,
     instrument: &InstrumentFile,
 ) -> Result<PreparedCampaign, EngineError> {
-    let c = crate::campaign::parse(text, origin, base_dir, instrument)?;
+    prepare_campaign_with(text, origin, &Sources::Local(base_dir.to_path_buf()), instrument)
+}
+
+/// Validate a campaign submitted to the daemon: it may name material presets, or files inside `data_dir` only
+/// (no `..`, no absolute path or symbolic link leading outside); anything else is refused with a message that
+/// names file, line and key.
+pub fn prepare_submitted_campaign(
+    text: &str,
+    origin: &str,
+    data_dir: &Path,
+    instrument: &InstrumentFile,
+) -> Result<PreparedCampaign, EngineError> {
+    prepare_campaign_with(
+        text,
+        origin,
+        &Sources::Confined(data_dir.to_path_buf()),
+        instrument,
+    )
+}
+
+/// Validate a campaign with names resolving under `sources`.
+pub fn prepare_campaign_with(
+    text: &str,
+    origin: &str,
+    sources: &Sources,
+    instrument: &InstrumentFile,
+) -> Result<PreparedCampaign, EngineError> {
+    let c = crate::campaign::parse(text, origin, sources, instrument)?;
     Ok(PreparedCampaign {
         name: c.id.clone(),
         description: c.description.clone(),
         total_points: c.total_points(),
         dry_run: c.dry_run,
         predicted_s: c.schedule.breakdown.total_s(),
+        resolved_toml: crate::campaign::sources::resolved_trailer(&c.resolved),
     })
 }
 

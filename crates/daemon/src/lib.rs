@@ -11,6 +11,7 @@
 //! - [`service`]: the daemon's core: the campaign queue (one at a time, interrupted ones first), request routing,
 //!   emergency stop, graceful shutdown.
 //! - [`api`]: the HTTP/JSON control API (axum) with server-sent events, the token rule, and the server loop.
+//! - [`status_page`]: the live status page at `/` (embedded HTML/CSS/JS).
 
 pub mod api;
 pub mod campaign;
@@ -20,6 +21,7 @@ pub mod export;
 pub mod rig;
 mod runner;
 pub mod service;
+pub mod status_page;
 pub mod store;
 
 pub use control::{Control, Event};

@@ -7,6 +7,10 @@
 //! real serial port or pseudo-terminal, and for the power meter USB by vendor/product id, or
 //! `port = "usb-socket:PATH"` for a meter served on a Unix socket (a separate `gonio sim --link-dir`). Axes keep
 //! the instrument file's order, which is also the order of the read-back columns.
+//!
+//! What lies in the simulated sample holder is the rig's to switch: [`Rig::mount_sample`] builds and mounts a
+//! campaign's sample; [`Rig::build_optics`] and [`Rig::show_optics`] let the engine swap in another sample (the
+//! relative method's reference) and back, as the operator would, each with its own optics on the same source.
 
 pub mod sim_link;
 
@@ -343,17 +347,29 @@ impl Rig {
 
     /// Mount a simulated sample (dry-runs): builds its optics on this instrument.
     pub fn mount_sample(&self, sample: SampleSpec, seed: u64) -> Result<Arc<Optics>, EngineError> {
+        let optics = self.build_optics(sample, seed)?;
+        self.show_optics(Arc::clone(&optics));
+        Ok(optics)
+    }
+
+    /// Build the optics of a simulated sample on this instrument without mounting it. With the instrument's
+    /// `seed`, its source is the very source of every other sample's optics (same drift, same noise at the same
+    /// instant): swapping samples changes the sample, not the lamp.
+    pub fn build_optics(&self, sample: SampleSpec, seed: u64) -> Result<Arc<Optics>, EngineError> {
         if self.inner.sim.is_none() {
             return Err(EngineError::Instrument(
                 "a simulated sample needs the simulated instrument (no device is simulated)".into(),
             ));
         }
-        let optics = Arc::new(
+        Ok(Arc::new(
             Optics::new(&self.inner.file.instrument, sample, seed)
                 .map_err(|e| EngineError::Instrument(format!("simulated optics: {e}")))?,
-        );
-        *self.inner.scene.optics.write().unwrap_or_else(|e| e.into_inner()) = Some(Arc::clone(&optics));
-        Ok(optics)
+        ))
+    }
+
+    /// Put already built optics in the simulated sample holder (the simulated operator's swap).
+    pub fn show_optics(&self, optics: Arc<Optics>) {
+        *self.inner.scene.optics.write().unwrap_or_else(|e| e.into_inner()) = Some(optics);
     }
 
     /// Identity strings of the devices, for the store and run.json: (device name, identity).

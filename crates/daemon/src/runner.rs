@@ -1,42 +1,63 @@
 //! The run loop behind [`crate::engine::run_campaign`].
 //!
-//! Order of work: rebuild the campaign (plan and schedule) from the texts stored with it, never from current
-//! files; connect the sample (dry-runs); home axes that lost their reference; a calibration preamble (darks for
-//! every band, direct-beam readings for every band) on every start and resume; then the schedule's steps from
-//! the first uncommitted point, with the schedule's own dark and direct-beam steps in between.
+//! Order of work: rebuild the campaign (plan and schedule) from the text stored with it, materials included
+//! (its `[resolved]` table: no file is read); connect the sample (dry-runs); home axes that lost their
+//! reference; a calibration preamble (darks for every band, then the normalisation readings for every band:
+//! direct beam for the absolute method, reference sample for the relative one) on every start and resume; then
+//! the schedule's steps from the first uncommitted point, with the schedule's own dark and normalisation steps in
+//! between.
 //!
 //! Per point: plan the move from where the axes really are (read-back) to the step's pose with the scheduler's
 //! time model (arm-collision-safe phases, backlash approach waypoints), run each phase's axes concurrently
 //! (`start_move` on each, then `wait_arrived`), settle, select the band, read, subtract the dark, apply the
-//! absolute measurement equation with the direct-beam power extrapolated in time (source drift), commit.
+//! measurement equation with the normalisation reading extrapolated in time from the last two (source drift),
+//! commit. Absolute: `f = (S - S_dark) / (P Omega cos theta_o)` with `P` the direct beam. Relative: the reference
+//! sample read at its reference geometry, see [`reference`].
+//!
+//! Operator steps (remove the sample for the direct beam; swap the reference in and out) put the campaign in
+//! `waiting-operator` with the instruction until confirmed; in dry-runs the simulated sample holder changes on
+//! the confirmation (or at once with `simulate_operator`), so the simulator measures what a person would have
+//! mounted.
+//!
+//! States: `running`; `pausing` as soon as a pause is requested (a watcher beside the loop records it in the
+//! store and says so in an event), `running` again if it is withdrawn first; `paused` at the next safe point.
 //!
 //! Faults: transient errors (timeouts, garbled replies) are retried a bounded number of times; a lost device
 //! is reconnected (and re-homed when it lost its reference); what still fails becomes a failed-point record with
-//! the device's reason, and three failed points in a row, any calibration failure, a device that cannot be
-//! reconnected, or a store write failure pause the campaign with the reason. Nothing waits without a deadline:
-//! the drivers bound every exchange.
+//! the device's reason, and three failed points in a row, any calibration failure, or a device that cannot be
+//! reconnected pause the campaign with the reason. Nothing waits without a deadline: the drivers bound every
+//! exchange.
+//!
+//! Disk trouble: a store write that fails with a condition a person can fix (disk or quota full, read-only
+//! file or directory, I/O error, file cannot be opened; see `StoreError::is_write_failure`) pauses the campaign
+//! at once, before any further move, with a reason naming the store file and SQLite's error. The point being
+//! committed is not in the store (each point is one transaction), so resuming measures it again: nothing
+//! committed is lost and nothing is stored twice. When even the pause cannot be written, the store keeps the
+//! state in memory for status requests (`Store::set_state`).
+
+mod reference;
 
 use std::collections::BTreeMap;
 use std::future::Future;
-use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use gonio_brdf::measurement::{
-    AbsoluteReadings, Footprint, MeasurementError, MeasurementGeometry, Reading, ValidityLimits,
-    absolute_brdf,
+    AbsoluteReadings, Footprint, MeasurementError, MeasurementGeometry, Reading, RelativeReadings,
+    ValidityLimits, absolute_brdf, relative_brdf,
 };
 use gonio_brdf::{Direction, Wavelength};
 use gonio_driver::{DetectorConfig, DriverError, ErrorKind, PowerRange};
 use gonio_instrument::{AxisRole, InstrumentFile};
-use gonio_scheduler::kinematics::{Pose, ROLES};
+use gonio_scheduler::kinematics::{Kinematics, Pose, ROLES};
 use gonio_scheduler::schedule::{Step, StepKind};
 use gonio_simulator::optics::{Optics, SampleSpec};
 
-use crate::campaign::{self, Campaign, Method, Range};
+use crate::campaign::{self, Campaign, Method, Range, Sources};
 use crate::control::{Control, Event};
 use crate::engine::EngineError;
 use crate::rig::{Rig, RigAxis, futures_join_all};
 use crate::store::{CalibrationRecord, CampaignId, CampaignState, PointRecord, Store, StoreError};
+use reference::Transfer;
 
 /// Failed points in a row after which the campaign pauses instead of recording more failures.
 const MAX_FAILED_IN_ROW: u32 = 3;
@@ -86,6 +107,12 @@ impl Clock {
     }
 }
 
+/// A multi-axis phase in which some axes failed (the rest were stopped): which, and the first reason.
+struct PhaseBroken {
+    failed: Vec<usize>,
+    reason: String,
+}
+
 /// Which device an operation talks to (for recovery).
 #[derive(Clone, Copy)]
 enum Dev<'a> {
@@ -96,6 +123,26 @@ enum Dev<'a> {
 
 fn band_key(nm: f64) -> u64 {
     nm.to_bits()
+}
+
+/// What the (simulated) operator leaves in the sample holder.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Holder {
+    /// Nothing: the direct beam reaches the detector.
+    Empty,
+    /// The campaign's sample.
+    Sample,
+    /// The relative method's reference sample.
+    Reference,
+}
+
+/// The relative method's reference at run time.
+struct ReferenceRun {
+    name: String,
+    transfer: Transfer,
+    geometry: gonio_scheduler::kinematics::Geometry,
+    /// Dry-runs: the reference's own optics, swapped into the simulator while it is mounted.
+    optics: Option<Arc<Optics>>,
 }
 
 struct Run<'a> {
@@ -116,9 +163,13 @@ struct Run<'a> {
     configured_nm: Option<f64>,
     wheel_at: Option<u8>,
     darks: BTreeMap<u64, (f64, Reading)>,
-    direct: BTreeMap<u64, Vec<(f64, Reading)>>,
+    /// Normalisation readings per band, net of dark, in time order: direct beam (absolute) or reference sample
+    /// (relative).
+    norm: BTreeMap<u64, Vec<(f64, Reading)>>,
     failed_in_row: u32,
+    /// Dry-runs: the campaign's sample in the simulator (ground truth comes from it).
     optics: Option<Arc<Optics>>,
+    reference: Option<ReferenceRun>,
     done: u64,
     total: u64,
 }
@@ -146,7 +197,7 @@ pub(crate) async fn run(
         )));
     }
     let origin = format!("<stored campaign {id}>");
-    let c = campaign::parse(&rec.campaign_toml, &origin, Path::new("."), &file)
+    let c = campaign::parse(&rec.campaign_toml, &origin, &Sources::Stored, &file)
         .map_err(|e| not_runnable(format!("its stored campaign file no longer validates: {e}")))?;
     let total = c.total_points();
     if total != rec.total_points {
@@ -155,26 +206,32 @@ pub(crate) async fn run(
             rec.total_points
         )));
     }
-    if c.calibration.method == Method::Relative {
-        return Err(not_runnable(
-            "[calibration] method = \"relative\" is not supported by this engine yet; use \"absolute\""
-                .into(),
-        ));
-    }
     if c.dry_run != rig.is_dry_run() {
         return Err(not_runnable(
             "the campaign's dry-run flag does not match the connected instrument".into(),
         ));
     }
+    let sample_spec = |material: &gonio_brdf::material::Material| SampleSpec {
+        material: material.clone(),
+        radius_mm: c.sample_radius_mm,
+        orientation_deg: 0.0,
+    };
     let optics = match (&c.material, rig.is_dry_run()) {
-        (Some(m), true) => Some(rig.mount_sample(
-            SampleSpec {
-                material: m.clone(),
-                radius_mm: c.sample_radius_mm,
-                orientation_deg: 0.0,
+        (Some(m), true) => Some(rig.mount_sample(sample_spec(m), file.simulator.seed)?),
+        _ => None,
+    };
+    let reference = match (&c.calibration.reference, c.calibration.method) {
+        (Some(r), Method::Relative) => Some(ReferenceRun {
+            name: r.name.clone(),
+            transfer: Transfer::new(r.material.clone(), &r.geometry),
+            geometry: r.geometry,
+            optics: if optics.is_some() {
+                // Same seed: the same source as the sample's optics.
+                Some(rig.build_optics(sample_spec(&r.material), file.simulator.seed)?)
+            } else {
+                None
             },
-            file.simulator.seed,
-        )?),
+        }),
         _ => None,
     };
     let clock = match rig.sim() {
@@ -213,14 +270,61 @@ pub(crate) async fn run(
         configured_nm: None,
         wheel_at: None,
         darks: BTreeMap::new(),
-        direct: BTreeMap::new(),
+        norm: BTreeMap::new(),
         failed_in_row: 0,
         optics,
+        reference,
         done,
         total,
     };
-    let outcome = run.go().await;
+    let outcome = {
+        let watch = follow_pause_requests(Arc::clone(&run.store), id, run.control.clone());
+        tokio::select! {
+            outcome = run.go() => outcome,
+            never = watch => match never {},
+        }
+    };
     run.finish(outcome).await
+}
+
+/// Beside the run loop: reflect pause requests in the store and the events at once (`running` -> `pausing`,
+/// and back when the pause is withdrawn before the safe point). Other states are the loop's to set.
+async fn follow_pause_requests(
+    store: Arc<Mutex<Store>>,
+    id: CampaignId,
+    control: Control,
+) -> std::convert::Infallible {
+    loop {
+        let n = control.notified();
+        tokio::pin!(n);
+        n.as_mut().enable();
+        reflect_pause(&store, id, &control);
+        n.await;
+    }
+}
+
+fn reflect_pause(store: &Arc<Mutex<Store>>, id: CampaignId, control: &Control) {
+    let mut s = lock(store);
+    let Ok(now) = s.state(id) else { return };
+    let next = match (now, control.pause_requested()) {
+        (CampaignState::Running, true) => CampaignState::Pausing,
+        (CampaignState::Pausing, false) => CampaignState::Running,
+        _ => return,
+    };
+    match s.set_state(id, next, None) {
+        Ok(()) => {
+            drop(s);
+            tracing::info!(campaign = %id, state = %next, "pause request");
+            control.emit(Event::State {
+                campaign: id,
+                state: next,
+                message: (next == CampaignState::Pausing)
+                    .then(|| "pause requested: pausing at the next safe point".to_string()),
+            });
+        }
+        // The loop meets the same store at its next write and pauses for it.
+        Err(e) => tracing::warn!(campaign = %id, "cannot record the state {next}: {e}"),
+    }
 }
 
 fn lock(store: &Arc<Mutex<Store>>) -> std::sync::MutexGuard<'_, Store> {
@@ -424,9 +528,10 @@ impl<'a> Run<'a> {
         if fresh {
             self.start_up(&steps).await?;
         }
-        // Calibration preamble: darks and the direct beam for every band, on every (re)start. On a fresh start
-        // the schedule's own leading dark and reference steps are that preamble (so the run follows the
-        // predicted steps); a resume, or a plan without them, gets the engine's own.
+        // Calibration preamble: darks and the normalisation readings (direct beam or reference sample) for every
+        // band, on every (re)start. On a fresh start the schedule's own leading dark and reference steps are that
+        // preamble (so the run follows the predicted steps); a resume, or a plan without them, gets the engine's
+        // own.
         let leading = steps.get(..start).unwrap_or_default();
         let scheduled_preamble = fresh
             && leading.iter().any(|s| s.kind == StepKind::Dark)
@@ -435,7 +540,7 @@ impl<'a> Run<'a> {
             0
         } else {
             self.darks_all(&bands).await?;
-            self.direct_beam(&bands, None).await?;
+            self.normalise(&bands, None).await?;
             start
         };
         while i < steps.len() {
@@ -459,7 +564,7 @@ impl<'a> Run<'a> {
                     if group.is_empty() {
                         group = bands.clone();
                     }
-                    self.direct_beam(&group, Some(pose)).await?;
+                    self.normalise(&group, Some(pose)).await?;
                 }
                 StepKind::Measure => {
                     let next_start = steps.get(i + 1).map(|s| s.start_s);
@@ -515,6 +620,45 @@ impl<'a> Run<'a> {
 
     /// Move to `target` (physical pose) along a safe, backlash-aware move planned from where the axes are.
     async fn move_to(&mut self, target: &Pose) -> Result<(), Interrupt> {
+        // A phase of several axes is collision-safe only as a whole: when one of its axes fails (a stall), the
+        // others are stopped and the move is planned again from where the axes really are, instead of retrying
+        // the failed axis alone while the others go on (issue #8: crates/daemon/tests/safety.rs).
+        // Each axis gets the retries a single operation gets (`acquisition.retries`); every round charges at
+        // least one axis, so the loop is bounded.
+        let attempts = self.c.acquisition.retries + 1;
+        let mut failures: BTreeMap<usize, u32> = BTreeMap::new();
+        loop {
+            let PhaseBroken { failed, reason } = match self.move_once(target).await {
+                Ok(r) => return r,
+                Err(broken) => broken,
+            };
+            for idx in &failed {
+                *failures.entry(*idx).or_default() += 1;
+            }
+            // (Every broken phase names the axis that failed first; without one, nothing bounds the loop.)
+            let worst = if failed.is_empty() {
+                attempts
+            } else {
+                failures.values().copied().max().unwrap_or(0)
+            };
+            self.fault(format!(
+                "{reason} (attempt {worst} of {attempts}); the other axes were stopped"
+            ));
+            if worst >= attempts {
+                return Err(Interrupt::Fatal(EngineError::Device(reason)));
+            }
+            for idx in failed {
+                if let Some(a) = self.rig.axes().get(idx) {
+                    self.recover(Dev::Axis(a)).await?;
+                }
+            }
+            // Plan again from where every axis really is.
+            self.read_positions().await?;
+        }
+    }
+
+    /// One planned move; `Err(PhaseBroken)` when an axis of a multi-axis phase failed (the phase is stopped).
+    async fn move_once(&mut self, target: &Pose) -> Result<Result<(), Interrupt>, PhaseBroken> {
         // An axis already within its arrival tolerance of the target does not move: the read-back differs from
         // the nominal pose by up to that tolerance after every move, and re-commanding it would cost a move,
         // a status poll and a settle at every reading of a pose (each band, each repeat at one geometry) that
@@ -528,19 +672,25 @@ impl<'a> Run<'a> {
         }
         let movement = match self.c.time.plan_move(&from, target) {
             Ok(m) => m,
-            Err(reason) => self.separating_move(target).ok_or_else(|| {
-                Interrupt::Fatal(EngineError::Device(format!(
-                    "no safe move from {:?} to {:?}: {}",
-                    self.current,
-                    target,
-                    reason.name()
-                )))
-            })?,
+            Err(reason) => match self.separating_move(target) {
+                Some(m) => m,
+                None => {
+                    return Ok(Err(Interrupt::Fatal(EngineError::Device(format!(
+                        "no safe move from {:?} to {:?}: {}",
+                        self.current,
+                        target,
+                        reason.name()
+                    )))));
+                }
+            },
         };
         let axes = self.rig.axes();
         let mut arrived = Vec::new();
         for phase in &movement.phases {
             let this = &*self;
+            // Set by the first axis of the phase that fails; the others then fail because they were stopped.
+            let stopping = std::sync::atomic::AtomicBool::new(false);
+            let stopping = &stopping;
             let moves = phase.iter().map(|m| async move {
                 let a = axes.get(m.axis_index).ok_or_else(|| {
                     Interrupt::Fatal(EngineError::Instrument(format!(
@@ -549,7 +699,7 @@ impl<'a> Run<'a> {
                     )))
                 })?;
                 let Some(last) = m.waypoints_deg.last() else {
-                    return Ok((m.axis_index, f64::NAN));
+                    return Ok(Ok((m.axis_index, f64::NAN)));
                 };
                 let phys = a.config.physical_from_controller_deg(*last);
                 let what = format!("move {} to {phys:.4} deg", a.config.name);
@@ -557,21 +707,62 @@ impl<'a> Run<'a> {
                 // the same waypoints; an overshoot point itself cannot be verified (the load lags by the
                 // backlash), only the final arrival can.
                 let backlash = m.waypoints_deg.len() > 1;
-                let pos = this
-                    .device(Dev::Axis(a), &what, || async {
-                        if backlash {
-                            a.driver.move_to(phys).await
-                        } else {
-                            a.driver.start_move(phys).await?;
-                            a.driver.wait_arrived(phys).await
+                let op = || async {
+                    if backlash {
+                        a.driver.move_to(phys).await
+                    } else {
+                        a.driver.start_move(phys).await?;
+                        a.driver.wait_arrived(phys).await
+                    }
+                };
+                if phase.len() < 2 {
+                    let pos = this.device(Dev::Axis(a), &what, op).await?;
+                    return Ok::<_, Interrupt>(Ok((m.axis_index, pos)));
+                }
+                // One attempt inside a multi-axis phase; on failure stop the phase's other axes at once.
+                let r = tokio::select! {
+                    r = op() => r,
+                    _ = this.estop_signal() => return Err(Interrupt::Estop),
+                };
+                match r {
+                    Ok(pos) => Ok(Ok((m.axis_index, pos))),
+                    Err(_) if stopping.load(std::sync::atomic::Ordering::SeqCst) => {
+                        // Stopped short by us: not this axis's fault.
+                        Ok(Err((None, String::new())))
+                    }
+                    Err(e) => {
+                        stopping.store(true, std::sync::atomic::Ordering::SeqCst);
+                        for other in phase.iter().filter(|o| o.axis_index != m.axis_index) {
+                            if let Some(b) = axes.get(other.axis_index) {
+                                let _ = b.driver.stop().await;
+                            }
                         }
-                    })
-                    .await?;
-                Ok::<(usize, f64), Interrupt>((m.axis_index, pos))
+                        Ok(Err((Some(m.axis_index), format!("{what}: {e}"))))
+                    }
+                }
             });
             let results = futures_join_all(moves).await;
+            let mut broken = PhaseBroken {
+                failed: Vec::new(),
+                reason: String::new(),
+            };
+            let mut any_failed = false;
             for r in results {
-                arrived.push(r?);
+                match r {
+                    Err(i) => return Ok(Err(i)),
+                    Ok(Ok(done)) => arrived.push(done),
+                    Ok(Err((idx, reason))) => {
+                        any_failed = true;
+                        broken.failed.extend(idx);
+                        if broken.reason.is_empty() {
+                            broken.reason = reason;
+                        }
+                    }
+                }
+            }
+            if any_failed {
+                // The others were stopped short of their targets too: their read-back is re-read by the caller.
+                return Err(broken);
             }
             for (idx, pos) in arrived.drain(..).filter(|(_, p)| p.is_finite()) {
                 if let (Some(a), Some(slot)) = (axes.get(idx), self.readback.get_mut(idx)) {
@@ -591,7 +782,7 @@ impl<'a> Run<'a> {
                 self.current.set(r, target.get(r));
             }
         }
-        Ok(())
+        Ok(Ok(()))
     }
 
     /// The arms start closer than the safety separation (e.g. both at zero after power-up): the scheduler's
@@ -799,9 +990,9 @@ impl<'a> Run<'a> {
         Ok(())
     }
 
-    /// Ask the operator to do something and wait for the confirmation; in dry-runs with the simulated operator,
-    /// `action` does it at once.
-    async fn operator(&mut self, message: &str, mounted: bool) -> Result<(), Interrupt> {
+    /// Ask the operator to do something and wait for the confirmation; in dry-runs the simulated sample holder
+    /// then holds `holder` (at once with the simulated operator).
+    async fn operator(&mut self, message: &str, holder: Holder) -> Result<(), Interrupt> {
         let simulated = self.optics.is_some() && self.c.calibration.simulate_operator;
         if !simulated {
             self.st(|s| s.set_state(self.id, CampaignState::WaitingOperator, None))?;
@@ -828,13 +1019,128 @@ impl<'a> Run<'a> {
                 n.await;
             }
             self.st(|s| s.set_operator_message(self.id, None))?;
-            self.st(|s| s.set_state(self.id, CampaignState::Running, None))?;
-            self.emit_state(CampaignState::Running, None);
+            // A pause requested at this very moment is already on its way: say so rather than `running`.
+            let state = if self.control.pause_requested() {
+                CampaignState::Pausing
+            } else {
+                CampaignState::Running
+            };
+            self.st(|s| s.set_state(self.id, state, None))?;
+            self.emit_state(state, None);
         }
-        if let Some(o) = &self.optics {
-            o.set_sample_mounted(mounted);
-        }
+        self.simulated_holder(holder);
         Ok(())
+    }
+
+    /// Dry-runs: put `holder` in the simulated sample holder, as the operator just did.
+    fn simulated_holder(&self, holder: Holder) {
+        let Some(sample) = &self.optics else { return };
+        match holder {
+            Holder::Empty | Holder::Sample => {
+                self.rig.show_optics(Arc::clone(sample));
+                sample.set_sample_mounted(holder == Holder::Sample);
+            }
+            Holder::Reference => {
+                if let Some(r) = self.reference.as_ref().and_then(|r| r.optics.as_ref()) {
+                    r.set_sample_mounted(true);
+                    self.rig.show_optics(Arc::clone(r));
+                }
+            }
+        }
+    }
+
+    /// The normalisation readings of `bands` for the campaign's method: direct beam (at `pose`, else the plan's
+    /// reference pose) or reference sample (at the reference geometry).
+    async fn normalise(&mut self, bands: &[f64], pose: Option<Pose>) -> Result<(), Interrupt> {
+        match self.c.calibration.method {
+            Method::Absolute => self.direct_beam(bands, pose).await,
+            Method::Relative => self.reference_sample(bands).await,
+        }
+    }
+
+    /// Reference-sample readings of `bands` (relative method): the operator swaps the reference in, one reading
+    /// per band at the reference geometry, and the sample goes back.
+    async fn reference_sample(&mut self, bands: &[f64]) -> Result<(), Interrupt> {
+        let Some(name) = self.reference.as_ref().map(|r| r.name.clone()) else {
+            return Err(Interrupt::Fatal(EngineError::NotRunnable {
+                id: self.id,
+                message: "the relative method needs a reference, and the stored campaign has none".into(),
+            }));
+        };
+        // Close the beam while the operator works.
+        if let Some(blank) = self.blank_position() {
+            self.wheel_to(blank).await.map_err(calibration_failure)?;
+        }
+        self.operator(
+            &format!(
+                "Reference calibration: take the sample out of the holder and mount the reference sample \
+                 ({name}) in its place, then confirm."
+            ),
+            Holder::Reference,
+        )
+        .await?;
+        let result = async {
+            let (geometry, pose) = {
+                let r = self.reference.as_ref().ok_or_else(|| {
+                    Interrupt::Fatal(EngineError::Device("the reference went missing".into()))
+                })?;
+                let kinematics = Kinematics::new(&self.file.instrument);
+                (
+                    r.geometry,
+                    reference::pose_for(&kinematics, &self.c.time, &r.geometry, &self.current),
+                )
+            };
+            let pose = pose.ok_or_else(|| {
+                Interrupt::Pause(format!(
+                    "no safe move from {:?} to the reference geometry {geometry:?}",
+                    self.current
+                ))
+            })?;
+            self.move_to(&pose).await?;
+            let tol_deg = self.file.instrument.axes.iter().map(|a| a.tolerance_deg).fold(0.0f64, f64::max);
+            let angle_std_rad = tol_deg.to_radians() / 3f64.sqrt();
+            for b in bands {
+                if let Some(p) = self.band_position(*b) {
+                    self.wheel_to(p).await?;
+                }
+                let (v, u, overload) = self.read(*b).await?;
+                if overload {
+                    return Err(Interrupt::Pause(format!(
+                        "the reference sample at {b} nm overloads the detector: choose a larger range"
+                    )));
+                }
+                let dark = self.darks.get(&band_key(*b)).map(|d| d.1).unwrap_or(Reading::exact(0.0));
+                let net_w = v - dark.value_w;
+                if net_w <= 0.0 {
+                    return Err(Interrupt::Pause(format!(
+                        "no signal from the reference sample at {b} nm ({v} W read, dark {} W): is it mounted, \
+                         the source on and the path clear?",
+                        dark.value_w
+                    )));
+                }
+                let positioning = match (Wavelength::from_nm(*b), &self.reference) {
+                    (Ok(wl), Some(r)) => r.transfer.positioning_rel_std(wl, angle_std_rad) * net_w,
+                    _ => 0.0,
+                };
+                let net = Reading::new(net_w, u.hypot(dark.std_w).hypot(positioning));
+                let t = self.t();
+                self.norm.entry(band_key(*b)).or_default().push((t, net));
+                let rec =
+                    CalibrationRecord { kind: "reference".into(), band_nm: Some(*b), t_s: t, value_w: v, u_w: u };
+                self.st(|s| s.record_calibration(self.id, &rec))?;
+            }
+            Ok(())
+        }
+        .await;
+        result.map_err(calibration_failure)?;
+        if let Some(blank) = self.blank_position() {
+            self.wheel_to(blank).await.map_err(calibration_failure)?;
+        }
+        self.operator(
+            "Reference calibration done: take the reference sample out and mount the sample again, then confirm.",
+            Holder::Sample,
+        )
+        .await
     }
 
     /// Direct-beam readings of `bands`: sample out, detector facing the source, one reading per band.
@@ -856,7 +1162,7 @@ impl<'a> Run<'a> {
         }
         self.operator(
             "Direct-beam calibration: remove the sample from the holder, then confirm.",
-            false,
+            Holder::Empty,
         )
         .await?;
         let result = async {
@@ -881,7 +1187,7 @@ impl<'a> Run<'a> {
                     )));
                 }
                 let t = self.t();
-                self.direct.entry(band_key(*b)).or_default().push((t, net));
+                self.norm.entry(band_key(*b)).or_default().push((t, net));
                 let rec =
                     CalibrationRecord { kind: "direct-beam".into(), band_nm: Some(*b), t_s: t, value_w: v, u_w: u };
                 self.st(|s| s.record_calibration(self.id, &rec))?;
@@ -895,15 +1201,15 @@ impl<'a> Run<'a> {
         }
         self.operator(
             "Direct-beam calibration done: mount the sample again, then confirm.",
-            true,
+            Holder::Sample,
         )
         .await
     }
 
-    /// Incident (net direct-beam) power at time `t` for a band, extrapolating the drift from the last two
-    /// readings of this session when they are far enough apart.
-    fn incident(&self, nm: f64, t: f64) -> Option<Reading> {
-        let list = self.direct.get(&band_key(nm))?;
+    /// The normalisation reading (net direct beam, or net reference signal) at time `t` for a band,
+    /// extrapolating the drift from the last two readings of this session when they are far enough apart.
+    fn normalisation(&self, nm: f64, t: f64) -> Option<Reading> {
+        let list = self.norm.get(&band_key(nm))?;
         let (t2, r2) = *list.last()?;
         if list.len() >= 2
             && let Some((t1, r1)) = list.get(list.len() - 2).copied()
@@ -961,7 +1267,7 @@ impl<'a> Run<'a> {
             .get(&band_key(band_nm))
             .map(|d| d.1)
             .unwrap_or(Reading::exact(0.0));
-        let incident = self.incident(band_nm, t).unwrap_or(Reading::exact(f64::NAN));
+        let incident = self.normalisation(band_nm, t).unwrap_or(Reading::exact(f64::NAN));
         let wi = Direction::from_spherical_deg(g.theta_i_deg, g.phi_i_deg);
         let wo = Direction::from_spherical_deg(g.theta_o_deg, g.phi_o_deg);
         let (mut brdf, mut brdf_u) = (None, None);
@@ -970,7 +1276,7 @@ impl<'a> Run<'a> {
             if overload {
                 flags.push("saturated".to_string());
             } else {
-                match self.equation(signal, u_signal, dark, incident, wi, wo) {
+                match self.equation(signal, u_signal, dark, incident, band_nm, wi, wo) {
                     Ok(v) => {
                         brdf = Some(v.value_per_sr);
                         brdf_u = Some(v.std_per_sr);
@@ -1019,44 +1325,68 @@ impl<'a> Run<'a> {
         Ok(())
     }
 
+    /// The measurement equation of the campaign's method; `norm` is the normalisation reading (net direct beam,
+    /// or net reference signal) at the time of the reading.
+    #[allow(clippy::too_many_arguments)]
     fn equation(
         &self,
         signal: f64,
         u_signal: f64,
         dark: Reading,
-        incident: Reading,
+        norm: Reading,
+        band_nm: f64,
         wi: Direction,
         wo: Direction,
     ) -> Result<gonio_brdf::measurement::BrdfValue, MeasurementError> {
         let inst = &self.file.instrument;
+        // Positioning: the arms' arrival tolerance as a uniform distribution.
+        let tol_deg = inst.axes.iter().map(|a| a.tolerance_deg).fold(0.0f64, f64::max);
+        let geometry = MeasurementGeometry {
+            wi,
+            wo,
+            angle_std_rad: tol_deg.to_radians() / 3f64.sqrt(),
+        };
+        let footprint = Footprint {
+            beam_radius_mm: inst.source.beam_radius_mm,
+            sample_radius_mm: self.c.sample_radius_mm,
+            detector_field_radius_mm: Some(inst.detector.field_radius_mm),
+        };
+        let limits = ValidityLimits {
+            min_cos_theta_o: inst.safety.grazing_limit_deg.to_radians().cos(),
+        };
+        if let Some(r) = &self.reference {
+            let wavelength = Wavelength::from_nm(band_nm).map_err(MeasurementError::Reference)?;
+            return relative_brdf(
+                &RelativeReadings {
+                    signal: Reading::new(signal, u_signal),
+                    signal_dark: dark,
+                    reference: norm,
+                    reference_dark: Reading::exact(0.0),
+                    reference_brdf_rel_std: self.c.calibration.reference_rel_std,
+                },
+                &r.transfer,
+                wavelength,
+                &geometry,
+                &footprint,
+                &limits,
+            );
+        }
         let omega = gonio_brdf::radiometry::aperture_solid_angle_sr(
             inst.detector.aperture_radius_mm,
             inst.detector.distance_mm,
         );
-        // Positioning: the arms' arrival tolerance as a uniform distribution.
-        let tol_deg = inst.axes.iter().map(|a| a.tolerance_deg).fold(0.0f64, f64::max);
         absolute_brdf(
             &AbsoluteReadings {
                 signal: Reading::new(signal, u_signal),
                 signal_dark: dark,
-                direct_beam: incident,
+                direct_beam: norm,
                 direct_beam_dark: Reading::exact(0.0),
                 detector_solid_angle_sr: omega,
                 detector_solid_angle_std_sr: omega * SOLID_ANGLE_REL_STD,
             },
-            &MeasurementGeometry {
-                wi,
-                wo,
-                angle_std_rad: tol_deg.to_radians() / 3f64.sqrt(),
-            },
-            &Footprint {
-                beam_radius_mm: inst.source.beam_radius_mm,
-                sample_radius_mm: self.c.sample_radius_mm,
-                detector_field_radius_mm: Some(inst.detector.field_radius_mm),
-            },
-            &ValidityLimits {
-                min_cos_theta_o: inst.safety.grazing_limit_deg.to_radians().cos(),
-            },
+            &geometry,
+            &footprint,
+            &limits,
         )
     }
 
@@ -1080,7 +1410,10 @@ impl<'a> Run<'a> {
             Err(Interrupt::Pause(reason)) => (CampaignState::Paused, Some(reason)),
             Err(Interrupt::StoreWrite(reason)) => (
                 CampaignState::Paused,
-                Some(format!("the store cannot be written: {reason}")),
+                Some(format!(
+                    "{reason}: the campaign paused before moving on. Every committed point is kept; free space or \
+                     make the store writable, then resume (it continues from the first point not committed)"
+                )),
             ),
             Err(Interrupt::Fatal(EngineError::Device(reason))) => (CampaignState::Paused, Some(reason)),
             Err(Interrupt::Fatal(e)) => {
@@ -1097,7 +1430,8 @@ impl<'a> Run<'a> {
             let mut s = lock(&self.store);
             let _ = s.set_operator_message(self.id, None);
             if let Err(e) = s.set_state(self.id, state, message.as_deref()) {
-                // A read-only store cannot record the pause; it stays "running", which a restart resumes.
+                // A store that cannot be written cannot record the pause: the store shows it from memory (status
+                // requests see it), and the file still says "running", which a restart resumes.
                 tracing::warn!("cannot record the campaign state {state}: {e}");
             }
         }
@@ -1134,6 +1468,7 @@ fn flag_for(e: &MeasurementError) -> String {
         MeasurementError::GrazingDetector { .. } => "grazing".into(),
         MeasurementError::SourceBelowHorizon { .. } => "below-horizon".into(),
         MeasurementError::NoDirectBeam { .. } => "no-direct-beam".into(),
+        MeasurementError::NoReferenceSignal { .. } => "no-reference-signal".into(),
         other => format!("invalid: {other}"),
     }
 }

@@ -27,7 +27,7 @@ use tokio::sync::{Notify, broadcast, mpsc, watch};
 use gonio_instrument::InstrumentFile;
 
 use crate::control::{Control, Event};
-use crate::engine::{prepare_campaign, run_campaign};
+use crate::engine::{prepare_submitted_campaign, run_campaign};
 use crate::rig::Rig;
 use crate::store::{CampaignId, CampaignRecord, CampaignState, NewCampaign, Store, StoreError};
 
@@ -633,7 +633,8 @@ fn conflict(record: &CampaignRecord, action: &str, why: &str) -> ServiceError {
 pub struct EngineRunner {
     instrument: InstrumentFile,
     instrument_toml: String,
-    /// Directory that relative paths in submitted campaign files (material files) are resolved against.
+    /// The daemon's data directory: submitted campaigns may name material presets or files inside it only, and
+    /// relative names resolve against it.
     base_dir: PathBuf,
     rig: Rig,
 }
@@ -661,7 +662,7 @@ impl EngineRunner {
 
 impl CampaignRunner for EngineRunner {
     fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<NewCampaign, String> {
-        prepare_campaign(campaign_toml, origin, &self.base_dir, &self.instrument)
+        prepare_submitted_campaign(campaign_toml, origin, &self.base_dir, &self.instrument)
             .map(|p| p.new_campaign(campaign_toml, &self.instrument_toml))
             .map_err(|e| e.to_string())
     }

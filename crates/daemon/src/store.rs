@@ -8,7 +8,15 @@
 //!
 //! Values are stored as SQLite REALs, which are IEEE-754 doubles: what is read back is bit-identical to what was
 //! written.
+//!
+//! Disk trouble: a write that fails with a condition a person can fix (SQLite FULL, READONLY, IOERR, CANTOPEN,
+//! BUSY/LOCKED beyond the busy timeout) is a [`StoreError::Write`] with [`StoreError::is_write_failure`]; the
+//! failed statement leaves nothing behind. A campaign state that cannot be written is kept in memory and shown
+//! by [`Store::campaign`], [`Store::campaigns`] and [`Store::state`] until a later write of that campaign's state
+//! succeeds (the file keeps the last state it could record). [`Store::set_max_pages`] caps the file's size
+//! (a quota; the tests use it to fill the store for real).
 
+use std::collections::HashMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
@@ -51,10 +59,26 @@ pub enum StoreError {
 }
 
 impl StoreError {
-    /// True for errors a person can fix without losing data (disk full, read-only directory): the campaign
-    /// should pause, not fail.
+    /// True for write errors a person can fix without losing data (disk or quota full, read-only file or
+    /// directory, I/O error, file cannot be opened, lock held by another process too long): the campaign should
+    /// pause, not fail. Other write errors (a constraint, a misuse) are bugs.
     pub fn is_write_failure(&self) -> bool {
-        matches!(self, StoreError::Write { .. })
+        use rusqlite::ErrorCode as C;
+        match self {
+            StoreError::Write {
+                source: rusqlite::Error::SqliteFailure(e, _),
+                ..
+            } => matches!(
+                e.code,
+                C::DiskFull
+                    | C::ReadOnly
+                    | C::SystemIoFailure
+                    | C::CannotOpen
+                    | C::DatabaseBusy
+                    | C::DatabaseLocked
+            ),
+            _ => false,
+        }
     }
 }
 
@@ -222,6 +246,8 @@ pub struct CalibrationRecord {
 pub struct Store {
     conn: Connection,
     path: PathBuf,
+    /// Campaign states that could not be written (disk trouble): (state, message), shown until written.
+    unrecorded: HashMap<CampaignId, (CampaignState, Option<String>)>,
 }
 
 impl Store {
@@ -236,7 +262,11 @@ impl Store {
             path: path.clone(),
             source,
         })?;
-        let mut store = Store { conn, path };
+        let mut store = Store {
+            conn,
+            path,
+            unrecorded: HashMap::new(),
+        };
         store.configure()?;
         store.migrate()?;
         Ok(store)
@@ -421,7 +451,8 @@ impl Store {
     }
 
     pub fn campaign(&self, id: CampaignId) -> Result<CampaignRecord, StoreError> {
-        self.conn
+        let record = self
+            .conn
             .query_row(
                 &format!("{CAMPAIGN_SELECT} WHERE c.id = ?1"),
                 [id.0],
@@ -429,7 +460,33 @@ impl Store {
             )
             .optional()
             .map_err(self.read_err())?
-            .ok_or(StoreError::NoSuchCampaign(id))?
+            .ok_or(StoreError::NoSuchCampaign(id))??;
+        Ok(self.overlay(record))
+    }
+
+    /// A campaign's state (cheaper than [`Store::campaign`]: no configuration texts).
+    pub fn state(&self, id: CampaignId) -> Result<CampaignState, StoreError> {
+        if let Some((state, _)) = self.unrecorded.get(&id) {
+            return Ok(*state);
+        }
+        let state: String = self
+            .conn
+            .query_row("SELECT state FROM campaigns WHERE id = ?1", [id.0], |r| r.get(0))
+            .optional()
+            .map_err(self.read_err())?
+            .ok_or(StoreError::NoSuchCampaign(id))?;
+        state.parse()
+    }
+
+    /// A record with the state that could not be written, if any.
+    fn overlay(&self, mut record: CampaignRecord) -> CampaignRecord {
+        if let Some((state, message)) = self.unrecorded.get(&record.id) {
+            record.state = *state;
+            if message.is_some() {
+                record.last_error.clone_from(message);
+            }
+        }
+        record
     }
 
     /// All campaigns, oldest first.
@@ -441,7 +498,7 @@ impl Store {
         let rows = stmt.query_map([], campaign_from_row).map_err(self.read_err())?;
         let mut out = Vec::new();
         for row in rows {
-            out.push(row.map_err(self.read_err())??);
+            out.push(self.overlay(row.map_err(self.read_err())??));
         }
         Ok(out)
     }
@@ -452,18 +509,52 @@ impl Store {
         state: CampaignState,
         last_error: Option<&str>,
     ) -> Result<(), StoreError> {
-        let n = self
+        let result = self
             .conn
             .execute(
                 "UPDATE campaigns SET state = ?2, last_error = COALESCE(?3, last_error) WHERE id = ?1",
                 params![id.0, state.as_str(), last_error],
             )
-            .map_err(self.write_err())?;
-        if n == 0 {
-            Err(StoreError::NoSuchCampaign(id))
-        } else {
-            Ok(())
+            .map_err(self.write_err());
+        match result {
+            Ok(0) => Err(StoreError::NoSuchCampaign(id)),
+            Ok(_) => {
+                self.unrecorded.remove(&id);
+                Ok(())
+            }
+            Err(e) => {
+                if e.is_write_failure() {
+                    // Shown from memory until a later write succeeds (module doc).
+                    let message = last_error
+                        .map(str::to_string)
+                        .or_else(|| self.unrecorded.get(&id).and_then(|u| u.1.clone()));
+                    self.unrecorded.insert(id, (state, message));
+                }
+                Err(e)
+            }
         }
+    }
+
+    /// Cap the store file at `pages` pages (None: SQLite's own maximum); returns the cap in force. Writes that
+    /// would grow the file beyond it fail as a full disk would (SQLITE_FULL). The cap lasts while this `Store`
+    /// is open.
+    pub fn set_max_pages(&mut self, pages: Option<u64>) -> Result<u64, StoreError> {
+        // SQLite's largest page count; asking for more keeps that.
+        let n = to_i64(pages.unwrap_or(u64::from(u32::MAX - 1)));
+        let cap: i64 = self
+            .conn
+            .query_row(&format!("PRAGMA max_page_count = {n}"), [], |r| r.get(0))
+            .map_err(self.write_err())?;
+        Ok(from_i64(cap))
+    }
+
+    /// Pages the store file holds now.
+    pub fn page_count(&self) -> Result<u64, StoreError> {
+        let n: i64 = self
+            .conn
+            .query_row("PRAGMA page_count", [], |r| r.get(0))
+            .map_err(self.read_err())?;
+        Ok(from_i64(n))
     }
 
     pub fn set_operator_message(&mut self, id: CampaignId, message: Option<&str>) -> Result<(), StoreError> {
@@ -934,10 +1025,77 @@ mod tests {
         let mut ro_store = Store {
             conn: ro,
             path: store.path().to_path_buf(),
+            unrecorded: HashMap::new(),
         };
         let err = ro_store.commit_point(id, &point(1)).expect_err("read-only");
         assert!(err.is_write_failure(), "{err}");
         assert_eq!(store.points(id).expect("points"), vec![point(0)]);
         assert_eq!(store.next_index(id).expect("next"), 1);
+    }
+
+    #[test]
+    fn a_full_store_is_a_write_failure_and_a_state_it_cannot_write_is_still_shown() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut store = Store::open(dir.path()).expect("open");
+        let id = store.create_campaign(&new_campaign(500)).expect("create");
+        store.set_state(id, CampaignState::Running, None).expect("state");
+        let pages = store.page_count().expect("pages");
+        store.set_max_pages(Some(pages)).expect("cap");
+        let mut full = None;
+        for i in 0..500 {
+            if let Err(e) = store.commit_point(id, &point(i)) {
+                full = Some((i, e));
+                break;
+            }
+        }
+        let (first_missing, err) = full.expect("the capped store fills up");
+        assert!(err.is_write_failure(), "{err}");
+        assert!(err.to_string().contains("database or disk is full"), "{err}");
+        assert_eq!(store.next_index(id).expect("next"), first_missing);
+
+        // A state that cannot be written (read-only connection) is shown from memory until written.
+        let ro = Connection::open_with_flags(store.path(), rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
+            .expect("read-only open");
+        let mut ro_store = Store {
+            conn: ro,
+            path: store.path().to_path_buf(),
+            unrecorded: HashMap::new(),
+        };
+        let e = ro_store
+            .set_state(id, CampaignState::Paused, Some("disk trouble"))
+            .expect_err("read-only");
+        assert!(e.is_write_failure(), "{e}");
+        let c = ro_store.campaign(id).expect("campaign");
+        assert_eq!(
+            (c.state, c.last_error.as_deref()),
+            (CampaignState::Paused, Some("disk trouble"))
+        );
+        assert_eq!(ro_store.state(id).expect("state"), CampaignState::Paused);
+        assert_eq!(
+            ro_store.campaigns().expect("list")[0].state,
+            CampaignState::Paused
+        );
+        // The file itself still says running (what a restart resumes).
+        assert_eq!(store.state(id).expect("state"), CampaignState::Running);
+        // Once a write of the state succeeds, the file is the truth again.
+        store.set_max_pages(None).expect("lift");
+        store
+            .set_state(id, CampaignState::Paused, Some("disk trouble"))
+            .expect("state");
+        assert_eq!(store.campaign(id).expect("c").state, CampaignState::Paused);
+    }
+
+    #[test]
+    fn a_constraint_violation_is_not_disk_trouble() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut store = Store::open(dir.path()).expect("open");
+        // No campaign 7: the foreign key refuses the row. A bug, not something to pause for.
+        let e = store
+            .record_device(CampaignId(7), "meter", "x")
+            .expect_err("foreign key");
+        assert!(
+            matches!(e, StoreError::Write { .. }) && !e.is_write_failure(),
+            "{e}"
+        );
     }
 }

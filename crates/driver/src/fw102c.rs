@@ -205,7 +205,9 @@ impl Fw102c {
         }
         let current = self.do_position().await?;
         // The wheel may turn either way; at worst half a turn. Margin: twice that plus two seconds.
-        let steps = f64::from(current.abs_diff(position).min(count - current.abs_diff(position)));
+        // (Saturating: a garbled `pos?` can report a position beyond a 6-position wheel's count.)
+        let apart = current.abs_diff(position);
+        let steps = f64::from(apart.min(count.saturating_sub(apart)));
         let timeout = Duration::from_secs_f64(2.0 * self.seconds_per_position * steps.max(1.0) + 2.0);
         tracing::info!(wheel = %self.name, from = current, to = position, "turning");
         // `pos=N` is idempotent: retried on a lost prompt.

@@ -70,6 +70,11 @@ pub struct Pm100 {
     tmc: Mutex<Usbtmc>,
     opener: Option<PipeOpener>,
     averaging: std::sync::Mutex<u32>,
+    /// The last configuration applied. A meter that vanished and came back has its power-up settings (another
+    /// wavelength correction would make every reading silently wrong): it is applied again before any reading.
+    config: std::sync::Mutex<Option<DetectorConfig>>,
+    /// Set when the device was reopened and [`Pm100::config`] not yet applied to it again.
+    needs_restore: std::sync::atomic::AtomicBool,
 }
 
 impl std::fmt::Debug for Pm100 {
@@ -89,6 +94,8 @@ impl Pm100 {
             name,
             opener,
             averaging: std::sync::Mutex::new(1),
+            config: std::sync::Mutex::new(None),
+            needs_restore: std::sync::atomic::AtomicBool::new(false),
         }
     }
 
@@ -261,7 +268,16 @@ impl Pm100 {
         for c in &commands {
             self.write(c).await?;
         }
-        let errors = self.errors().await?;
+        // -420 (Query UNTERMINATED) is a read requested with no query pending: what a lost reply leaves behind
+        // once this driver has asked again. None of the commands above is a query, so it refuses none of them.
+        let (unterminated, errors): (Vec<_>, Vec<_>) = self
+            .errors()
+            .await?
+            .into_iter()
+            .partition(|(code, _)| *code == -420);
+        if !unterminated.is_empty() {
+            tracing::warn!(meter = %self.name, ?unterminated, "ignored: left by a lost reply, not by the configuration");
+        }
         if !errors.is_empty() {
             let reason = errors
                 .iter()
@@ -285,11 +301,36 @@ impl Pm100 {
         if let Ok(mut g) = self.averaging.lock() {
             *g = config.averaging;
         }
+        if let Ok(mut g) = self.config.lock() {
+            *g = Some(config);
+        }
+        self.needs_restore
+            .store(false, std::sync::atomic::Ordering::SeqCst);
         tracing::info!(meter = %self.name, wavelength_nm = config.wavelength_nm, averaging = config.averaging, range = ?config.range, "configured");
         Ok(())
     }
 
+    /// Apply the last configuration again if the device came back from a disconnect since it was applied.
+    async fn restore_config(&self) -> Result<(), DriverError> {
+        if !self.needs_restore.load(std::sync::atomic::Ordering::SeqCst) {
+            return Ok(());
+        }
+        let config = self.config.lock().ok().and_then(|g| *g);
+        match config {
+            Some(config) => {
+                self.do_configure(config).await?;
+                tracing::info!(meter = %self.name, "configuration restored after reconnect");
+            }
+            None => self
+                .needs_restore
+                .store(false, std::sync::atomic::Ordering::SeqCst),
+        }
+        Ok(())
+    }
+
     pub async fn do_read_power(&self) -> Result<PowerReading, DriverError> {
+        // Never read with power-up settings after a reconnect whose restore did not complete.
+        self.restore_config().await?;
         let n = self.averaging.lock().map(|g| *g).unwrap_or(1);
         let timeout = Duration::from_secs_f64(f64::from(n) * SAMPLE_S * 2.0) + QUERY_TIMEOUT;
         let a = self.query("MEAS:POW?", timeout).await?;
@@ -349,6 +390,8 @@ impl Pm100 {
                             detail: e.to_string(),
                         })?;
                     *tmc = Usbtmc::new(self.name.clone(), pipe);
+                    self.needs_restore
+                        .store(true, std::sync::atomic::Ordering::SeqCst);
                     tracing::info!(meter = %self.name, "USB device reopened");
                 }
                 Err(e) => {
@@ -358,7 +401,7 @@ impl Pm100 {
         }
         let idn = self.do_identify().await?;
         tracing::info!(meter = %self.name, %idn, "re-verified after reconnect");
-        Ok(())
+        self.restore_config().await
     }
 }
 

@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
-use crate::error::DriverError;
+use crate::error::{DriverError, ErrorKind};
 use crate::motion::{approach_waypoints, check_speed, move_deadline, trapezoid_time_s};
 use crate::traits::{Axis, AxisLimits, AxisStatus};
 use crate::transport::{BoxFuture, LinePort, TransportError, escape_bytes};
@@ -288,6 +288,7 @@ impl Smc100Chain {
         let request = format!("{addr}{cc}{arg}");
         let attempts = if idempotent { ATTEMPTS } else { 1 };
         let mut last = TransportError::Timeout;
+        let mut refused = None;
         for attempt in 1..=attempts {
             let mut s = self.port.session().await;
             let r = async {
@@ -300,23 +301,39 @@ impl Smc100Chain {
             .await;
             match r {
                 Ok(v) => {
-                    let code = parse_te(&v).ok_or_else(|| DriverError::Protocol {
-                        device: self.dev(addr),
-                        request: format!("{addr}TE"),
-                        detail: format!("not an error code: {v:?}"),
-                    })?;
-                    return match code {
-                        '@' => Ok(()),
-                        'H' => Err(DriverError::NotReferenced {
+                    // A code the controller does not have is a garbled reply, not a refusal.
+                    let code = parse_te(&v)
+                        .filter(|c| *c == '@' || describe_te(*c) != describe_te('?'))
+                        .ok_or_else(|| DriverError::Protocol {
+                            device: self.dev(addr),
+                            request: format!("{addr}TE"),
+                            detail: format!("not an error code: {v:?}"),
+                        })?;
+                    if code == '@' {
+                        return Ok(());
+                    }
+                    let e = if code == 'H' {
+                        DriverError::NotReferenced {
                             device: self.dev(addr),
                             state: format!("{request} refused: {}", describe_te(code)),
-                        }),
-                        _ => Err(DriverError::Rejected {
+                        }
+                    } else {
+                        DriverError::Rejected {
                             device: self.dev(addr),
-                            request,
+                            request: request.clone(),
                             reason: format!("error {code}: {}", describe_te(code)),
-                        }),
+                        }
                     };
+                    // The TE reply may have been garbled into another documented code ('@' into 'H' sends the
+                    // caller homing a moving axis): an idempotent command is sent once more, and only a repeated
+                    // refusal counts. (MOVING is left to the caller: a resent move meets it whenever the first
+                    // copy got through.)
+                    if idempotent && code != 'M' && attempt < attempts && refused.is_none() {
+                        tracing::warn!(device = %self.dev(addr), %request, error = %e, "refused; asking again to confirm");
+                        refused = Some(e);
+                        continue;
+                    }
+                    return Err(e);
                 }
                 Err(TransportError::Disconnected(d)) => {
                     return Err(self.transport_error(addr, &request, TransportError::Disconnected(d)));
@@ -329,7 +346,7 @@ impl Smc100Chain {
                 }
             }
         }
-        Err(self.transport_error(addr, &request, last))
+        Err(refused.unwrap_or_else(|| self.transport_error(addr, &request, last)))
     }
 
     /// Controller status.
@@ -489,7 +506,23 @@ impl Smc100Axis {
             }
             State::NotReferenced(_) => {
                 tracing::info!(axis = %self.dev(), "homing (OR)");
-                self.chain.command(self.addr, "OR", "", false).await?;
+                if let Err(e) = self.chain.command(self.addr, "OR", "", false).await {
+                    // OR is not resent blindly, but a lost or garbled TE reply says nothing about whether homing
+                    // started: the controller's state does.
+                    if !matches!(e.kind(), ErrorKind::Timeout | ErrorKind::Protocol) {
+                        return Err(e);
+                    }
+                    match self.chain.ts(self.addr).await?.state {
+                        State::Homing(_) | State::Ready(_) => {
+                            tracing::warn!(axis = %self.dev(), error = %e, "no clear reply to OR, but homing is under way")
+                        }
+                        State::NotReferenced(_) => {
+                            tracing::warn!(axis = %self.dev(), error = %e, "OR not taken; sending it again");
+                            self.chain.command(self.addr, "OR", "", false).await?;
+                        }
+                        _ => return Err(e),
+                    }
+                }
                 // Homing searches at reduced speed across at most the whole travel.
                 let (v, a) = self.speed_accel();
                 let span = self.cfg.max_deg - self.cfg.min_deg;
@@ -568,15 +601,47 @@ impl Smc100Axis {
             .await
         {
             // A retried PA whose first copy got through (only its TE reply was lost) meets the axis already
-            // MOVING: that is success if the controller's set-point is our target.
+            // MOVING: that is success if the controller's set-point is our target. During a move the set-point
+            // (TH) is the profile generator's position, which reaches the target only at the end of the move:
+            // when it does not match at once, wait (bounded) for the move in progress to end and look again.
             Err(e @ DriverError::Rejected { .. }) if e.to_string().contains("error M:") => {
+                let on_target =
+                    |th: f64| (th - controller).abs() <= self.cfg.encoder_resolution_deg.max(1e-6);
+                if let Ok(th) = self.chain.number(self.addr, "TH", "").await
+                    && on_target(th)
+                {
+                    tracing::info!(axis = %self.dev(), target_deg, "already moving to this target");
+                    return Ok(());
+                }
+                let (v, a) = self.speed_accel();
+                let timeout = move_deadline(self.cfg.max_deg - self.cfg.min_deg, v, a);
+                match self
+                    .wait_state(|s| matches!(s, State::Ready(_)), timeout, Some(target_deg))
+                    .await
+                {
+                    Ok(_) => {}
+                    // The move in progress ended in a fault (a stall leaves DISABLE): that is the error to report.
+                    Err(stalled) if stalled.kind() == ErrorKind::MotionFault => return Err(stalled),
+                    Err(_) => return Err(e),
+                }
                 match self.chain.number(self.addr, "TH", "").await {
-                    Ok(th) if (th - controller).abs() <= self.cfg.encoder_resolution_deg.max(1e-6) => {
-                        tracing::info!(axis = %self.dev(), target_deg, "already moving to this target");
+                    Ok(th) if on_target(th) => {
+                        tracing::info!(axis = %self.dev(), target_deg, "the retried move had already run to this target");
                         Ok(())
                     }
                     _ => Err(e),
                 }
+            }
+            // DISABLE is where a stall or a stop leaves the controller: a motion fault, which the caller recovers
+            // from (reconnecting re-enables the axis), not a refusal to give up on.
+            Err(DriverError::Rejected { reason, .. }) if reason.starts_with("error J:") => {
+                Err(DriverError::MotionFault {
+                    device: self.dev(),
+                    target_deg,
+                    reason: format!(
+                        "the controller is in DISABLE after a fault and refused the move ({reason})"
+                    ),
+                })
             }
             other => other,
         }

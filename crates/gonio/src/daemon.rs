@@ -68,8 +68,8 @@ pub fn run(args: DaemonArgs) -> Result<(), CliError> {
         }
         None => (InstrumentFile::simulated(), SIMULATED_INSTRUMENT_TOML.to_string()),
     };
-    let base_dir =
-        std::env::current_dir().map_err(|e| CliError::io("cannot read the current directory", e))?;
+    // Submitted campaigns may name material files inside the data directory only (issue #8: paths in configs).
+    let base_dir = args.data.clone();
     let store = Store::open(&args.data).map_err(|e| CliError::input(e.to_string()))?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()

@@ -9,7 +9,10 @@ mod ctl;
 mod daemon;
 mod devices;
 mod error;
+mod export;
+mod fit;
 mod plan;
+mod plot;
 mod run;
 mod sim;
 
@@ -43,6 +46,12 @@ enum Command {
     Daemon(daemon::DaemonArgs),
     /// Control a running daemon: submit, status, pause, resume, abort, confirm, estop, watch, points.
     Ctl(ctl::CtlArgs),
+    /// Export a run as CSV or JSON (units and full provenance) or as a MERL binary (resampled, for renderers).
+    Export(export::ExportArgs),
+    /// Fit an analytic model to a run (robust, weighted); print parameters with uncertainties, write a material.
+    Fit(fit::FitArgs),
+    /// Plot a run as SVG: in-plane polar slices, heat maps per incidence, and measurement against a model.
+    Plot(plot::PlotArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -65,6 +74,9 @@ fn main() -> ExitCode {
         Command::Plan(args) => plan::run(args),
         Command::Daemon(args) => daemon::run(args),
         Command::Ctl(args) => ctl::run(args),
+        Command::Export(args) => export::run(args),
+        Command::Fit(args) => fit::run(args),
+        Command::Plot(args) => plot::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

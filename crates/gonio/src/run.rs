@@ -80,10 +80,12 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
             c.id
         }
         Some(c) if !c.state.is_final() => {
-            if c.campaign_toml != text || c.instrument_toml != instrument_text {
+            // Stored: the text plus the materials it resolved to (which also notices a changed material file).
+            let stored_text = prepared.stored_campaign_toml(&text);
+            if c.campaign_toml != stored_text || c.instrument_toml != instrument_text {
                 eprintln!(
                     "gonio: note: {} changed since the campaign started; resuming with the configuration stored then",
-                    if c.campaign_toml != text {
+                    if c.campaign_toml != stored_text {
                         origin.as_str()
                     } else {
                         instrument_origin.as_str()

@@ -335,6 +335,9 @@ pub struct Faults {
     /// Extra latency added to each reply (ms).
     #[serde(default)]
     pub delay_ms: f64,
+    /// Random extra latency: each reply is delayed by a further uniform draw in [0, delay_jitter_ms] (ms).
+    #[serde(default)]
+    pub delay_jitter_ms: f64,
     /// Probability that a move stops short with the device's own error state.
     #[serde(default)]
     pub stall_rate: f64,
@@ -344,6 +347,10 @@ pub struct Faults {
     /// ...and comes back this many seconds later.
     #[serde(default)]
     pub reconnect_after_s: Option<f64>,
+    /// ...and, when set, vanishes again every this many seconds after the first time (must exceed
+    /// `reconnect_after_s`): a disconnect every few minutes for soak tests. Unset: one disconnect only.
+    #[serde(default)]
+    pub disconnect_every_s: Option<f64>,
     /// Force the detector into overload.
     #[serde(default)]
     pub saturate: bool,
@@ -596,6 +603,85 @@ impl Instrument {
                 "[instrument.safety]: grazing_limit_deg must be in [0, 90), got {}",
                 safety.grazing_limit_deg
             ));
+        }
+        // A negative (or NaN) separation or retro-block angle would disable the collision and beam-block checks.
+        for (key, v) in [
+            ("min_arm_separation_deg", safety.min_arm_separation_deg),
+            ("retro_block_deg", safety.retro_block_deg),
+        ] {
+            if !(0.0..180.0).contains(&v) {
+                return Err(format!("[instrument.safety]: {key} must be in [0, 180), got {v}"));
+            }
+        }
+        self.validate_simulation_terms()
+    }
+
+    /// The remaining numbers the scheduler and the simulator compute with: finite and in their physical range.
+    fn validate_simulation_terms(&self) -> Result<(), String> {
+        let r = self.sample_holder.max_sample_radius_mm;
+        if !(r.is_finite() && r > 0.0) {
+            return Err(format!(
+                "[instrument.sample_holder]: max_sample_radius_mm must be > 0, got {r}"
+            ));
+        }
+        let s = &self.source;
+        for (key, v) in [
+            ("divergence_deg", s.divergence_deg),
+            ("drift_per_hour", s.drift_per_hour),
+            ("relative_noise", s.relative_noise),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("[instrument.source]: {key} must be >= 0, got {v}"));
+            }
+        }
+        if let Some(nm) = s.wavelength_nm
+            && !(nm.is_finite() && nm > 0.0)
+        {
+            return Err(format!(
+                "[instrument.source]: wavelength_nm must be > 0, got {nm}"
+            ));
+        }
+        let d = &self.detector;
+        if !(d.dark_current_a.is_finite() && d.dark_current_a >= 0.0) {
+            return Err(format!(
+                "[instrument.detector]: dark_current_a must be >= 0, got {}",
+                d.dark_current_a
+            ));
+        }
+        if d.averaging == 0 {
+            return Err("[instrument.detector]: averaging must be at least 1".into());
+        }
+        if let Some(w) = &self.filter_wheel {
+            if !(w.seconds_per_position.is_finite() && w.seconds_per_position >= 0.0) {
+                return Err(format!(
+                    "[instrument.filter_wheel]: seconds_per_position must be >= 0, got {}",
+                    w.seconds_per_position
+                ));
+            }
+            for p in &w.positions {
+                if !(0.0..=1.0).contains(&p.transmission) {
+                    return Err(format!(
+                        "[instrument.filter_wheel]: position {}: transmission must be in [0, 1], got {}",
+                        p.position, p.transmission
+                    ));
+                }
+                if let Some(nm) = p.band_nm
+                    && !(nm.is_finite() && nm > 0.0)
+                {
+                    return Err(format!(
+                        "[instrument.filter_wheel]: position {}: band_nm must be > 0, got {nm}",
+                        p.position
+                    ));
+                }
+                if let Some(bw) = p.bandwidth_nm
+                    && !(bw.is_finite() && bw >= 0.0)
+                {
+                    return Err(format!(
+                        "[instrument.filter_wheel]: position {}: bandwidth_nm must be >= 0, got {bw}",
+                        p.position
+                    ));
+                }
+            }
         }
         Ok(())
     }

@@ -57,6 +57,37 @@ pub enum PlanError {
     },
 }
 
+/// Geometries a grid may enumerate at most. Enumerating, de-duplicating and checking a larger one would take the
+/// validation minutes and gigabytes (a denial of service through one submitted file), and a campaign of this size
+/// would already run for weeks.
+pub const MAX_GRID_GEOMETRIES: usize = 1_000_000;
+
+/// (geometry, band, repeat) readings a plan may hold at most (see [`MAX_GRID_GEOMETRIES`]).
+pub const MAX_PLANNED_READINGS: usize = 5_000_000;
+
+/// Refuse a grid of more than [`MAX_GRID_GEOMETRIES`] before enumerating it.
+fn check_grid_size(keys: &str, lens: &[usize]) -> Result<(), PlanError> {
+    let n = lens
+        .iter()
+        .try_fold(1usize, |acc, l| acc.checked_mul(*l))
+        .unwrap_or(usize::MAX);
+    if n > MAX_GRID_GEOMETRIES {
+        return Err(invalid(
+            "grid",
+            keys,
+            format!(
+                "the grid has {} geometries, more than the {MAX_GRID_GEOMETRIES} a plan may hold: use larger steps",
+                if n == usize::MAX {
+                    "too many".to_string()
+                } else {
+                    n.to_string()
+                }
+            ),
+        ));
+    }
+    Ok(())
+}
+
 fn invalid(table: &str, key: &str, message: impl Into<String>) -> PlanError {
     let table = if table.is_empty() {
         String::new()
@@ -302,7 +333,8 @@ pub fn angle_list(table: &str, key: &str, value: &toml::Value) -> Result<Vec<f64
                 return Err(invalid(
                     table,
                     key,
-                    format!("range gives {} angles; at most 100000", n + 1),
+                    // `n` saturates for ranges wider than any float step covers (e.g. from -1e308 to 1e308).
+                    format!("range gives {} angles; at most 100000", n.saturating_add(1)),
                 ));
             }
             Ok((0..=n).map(|k| from + step * k as f64).collect())
@@ -375,6 +407,10 @@ fn requests(grid: &GridSpec) -> Result<(Vec<Geometry>, bool), PlanError> {
             check_range("theta_o_deg", &to, 0.0, 180.0)?;
             check_range("phi_i_deg", &pi, -360.0, 360.0)?;
             check_range("phi_o_deg", &po, -360.0, 360.0)?;
+            check_grid_size(
+                "theta_i_deg x phi_i_deg x theta_o_deg x phi_o_deg",
+                &[ti.len(), pi.len(), to.len(), po.len()],
+            )?;
             for a in &ti {
                 for b in &pi {
                     for c in &to {
@@ -396,6 +432,10 @@ fn requests(grid: &GridSpec) -> Result<(Vec<Geometry>, bool), PlanError> {
             check_range("theta_i_deg", &ti, 0.0, 180.0)?;
             check_range("theta_o_deg", &to, 0.0, 180.0)?;
             check_range("delta_phi_deg", &dp, 0.0, 180.0)?;
+            check_grid_size(
+                "theta_i_deg x theta_o_deg x delta_phi_deg",
+                &[ti.len(), to.len(), dp.len()],
+            )?;
             for a in &ti {
                 for c in &to {
                     for d in &dp {
@@ -418,6 +458,10 @@ fn requests(grid: &GridSpec) -> Result<(Vec<Geometry>, bool), PlanError> {
             check_range("theta_i_deg", &ti, 0.0, 180.0)?;
             check_range("theta_o_deg", &to, -180.0, 180.0)?;
             check_range("plane_phi_deg", &planes, -360.0, 360.0)?;
+            check_grid_size(
+                "plane_phi_deg x theta_i_deg x theta_o_deg",
+                &[planes.len(), ti.len(), to.len()],
+            )?;
             for p in &planes {
                 for a in &ti {
                     for c in &to {
@@ -450,6 +494,7 @@ fn requests(grid: &GridSpec) -> Result<(Vec<Geometry>, bool), PlanError> {
                     "expected at least one [theta_i, phi_i, theta_o, phi_o]",
                 ));
             }
+            check_grid_size("points", &[points.len()])?;
             for (i, p) in points.iter().enumerate() {
                 if p.iter().any(|x| !x.is_finite())
                     || !(0.0..=180.0).contains(&p[0])
@@ -686,6 +731,23 @@ pub fn build_from_geometries(
 ) -> Result<Plan, PlanError> {
     let instrument = ctx.instrument;
     let bands_all = plan_bands(spec, instrument)?;
+    let readings = geometries
+        .len()
+        .saturating_mul(bands_all.len())
+        .saturating_mul(spec.repeats as usize);
+    if readings > MAX_PLANNED_READINGS {
+        return Err(invalid(
+            "",
+            "repeats",
+            format!(
+                "{} geometries x {} bands x {} repeats = {readings} readings, more than the {MAX_PLANNED_READINGS} a \
+                 plan may hold",
+                geometries.len(),
+                bands_all.len(),
+                spec.repeats
+            ),
+        ));
+    }
     let calibration = calibration(&spec.calibration, instrument)?;
     let kin = Kinematics::new(instrument);
     let time = TimeModel::new(instrument);

@@ -7,6 +7,8 @@
 //!   coordinates. A move that ends downwards first goes [`BACKLASH_OVERSHOOT`] x backlash below the target,
 //!   stops, and comes back up: two profiles back to back.
 //! - All axes of a phase start together; the phase ends when the last one arrives. Normally a move is one phase.
+//!   Moving both arms at once keeps [`TimeModel::arm_stopping_margin_deg`] more than that separation at every
+//!   instant: if one arm stops dead (a stall), the other runs on until the engine sees it and stops it.
 //!   When the simultaneous move would bring the arms closer than `min_arm_separation_deg` at some instant, the
 //!   move is split into two phases: one arm (with tilt and rotation) first, then the other arm. One of the two
 //!   orders is always safe when both end poses are (proof at [`TimeModel::plan_move`]).
@@ -33,6 +35,9 @@ pub const DETECTOR_SAMPLE_S: f64 = 0.003;
 /// average. Part of the move as the daemon executes it (the next phase, the settle wait and the reading start
 /// from the seen arrival).
 pub const ARRIVAL_POLL_LATENCY_S: f64 = 0.025;
+
+/// Longest time the engine takes to see that an arm stopped short: one status poll period of the motion drivers.
+pub const STALL_DETECTION_S: f64 = 2.0 * ARRIVAL_POLL_LATENCY_S;
 
 /// One request/reply round trip with a device: a USB transaction with the meter, or a short line and its echo
 /// and prompt at 115200 baud on the wheel (about 1 ms).
@@ -325,6 +330,22 @@ impl TimeModel {
             .fold(0.0, f64::max)
     }
 
+    /// When both arms move at once and one stops dead (a stall), the other runs on at up to full speed until the
+    /// engine sees it ([`STALL_DETECTION_S`]) and stops it, then brakes: `v t + v^2 / 2a` at most, for the faster
+    /// arm. Simultaneous arm moves keep this much more than `min_arm_separation_deg` at every instant (an
+    /// emergency stop brakes both arms and needs less).
+    pub fn arm_stopping_margin_deg(&self) -> f64 {
+        self.axes[..2]
+            .iter()
+            .flatten()
+            .filter(|m| m.max_speed_deg_s.is_finite() && m.accel_deg_s2 > 0.0)
+            .map(|m| {
+                m.max_speed_deg_s * STALL_DETECTION_S
+                    + m.max_speed_deg_s * m.max_speed_deg_s / (2.0 * m.accel_deg_s2)
+            })
+            .fold(0.0, f64::max)
+    }
+
     /// Controller positions (degrees) of every axis, in instrument-file order.
     pub fn controller_deg(&self, pose: &Pose) -> Vec<f64> {
         let mut out = vec![0.0; self.axis_count];
@@ -401,7 +422,13 @@ impl TimeModel {
         };
         let (l0, ls) = path(AxisRole::LightArm);
         let (d0, ds) = path(AxisRole::DetectorArm);
-        let sep = self.min_arm_separation_deg - ANGLE_TOLERANCE_DEG;
+        let both_move = !ls.is_empty() && !ds.is_empty();
+        let sep = self.min_arm_separation_deg - ANGLE_TOLERANCE_DEG
+            + if both_move {
+                self.arm_stopping_margin_deg()
+            } else {
+                0.0
+            };
         // Fast sufficient test: the whole ranges swept by the two arms stay apart.
         let range = |p0: f64, segs: &[Segment]| {
             segs.iter().fold((p0, p0), |(lo, hi), s| {
@@ -574,7 +601,8 @@ impl TimeModel {
                 swept[k] = (p0.min(p1) - reach, p0.max(p1) + reach);
             }
         }
-        let sep = self.min_arm_separation_deg - ANGLE_TOLERANCE_DEG;
+        // With the stopping margin, ranges this far apart pass `phase_is_safe` whether one arm moves or both.
+        let sep = self.min_arm_separation_deg - ANGLE_TOLERANCE_DEG + self.arm_stopping_margin_deg();
         let (l, d) = (swept[0], swept[1]);
         if self.axes[0].is_some()
             && self.axes[1].is_some()

@@ -6,7 +6,7 @@ use crate::brdf::{Brdf, DeltaLobe, DirectionSample};
 use crate::fresnel;
 use crate::geometry::Direction;
 use crate::microfacet::{Distribution, Masking, Microfacet};
-use crate::models::{ParamError, check_above, check_at_least};
+use crate::models::{MAX_OPTICAL_CONSTANT, ParamError, check_above, check_at_least, check_range};
 use crate::spectrum::{Spectral, SpectrumError, Wavelength};
 
 /// Largest accepted roughness.
@@ -49,7 +49,9 @@ impl Conductor {
     ) -> Result<Conductor, ParamError> {
         check_alpha(alpha_x, alpha_y)?;
         check_above("eta", &eta, 0.0, "the refractive index eta")?;
+        check_range("eta", &eta, 0.0, MAX_OPTICAL_CONSTANT, "the refractive index eta")?;
         check_at_least("k", &k, 0.0, "the extinction coefficient k")?;
+        check_range("k", &k, 0.0, MAX_OPTICAL_CONSTANT, "the extinction coefficient k")?;
         Ok(Conductor {
             microfacet: Microfacet::new(distribution, masking, alpha_x, alpha_y),
             alpha_given: (alpha_x, alpha_y),

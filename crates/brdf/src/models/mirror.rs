@@ -7,7 +7,7 @@
 use crate::brdf::{Brdf, DeltaLobe};
 use crate::fresnel;
 use crate::geometry::Direction;
-use crate::models::{ParamError, check_above, check_at_least};
+use crate::models::{MAX_OPTICAL_CONSTANT, ParamError, check_above, check_at_least, check_range};
 use crate::spectrum::{Spectral, SpectrumError, Wavelength};
 
 /// A perfectly smooth conductor.
@@ -21,7 +21,9 @@ impl Mirror {
     /// `eta` > 0 and `k` >= 0: the real and imaginary parts of the complex refractive index.
     pub fn new(eta: Spectral, k: Spectral) -> Result<Mirror, ParamError> {
         check_above("eta", &eta, 0.0, "the refractive index eta")?;
+        check_range("eta", &eta, 0.0, MAX_OPTICAL_CONSTANT, "the refractive index eta")?;
         check_at_least("k", &k, 0.0, "the extinction coefficient k")?;
+        check_range("k", &k, 0.0, MAX_OPTICAL_CONSTANT, "the extinction coefficient k")?;
         Ok(Mirror { eta, k })
     }
 

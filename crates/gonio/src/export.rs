@@ -1,0 +1,338 @@
+//! `gonio export RUN --format csv|json|merl [--out FILE]`: a run for other tools.
+//!
+//! RUN is a run directory (`gonio run --out DIR` writes DIR/points.csv and DIR/run.json) or a points CSV; or,
+//! instead of RUN, `--data DIR --campaign ID` reads a campaign from a daemon's store (read only). This module
+//! also holds that shared loading ([`RunSource`]) for `gonio fit` and `gonio plot`.
+//!
+//! csv and json go to stdout unless `--out` names a file; merl needs `--out` (a binary file) and writes a
+//! material file beside it (`<stem>.material.toml`, `model = "measured"`) that `gonio brdf eval --material`
+//! and the simulator's `[material]` read.
+
+use std::path::{Path, PathBuf};
+
+use gonio_daemon::campaign::{self, Method, Range, Sources};
+use gonio_daemon::store::{CampaignRecord, STORE_FILE, Store};
+use gonio_instrument::InstrumentFile;
+use gonio_results::export::{self, ExportContext};
+use gonio_results::merl_export;
+use gonio_results::points::{Point, PointsTable};
+use gonio_results::run::Run;
+use serde_json::{Value, json};
+
+use crate::CliError;
+
+/// Where a run comes from: a run directory (or points CSV), or a daemon's store.
+#[derive(Debug, clap::Args)]
+pub struct RunSource {
+    /// A run directory (points.csv and run.json, as written by `gonio run --out DIR`) or a points CSV file.
+    #[arg(required_unless_present = "data", conflicts_with = "data")]
+    pub run: Option<PathBuf>,
+    /// Read the run from a daemon's store instead: its data directory (`gonio daemon --data DIR`); read only.
+    #[arg(long, requires = "campaign")]
+    pub data: Option<PathBuf>,
+    /// With --data: the campaign, by id (a number) or by name (the latest campaign of that name).
+    #[arg(long, requires = "data")]
+    pub campaign: Option<String>,
+}
+
+impl RunSource {
+    /// Loads the run.
+    pub fn load(&self) -> Result<Run, CliError> {
+        match (&self.run, &self.data, &self.campaign) {
+            (Some(path), _, _) => Run::load(path).map_err(|e| CliError::input(e.to_string())),
+            (None, Some(dir), Some(campaign)) => load_from_store(dir, campaign),
+            _ => Err(CliError::input(
+                "give a run directory (RUN), or --data DIR --campaign ID to read from a daemon's store",
+            )),
+        }
+    }
+
+    /// A directory to write derived files into by default: the run directory (or the CSV's), else the current
+    /// directory (never the daemon's data directory).
+    pub fn default_dir(&self) -> PathBuf {
+        match &self.run {
+            Some(p) if p.is_dir() => p.clone(),
+            Some(p) => p.parent().map(Path::to_path_buf).unwrap_or_default(),
+            None => PathBuf::from("."),
+        }
+    }
+}
+
+/// The software that exports.
+pub fn exported_by() -> String {
+    gonio_daemon::engine::software_version()
+}
+
+fn store_err(origin: &str, e: impl std::fmt::Display) -> CliError {
+    CliError::input(format!("{origin}: {e}"))
+}
+
+/// A campaign of a daemon's store as a run (the same points and provenance as `gonio run` writes).
+fn load_from_store(dir: &Path, campaign: &str) -> Result<Run, CliError> {
+    let db = dir.join(STORE_FILE);
+    if !db.is_file() {
+        return Err(CliError::input(format!(
+            "{}: no daemon store here (expected {}; `gonio daemon --data DIR` creates it)",
+            dir.display(),
+            db.display()
+        )));
+    }
+    let origin = db.display().to_string();
+    let store = Store::open(dir).map_err(|e| store_err(&origin, e))?;
+    let campaigns = store.campaigns().map_err(|e| store_err(&origin, e))?;
+    let record: CampaignRecord = match campaign.trim().parse::<i64>() {
+        Ok(id) => campaigns.into_iter().find(|c| c.id.0 == id),
+        Err(_) => campaigns.into_iter().rfind(|c| c.name == campaign.trim()),
+    }
+    .ok_or_else(|| {
+        CliError::input(format!(
+            "{origin}: no campaign {campaign:?} (give its id or its name; `gonio ctl status` lists them)"
+        ))
+    })?;
+    let id = record.id;
+    let points = store.points(id).map_err(|e| store_err(&origin, e))?;
+    let calibrations = store.calibrations(id).map_err(|e| store_err(&origin, e))?;
+    let devices = store.devices(id).map_err(|e| store_err(&origin, e))?;
+    // Axis names in instrument order (as the CSV has them); from the points when the stored file does not parse.
+    let axis_names: Vec<String> =
+        match InstrumentFile::parse(&record.instrument_toml, "<stored instrument file>") {
+            Ok(f) => f.instrument.axes.iter().map(|a| a.name.clone()).collect(),
+            Err(_) => {
+                let mut names: Vec<String> = Vec::new();
+                for p in &points {
+                    for (n, _) in &p.readback_deg {
+                        if !names.contains(n) {
+                            names.push(n.clone());
+                        }
+                    }
+                }
+                names
+            }
+        };
+    let finite = |v: f64| Some(v).filter(|v| v.is_finite());
+    let table = PointsTable {
+        points: points
+            .iter()
+            .map(|p| Point {
+                index: p.index,
+                band_nm: p.band_nm,
+                theta_i_deg: p.theta_i_deg,
+                phi_i_deg: p.phi_i_deg,
+                theta_o_deg: p.theta_o_deg,
+                phi_o_deg: p.phi_o_deg,
+                signal_w: finite(p.signal_w),
+                dark_w: finite(p.dark_w),
+                incident_w: finite(p.incident_w),
+                brdf_sr: p.brdf_sr.filter(|v| v.is_finite()),
+                brdf_u_sr: p.brdf_u_sr.filter(|v| v.is_finite()),
+                flags: p.flags.clone(),
+                t_s: finite(p.t_s),
+                readback_deg: axis_names
+                    .iter()
+                    .map(|a| {
+                        let v = p.readback_deg.iter().find(|(n, _)| n == a).map(|(_, v)| *v);
+                        (a.clone(), v.filter(|v| v.is_finite()))
+                    })
+                    .collect(),
+                truth_point_sr: p.truth_point_sr,
+                truth_aperture_sr: p.truth_aperture_sr,
+            })
+            .collect(),
+        axis_names,
+        dry_run: record.dry_run,
+    };
+    let provenance = json!({
+        "campaign": {
+            "id": record.id,
+            "name": record.name,
+            "state": record.state,
+            "last_error": record.last_error,
+            "dry_run": record.dry_run,
+            "total_points": record.total_points,
+            "points_done": record.points_done,
+            "created_unix_s": record.created_unix_s,
+        },
+        "software_version": record.software_version,
+        "config": {
+            "campaign_toml": record.campaign_toml,
+            "instrument_toml": record.instrument_toml,
+        },
+        "devices": devices.iter().map(|(n, i)| json!({"name": n, "identity": i})).collect::<Vec<_>>(),
+        "calibrations": calibrations,
+    });
+    Ok(Run::from_parts(
+        format!("{origin}, campaign {}", record.id),
+        record.name.clone(),
+        table,
+        Some(provenance),
+    ))
+}
+
+/// The run's configuration as the campaign parser resolves it (defaults applied, presets expanded into model
+/// parameters), from the texts stored in its provenance. `None` without provenance; an `error` entry when the
+/// stored texts no longer parse (e.g. a material file named relative to a campaign file that moved).
+pub fn resolved_config(run: &Run, base_dir: &Path) -> Option<Value> {
+    let campaign_toml = run.provenance_str("/config/campaign_toml")?;
+    let instrument_toml = run.provenance_str("/config/instrument_toml")?;
+    let file = match InstrumentFile::parse(instrument_toml, "<run's instrument file>") {
+        Ok(f) => f,
+        Err(e) => return Some(json!({ "error": e.to_string() })),
+    };
+    // A stored campaign text carries the materials it named, resolved at submission (a `[resolved]` table);
+    // an older one names them and they resolve against the run's directory.
+    let sources = if campaign_toml
+        .lines()
+        .any(|l| l.trim_start().starts_with("[resolved"))
+    {
+        Sources::Stored
+    } else {
+        Sources::Local(base_dir.to_path_buf())
+    };
+    let c = match campaign::parse(campaign_toml, "<run's campaign file>", &sources, &file) {
+        Ok(c) => c,
+        Err(e) => return Some(json!({ "error": e.to_string() })),
+    };
+    let spec = |m: &gonio_brdf::Material| serde_json::to_value(m.spec()).unwrap_or(Value::Null);
+    Some(json!({
+        "campaign_id": c.id,
+        "description": c.description,
+        "instrument": file.instrument.name,
+        "sample_radius_mm": c.sample_radius_mm,
+        "dry_run": c.dry_run,
+        "total_points": c.total_points(),
+        "predicted_instrument_s": c.schedule.breakdown.total_s(),
+        "material": c.material.as_ref().map(spec),
+        "calibration": {
+            "method": match c.calibration.method { Method::Absolute => "absolute", Method::Relative => "relative" },
+            "reference": c.calibration.reference.as_ref().map(|r| json!({"name": r.name, "material": spec(&r.material)})),
+            "reference_rel_std": c.calibration.reference_rel_std,
+            "simulate_operator": c.calibration.simulate_operator,
+        },
+        "acquisition": {
+            "averaging": c.acquisition.averaging,
+            "range": match c.acquisition.range { Range::Auto => json!("auto"), Range::FixedW(w) => json!({"full_scale_w": w}) },
+            "extra_settle_s": c.acquisition.extra_settle_s,
+            "retries": c.acquisition.retries,
+        },
+    }))
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// The points with units and provenance as `#` comment lines.
+    Csv,
+    /// One JSON object: units, conventions, provenance, resolved configuration, points.
+    Json,
+    /// MERL binary (isotropic, resampled onto the MERL grid), plus a material file beside it.
+    Merl,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct ExportArgs {
+    #[command(flatten)]
+    pub source: RunSource,
+    /// Output format.
+    #[arg(long, value_enum)]
+    pub format: Format,
+    /// Output file (csv and json: default stdout; merl: required).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// merl: the measured bands (nm) for the red, green and blue channels, e.g. `--channels 650,550,450`
+    /// (default: the bands nearest to 650, 550 and 450 nm).
+    #[arg(long, value_delimiter = ',', num_args = 1)]
+    pub channels: Option<Vec<f64>>,
+}
+
+pub fn run(args: ExportArgs) -> Result<(), CliError> {
+    let run = args.source.load()?;
+    match args.format {
+        Format::Csv | Format::Json => {
+            let ctx = ExportContext {
+                exported_by: exported_by(),
+                resolved: resolved_config(&run, &args.source.default_dir()),
+            };
+            let text = if args.format == Format::Csv {
+                export::to_csv(&run, &ctx)
+            } else {
+                let mut t = serde_json::to_string_pretty(&export::to_json(&run, &ctx))
+                    .map_err(|e| CliError::input(format!("cannot encode the JSON export: {e}")))?;
+                t.push('\n');
+                t
+            };
+            match &args.out {
+                Some(path) => std::fs::write(path, text)
+                    .map_err(|e| CliError::io(format!("cannot write {}", path.display()), e)),
+                None => {
+                    use std::io::Write;
+                    std::io::stdout()
+                        .write_all(text.as_bytes())
+                        .map_err(|e| CliError::io("writing to stdout", e))
+                }
+            }
+        }
+        Format::Merl => export_merl(&run, &args),
+    }
+}
+
+fn export_merl(run: &Run, args: &ExportArgs) -> Result<(), CliError> {
+    let Some(out) = &args.out else {
+        return Err(CliError::input(
+            "--format merl writes a binary file: give it with --out FILE (e.g. --out sample.binary)",
+        ));
+    };
+    let channels = match &args.channels {
+        None => None,
+        Some(v) => match v.as_slice() {
+            [r, g, b] => Some([*r, *g, *b]),
+            _ => {
+                return Err(CliError::input(format!(
+                    "--channels takes three bands in nm (red,green,blue), got {}",
+                    v.len()
+                )));
+            }
+        },
+    };
+    let exported = merl_export::to_merl(run, channels).map_err(|e| CliError::input(e.to_string()))?;
+    exported
+        .data
+        .write(out)
+        .map_err(|e| CliError::input(e.to_string()))?;
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "export".into());
+    let material_path = out.with_file_name(format!("{stem}.material.toml"));
+    let file_name = out
+        .file_name()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    // The companion material reads the channel whose band is nearest the middle of the visible.
+    let channel = exported
+        .channels
+        .iter()
+        .min_by(|a, b| (a.band_nm - 550.0).abs().total_cmp(&(b.band_nm - 550.0).abs()))
+        .map(|c| c.channel)
+        .unwrap_or(gonio_brdf::merl::MerlChannel::Green);
+    let toml = merl_export::material_toml(&exported, run, &file_name, channel);
+    std::fs::write(&material_path, toml)
+        .map_err(|e| CliError::io(format!("cannot write {}", material_path.display()), e))?;
+    for (i, c) in exported.channels.iter().enumerate() {
+        eprintln!(
+            "gonio: {} channel = {} nm: {} of {} cells above the horizon covered ({:.1}%), the rest marked -1",
+            c.channel.name(),
+            c.band_nm,
+            c.covered_cells,
+            exported.cells_above_horizon,
+            100.0 * exported.coverage(i)
+        );
+        if exported.azimuth_nodes[i] < 3 {
+            eprintln!(
+                "gonio: note: {} nm has {} measured azimuth difference(s): the table interpolates linearly between them",
+                c.band_nm, exported.azimuth_nodes[i]
+            );
+        }
+    }
+    println!("{}", out.display());
+    println!("{}", material_path.display());
+    Ok(())
+}

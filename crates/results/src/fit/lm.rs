@@ -1,0 +1,290 @@
+//! A small Levenberg-Marquardt least-squares solver with box bounds, and the dense linear algebra it needs.
+//!
+//! Hand-written rather than a crate: the problems here have at most a dozen parameters and a few thousand
+//! residuals, and the well-kept crates (levenberg-marquardt, argmin) bring nalgebra or ndarray, which cost more
+//! build time on this project's machines than the 150 lines below.
+//!
+//! Method (Marquardt 1963, with the scaling of Moré 1978): minimise `sum r_k(x)^2`; each step solves
+//! `(J^T J + lambda diag(J^T J)) dx = -J^T r`, is projected onto the bounds, accepted when the cost falls
+//! (lambda divided by 3) and refused otherwise (lambda multiplied by 4). The Jacobian is by central differences
+//! (one-sided at a bound). Stops when the relative fall of the cost or the relative step is below 1e-12, or
+//! after `max_iterations`.
+
+// Dense matrix code reads best with explicit indices.
+#![allow(clippy::needless_range_loop)]
+
+/// What the solver returns.
+#[derive(Debug, Clone)]
+pub struct Solution {
+    pub x: Vec<f64>,
+    /// `sum r_k^2` at `x`.
+    pub cost: f64,
+    pub iterations: usize,
+}
+
+/// The residual function: `None` when the model cannot be evaluated at `x` (treated as an infinite cost).
+pub trait Residuals {
+    fn residuals(&self, x: &[f64]) -> Option<Vec<f64>>;
+}
+
+impl<F: Fn(&[f64]) -> Option<Vec<f64>>> Residuals for F {
+    fn residuals(&self, x: &[f64]) -> Option<Vec<f64>> {
+        self(x)
+    }
+}
+
+fn cost(r: &[f64]) -> f64 {
+    r.iter().map(|v| v * v).sum()
+}
+
+/// Central-difference Jacobian (row-major, `n x p`), one-sided where a bound is in the way.
+pub fn jacobian(
+    f: &dyn Residuals,
+    x: &[f64],
+    r0: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+) -> Option<Vec<Vec<f64>>> {
+    let n = r0.len();
+    let p = x.len();
+    let mut jac = vec![vec![0.0; p]; n];
+    for j in 0..p {
+        let h = 1e-6 * x[j].abs().max(1e-3);
+        let (lo, hi) = (
+            lower.get(j).copied().unwrap_or(f64::NEG_INFINITY),
+            upper.get(j).copied().unwrap_or(f64::INFINITY),
+        );
+        let mut xp = x.to_vec();
+        let mut xm = x.to_vec();
+        let (rp, rm, span) = if x[j] + h <= hi && x[j] - h >= lo {
+            xp[j] += h;
+            xm[j] -= h;
+            (f.residuals(&xp)?, f.residuals(&xm)?, 2.0 * h)
+        } else if x[j] + h <= hi {
+            xp[j] += h;
+            (f.residuals(&xp)?, r0.to_vec(), h)
+        } else {
+            xm[j] -= h;
+            (r0.to_vec(), f.residuals(&xm)?, h)
+        };
+        if rp.len() != n || rm.len() != n {
+            return None;
+        }
+        for k in 0..n {
+            jac[k][j] = (rp[k] - rm[k]) / span;
+        }
+    }
+    Some(jac)
+}
+
+/// `J^T J` and `J^T r`.
+pub fn normal_equations(jac: &[Vec<f64>], r: &[f64]) -> (Vec<Vec<f64>>, Vec<f64>) {
+    let p = jac.first().map_or(0, Vec::len);
+    let mut a = vec![vec![0.0; p]; p];
+    let mut g = vec![0.0; p];
+    for (row, rk) in jac.iter().zip(r) {
+        for i in 0..p {
+            g[i] += row[i] * rk;
+            for j in 0..=i {
+                a[i][j] += row[i] * row[j];
+            }
+        }
+    }
+    for i in 0..p {
+        for j in 0..i {
+            a[j][i] = a[i][j];
+        }
+    }
+    (a, g)
+}
+
+/// Cholesky factor `L` of a symmetric positive-definite matrix; `None` when it is not (numerically) positive
+/// definite.
+pub fn cholesky(a: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
+    let p = a.len();
+    let mut l = vec![vec![0.0; p]; p];
+    let scale = (0..p).map(|i| a[i][i].abs()).fold(0.0, f64::max);
+    for i in 0..p {
+        for j in 0..=i {
+            let mut s = a[i][j];
+            for k in 0..j {
+                s -= l[i][k] * l[j][k];
+            }
+            if i == j {
+                if !s.is_finite() || s <= 1e-14 * scale {
+                    return None;
+                }
+                l[i][i] = s.sqrt();
+            } else {
+                l[i][j] = s / l[j][j];
+            }
+        }
+    }
+    Some(l)
+}
+
+/// Solves `L L^T x = b`.
+pub fn cholesky_solve(l: &[Vec<f64>], b: &[f64]) -> Vec<f64> {
+    let p = l.len();
+    let mut y = vec![0.0; p];
+    for i in 0..p {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= l[i][k] * y[k];
+        }
+        y[i] = s / l[i][i];
+    }
+    let mut x = vec![0.0; p];
+    for i in (0..p).rev() {
+        let mut s = y[i];
+        for k in i + 1..p {
+            s -= l[k][i] * x[k];
+        }
+        x[i] = s / l[i][i];
+    }
+    x
+}
+
+/// The inverse of a symmetric positive-definite matrix; `None` when it is singular.
+pub fn spd_inverse(a: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
+    let l = cholesky(a)?;
+    let p = a.len();
+    let mut inv = vec![vec![0.0; p]; p];
+    for j in 0..p {
+        let mut e = vec![0.0; p];
+        e[j] = 1.0;
+        let col = cholesky_solve(&l, &e);
+        for i in 0..p {
+            inv[i][j] = col[i];
+        }
+    }
+    Some(inv)
+}
+
+/// Minimises `sum r(x)^2` from `x0` within `[lower, upper]` (module doc). `None` when the residuals cannot be
+/// evaluated at the (projected) start.
+pub fn minimise(
+    f: &dyn Residuals,
+    x0: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    max_iterations: usize,
+) -> Option<Solution> {
+    let project = |x: &mut Vec<f64>| {
+        for (j, v) in x.iter_mut().enumerate() {
+            *v = v.clamp(lower[j], upper[j]);
+        }
+    };
+    let mut x = x0.to_vec();
+    project(&mut x);
+    let mut r = f.residuals(&x)?;
+    let mut c = cost(&r);
+    if !c.is_finite() {
+        return None;
+    }
+    let mut lambda = 1e-3;
+    let mut iterations = 0;
+    'outer: while iterations < max_iterations {
+        iterations += 1;
+        let Some(jac) = jacobian(f, &x, &r, lower, upper) else {
+            break;
+        };
+        let (a, g) = normal_equations(&jac, &r);
+        let p = x.len();
+        let diag_max = (0..p).map(|i| a[i][i]).fold(0.0, f64::max);
+        if diag_max <= 0.0 || !diag_max.is_finite() {
+            break;
+        }
+        loop {
+            let mut damped = a.clone();
+            for (i, row) in damped.iter_mut().enumerate() {
+                row[i] += lambda * a[i][i].max(1e-12 * diag_max);
+            }
+            let step =
+                cholesky(&damped).map(|l| cholesky_solve(&l, &g.iter().map(|v| -v).collect::<Vec<_>>()));
+            if let Some(step) = step {
+                let mut trial: Vec<f64> = x.iter().zip(&step).map(|(a, b)| a + b).collect();
+                project(&mut trial);
+                if let Some(rt) = f.residuals(&trial) {
+                    let ct = cost(&rt);
+                    if ct.is_finite() && ct < c {
+                        let moved = trial
+                            .iter()
+                            .zip(&x)
+                            .map(|(a, b)| (a - b).abs() / b.abs().max(1e-3))
+                            .fold(0.0, f64::max);
+                        let fell = (c - ct) / c.max(f64::MIN_POSITIVE);
+                        x = trial;
+                        r = rt;
+                        c = ct;
+                        lambda = (lambda / 3.0).max(1e-12);
+                        if fell < 1e-12 || moved < 1e-12 {
+                            break 'outer;
+                        }
+                        continue 'outer;
+                    }
+                }
+            }
+            lambda *= 4.0;
+            if lambda > 1e14 {
+                break 'outer;
+            }
+        }
+    }
+    Some(Solution {
+        x,
+        cost: c,
+        iterations,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fits_an_exponential_decay_exactly() {
+        // y = 2.5 exp(-1.3 t) + 0.5 sampled without noise: the minimum is the generating parameters.
+        let ts: Vec<f64> = (0..30).map(|i| i as f64 * 0.1).collect();
+        let ys: Vec<f64> = ts.iter().map(|t| 2.5 * (-1.3 * t).exp() + 0.5).collect();
+        let f = |x: &[f64]| -> Option<Vec<f64>> {
+            Some(
+                ts.iter()
+                    .zip(&ys)
+                    .map(|(t, y)| x[0] * (-x[1] * t).exp() + x[2] - y)
+                    .collect(),
+            )
+        };
+        let s = minimise(&f, &[1.0, 0.5, 0.0], &[0.0, 0.0, -10.0], &[10.0, 10.0, 10.0], 200).expect("solves");
+        assert!(
+            (s.x[0] - 2.5).abs() < 1e-7 && (s.x[1] - 1.3).abs() < 1e-7 && (s.x[2] - 0.5).abs() < 1e-7,
+            "{:?}",
+            s.x
+        );
+        assert!(s.cost < 1e-20, "{}", s.cost);
+    }
+
+    #[test]
+    fn respects_bounds() {
+        // Minimum of (x - 3)^2 under x <= 2 is at the bound.
+        let f = |x: &[f64]| -> Option<Vec<f64>> { Some(vec![x[0] - 3.0]) };
+        let s = minimise(&f, &[0.0], &[0.0], &[2.0], 100).expect("solves");
+        assert_eq!(s.x[0], 2.0);
+    }
+
+    #[test]
+    fn inverse_of_a_known_matrix() {
+        let a = vec![vec![4.0, 2.0], vec![2.0, 3.0]];
+        let inv = spd_inverse(&a).expect("spd");
+        // inverse = 1/8 [[3, -2], [-2, 4]]
+        for (got, want) in [
+            (inv[0][0], 0.375),
+            (inv[0][1], -0.25),
+            (inv[1][0], -0.25),
+            (inv[1][1], 0.5),
+        ] {
+            assert!((got - want).abs() < 1e-15, "{got} vs {want}");
+        }
+        assert!(spd_inverse(&[vec![1.0, 1.0], vec![1.0, 1.0]]).is_none());
+    }
+}

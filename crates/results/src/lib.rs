@@ -1,0 +1,27 @@
+//! gonio-results: measured runs made useful - exports for other tools, analytic model fits, plots.
+//!
+//! Module map:
+//! - [`points`]: the points CSV written by `gonio run` and the daemon, read by header with file/line/column
+//!   errors; [`run`]: a run (points and provenance) from a run directory or assembled by the caller.
+//! - [`iso`]: the isotropic reduction (theta_i, theta_o, delta_phi) with reciprocity, and the piecewise-linear
+//!   interpolant on the measurement grid.
+//! - [`export`]: CSV and JSON with units and the run's provenance; [`merl_export`]: the MERL binary
+//!   (isotropic data resampled onto the MERL grid, uncovered cells marked -1).
+//! - [`fit`]: robust, cosine- and uncertainty-weighted least squares of an analytic model, with parameter
+//!   uncertainties, written as a material file.
+//! - [`plot`]: SVG plots (plotters): in-plane polar slices, (theta_o, phi_o) heat maps, measurement against model.
+//!
+//! Dependencies point one way: this crate knows gonio-brdf (geometry, models, materials, the MERL format) and
+//! nothing of the daemon; the `gonio` binary reads the daemon's store and hands a [`run::Run`] over.
+
+pub mod error;
+pub mod export;
+pub mod fit;
+pub mod iso;
+pub mod merl_export;
+pub mod plot;
+pub mod points;
+pub mod run;
+
+pub use error::ResultsError;
+pub use run::Run;

@@ -1,0 +1,616 @@
+//! The fault soak: one dry-run campaign through the real drivers and engine (`engine::run_campaign` on a `Rig`
+//! with the in-process simulator, on a paused tokio clock so that instrument time costs no wall time) while
+//! the simulator garbles, drops and delays replies, stalls moves and pulls the cables every few minutes.
+//!
+//! Checked afterwards:
+//! - the campaign completed, with one row per planned point;
+//! - every point is either valid (its BRDF within 5 standard uncertainties, plus the optics' 1e-6 integration
+//!   floor, of the simulator's aperture-averaged ground truth stored with it) or recorded without a value and
+//!   with its reason (`failed: <the device's reason>`, or a measurement flag); a value outside that band is
+//!   silently wrong, a point with neither value nor reason is unexplained;
+//! - every fault the simulator counted is in the log (its own "fault injected" report), and the host's side of
+//!   it: driver warnings, the engine's fault events (the campaign's event stream), reconnections.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_campaign};
+use gonio_daemon::store::{CampaignState, PointRecord, Store};
+use gonio_instrument::{Faults, InstrumentFile};
+use gonio_simulator::FaultCounts;
+use tracing_subscriber::Layer as _;
+use tracing_subscriber::layer::SubscriberExt as _;
+
+use crate::SoakError;
+use crate::logcap::{LogCapture, LogCounts, runtime_logging_to};
+use crate::setup::{SoakCampaign, build_campaign, instrument_with_faults};
+
+/// What to run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaultSoakConfig {
+    /// Planned points.
+    pub points: u64,
+    /// Seed of the geometries and of every fault draw.
+    pub seed: u64,
+    /// The fault settings (`seed` is replaced by [`FaultSoakConfig::seed`]).
+    pub faults: Faults,
+    /// An empty directory for the store.
+    pub data_dir: PathBuf,
+    /// Where to write the warnings log, if anywhere.
+    pub log_file: Option<PathBuf>,
+    /// How many times the soak, acting as the operator, resumes a campaign that paused (each is reported).
+    pub max_resumes: u32,
+}
+
+/// Move commands per measured point in a fault-free run of the soak campaign (about 4, counted from the
+/// drivers' "move absolute"/"move abs" logs, backlash approaches included): converts "one stalled move per N points" into a stall rate.
+pub const MOVES_PER_POINT: f64 = 4.0;
+
+impl FaultSoakConfig {
+    /// The rates of issue 8: 1 % garbled replies, 0.5 % dropped, random extra latency (1 ms plus up to 40 ms, the
+    /// drivers' reply deadlines are 300 ms and more), about one stalled move per 300 points, and the devices
+    /// vanishing every 4 minutes of instrument time for 5 s.
+    pub fn issue_8(points: u64, seed: u64, data_dir: PathBuf) -> FaultSoakConfig {
+        FaultSoakConfig {
+            points,
+            seed,
+            faults: Faults {
+                seed,
+                garble_rate: 0.01,
+                drop_rate: 0.005,
+                delay_ms: 1.0,
+                delay_jitter_ms: 40.0,
+                stall_rate: 1.0 / (300.0 * MOVES_PER_POINT),
+                disconnect_after_s: Some(120.0),
+                reconnect_after_s: Some(5.0),
+                disconnect_every_s: Some(240.0),
+                saturate: false,
+            },
+            data_dir,
+            log_file: None,
+            max_resumes: 5,
+        }
+    }
+
+    /// Higher rates for a short CI run: every kind of fault shows up within a few hundred points.
+    pub fn stressed(points: u64, seed: u64, data_dir: PathBuf) -> FaultSoakConfig {
+        FaultSoakConfig {
+            faults: Faults {
+                seed,
+                garble_rate: 0.03,
+                drop_rate: 0.015,
+                delay_ms: 1.0,
+                delay_jitter_ms: 40.0,
+                stall_rate: 1.0 / (30.0 * MOVES_PER_POINT),
+                disconnect_after_s: Some(40.0),
+                reconnect_after_s: Some(5.0),
+                disconnect_every_s: Some(60.0),
+                saturate: false,
+            },
+            ..FaultSoakConfig::issue_8(points, seed, data_dir)
+        }
+    }
+}
+
+/// The verdict on every point.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PointCheck {
+    /// Values within tolerance of the ground truth.
+    pub valid: u64,
+    /// Points recorded as failed (`failed: ...`), by reason (the device and error, numbers stripped).
+    pub failed: BTreeMap<String, u64>,
+    /// Points without a value for a measurement reason (overfilled, grazing, saturated, ...), by flag.
+    pub flagged: BTreeMap<String, u64>,
+    /// Values outside tolerance: silently wrong (index and details).
+    pub wrong: Vec<String>,
+    /// Points with neither a valid value nor a reason (index and details).
+    pub unexplained: Vec<String>,
+    /// Largest |f - truth| / u over the valid points.
+    pub max_error_in_u: f64,
+}
+
+impl PointCheck {
+    pub fn failed_total(&self) -> u64 {
+        self.failed.values().sum()
+    }
+    pub fn flagged_total(&self) -> u64 {
+        self.flagged.values().sum()
+    }
+}
+
+/// Check committed points against the ground truth stored with them.
+pub fn check_points(points: &[PointRecord]) -> PointCheck {
+    let mut c = PointCheck::default();
+    for p in points {
+        let failed = p.flags.iter().find(|f| f.starts_with("failed"));
+        match (failed, p.brdf_sr, p.brdf_u_sr, p.truth_aperture_sr) {
+            (Some(reason), None, _, _) => {
+                *c.failed.entry(reason_class(reason)).or_default() += 1;
+            }
+            (None, None, _, _) if !p.flags.is_empty() => {
+                for f in &p.flags {
+                    *c.flagged.entry(f.clone()).or_default() += 1;
+                }
+            }
+            (None, Some(f), Some(u), Some(t)) if p.flags.is_empty() => {
+                let err = (f - t).abs();
+                if f.is_finite() && u.is_finite() && u > 0.0 && err <= 5.0 * u + 1e-6 * t.abs() {
+                    c.valid += 1;
+                    c.max_error_in_u = c.max_error_in_u.max(err / u);
+                } else {
+                    c.wrong.push(format!(
+                        "point {} ({} nm, theta_i {} theta_o {} phi_o {}): {f} 1/sr, truth {t}, u {u} ({:.1} u off)",
+                        p.index,
+                        p.band_nm,
+                        p.theta_i_deg,
+                        p.theta_o_deg,
+                        p.phi_o_deg,
+                        err / u
+                    ));
+                }
+            }
+            _ => c.unexplained.push(format!(
+                "point {}: value {:?}, u {:?}, truth {:?}, flags {:?}",
+                p.index, p.brdf_sr, p.brdf_u_sr, p.truth_aperture_sr, p.flags
+            )),
+        }
+    }
+    c
+}
+
+/// A failure reason without its numbers, so that reasons of one kind count together.
+fn reason_class(reason: &str) -> String {
+    let mut out = String::new();
+    let mut in_number = false;
+    let mut chars = reason.chars().peekable();
+    while let Some(ch) = chars.next() {
+        let signed = matches!(ch, '-' | '+') && chars.peek().is_some_and(char::is_ascii_digit);
+        if ch.is_ascii_digit() || signed || (in_number && matches!(ch, '.' | 'e' | '-' | '+')) {
+            if !in_number {
+                out.push('#');
+            }
+            in_number = true;
+        } else {
+            in_number = false;
+            out.push(ch);
+        }
+    }
+    if out.len() > 160 {
+        let mut cut = 160;
+        while !out.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        out.truncate(cut);
+        out.push('…');
+    }
+    out
+}
+
+/// The kind of a device error, from its message (the driver error's `Display`, which the engine forwards).
+pub fn error_class(message: &str) -> &'static str {
+    if message.contains("no reply to") || message.contains("did not answer") {
+        "timeout"
+    } else if message.contains("connection is lost") || message.contains("cannot open") {
+        "disconnected"
+    } else if message.contains("bad reply to") {
+        "bad reply"
+    } else if message.contains("is not referenced") {
+        "not referenced"
+    } else if message.contains(" failed: ") && message.contains("move to") {
+        "motion fault"
+    } else if message.contains("was rejected") {
+        "rejected"
+    } else if message.contains("is outside") {
+        "out of range"
+    } else {
+        "other"
+    }
+}
+
+/// What the campaign's event stream said.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct EventTally {
+    /// `Event::Fault`, by [`error_class`].
+    pub faults: BTreeMap<String, u64>,
+    /// Of those, the engine's reconnection attempts that failed (`reconnect: ...`).
+    pub failed_reconnects: u64,
+    /// State changes with their messages.
+    pub states: Vec<(CampaignState, Option<String>)>,
+    /// Points reported.
+    pub points: u64,
+    /// Events lost because the listener lagged (must be 0 for the counts to be complete).
+    pub lagged: u64,
+}
+
+impl EventTally {
+    pub fn fault_total(&self) -> u64 {
+        self.faults.values().sum()
+    }
+
+    fn observe(&mut self, event: Event) {
+        match event {
+            Event::Fault { message, .. } => {
+                if message.starts_with("reconnect:") {
+                    self.failed_reconnects += 1;
+                }
+                *self.faults.entry(error_class(&message).to_string()).or_default() += 1;
+            }
+            Event::State { state, message, .. } => self.states.push((state, message)),
+            Event::Point { .. } => self.points += 1,
+            _ => {}
+        }
+    }
+}
+
+/// Everything the fault soak measured.
+#[derive(Debug, Clone)]
+pub struct FaultSoakReport {
+    pub config: FaultSoakConfig,
+    pub campaign: SoakCampaign,
+    /// The `[simulator.faults]` keys in force.
+    pub faults_toml: String,
+    pub final_state: CampaignState,
+    pub last_error: Option<String>,
+    /// Why the campaign paused each time the soak resumed it.
+    pub pauses: Vec<String>,
+    /// The campaign did not end within its instrument-time budget (five times the prediction, at least an
+    /// hour): a hang.
+    pub hung: bool,
+    /// Rows in the store, and whether their indices are exactly 0..rows.
+    pub rows: u64,
+    pub indices_in_order: bool,
+    pub points: PointCheck,
+    /// The simulator's own counters.
+    pub injected: FaultCounts,
+    /// What the log said.
+    pub log: LogCounts,
+    /// What the campaign's event stream said.
+    pub events: EventTally,
+    /// Campaign instrument time (s): the last point or calibration.
+    pub instrument_s: f64,
+    /// The simulator's clock at the end (s): instrument time including start-up and homing.
+    pub sim_clock_s: f64,
+    pub wall_s: f64,
+}
+
+/// The simulator's log messages ("fault injected: <kind>") for each counter.
+pub const INJECTED_LOG_KINDS: [(&str, &str); 7] = [
+    ("garbled", "reply byte garbled"),
+    ("dropped", "reply dropped"),
+    ("delayed", "reply delayed"),
+    ("stalls", "move will stall"),
+    ("disconnects", "device disconnected, connection closed"),
+    ("refused_opens", "open refused, device is disconnected"),
+    ("saturated_readings", "detector overload"),
+];
+
+/// A counter of [`FaultCounts`] by its field name.
+pub fn counter(c: &FaultCounts, name: &str) -> u64 {
+    match name {
+        "garbled" => c.garbled,
+        "dropped" => c.dropped,
+        "delayed" => c.delayed,
+        "stalls" => c.stalls,
+        "disconnects" => c.disconnects,
+        "outages" => c.outages,
+        "refused_opens" => c.refused_opens,
+        "saturated_readings" => c.saturated_readings,
+        _ => 0,
+    }
+}
+
+/// The Zaber driver's warning when a move starts with a fault flag (FS: stalled) still set.
+pub const STALL_FLAG_MESSAGE: &str = "fault flag active at move start";
+
+impl FaultSoakReport {
+    /// Stall flags the drivers logged at the start of a move (a stall the engine did not see as a motion fault).
+    pub fn stall_flags_logged(&self) -> u64 {
+        self.log
+            .driver_warnings_by_message
+            .get(STALL_FLAG_MESSAGE)
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// Stalls the host saw: motion faults in the campaign's events plus stall flags in the drivers' log.
+    pub fn stalls_seen(&self) -> u64 {
+        self.events.faults.get("motion fault").copied().unwrap_or(0) + self.stall_flags_logged()
+    }
+
+    /// Every broken invariant, in words; empty when the soak passed.
+    pub fn violations(&self) -> Vec<String> {
+        let mut v = Vec::new();
+        if self.hung {
+            v.push(
+                "the campaign did not end within five times its predicted instrument time (hang)".to_string(),
+            );
+        }
+        if self.final_state != CampaignState::Completed {
+            v.push(format!(
+                "the campaign ended {} ({})",
+                self.final_state,
+                self.last_error.clone().unwrap_or_default()
+            ));
+        }
+        if !self.pauses.is_empty() {
+            v.push(format!(
+                "the campaign paused {} times and needed the operator: {:?}",
+                self.pauses.len(),
+                self.pauses
+            ));
+        }
+        if self.rows != self.campaign.total_points || !self.indices_in_order {
+            v.push(format!(
+                "{} rows for {} planned points (indices in order: {})",
+                self.rows, self.campaign.total_points, self.indices_in_order
+            ));
+        }
+        for w in &self.points.wrong {
+            v.push(format!("silently wrong value: {w}"));
+        }
+        for u in &self.points.unexplained {
+            v.push(format!("point without value or reason: {u}"));
+        }
+        // Every injected fault is in the log, one report each.
+        for (name, message) in INJECTED_LOG_KINDS {
+            let counted = counter(&self.injected, name);
+            let logged = self.log.injected.get(message).copied().unwrap_or(0);
+            if counted != logged {
+                v.push(format!(
+                    "{name}: the simulator counted {counted} but the log reports {logged} (\"fault injected: {message}\")"
+                ));
+            }
+        }
+        // Every configured kind of fault was exercised.
+        let f = &self.config.faults;
+        for (name, on) in [
+            ("garbled", f.garble_rate > 0.0),
+            ("dropped", f.drop_rate > 0.0),
+            ("delayed", f.delay_ms > 0.0 || f.delay_jitter_ms > 0.0),
+            ("stalls", f.stall_rate > 0.0),
+            ("outages", f.disconnect_after_s.is_some()),
+        ] {
+            if on && counter(&self.injected, name) == 0 {
+                v.push(format!(
+                    "{name}: configured but never injected (the soak is too short)"
+                ));
+            }
+        }
+        // The host's side: each stall ends in a motion fault the engine reports (or, for a move command sent
+        // again after a lost reply, whose first copy stalled too, in the stall flag the driver finds at the start
+        // of the next move); each outage in a lost connection the engine reports (and recovers from).
+        let engine = |k: &str| self.events.faults.get(k).copied().unwrap_or(0);
+        if self.stalls_seen() < self.log.stalls_manifested {
+            v.push(format!(
+                "{} stalls took effect ({} drawn) but the host saw {} ({} motion faults in the campaign's events, \
+                 {} stall flags logged by the drivers)",
+                self.log.stalls_manifested,
+                self.injected.stalls,
+                self.stalls_seen(),
+                engine("motion fault"),
+                self.stall_flags_logged()
+            ));
+        }
+        if engine("disconnected") < self.injected.outages {
+            v.push(format!(
+                "{} outages injected but the campaign's events report {} lost connections",
+                self.injected.outages,
+                engine("disconnected")
+            ));
+        }
+        if self.events.lagged > 0 {
+            v.push(format!("the event listener lost {} events", self.events.lagged));
+        }
+        v
+    }
+}
+
+/// Run the fault soak.
+pub fn run_fault_soak(cfg: &FaultSoakConfig) -> Result<FaultSoakReport, SoakError> {
+    let wall = Instant::now();
+    let mut faults = cfg.faults.clone();
+    faults.seed = cfg.seed;
+    let (file, instrument_text) = instrument_with_faults(&faults)?;
+    let campaign = build_campaign("fault-soak", cfg.points, cfg.seed, &file)?;
+    let mut store = Store::open(&cfg.data_dir)?;
+    if !store.campaigns()?.is_empty() {
+        return Err(SoakError::Setup(format!(
+            "{} already holds a store with campaigns: give the fault soak an empty directory",
+            cfg.data_dir.display()
+        )));
+    }
+    let prepared = prepare_campaign(&campaign.text, "fault-soak.toml", Path::new("."), &file)?;
+    let id = store.create_campaign(&prepared.new_campaign(&campaign.text, &instrument_text))?;
+    let store = Arc::new(Mutex::new(store));
+
+    let capture = LogCapture::new(cfg.log_file.as_deref())?;
+    let dispatch = tracing::Dispatch::new(
+        tracing_subscriber::registry().with(capture.clone().with_filter(LogCapture::filter())),
+    );
+    let runtime = runtime_logging_to(&dispatch, true)?;
+    let driven = tracing::dispatcher::with_default(&dispatch, || {
+        runtime.block_on(drive(
+            Arc::clone(&store),
+            id,
+            &file,
+            cfg.max_resumes,
+            Duration::from_secs_f64((campaign.predicted_s * 5.0).max(3600.0)),
+        ))
+    })?;
+    drop(runtime);
+
+    let s = store.lock().unwrap_or_else(|e| e.into_inner());
+    let record = s.campaign(id)?;
+    let points = s.points(id)?;
+    let calibrations = s.calibrations(id)?;
+    drop(s);
+    let instrument_s = points
+        .iter()
+        .map(|p| p.t_s)
+        .chain(calibrations.iter().map(|c| c.t_s))
+        .fold(0.0f64, f64::max);
+    Ok(FaultSoakReport {
+        config: cfg.clone(),
+        faults_toml: crate::setup::faults_toml(&faults),
+        campaign,
+        final_state: record.state,
+        last_error: record.last_error,
+        pauses: driven.pauses,
+        hung: driven.hung,
+        rows: points.len() as u64,
+        indices_in_order: points.iter().enumerate().all(|(i, p)| p.index == i as u64),
+        points: check_points(&points),
+        injected: driven.injected,
+        log: capture.counts(),
+        events: driven.events,
+        instrument_s,
+        sim_clock_s: driven.sim_clock_s,
+        wall_s: wall.elapsed().as_secs_f64(),
+    })
+}
+
+struct Driven {
+    pauses: Vec<String>,
+    hung: bool,
+    injected: FaultCounts,
+    events: EventTally,
+    sim_clock_s: f64,
+}
+
+async fn drive(
+    store: Arc<Mutex<Store>>,
+    id: gonio_daemon::store::CampaignId,
+    file: &InstrumentFile,
+    max_resumes: u32,
+    budget: Duration,
+) -> Result<Driven, SoakError> {
+    // Simulated time at scale 1 on the paused clock: the instrument takes its real time, the wall clock none.
+    let rig = Rig::connect_with_time_scale(file, None, 1.0).await?;
+    let control = Control::new();
+    let mut rx = control.subscribe();
+    let tally = Arc::new(Mutex::new(EventTally::default()));
+    let t2 = Arc::clone(&tally);
+    let listener = tokio::spawn(async move {
+        loop {
+            let event = rx.recv().await;
+            let mut t = t2.lock().unwrap_or_else(|e| e.into_inner());
+            match event {
+                Ok(e) => t.observe(e),
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => t.lagged += n,
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
+            }
+        }
+    });
+    let mut pauses = Vec::new();
+    // Simulated time at scale 1: a hang would let the paused clock run on forever, so the run has a budget.
+    let deadline = tokio::time::Instant::now() + budget;
+    let mut hung = false;
+    loop {
+        let run = run_campaign(Arc::clone(&store), id, &rig, control.clone());
+        let Ok(state) = tokio::time::timeout_at(deadline, run).await else {
+            hung = true;
+            break;
+        };
+        let state = state?;
+        if state != CampaignState::Paused || pauses.len() >= max_resumes as usize {
+            break;
+        }
+        // Acting as the operator: note why, then resume (running the campaign again is the resume).
+        let why = store
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .campaign(id)?
+            .last_error
+            .unwrap_or_default();
+        tracing::warn!(campaign = %id, reason = %why, "soak: the campaign paused; resuming it as the operator");
+        pauses.push(why);
+    }
+    let injected = rig.sim().map(|s| s.fault_counts()).unwrap_or_default();
+    let sim_clock_s = rig.sim().map(|s| s.now_s()).unwrap_or(f64::NAN);
+    // The listener ends when the last sender (the control) is gone; the queued events are delivered first.
+    drop(control);
+    let _ = tokio::time::timeout(Duration::from_secs(3600), listener).await;
+    let events = tally.lock().unwrap_or_else(|e| e.into_inner()).clone();
+    Ok(Driven {
+        pauses,
+        hung,
+        injected,
+        events,
+        sim_clock_s,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn error_classes_follow_the_driver_messages() {
+        assert_eq!(
+            error_class(
+                "move light to 30.0000 deg: arms/1: no reply to \"1TS\" within 300 ms (attempt 1 of 3)"
+            ),
+            "timeout"
+        );
+        assert_eq!(
+            error_class(
+                "read the detector: meter: the connection is lost (USB device gone); reconnect and re-verify before use"
+            ),
+            "disconnected"
+        );
+        assert_eq!(
+            error_class("move tilt to 3 deg: stage/1: move to 3 deg failed: stopped at 1.2 deg"),
+            "motion fault"
+        );
+        assert_eq!(error_class("x: bad reply to \"pos?\": \"7\""), "bad reply");
+    }
+
+    #[test]
+    fn reason_classes_drop_numbers() {
+        assert_eq!(
+            reason_class("failed: arms/1: move to 30.25 deg failed: stopped at -1.5e-3 deg"),
+            "failed: arms/#: move to # deg failed: stopped at # deg"
+        );
+    }
+
+    fn point(index: u64, value: Option<f64>, flags: &[&str]) -> PointRecord {
+        PointRecord {
+            index,
+            band_nm: 550.0,
+            theta_i_deg: 0.0,
+            phi_i_deg: 0.0,
+            theta_o_deg: 30.0,
+            phi_o_deg: 180.0,
+            signal_w: 1e-6,
+            dark_w: 0.0,
+            incident_w: 1e-3,
+            brdf_sr: value,
+            brdf_u_sr: value.map(|_| 0.001),
+            flags: flags.iter().map(|s| s.to_string()).collect(),
+            t_s: 1.0,
+            readback_deg: Vec::new(),
+            truth_point_sr: Some(0.1),
+            truth_aperture_sr: Some(0.1),
+        }
+    }
+
+    #[test]
+    fn a_value_beyond_five_sigma_is_silently_wrong_and_a_bare_gap_unexplained() {
+        let c = check_points(&[
+            point(0, Some(0.1004), &[]),
+            point(1, Some(0.1060), &[]),
+            point(2, None, &["failed: meter: no reply"]),
+            point(3, None, &["overfilled"]),
+            point(4, None, &[]),
+            point(5, Some(0.1), &["saturated"]),
+        ]);
+        assert_eq!(c.valid, 1);
+        assert_eq!(c.wrong.len(), 1, "{:?}", c.wrong);
+        assert!(c.wrong[0].starts_with("point 1 "));
+        assert_eq!(c.failed_total(), 1);
+        assert_eq!(c.flagged_total(), 1);
+        assert_eq!(c.unexplained.len(), 2, "{:?}", c.unexplained);
+    }
+}

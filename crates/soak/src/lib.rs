@@ -1,0 +1,50 @@
+//! gonio-soak: the reliability soaks of issue 8, shared by the `gonio-soak` command (which writes
+//! `RELIABILITY.md`) and the CI-sized tests in `tests/`, so that both run the same code.
+//!
+//! Module map:
+//! - [`setup`]: the soak campaigns (an exact number of points) and the simulated instrument with
+//!   `[simulator.faults]` set.
+//! - [`logcap`]: a `tracing` layer that counts what the simulator injected, what the drivers and the engine
+//!   logged about it, and keeps a log file of warnings.
+//! - [`fault_soak`]: a dry-run campaign through the real drivers and engine on a faulty simulator; every point is
+//!   checked against the simulator's ground truth, every injected fault against what the host saw.
+//! - [`crash_soak`]: `kill -9` of the daemon at chosen and random moments of one campaign (mid-move, mid-commit,
+//!   start-up), restarted each time; the committed rows are compared byte for byte.
+//! - [`worker`]: the daemon process the crash soak kills (the daemon's service, queue and HTTP API on the
+//!   simulated instrument), with its probes for self-inflicted kills at exact moments.
+//! - [`rows`]: raw rows of the store, read with SQLite directly (independent of the store's own decoding).
+//! - [`inputs`]: random and mutated inputs through the public wire parsers and file loaders.
+//! - [`report`]: the Markdown of `RELIABILITY.md`.
+
+pub mod crash_soak;
+pub mod fault_soak;
+pub mod inputs;
+pub mod logcap;
+pub mod report;
+pub mod rows;
+pub mod setup;
+pub mod worker;
+
+/// Why a soak could not run at all (as opposed to a soak that ran and found a defect, which is in its report).
+#[derive(Debug, thiserror::Error)]
+pub enum SoakError {
+    #[error("setup: {0}")]
+    Setup(String),
+    #[error("engine: {0}")]
+    Engine(#[from] gonio_daemon::EngineError),
+    #[error("store: {0}")]
+    Store(#[from] gonio_daemon::store::StoreError),
+    #[error("sqlite: {0}")]
+    Sqlite(#[from] rusqlite::Error),
+    #[error("{what}: {source}")]
+    Io { what: String, source: std::io::Error },
+    #[error("worker process: {0}")]
+    Worker(String),
+}
+
+impl SoakError {
+    pub(crate) fn io(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> SoakError {
+        let what = what.into();
+        move |source| SoakError::Io { what, source }
+    }
+}

@@ -1,0 +1,206 @@
+//! `gonio-soak`: runs the fault soak, the crash soak and the input census, and writes `RELIABILITY.md` at the
+//! repository root (`cargo run --release -p gonio-soak`). Exits 1 when an invariant broke (the report says
+//! which), 2 when a soak could not run.
+//!
+//! `gonio-soak worker ...` is the daemon process the crash soak starts and kills (see `gonio_soak::worker`).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use clap::{Args, Parser, Subcommand};
+use gonio_soak::crash_soak::{CrashSoakConfig, run_crash_soak};
+use gonio_soak::fault_soak::{FaultSoakConfig, run_fault_soak};
+use gonio_soak::inputs::run_inputs;
+use gonio_soak::report::Report;
+use gonio_soak::worker::{DieAt, EXIT_ERROR, WorkerArgs, run_worker};
+
+const DEFAULT_SEED: u64 = 8;
+const DEFAULT_POINTS: u64 = 2000;
+const DEFAULT_CRASH_POINTS: u64 = 600;
+const DEFAULT_KILLS: u32 = 20;
+const DEFAULT_PARSER_INPUTS: u64 = 20_000;
+const DEFAULT_LOADER_INPUTS: u64 = 1_000;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "gonio-soak",
+    about = "Reliability soaks of gonio; writes RELIABILITY.md"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+    #[command(flatten)]
+    soak: SoakArgs,
+}
+
+#[derive(Debug, Args)]
+struct SoakArgs {
+    /// Seed of every random draw (geometries, faults, kill moments, inputs).
+    #[arg(long, default_value_t = DEFAULT_SEED)]
+    seed: u64,
+    /// Points of the fault soak's campaign.
+    #[arg(long, default_value_t = DEFAULT_POINTS)]
+    points: u64,
+    /// Points of the crash soak's campaign.
+    #[arg(long, default_value_t = DEFAULT_CRASH_POINTS)]
+    crash_points: u64,
+    /// Kills in the crash soak.
+    #[arg(long, default_value_t = DEFAULT_KILLS)]
+    kills: u32,
+    /// Inputs per wire parser.
+    #[arg(long, default_value_t = DEFAULT_PARSER_INPUTS)]
+    parser_inputs: u64,
+    /// Inputs per file loader.
+    #[arg(long, default_value_t = DEFAULT_LOADER_INPUTS)]
+    loader_inputs: u64,
+    /// Where to write the report (default: RELIABILITY.md at the repository root).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Keep the stores and logs in this (empty) directory instead of a temporary one.
+    #[arg(long)]
+    work: Option<PathBuf>,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// The daemon process of the crash soak (started by the soak itself).
+    #[command(hide = true)]
+    Worker(WorkerCli),
+}
+
+#[derive(Debug, Args)]
+struct WorkerCli {
+    #[arg(long)]
+    data: PathBuf,
+    #[arg(long)]
+    campaign: PathBuf,
+    #[arg(long)]
+    instrument: PathBuf,
+    /// mid-move or mid-commit
+    #[arg(long)]
+    die: Option<String>,
+    #[arg(long, default_value_t = 0)]
+    after: u64,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match cli.command {
+        Some(Command::Worker(w)) => {
+            let die = match w.die.as_deref().map(DieAt::parse) {
+                None => None,
+                Some(Some(at)) => Some((at, w.after)),
+                Some(None) => {
+                    eprintln!("gonio-soak worker: --die takes mid-move or mid-commit");
+                    return ExitCode::from(EXIT_ERROR as u8);
+                }
+            };
+            let code = run_worker(&WorkerArgs {
+                data: w.data,
+                campaign: w.campaign,
+                instrument: w.instrument,
+                die,
+            });
+            ExitCode::from(u8::try_from(code).unwrap_or(1))
+        }
+        None => match soak(&cli.soak) {
+            Ok(true) => ExitCode::SUCCESS,
+            Ok(false) => ExitCode::from(1),
+            Err(e) => {
+                eprintln!("gonio-soak: {e}");
+                ExitCode::from(2)
+            }
+        },
+    }
+}
+
+/// The command as typed to get these settings.
+fn command_line(a: &SoakArgs) -> String {
+    let mut extra = Vec::new();
+    for (flag, value, default) in [
+        ("--seed", a.seed, DEFAULT_SEED),
+        ("--points", a.points, DEFAULT_POINTS),
+        ("--crash-points", a.crash_points, DEFAULT_CRASH_POINTS),
+        ("--kills", u64::from(a.kills), u64::from(DEFAULT_KILLS)),
+        ("--parser-inputs", a.parser_inputs, DEFAULT_PARSER_INPUTS),
+        ("--loader-inputs", a.loader_inputs, DEFAULT_LOADER_INPUTS),
+    ] {
+        if value != default {
+            extra.push(format!("{flag} {value}"));
+        }
+    }
+    if extra.is_empty() {
+        "cargo run --release -p gonio-soak".into()
+    } else {
+        format!("cargo run --release -p gonio-soak -- {}", extra.join(" "))
+    }
+}
+
+fn soak(a: &SoakArgs) -> Result<bool, Box<dyn std::error::Error>> {
+    let wall = Instant::now();
+    let temp = tempfile::tempdir()?;
+    let work = a.work.clone().unwrap_or_else(|| temp.path().to_path_buf());
+    std::fs::create_dir_all(&work)?;
+    let out = a
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../RELIABILITY.md")));
+
+    eprintln!("gonio-soak: fault soak, {} points ...", a.points);
+    let mut fault_cfg = FaultSoakConfig::issue_8(a.points, a.seed, work.join("fault-soak"));
+    fault_cfg.log_file = Some(work.join("fault-soak.log"));
+    let fault = run_fault_soak(&fault_cfg)?;
+    eprintln!(
+        "gonio-soak: fault soak: {} ({} violations)",
+        fault.final_state,
+        fault.violations().len()
+    );
+
+    eprintln!(
+        "gonio-soak: crash soak, {} kills of a {}-point campaign ...",
+        a.kills, a.crash_points
+    );
+    let exe = std::env::current_exe()?;
+    let crash_cfg = CrashSoakConfig {
+        points: a.crash_points,
+        kills: a.kills,
+        seed: a.seed,
+        work_dir: work.join("crash-soak"),
+        worker: vec![exe.display().to_string(), "worker".into()],
+        round_timeout: Duration::from_secs(600),
+    };
+    std::fs::create_dir_all(&crash_cfg.work_dir)?;
+    let crash = run_crash_soak(&crash_cfg)?;
+    eprintln!(
+        "gonio-soak: crash soak: {} kills ({} violations)",
+        crash.kills(),
+        crash.violations().len()
+    );
+
+    eprintln!("gonio-soak: inputs ...");
+    let inputs = run_inputs(a.seed, a.parser_inputs, a.loader_inputs);
+
+    let report = Report {
+        command: command_line(a),
+        seed: a.seed,
+        fault,
+        crash,
+        inputs,
+        wall_s: wall.elapsed().as_secs_f64(),
+    };
+    std::fs::write(&out, report.to_markdown())?;
+    let violations = report.violations();
+    for v in &violations {
+        eprintln!("gonio-soak: VIOLATION: {v}");
+    }
+    eprintln!(
+        "gonio-soak: wrote {} (data lost: {})",
+        out.display(),
+        report.data_lost()
+    );
+    if a.work.is_some() {
+        eprintln!("gonio-soak: stores and logs kept in {}", work.display());
+    }
+    Ok(violations.is_empty())
+}

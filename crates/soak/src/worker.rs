@@ -1,0 +1,356 @@
+//! The daemon process the crash soak kills: `gonio-soak worker`.
+//!
+//! It is `gonio daemon` minus its command line: the store in a data directory, the rig on the simulated
+//! instrument, the daemon's [`Service`] (campaign queue, interrupted campaigns resumed first) and its HTTP API on
+//! a loopback port, run by [`api::run_daemon`]. It submits the soak campaign when the store does not hold it yet,
+//! and stops once the campaign is final (or paused). Like `gonio run`'s dry-runs it runs on a paused tokio clock,
+//! so that instrument time costs no wall time.
+//!
+//! It reports on stdout, one line per event, flushed at once (the parent reads them up to the kill):
+//! `ready`, `point <index>` after each commit, `move <axis> <target_deg>` per move command, `die <moment>: ...`
+//! just before a self-inflicted kill, `final <state>` at the end.
+//!
+//! Self-inflicted kills put the SIGKILL at an exact moment, which a kill from outside can only hit by chance:
+//! - mid-move: a `tracing` layer sees the driver's move command and, at the next reply read on a port (the
+//!   controller has taken the move and the axis is travelling), raises SIGKILL;
+//! - mid-commit: a thread spins on the store's mutex and raises SIGKILL while the engine holds it to write a
+//!   record (between two points the engine takes the store only to commit a point or a calibration reading).
+//!
+//! SIGKILL cannot be caught: the process ends there, every thread at once, exactly as under `kill -9`.
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, OnceLock, TryLockError};
+
+use gonio_daemon::api::{self, ApiConfig};
+use gonio_daemon::control::{Control, Event};
+use gonio_daemon::rig::Rig;
+use gonio_daemon::service::{CampaignRunner, EngineRunner, RunFuture, Service};
+use gonio_daemon::store::{CampaignId, CampaignRecord, CampaignState, NewCampaign, Store};
+use gonio_instrument::InstrumentFile;
+use tracing::field::{Field, Visit};
+use tracing::{Level, Subscriber};
+use tracing_subscriber::Layer;
+use tracing_subscriber::filter::{LevelFilter, Targets};
+use tracing_subscriber::layer::{Context, SubscriberExt as _};
+
+use crate::SoakError;
+
+/// Exit code of a worker whose campaign completed.
+pub const EXIT_COMPLETED: i32 = 0;
+/// Exit code of a worker whose campaign ended in another state (paused, failed, aborted).
+pub const EXIT_NOT_COMPLETED: i32 = 3;
+/// Exit code of a worker that could not run.
+pub const EXIT_ERROR: i32 = 2;
+
+/// Where the worker kills itself.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DieAt {
+    MidMove,
+    MidCommit,
+}
+
+impl DieAt {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DieAt::MidMove => "mid-move",
+            DieAt::MidCommit => "mid-commit",
+        }
+    }
+    pub fn parse(s: &str) -> Option<DieAt> {
+        match s {
+            "mid-move" => Some(DieAt::MidMove),
+            "mid-commit" => Some(DieAt::MidCommit),
+            _ => None,
+        }
+    }
+}
+
+/// What the worker runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WorkerArgs {
+    pub data: PathBuf,
+    pub campaign: PathBuf,
+    pub instrument: PathBuf,
+    /// Kill itself at the first such moment after this many points committed by this process.
+    pub die: Option<(DieAt, u64)>,
+}
+
+impl WorkerArgs {
+    /// The command-line arguments after `worker`.
+    pub fn to_args(&self) -> Vec<String> {
+        let mut v = vec![
+            "--data".into(),
+            self.data.display().to_string(),
+            "--campaign".into(),
+            self.campaign.display().to_string(),
+            "--instrument".into(),
+            self.instrument.display().to_string(),
+        ];
+        if let Some((at, after)) = self.die {
+            v.extend([
+                "--die".into(),
+                at.as_str().into(),
+                "--after".into(),
+                after.to_string(),
+            ]);
+        }
+        v
+    }
+}
+
+/// One line on stdout, flushed (the parent may kill us right after).
+fn say(line: &str) {
+    let mut out = std::io::stdout().lock();
+    let _ = out.write_all(line.as_bytes());
+    let _ = out.write_all(b"\n");
+    let _ = out.flush();
+}
+
+fn die(line: &str) -> ! {
+    say(line);
+    let _ = nix::sys::signal::raise(nix::sys::signal::Signal::SIGKILL);
+    // Unreachable in practice; never return from a kill.
+    std::process::abort()
+}
+
+/// Run the worker; returns the process exit code.
+pub fn run_worker(args: &WorkerArgs) -> i32 {
+    match run(args) {
+        Ok(CampaignState::Completed) => EXIT_COMPLETED,
+        Ok(_) => EXIT_NOT_COMPLETED,
+        Err(e) => {
+            eprintln!("gonio-soak worker: {e}");
+            say(&format!("error {e}"));
+            EXIT_ERROR
+        }
+    }
+}
+
+fn run(args: &WorkerArgs) -> Result<CampaignState, SoakError> {
+    let points = Arc::new(AtomicU64::new(0));
+    let probe = MoveProbe {
+        points: Arc::clone(&points),
+        die_after: match args.die {
+            Some((DieAt::MidMove, n)) => Some(n),
+            _ => None,
+        },
+        pending: Mutex::new(None),
+    };
+    let subscriber = tracing_subscriber::registry()
+        .with(probe.with_filter(Targets::new().with_target("gonio_driver", Level::DEBUG)))
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_filter(LevelFilter::WARN),
+        );
+    tracing::subscriber::set_global_default(subscriber)
+        .map_err(|e| SoakError::Worker(format!("cannot install the log: {e}")))?;
+
+    let read =
+        |p: &Path| std::fs::read_to_string(p).map_err(SoakError::io(format!("cannot read {}", p.display())));
+    let instrument_text = read(&args.instrument)?;
+    let campaign_text = read(&args.campaign)?;
+    let file = InstrumentFile::parse(&instrument_text, &args.instrument.display().to_string())
+        .map_err(|e| SoakError::Setup(e.to_string()))?;
+    let store_slot: Arc<OnceLock<Arc<Mutex<Store>>>> = Arc::new(OnceLock::new());
+    if let Some((DieAt::MidCommit, after)) = args.die {
+        spawn_commit_killer(Arc::clone(&store_slot), Arc::clone(&points), after);
+    }
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .start_paused(true)
+        .build()
+        .map_err(SoakError::io("cannot start the async runtime"))?;
+    runtime.block_on(async move {
+        let store = Store::open(&args.data)?;
+        let rig = Rig::connect_with_time_scale(&file, None, 1.0).await?;
+        let base_dir = args.campaign.parent().map(Path::to_path_buf).unwrap_or_default();
+        let runner = Arc::new(ProbeRunner {
+            inner: EngineRunner::new(file, instrument_text, base_dir, rig),
+            store: store_slot,
+        });
+        let service =
+            Service::new(store, runner, Control::new()).map_err(|e| SoakError::Worker(e.to_string()))?;
+        let name = campaign_name(&campaign_text)?;
+        let mut events = service.subscribe();
+        let known = service
+            .campaigns()
+            .map_err(|e| SoakError::Worker(e.to_string()))?;
+        if !known.iter().any(|c| c.name == name) {
+            service
+                .submit(&campaign_text, &args.campaign.display().to_string())
+                .map_err(|e| SoakError::Worker(e.to_string()))?;
+        }
+        say("ready");
+        let end: Arc<Mutex<Option<CampaignState>>> = Arc::new(Mutex::new(None));
+        let end2 = Arc::clone(&end);
+        let stop = async move {
+            loop {
+                match events.recv().await {
+                    Ok(Event::Point { point, .. }) => {
+                        points.fetch_add(1, Ordering::SeqCst);
+                        say(&format!("point {}", point.index));
+                    }
+                    Ok(Event::State { state, .. }) if state.is_final() || state == CampaignState::Paused => {
+                        *end2.lock().unwrap_or_else(|e| e.into_inner()) = Some(state);
+                        break;
+                    }
+                    Ok(_) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                    Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
+                }
+            }
+        };
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+            .await
+            .map_err(SoakError::io("cannot listen on loopback"))?;
+        api::run_daemon(listener, service.clone(), &ApiConfig::default(), stop).await;
+        let state = service
+            .campaigns()
+            .map_err(|e| SoakError::Worker(e.to_string()))?
+            .into_iter()
+            .find(|c| c.name == name)
+            .map(|c| c.state)
+            .or(*end.lock().unwrap_or_else(|e| e.into_inner()))
+            .ok_or_else(|| SoakError::Worker("the campaign is not in the store".into()))?;
+        say(&format!("final {state}"));
+        Ok(state)
+    })
+}
+
+/// `[campaign] id` of a campaign file.
+fn campaign_name(text: &str) -> Result<String, SoakError> {
+    let doc: toml::Table =
+        toml::from_str(text).map_err(|e| SoakError::Setup(format!("campaign file: {e}")))?;
+    doc.get("campaign")
+        .and_then(|c| c.get("id"))
+        .and_then(|v| v.as_str())
+        .map(str::to_string)
+        .ok_or_else(|| SoakError::Setup("campaign file: no [campaign] id".into()))
+}
+
+/// The engine runner, noting the store the service hands it (for the mid-commit killer).
+struct ProbeRunner {
+    inner: EngineRunner,
+    store: Arc<OnceLock<Arc<Mutex<Store>>>>,
+}
+
+impl CampaignRunner for ProbeRunner {
+    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<NewCampaign, String> {
+        self.inner.prepare(campaign_toml, origin)
+    }
+
+    fn run(&self, store: Arc<Mutex<Store>>, id: CampaignId, control: Control) -> RunFuture {
+        let _ = self.store.set(Arc::clone(&store));
+        self.inner.run(store, id, control)
+    }
+
+    fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
+        self.inner.points_csv(store, record)
+    }
+}
+
+/// Once `after` points are committed, SIGKILL the process while the engine holds the store.
+fn spawn_commit_killer(slot: Arc<OnceLock<Arc<Mutex<Store>>>>, points: Arc<AtomicU64>, after: u64) {
+    std::thread::spawn(move || {
+        let store = loop {
+            if points.load(Ordering::SeqCst) >= after
+                && let Some(s) = slot.get()
+            {
+                break Arc::clone(s);
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        };
+        loop {
+            match store.try_lock() {
+                Err(TryLockError::WouldBlock) => die(&format!(
+                    "die mid-commit: the engine holds the store to write a record, {} points committed by this process",
+                    points.load(Ordering::SeqCst)
+                )),
+                Ok(guard) => drop(guard),
+                Err(TryLockError::Poisoned(_)) => die("die mid-commit: the store's lock is poisoned"),
+            }
+            std::thread::yield_now();
+        }
+    });
+}
+
+/// Sees the drivers' move commands: reports each, and kills the process mid-move when armed.
+struct MoveProbe {
+    points: Arc<AtomicU64>,
+    die_after: Option<u64>,
+    /// A move commanded while armed: (the port it went to, what it was).
+    pending: Mutex<Option<(String, String)>>,
+}
+
+#[derive(Default)]
+struct Fields {
+    message: String,
+    axis: String,
+    target: String,
+    rx: String,
+    port: String,
+}
+
+impl Visit for Fields {
+    fn record_debug(&mut self, field: &Field, value: &dyn std::fmt::Debug) {
+        let slot = match field.name() {
+            "message" => &mut self.message,
+            "axis" => &mut self.axis,
+            "target_deg" => &mut self.target,
+            "rx" => &mut self.rx,
+            "port" => &mut self.port,
+            _ => return,
+        };
+        *slot = format!("{value:?}");
+    }
+    fn record_f64(&mut self, field: &Field, value: f64) {
+        if field.name() == "target_deg" {
+            self.target = format!("{value}");
+        }
+    }
+    fn record_str(&mut self, field: &Field, value: &str) {
+        match field.name() {
+            "message" => self.message = value.to_string(),
+            "port" => self.port = value.to_string(),
+            _ => {}
+        }
+    }
+}
+
+impl<S: Subscriber> Layer<S> for MoveProbe {
+    fn on_event(&self, event: &tracing::Event<'_>, _ctx: Context<'_, S>) {
+        let mut f = Fields::default();
+        event.record(&mut f);
+        if f.message == "move absolute" || f.message == "move abs" {
+            say(&format!("move {} {}", f.axis, f.target));
+            if self
+                .die_after
+                .is_some_and(|n| self.points.load(Ordering::SeqCst) >= n)
+            {
+                // The axis is named "light (arms/1)": its port is the device before the slash.
+                let port = f
+                    .axis
+                    .split_once('(')
+                    .and_then(|(_, rest)| rest.split('/').next())
+                    .unwrap_or_default()
+                    .to_string();
+                *self.pending.lock().unwrap_or_else(|e| e.into_inner()) =
+                    Some((port, format!("{} commanded to {} deg", f.axis, f.target)));
+            }
+        } else if f.message == "read" && event.metadata().target().contains("transport") {
+            let mut pending = self.pending.lock().unwrap_or_else(|e| e.into_inner());
+            // The first line read back on that port after the move command: the controller has taken it.
+            if pending.as_ref().is_some_and(|(port, _)| *port == f.port)
+                && let Some((_, what)) = pending.take()
+            {
+                die(&format!(
+                    "die mid-move: {what}, its controller's reply {} read, {} points committed by this process",
+                    f.rx,
+                    self.points.load(Ordering::SeqCst)
+                ));
+            }
+        }
+    }
+}

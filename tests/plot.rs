@@ -1,0 +1,160 @@
+//! `gonio plot` end to end: the SVG is well-formed XML (parsed by roxmltree) and holds the expected panels and
+//! series: one polar panel per band with one curve per incidence angle, one heat map per incidence, and with a
+//! model its curves and a measured-against-model panel. Checked through the SVG's text and elements, not its
+//! pixels.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn gonio() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_gonio"))
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+fn dry_run(dir: &Path) -> PathBuf {
+    let campaign = r#"
+[campaign]
+id = "plotted"
+[sample]
+radius_mm = 12.5
+[plan]
+bands_nm = [450.0, 650.0]
+[plan.grid]
+kind = "isotropic"
+theta_i_deg = [0.0, 30.0, 60.0]
+theta_o_deg = { from = 0.0, to = 75.0, step = 15.0 }
+delta_phi_deg = [0.0, 90.0, 180.0]
+[acquisition]
+averaging = 10
+[material]
+preset = "coloured-plastic"
+"#;
+    let file = dir.join("plotted.toml");
+    std::fs::write(&file, campaign).expect("write");
+    let out = dir.join("plotted");
+    let o = gonio()
+        .arg("run")
+        .arg(&file)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .output()
+        .expect("run");
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    out
+}
+
+/// All text content of the SVG, one string per <text> element; panics unless it is well-formed SVG.
+fn svg_texts(svg: &str) -> (Vec<String>, usize, usize) {
+    let doc = roxmltree::Document::parse(svg).unwrap_or_else(|e| panic!("not well-formed XML: {e}"));
+    let root = doc.root_element();
+    assert_eq!(root.tag_name().name(), "svg");
+    let texts = root
+        .descendants()
+        .filter(|n| n.has_tag_name("text"))
+        .map(|n| {
+            let t: String = n
+                .descendants()
+                .filter(|d| d.is_text())
+                .filter_map(|d| d.text())
+                .collect();
+            t.trim().to_string()
+        })
+        .collect();
+    let polylines = root.descendants().filter(|n| n.has_tag_name("polyline")).count();
+    let circles = root.descendants().filter(|n| n.has_tag_name("circle")).count();
+    (texts, polylines, circles)
+}
+
+#[test]
+fn svg_is_well_formed_and_holds_every_series() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = dry_run(dir.path());
+    let o = gonio().arg("plot").arg(&run).output().expect("plot");
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let path = run.join("plot.svg");
+    assert_eq!(text(&o.stdout).trim(), path.display().to_string());
+    let svg = std::fs::read_to_string(&path).expect("plot.svg");
+    let (texts, polylines, circles) = svg_texts(&svg);
+    let has = |s: &str| texts.iter().any(|t| t == s);
+    // Incidences: the planned 0, 30, 60 and, by reciprocity, every theta_o measured at an incidence (15..75).
+    let incidences = [0, 15, 30, 45, 60, 75];
+    for band in [450, 650] {
+        assert!(has(&format!("in-plane slices, {band} nm (plotted)")), "{texts:?}");
+    }
+    for ti in incidences {
+        // A legend entry per incidence in each of the two polar panels.
+        let label = format!("theta_i = {ti} deg");
+        assert_eq!(
+            texts.iter().filter(|t| **t == label).count(),
+            2,
+            "{label}: {texts:?}"
+        );
+        // A heat map per incidence, in the band nearest 550 nm (450 and 650 are as near: the first).
+        assert!(
+            texts
+                .iter()
+                .any(|t| t.starts_with(&format!("theta_i = {ti} deg, 450 nm: BRDF "))),
+            "heat map {ti}: {texts:?}"
+        );
+    }
+    assert!(has("phi_o - phi_i (deg)") && has("theta_o (deg)"));
+    // Each curve is a polyline (plus the rings and spokes of the polar grids); each measured node a circle.
+    assert!(polylines >= 2 * incidences.len(), "{polylines} polylines");
+    assert!(circles >= 2 * 20, "{circles} circles");
+    assert!(!texts.iter().any(|t| t.contains("model")), "no model requested");
+
+    // With a model: its curves, one legend entry for them per band, and the comparison panel.
+    let out = dir.path().join("with-model.svg");
+    let o = gonio()
+        .arg("plot")
+        .arg(&run)
+        .args(["--model", "coloured-plastic", "--band", "650", "--out"])
+        .arg(&out)
+        .output()
+        .expect("plot with model");
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let svg = std::fs::read_to_string(&out).expect("svg");
+    let (texts, polylines_m, _) = svg_texts(&svg);
+    let has = |s: &str| texts.iter().any(|t| t == s);
+    assert_eq!(
+        texts.iter().filter(|t| *t == "model (lines)").count(),
+        2,
+        "{texts:?}"
+    );
+    assert!(has("measured vs model (coloured-plastic)") && has("1:1") && has("450 nm") && has("650 nm"));
+    assert!(
+        texts
+            .iter()
+            .any(|t| t.starts_with("theta_i = 30 deg, 650 nm: BRDF ")),
+        "--band 650: {texts:?}"
+    );
+    assert!(
+        polylines_m >= polylines + 2 * incidences.len(),
+        "{polylines_m} vs {polylines}"
+    );
+}
+
+#[test]
+fn a_run_without_valid_points_is_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = dir.path().join("nothing");
+    std::fs::create_dir(&run).expect("mkdir");
+    std::fs::write(
+        run.join("points.csv"),
+        "index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,signal_w,dark_w,incident_w,brdf_sr,brdf_u_sr,flags,t_s\n\
+         0,550,30,0,30,180,,,,,,failed: timeout,1\n",
+    )
+    .expect("write");
+    let o = gonio().arg("plot").arg(&run).output().expect("plot");
+    assert_eq!(o.status.code(), Some(2));
+    let err = text(&o.stderr);
+    assert!(
+        err.contains("nothing") && err.contains("no valid points"),
+        "{err}"
+    );
+    assert!(!run.join("plot.svg").exists());
+}
