@@ -215,12 +215,20 @@ impl SimInstrument {
         }
         let (host, dev) = tokio::io::duplex(64 * 1024);
         tracing::debug!(device, protocol = protocol.name(), "simulated serial port opened");
+        let baud = self
+            .inner
+            .file
+            .instrument
+            .device(device)
+            .and_then(|d| d.baud)
+            .unwrap_or_else(|| protocol.default_baud());
         handle.spawn(session::serve(
             dev,
             emu,
             self.inner.faults.for_device(device),
             self.inner.world.clock,
             device.to_string(),
+            session::LineRate::from_baud(baud),
         ));
         Ok(host)
     }

@@ -134,6 +134,31 @@ pub struct ApertureTruth {
     pub evaluations: u32,
 }
 
+/// A reading without its instant: [`Optics::at_rest`].
+#[derive(Debug, Clone, Copy)]
+struct AtRest {
+    /// The reading's time-independent fields (the powers are filled in per instant).
+    out: OpticalReading,
+    /// Filter transmission (0 at the blank).
+    transmission: f64,
+    light: Light,
+}
+
+/// How the source's power reaches the detector at a pose at rest.
+#[derive(Debug, Clone, Copy)]
+enum Light {
+    /// Blank, no band, or the beam blocked by the detector's body.
+    Dark,
+    /// No sample: this fraction of the beam enters the aperture.
+    DirectBeam { fraction: f64 },
+    /// Off the sample: the intercepted fraction times the collected aperture integral (delta lobe included).
+    Sample {
+        intercepted: f64,
+        collected: f64,
+        integral_error: f64,
+    },
+}
+
 /// What is known about the regular (non-delta) part of a resolved material.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum RegularPart {
@@ -338,14 +363,17 @@ impl Optics {
 
     /// One reading: the pose's geometry, the footprint, the aperture integral and the source at time `t_s`.
     pub fn reading(&self, pose: &Pose, band: &Band, t_s: f64) -> Result<OpticalReading, OpticsError> {
+        Ok(self.at_time(&self.at_rest(pose, band)?, t_s))
+    }
+
+    /// Everything of a reading that does not depend on time: with the axes and the wheel at rest, the averaged
+    /// samples of one meter reading differ only by the source (drift, noise), not by this.
+    fn at_rest(&self, pose: &Pose, band: &Band) -> Result<AtRest, OpticsError> {
         let geometry = kinematics::forward(pose);
         let blocked = geometry.arm_separation_rad() < self.retro_block_rad;
         let mirror = geometry.wi.reflect_about_normal();
         let specular_in_aperture =
             geometry.wi.z() > 0.0 && mirror.angle_to(&geometry.wo) <= self.aperture_half_rad;
-        // The source at this instant, computed once: drifted power and noise factor (exactly 1 when off).
-        let drifted_w = self.source.drifted_power_w(t_s);
-        let noise = self.source.noise_factor(t_s);
         let transmission = if band.band_nm.is_some() {
             band.transmission.max(0.0)
         } else {
@@ -355,7 +383,7 @@ impl Optics {
             power_w: 0.0,
             noiseless_power_w: 0.0,
             integration_error_w: 0.0,
-            incident_power_w: drifted_w * transmission * noise,
+            incident_power_w: 0.0,
             intercepted_fraction: 0.0,
             truth_point_sr: 0.0,
             truth_aperture_sr: 0.0,
@@ -368,16 +396,22 @@ impl Optics {
             evaluations: 0,
         };
         let (Some(nm), true) = (band.band_nm, band.transmission > 0.0) else {
-            return Ok(out);
+            return Ok(AtRest {
+                out,
+                transmission,
+                light: Light::Dark,
+            });
         };
         if !self.sample_mounted() {
             // No sample: the detector sees the beam itself when it faces the source, nothing otherwise.
             let off_axis = kinematics::angle_between(&geometry.detector_lab, &neg(&geometry.source_lab));
             let fraction = cap::fraction_inside(self.divergence_half_rad, self.aperture_half_rad, off_axis);
-            out.noiseless_power_w = drifted_w * transmission * fraction;
-            out.power_w = out.incident_power_w * fraction;
             out.intercepted_fraction = fraction;
-            return Ok(out);
+            return Ok(AtRest {
+                out,
+                transmission,
+                light: Light::DirectBeam { fraction },
+            });
         }
         let r = self.resolved(nm)?;
         let fp = self.footprint(&geometry);
@@ -392,15 +426,48 @@ impl Optics {
         let truth = self.aperture_truth(&r, &geometry.wi, &geometry.wo)?;
         out.truth_aperture_sr = truth.average_sr;
         out.evaluations = truth.evaluations;
-        if blocked {
-            return Ok(out);
+        let light = if blocked {
+            Light::Dark
+        } else {
+            Light::Sample {
+                intercepted: fp.intercepted_fraction,
+                collected: truth.integral + truth.delta,
+                integral_error: truth.integral_error,
+            }
+        };
+        Ok(AtRest {
+            out,
+            transmission,
+            light,
+        })
+    }
+
+    /// A reading at rest completed with the source at time `t_s`.
+    fn at_time(&self, rest: &AtRest, t_s: f64) -> OpticalReading {
+        // The source at this instant, computed once: drifted power and noise factor (exactly 1 when off).
+        let drifted_w = self.source.drifted_power_w(t_s);
+        let noise = self.source.noise_factor(t_s);
+        let transmission = rest.transmission;
+        let mut out = rest.out;
+        out.incident_power_w = drifted_w * transmission * noise;
+        match rest.light {
+            Light::Dark => {}
+            Light::DirectBeam { fraction } => {
+                out.noiseless_power_w = drifted_w * transmission * fraction;
+                out.power_w = out.incident_power_w * fraction;
+            }
+            Light::Sample {
+                intercepted,
+                collected,
+                integral_error,
+            } => {
+                let on_sample = drifted_w * transmission * intercepted;
+                out.noiseless_power_w = (on_sample * collected).max(0.0);
+                out.power_w = (out.noiseless_power_w * noise).max(0.0);
+                out.integration_error_w = on_sample * integral_error;
+            }
         }
-        let on_sample = drifted_w * transmission * fp.intercepted_fraction;
-        let collected = truth.integral + truth.delta;
-        out.noiseless_power_w = (on_sample * collected).max(0.0);
-        out.power_w = (out.noiseless_power_w * noise).max(0.0);
-        out.integration_error_w = on_sample * truth.integral_error;
-        Ok(out)
+        out
     }
 
     fn footprint(&self, g: &PoseGeometry) -> Footprint {
@@ -613,6 +680,21 @@ impl Scene for Optics {
             Err(e) => {
                 tracing::warn!(error = %e, "optics cannot evaluate the sample; reporting no light");
                 0.0
+            }
+        }
+    }
+
+    /// The geometry once, the source at each instant; values as [`Scene::detector_power_w`] gives them.
+    fn detector_power_series_w(&self, pose: &Pose, band: &Band, times_s: &[f64], out: &mut Vec<f64>) {
+        out.clear();
+        match self.at_rest(pose, band) {
+            Ok(rest) => out.extend(times_s.iter().map(|&t| {
+                let p = self.at_time(&rest, t).power_w;
+                if p.is_finite() { p } else { 0.0 }
+            })),
+            Err(e) => {
+                tracing::warn!(error = %e, "optics cannot evaluate the sample; reporting no light");
+                out.resize(times_s.len(), 0.0);
             }
         }
     }

@@ -512,23 +512,30 @@ impl Pm100 {
             (if p.is_finite() { p.max(0.0) } else { 0.0 }, band)
         };
         // Current of each sample.
-        let mut currents = Vec::with_capacity(n as usize);
-        let mid = if steady { Some(optical_at(n / 2)) } else { None };
-        for k in 0..n {
-            let (p, band) = match mid {
-                Some(m) if !d.noise => m,
-                Some(m) => (
-                    world
-                        .scene
-                        .detector_power_w(&p_first, &m.1, sample_times(k))
-                        .max(0.0),
-                    m.1,
-                ),
-                None => optical_at(k),
-            };
+        let current = |p: f64, band: &Band| {
             let r_band = band.band_nm.map(|nm| self.responsivity.at(nm)).unwrap_or(0.0);
-            currents.push(p * r_band + d.dark_current_a);
-        }
+            p * r_band + d.dark_current_a
+        };
+        let currents: Vec<f64> = if steady && !d.noise {
+            // At rest and without noise every sample is the same.
+            let (p, band) = optical_at(n / 2);
+            vec![current(p, &band); n as usize]
+        } else if steady {
+            // At rest, only the source changes from sample to sample: the scene computes the geometry once.
+            let times: Vec<f64> = (0..n).map(sample_times).collect();
+            let mut powers = Vec::with_capacity(times.len());
+            world
+                .scene
+                .detector_power_series_w(&p_first, &b_first, &times, &mut powers);
+            powers.iter().map(|p| current(p.max(0.0), &b_first)).collect()
+        } else {
+            (0..n)
+                .map(|k| {
+                    let (p, band) = optical_at(k);
+                    current(p, &band)
+                })
+                .collect()
+        };
         let mean_i = currents.iter().sum::<f64>() / f64::from(n);
         // Range in use: auto picks the smallest whose full-scale current holds the signal.
         let full_scale_i = |idx: usize| ranges.get(idx).copied().unwrap_or(0.0) * r_set;

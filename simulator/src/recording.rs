@@ -11,6 +11,8 @@
 //! The load (what the optics see) follows the motor with backlash as `crate::motion` models it: on a rising
 //! stretch it is `max(load, motor)`, on a falling one `min(load, motor + backlash)`.
 
+use gonio_instrument::Axis;
+
 use crate::motion::MoveEnd;
 
 /// Records kept per axis at most; further entries are dropped and the record says it is truncated.
@@ -306,10 +308,163 @@ fn crossing_time(piece: &Piece, level: f64, offset: f64) -> f64 {
     hi
 }
 
+// ---------------------------------------------------------------- checking two arms' trajectories
+
+/// Pieces (controller degrees) in physical degrees of `axis`: `a = direction * (p - zero_offset)`.
+pub fn physical_pieces(axis: &Axis, pieces: Vec<Piece>) -> Vec<Piece> {
+    let dir = f64::from(axis.direction);
+    pieces
+        .into_iter()
+        .map(|p| Piece {
+            p0_deg: dir * (p.p0_deg - axis.zero_offset_deg),
+            v0_deg_s: dir * p.v0_deg_s,
+            a_deg_s2: dir * p.a_deg_s2,
+            ..p
+        })
+        .collect()
+}
+
+/// Position and velocity of a piece at `t` (inside it).
+fn state_at(p: &Piece, t: f64) -> (f64, f64) {
+    (p.position_at(t), p.v0_deg_s + p.a_deg_s2 * (t - p.t0_s))
+}
+
+/// One interval between the breakpoints of both trajectories, with `f = l - d` at its start and its extremes.
+#[derive(Debug, Clone, Copy)]
+struct Stretch {
+    ta: f64,
+    tb: f64,
+    fa: f64,
+    lo: f64,
+    hi: f64,
+}
+
+/// `l(t) - d(t)` on each interval between the breakpoints of both trajectories: on each such interval the
+/// difference is one quadratic, whose extremes lie at its ends or at its vertex.
+fn difference_extremes(l: &[Piece], d: &[Piece]) -> Vec<Stretch> {
+    let mut breaks: Vec<f64> = l.iter().chain(d.iter()).flat_map(|p| [p.t0_s, p.t1_s]).collect();
+    breaks.sort_by(f64::total_cmp);
+    breaks.dedup();
+    let covering = |pieces: &[Piece], t: f64| pieces.iter().find(|p| p.t0_s <= t && t <= p.t1_s).copied();
+    let mut out = Vec::new();
+    for w in breaks.windows(2) {
+        let (ta, tb) = (w[0], w[1]);
+        if tb <= ta {
+            continue;
+        }
+        let mid = 0.5 * (ta + tb);
+        let (Some(lp), Some(dp)) = (covering(l, mid), covering(d, mid)) else {
+            continue;
+        };
+        let ((l0, lv), (d0, dv)) = (state_at(&lp, ta), state_at(&dp, ta));
+        let (c0, c1, c2) = (l0 - d0, lv - dv, 0.5 * (lp.a_deg_s2 - dp.a_deg_s2));
+        let f = |t: f64| c0 + c1 * (t - ta) + c2 * (t - ta) * (t - ta);
+        let (fa, fb) = (f(ta), f(tb));
+        let (mut lo, mut hi) = (fa.min(fb), fa.max(fb));
+        if c2 != 0.0 {
+            let tv = ta - c1 / (2.0 * c2);
+            if tv > ta && tv < tb {
+                lo = lo.min(f(tv));
+                hi = hi.max(f(tv));
+            }
+        }
+        out.push(Stretch { ta, tb, fa, lo, hi });
+    }
+    out
+}
+
+/// Slack on the "separation may only grow" comparison before the arms are first apart (rounding of degrees).
+const GROWTH_SLACK_DEG: f64 = 1e-9;
+
+/// The arm-separation rule checked exactly on two arms' trajectories (physical degrees; the light arm `l`, the
+/// detector `d`): once the arms have been apart (`separation_ok`), they never come closer than that at any
+/// instant; before (the simulator powers up with both arms at 0), their separation may only grow. `Err` names
+/// the first stretch that breaks the rule; `Ok` is the smallest separation seen once apart (infinite if they
+/// never were). `min_separation_deg` is only quoted in the message.
+pub fn check_arm_separation(
+    l: &[Piece],
+    d: &[Piece],
+    min_separation_deg: f64,
+    separation_ok: impl Fn(f64) -> bool,
+) -> Result<f64, String> {
+    let mut apart = false;
+    let mut min_seen = f64::INFINITY;
+    for Stretch { ta, tb, fa, lo, hi } in difference_extremes(l, d) {
+        // The arms are within 200 degrees of each other (axis limits +-100): |l - d| is their separation
+        // whenever it is below 180, which is all that matters here.
+        let nearest = if lo > 0.0 {
+            lo
+        } else if hi < 0.0 {
+            -hi
+        } else {
+            0.0
+        };
+        let farthest = lo.abs().max(hi.abs());
+        apart |= separation_ok(fa.abs());
+        if apart {
+            min_seen = min_seen.min(nearest);
+            if !separation_ok(nearest) {
+                return Err(format!(
+                    "arms {nearest:.6} deg apart between t = {ta:.4} s and {tb:.4} s (minimum {min_separation_deg} deg)"
+                ));
+            }
+        } else {
+            if nearest + GROWTH_SLACK_DEG < fa.abs() {
+                return Err(format!(
+                    "before the arms were apart their separation shrank from {:.6} to {nearest:.6} deg between \
+                     t = {ta:.4} s and {tb:.4} s",
+                    fa.abs()
+                ));
+            }
+            apart = separation_ok(farthest);
+            if apart {
+                min_seen = min_seen.min(farthest);
+            }
+        }
+    }
+    Ok(min_seen)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::motion::{AxisMotion, AxisParams};
+
+    fn piece(t0_s: f64, t1_s: f64, p0_deg: f64, v0_deg_s: f64, a_deg_s2: f64) -> Piece {
+        Piece {
+            t0_s,
+            t1_s,
+            p0_deg,
+            v0_deg_s,
+            a_deg_s2,
+        }
+    }
+
+    #[test]
+    fn the_separation_check_finds_a_brief_approach_between_samples() {
+        let check = |l: &[Piece], d: &[Piece]| check_arm_separation(l, d, 10.0, |s| s >= 10.0 - 1e-9);
+        // Both arms apart at every breakpoint, but the detector swings (quadratic) to within 9.5 deg of the
+        // light arm in between: the vertex must be found.
+        let light = vec![piece(0.0, 2.0, 0.0, 0.0, 0.0)];
+        // d(t) = 20 - 42 t + 42 t^2 on [0, 1]: 9.5 deg at t = 0.5, between breakpoints where it is 20.
+        let detector = vec![
+            piece(0.0, 1.0, 20.0, -42.0, 84.0),
+            piece(1.0, 2.0, 20.0, 0.0, 0.0),
+        ];
+        let err = check(&light, &detector).expect_err("too close at t = 0.5");
+        assert!(err.contains("9.5"), "{err}");
+        // The same swing kept at 10.5 deg at its closest is fine, and the minimum is measured exactly.
+        let detector = vec![
+            piece(0.0, 1.0, 20.0, -38.0, 76.0),
+            piece(1.0, 2.0, 20.0, 0.0, 0.0),
+        ];
+        let min = check(&light, &detector).expect("apart");
+        assert!((min - 10.5).abs() < 1e-9, "{min}");
+        // Arms that start together may only separate until they are apart.
+        let detector = vec![piece(0.0, 1.0, 0.0, 12.0, 0.0), piece(1.0, 2.0, 12.0, -4.0, 0.0)];
+        let err = check(&light, &detector).expect_err("came back");
+        assert!(err.contains("8.0"), "{err}");
+    }
 
     /// A SplitMix64 stream: reproducible pseudo-random numbers without a dependency.
     struct Rng(u64);

@@ -38,6 +38,15 @@ pub trait Scene: Send + Sync + Debug {
     /// Power on the photodiode (watts) with the axes at `pose`, the filter `band` in the beam, at simulated time
     /// `t_s` seconds since the simulation started (sources drift). Never negative, never NaN.
     fn detector_power_w(&self, pose: &Pose, band: &Band, t_s: f64) -> f64;
+
+    /// The power at one `pose` and `band` at each instant of `times_s`, into `out` (cleared first): exactly
+    /// what [`Scene::detector_power_w`] gives at each. The power meter averages several samples of a pose at
+    /// rest; a scene whose geometry is costly (the optics' aperture integral) overrides this to compute what does
+    /// not depend on time once.
+    fn detector_power_series_w(&self, pose: &Pose, band: &Band, times_s: &[f64], out: &mut Vec<f64>) {
+        out.clear();
+        out.extend(times_s.iter().map(|&t| self.detector_power_w(pose, band, t)));
+    }
 }
 
 /// A scene in which the detector sees a fixed power whenever a filter (not the blank) is in the beam.

@@ -5,6 +5,7 @@
 //! and when. The session task does the waiting (on the simulated clock) and the I/O.
 
 use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 
@@ -38,6 +39,37 @@ fn lock(emu: &SharedEmulator) -> std::sync::MutexGuard<'_, dyn SerialEmulator + 
     emu.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// The serial line's speed: a reply is complete only once its last byte has crossed the wire (8N1: ten bits a
+/// byte), so a 57600-baud SMC100 status reply takes about 2 ms, as on the real link.
+#[derive(Debug, Clone, Copy)]
+pub struct LineRate {
+    bytes_per_s: f64,
+}
+
+impl LineRate {
+    /// `baud` bits per second, 8N1 framing; a zero or absurd rate means an instantaneous line.
+    pub fn from_baud(baud: u32) -> LineRate {
+        LineRate {
+            bytes_per_s: f64::from(baud) / 10.0,
+        }
+    }
+
+    /// Simulated seconds to send `n` bytes.
+    fn wire_s(&self, n: usize) -> f64 {
+        if self.bytes_per_s > 0.0 {
+            n as f64 / self.bytes_per_s
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Below this much real time, a reply is written at once rather than after a timer: tokio's timer rounds every
+/// wait up to its next 1 ms tick, which at a large time scale would cost each exchange a real millisecond (a
+/// thousand simulated seconds at 1e6) instead of microseconds. The reply is then early by less than this in real
+/// time, far below what the time scale already blurs.
+const SHORTEST_REAL_WAIT: Duration = Duration::from_micros(50);
+
 /// Serve one host connection until the host closes it or the device vanishes (fault), which closes the stream
 /// so that the host reads EOF.
 pub async fn serve(
@@ -46,6 +78,7 @@ pub async fn serve(
     faults: DeviceFaults,
     clock: SimClock,
     device: String,
+    line: LineRate,
 ) {
     lock(&emu).reset_input();
     let mut buf = [0u8; 1024];
@@ -78,7 +111,7 @@ pub async fn serve(
                 lock(&emu).poll_events(at)
             }
         };
-        if !send(&mut io, outputs, &faults, &clock, &device).await {
+        if !send(&mut io, outputs, &faults, &clock, &device, line).await {
             faults.injector().note_disconnect(&device, clock.now_s());
             return;
         }
@@ -92,10 +125,14 @@ async fn send(
     faults: &DeviceFaults,
     clock: &SimClock,
     device: &str,
+    line: LineRate,
 ) -> bool {
     for out in outputs {
         let delay = faults.reply_delay_s();
-        clock.sleep_until_s(out.at_s + delay).await;
+        let done_s = out.at_s + delay + line.wire_s(out.bytes.len());
+        if clock.real_duration(done_s - clock.now_s()) >= SHORTEST_REAL_WAIT {
+            clock.sleep_until_s(done_s).await;
+        }
         if !faults.injector().link_up(clock.now_s()) {
             return false;
         }

@@ -494,6 +494,59 @@ fn noise_off_repeats_exactly_and_seeded_noise_reproduces() {
 }
 
 #[test]
+fn a_series_at_rest_is_exactly_the_readings_at_each_instant() {
+    // The power meter averages several samples of a pose at rest through `detector_power_series_w`, which computes
+    // the geometry once: every value must be bit-identical to a separate `detector_power_w` at that instant, with
+    // the source's drift and noise on (so that the instants really differ).
+    let inst = instrument();
+    let glossy = Optics::new(
+        &inst,
+        sample(Material::preset("coloured-plastic").expect("preset"), 12.5),
+        11,
+    )
+    .expect("optics");
+    let times: Vec<f64> = (0..10).map(|k| 1234.5 + (k as f64 + 0.5) * 0.003).collect();
+    let facing = Optics::direct_beam_pose(-90.0);
+    let cases = [
+        // Specular geometry (lobe inside the aperture), off-specular, the blank, and retro-reflection (blocked).
+        (pose(-30.0, 30.0, 0.0, 0.0), BAND_550),
+        (pose(-60.0, 10.0, 3.0, 20.0), BAND_550),
+        (pose(-30.0, 30.0, 0.0, 0.0), Band::BLANK),
+        (pose(-30.0, -29.5, 0.0, 0.0), BAND_550),
+    ];
+    let mut series = Vec::new();
+    for (p, band) in cases {
+        glossy.detector_power_series_w(&p, &band, &times, &mut series);
+        let singles: Vec<f64> = times
+            .iter()
+            .map(|&t| glossy.detector_power_w(&p, &band, t))
+            .collect();
+        assert_eq!(series.len(), times.len());
+        for (a, b) in series.iter().zip(&singles) {
+            assert_eq!(
+                a.to_bits(),
+                b.to_bits(),
+                "{p:?} {band:?}: {series:?} vs {singles:?}"
+            );
+        }
+    }
+    // The lit case is really noisy: the instants differ.
+    glossy.detector_power_series_w(&cases[0].0, &BAND_550, &times, &mut series);
+    assert!(
+        series.iter().any(|p| *p != series[0]) && series[0] > 0.0,
+        "{series:?}"
+    );
+    // No sample: the direct beam, same rule.
+    glossy.set_sample_mounted(false);
+    let p = facing;
+    glossy.detector_power_series_w(&p, &BAND_550, &times, &mut series);
+    for (a, &t) in series.iter().zip(&times) {
+        assert_eq!(a.to_bits(), glossy.detector_power_w(&p, &BAND_550, t).to_bits());
+    }
+    assert!(series[0] > 0.0);
+}
+
+#[test]
 fn source_drift_moves_the_power_slowly() {
     let inst = instrument();
     let optics = Optics::new(

@@ -9,8 +9,14 @@
 //!   (`port = "sim-pty"`) and opened by path like real ports; the power meter stays in process (USB). This needs
 //!   the real clock; the simulator runs at the largest time scale given, so device time shrinks to tokio's 1 ms
 //!   timer tick per wait.
-//! - Both run a stored campaign from `run_campaign` to `completed`, committing every point to a SQLite store
-//!   (WAL, synchronous = FULL) in a directory under the system temp dir.
+//! - Both run a stored campaign from `run_campaign` to `completed`, committing every point in its own transaction
+//!   to a SQLite store in a directory under the system temp dir (`TMPDIR`, e.g. `TMPDIR=/dev/shm` for tmpfs).
+//!   These are dry-runs, which the store commits with `synchronous = NORMAL` in WAL mode (no fsync per point;
+//!   survives `kill -9` of the process, not an OS crash: crates/daemon/src/store.rs); campaigns on the real
+//!   instrument commit with `synchronous = FULL`.
+//! - Start-up: `prepare_campaign` plans and orders the campaign before the clock starts; the engine then takes
+//!   that prepared campaign instead of ordering the stored text again (crates/daemon/src/engine.rs), so the
+//!   overall wall time covers homing, the first calibration and the points.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};

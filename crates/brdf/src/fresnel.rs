@@ -17,9 +17,12 @@
 /// A vanishing denominator only happens for a degenerate index (eta = k = 0, or an index-matched interface at
 /// grazing incidence); the limit of total reflection (1) is returned there instead of 0/0.
 pub fn conductor(cos_theta: f64, eta: f64, k: f64) -> f64 {
+    if let Some((num, den)) = conductor_ratio(cos_theta, eta, k) {
+        return (num / den).clamp(0.0, 1.0);
+    }
+    // A vanishing denominator: the ratios one by one, with the limits.
     let c = cos_theta.abs().min(1.0);
     let c2 = c * c;
-    // 1 - c^2 loses digits near the pole, where it is tiny and only matters relative to O(1) terms: harmless.
     let s2 = (1.0 - c2).max(0.0);
     let eta2 = eta * eta;
     let k2 = k * k;
@@ -32,11 +35,6 @@ pub fn conductor(cos_theta: f64, eta: f64, k: f64) -> f64 {
     let rp_base = c2 * a2b2 + s2 * s2;
     let rp_odd = two_ac * s2;
     let rp_den = rp_base + rp_odd;
-    if rs_den > 0.0 && rp_den > 0.0 {
-        // (Rs + Rp) / 2 = Rs (1 + Rp/Rs) / 2 = Rs rp_base / rp_den: one division instead of two (the hot path of
-        // every conductor evaluation; the same value up to rounding).
-        return ((rs_num * rp_base) / (rs_den * rp_den)).clamp(0.0, 1.0);
-    }
     let rs = if rs_den > 0.0 {
         (rs_num / rs_den).clamp(0.0, 1.0)
     } else {
@@ -48,6 +46,28 @@ pub fn conductor(cos_theta: f64, eta: f64, k: f64) -> f64 {
         rs
     };
     0.5 * (rs + rp)
+}
+
+/// [`conductor`] as a ratio `(num, den)` with `den > 0`, or `None` for the degenerate indices where a
+/// denominator vanishes (then use [`conductor`]). `(Rs + Rp) / 2 = Rs (1 + Rp/Rs) / 2 = Rs rp_base / rp_den`:
+/// one division instead of two, which the rough conductor folds into its lobe's division (the hot path of every
+/// conductor evaluation; the same value up to rounding, never clamped: `num` may round a hair below 0 where the
+/// reflectance is 0).
+pub(crate) fn conductor_ratio(cos_theta: f64, eta: f64, k: f64) -> Option<(f64, f64)> {
+    let c = cos_theta.abs().min(1.0);
+    let c2 = c * c;
+    // 1 - c^2 loses digits near the pole, where it is tiny and only matters relative to O(1) terms: harmless.
+    let s2 = (1.0 - c2).max(0.0);
+    let eta2 = eta * eta;
+    let k2 = k * k;
+    let t0 = eta2 - k2 - s2;
+    let a2b2 = (t0 * t0 + 4.0 * eta2 * k2).sqrt();
+    let a = (0.5 * (a2b2 + t0)).max(0.0).sqrt();
+    let two_ac = 2.0 * a * c;
+    let rs_den = a2b2 + c2 + two_ac;
+    let rp_base = c2 * a2b2 + s2 * s2;
+    let rp_den = rp_base + two_ac * s2;
+    (rs_den > 0.0 && rp_den > 0.0).then_some(((a2b2 + c2 - two_ac) * rp_base, rs_den * rp_den))
 }
 
 /// Unpolarised reflectance of a dielectric interface with relative index `eta` (transmitted over incident

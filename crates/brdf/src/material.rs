@@ -9,12 +9,19 @@
 //! | `oren-nayar`  | `albedo` (Spectral, [0, 1]), `sigma_deg` (number, [0, 90])                            |
 //! | `phong`       | `diffuse`, `specular` (Spectral, [0, 1], sum <= 1), `exponent` (number, [0, 1e6])      |
 //! | `conductor`   | `distribution` (`ggx`/`beckmann`), `masking` (`separable`/`height-correlated`),       |
-//! |               | `alpha` or `alpha_x` + `alpha_y` (number, (0, 1]), `eta` (Spectral, > 0), `k` (>= 0)   |
+//! |               | `alpha` or `alpha_x` + `alpha_y` (number, (0, 1]), `eta` (Spectral, (0, 1000]),       |
+//! |               | `k` (Spectral, [0, 1000])                                                             |
 //! | `plastic`     | `distribution`, `masking`, `alpha` or `alpha_x` + `alpha_y`, `ior` (Spectral, [1, 4]),|
 //! |               | `albedo` (Spectral, [0, 1])                                                           |
-//! | `mirror`      | `eta` (Spectral, > 0), `k` (Spectral, >= 0)                                           |
+//! | `mirror`      | `eta` (Spectral, (0, 1000]), `k` (Spectral, [0, 1000])                                |
 //! | `measured`    | `file` (path, relative to the TOML file's directory), `format` (`merl`),              |
 //! |               | `channel` (`red`/`green`/`blue`)                                                      |
+//!
+//! The optical constants `eta` and `k` (the complex refractive index `eta + i k` of a conductor or mirror) are
+//! capped at [`crate::models::MAX_OPTICAL_CONSTANT`] = 1000 at every wavelength of the table: real metals in the
+//! visible and near infrared stay below about 100, and much larger values would overflow the squares in the
+//! Fresnel factor into a NaN reflectance. A value above the cap is refused like any other out-of-range value
+//! (the error names the key and the value).
 //!
 //! Every key listed for the model is required; any other key is an error. Errors name the origin (file path
 //! or preset), the line and the key. The same table is embedded in campaign files: [`Material::from_document`]

@@ -269,31 +269,8 @@ impl Microfacet {
         let cos_d = (0.5 * len).min(1.0);
         let value = match self.distribution {
             Distribution::Ggx => {
-                // The hot path of `eval`, with two divisions and no normalisation (the algebra is exact, only
-                // the rounding differs from the textbook form):
-                // - D(h) = 1 / (pi ax ay t^2), t = (hx/ax)^2 + (hy/ay)^2 + hz^2 = q / l2 with
-                //   q = (sx/ax)^2 + (sy/ay)^2 + sz^2 (h = s / len);
-                // - Smith G1(w) = 1 / (1 + Lambda(w)) = 2 cos / (cos + r), r = sqrt(cos^2 + ax^2 x^2 + ay^2 y^2);
-                //   the sidedness test passes for every pair above the horizon (wi . h = wo . h = len/2 > 0);
-                // - separable: D G / (4 ci co) = D / ((ci + ri)(co + ro));
-                //   height-correlated: G = 1 / (1 + Lambda_i + Lambda_o) = 2 ci co / (ri co + ro ci), so
-                //   D G / (4 ci co) = D / (2 (ri co + ro ci)).
-                let (ex, ey) = (sx * self.inv_alpha_x, sy * self.inv_alpha_y);
-                let q = ex * ex + ey * ey + sz * sz;
-                let ri = self.masking_root(wi);
-                let ro = self.masking_root(wo);
-                let den = match self.masking {
-                    Masking::Separable => (ci + ri) * (co + ro),
-                    Masking::HeightCorrelated => 2.0 * (ri * co + ro * ci),
-                };
-                if l2 > 1e-100 {
-                    // One division: l2^2 and q^2 cannot underflow here (q >= l2 min(1, 1/alpha^2)) nor overflow
-                    // (l2 <= 4, q <= 4 / ALPHA_MIN^2).
-                    self.inv_pi_axay * (l2 * l2) / ((q * q) * den)
-                } else {
-                    let r = l2 / q;
-                    self.inv_pi_axay * r * r / den
-                }
+                let (num, den) = self.ggx_ratio(wi, wo, sx, sy, sz, l2);
+                num / den
             }
             Distribution::Beckmann => {
                 let (hx, hy, hz) = (sx / len, sy / len, sz / len);
@@ -309,6 +286,63 @@ impl Microfacet {
             value: if value.is_finite() { value } else { 0.0 },
             cos_d,
         })
+    }
+
+    /// For a GGX distribution and a pair above the horizon: the lobe as `(num, den, cos_d)` with
+    /// `D(h) G / (4 ci co) = num / den` ([`Microfacet::ggx_ratio`]) and `cos_d` as in [`LobeValue`]; `None`
+    /// otherwise (Beckmann, at or below the horizon, opposite directions).
+    pub(crate) fn ggx_fraction(&self, wi: &Direction, wo: &Direction) -> Option<(f64, f64, f64)> {
+        if self.distribution != Distribution::Ggx || wi.z() <= 0.0 || wo.z() <= 0.0 {
+            return None;
+        }
+        let (sx, sy, sz) = (wi.x() + wo.x(), wi.y() + wo.y(), wi.z() + wo.z());
+        let l2 = sx * sx + sy * sy + sz * sz;
+        if l2.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return None;
+        }
+        let cos_d = (0.5 * l2.sqrt()).min(1.0);
+        let (num, den) = self.ggx_ratio(wi, wo, sx, sy, sz, l2);
+        Some((num, den, cos_d))
+    }
+
+    /// The GGX lobe `D(h) G / (4 ci co)` as a ratio `num / den`, for a pair above the horizon with
+    /// `s = wi + wo` and `l2 = |s|^2 > 0`; the hot path of `eval`, with no division (the conductor folds its
+    /// Fresnel ratio into the same single division). The algebra is exact, only the rounding differs from the
+    /// textbook form:
+    /// - `D(h) = 1 / (pi ax ay t^2)`, `t = (hx/ax)^2 + (hy/ay)^2 + hz^2 = q / l2` with
+    ///   `q = (sx/ax)^2 + (sy/ay)^2 + sz^2` (h = s / |s|);
+    /// - Smith `G1(w) = 1 / (1 + Lambda(w)) = 2 cos / (cos + r)`, `r = sqrt(cos^2 + ax^2 x^2 + ay^2 y^2)`; the
+    ///   sidedness test passes for every pair above the horizon (wi . h = wo . h = |s|/2 > 0);
+    /// - separable: `D G / (4 ci co) = D / ((ci + ri)(co + ro))`; height-correlated:
+    ///   `G = 1 / (1 + Lambda_i + Lambda_o) = 2 ci co / (ri co + ro ci)`, so `D G / (4 ci co) = D / (2 (ri co + ro ci))`.
+    ///
+    /// Sums and products of swapped operands give the same bits: the ratio is exactly reciprocal. Neither part
+    /// underflows nor overflows when `l2 > 1e-100` (q >= l2 min(1, 1/alpha^2), l2 <= 4, q <= 4 / ALPHA_MIN^2);
+    /// below that (both directions within 1e-50 of the horizon and opposite) the ratio is pre-divided.
+    pub(crate) fn ggx_ratio(
+        &self,
+        wi: &Direction,
+        wo: &Direction,
+        sx: f64,
+        sy: f64,
+        sz: f64,
+        l2: f64,
+    ) -> (f64, f64) {
+        let (ci, co) = (wi.z(), wo.z());
+        let (ex, ey) = (sx * self.inv_alpha_x, sy * self.inv_alpha_y);
+        let q = ex * ex + ey * ey + sz * sz;
+        let ri = self.masking_root(wi);
+        let ro = self.masking_root(wo);
+        let den = match self.masking {
+            Masking::Separable => (ci + ri) * (co + ro),
+            Masking::HeightCorrelated => 2.0 * (ri * co + ro * ci),
+        };
+        if l2 > 1e-100 {
+            (self.inv_pi_axay * (l2 * l2), (q * q) * den)
+        } else {
+            let r = l2 / q;
+            (self.inv_pi_axay * r * r, den)
+        }
     }
 
     /// `sqrt(z^2 + ax^2 x^2 + ay^2 y^2)` of a unit vector: `|z| sqrt(1 + alpha(w)^2 tan^2 theta)`, the root in the
@@ -607,6 +641,54 @@ mod tests {
             }
         }
         assert!(worst <= 1e-12, "largest relative difference {worst:e}");
+    }
+
+    /// The rough conductor's fused GGX path (Fresnel and lobe as one ratio) against the Fresnel factor times
+    /// `lobe`, and reciprocal bit for bit.
+    #[test]
+    fn fused_ggx_conductor_equals_fresnel_times_lobe() {
+        use crate::brdf::Brdf;
+        use crate::fresnel;
+        use crate::models::Conductor;
+        use crate::spectrum::{Spectral, Wavelength};
+        let wl = Wavelength::DEFAULT;
+        let mut s: u64 = 5;
+        let mut unit = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut worst: f64 = 0.0;
+        for &(ax, ay, eta, k) in &[
+            (0.08, 0.08, 0.35, 2.714),
+            (0.3, 0.05, 1.5, 0.0),
+            (1.0, 1.0, 0.05, 20.0),
+        ] {
+            for masking in [Masking::Separable, Masking::HeightCorrelated] {
+                let c = Conductor::new(
+                    Distribution::Ggx,
+                    masking,
+                    ax,
+                    ay,
+                    Spectral::Constant(eta),
+                    Spectral::Constant(k),
+                )
+                .expect("valid");
+                for _ in 0..2000 {
+                    let wi = Direction::from_spherical(unit() * 1.57, unit() * 6.3);
+                    let wo = Direction::from_spherical(unit() * 1.57, unit() * 6.3);
+                    let got = c.eval(&wi, &wo, wl).expect("constant");
+                    assert_eq!(got.to_bits(), c.eval(&wo, &wi, wl).expect("constant").to_bits());
+                    let l = c.microfacet().lobe(&wi, &wo).expect("above the horizon");
+                    let expect = fresnel::conductor(l.cos_d, eta, k) * l.value;
+                    if expect > 1e-300 {
+                        worst = worst.max((got - expect).abs() / expect);
+                    }
+                }
+            }
+        }
+        assert!(worst <= 1e-13, "largest relative difference {worst:e}");
     }
 
     /// `delta_cone_fraction` against the aperture integral of the (Fresnel-free) lobe just above the switch,

@@ -1,6 +1,7 @@
 //! The HTTP/JSON control API of `gonio daemon` (axum), and the server loop that serves it.
 //!
-//! Routes (all JSON; errors are `{"error": "..."}` with 400, 401, 404, 405, 408, 409, 413, 503 or 500):
+//! Routes (all JSON; errors are `{"error": "..."}` with 400, 401, 403, 404, 405, 408, 409, 413, 421, 503 or
+//! 500):
 //! - `POST /api/campaigns` (campaign TOML body) -> 201 `{"id": N}`
 //! - `GET /api/campaigns`, `GET /api/campaigns/{id}` -> state, points done/total, ETA, last error, operator message
 //! - `POST /api/campaigns/{id}/pause|resume|abort|confirm` -> 200 with the campaign (409 when its state does not
@@ -15,6 +16,8 @@
 //! - The token rule: the daemon listens on loopback by default; listening on any other address needs a token
 //!   ([`check_listen`] refuses to start without one), and when a token is set every request must carry it as
 //!   `Authorization: Bearer <token>`, compared in constant time ([`constant_time_eq`]), before any body is read.
+//! - Browsers: a request naming a `Host` that is not the daemon's (DNS rebinding) is refused with 421, a POST
+//!   from a web page of another origin (CSRF) with 403; the status page, the CLI and curl pass ([`origin`]).
 //! - Request bodies are limited ([`ApiConfig::body_limit_bytes`], 413 beyond, announced or streamed) and must
 //!   arrive within [`ApiConfig::body_read_timeout`] (408); requests other than the event stream time out;
 //!   headers must arrive within [`ApiConfig::header_read_timeout`]; at most [`ApiConfig::max_event_streams`]
@@ -24,8 +27,10 @@
 //!   (see [`connections`]). So a slow or hostile client can neither take the daemon down nor lock others out.
 
 mod connections;
+mod origin;
 
 pub use connections::ConnectionLimits;
+pub use origin::HostPolicy;
 
 use std::convert::Infallible;
 use std::net::SocketAddr;
@@ -85,6 +90,11 @@ pub struct ApiConfig {
     pub max_connections: usize,
     /// Open event streams at most (fewer than `max_connections`, so that they cannot take every connection).
     pub max_event_streams: usize,
+    /// Host names the daemon answers to besides localhost and its addresses (see [`origin`]): requests naming
+    /// any other `Host` are refused (DNS rebinding).
+    pub allowed_hosts: Vec<String>,
+    /// The address listened on, for the `Host` check; [`run_daemon`] sets it from its listener.
+    pub listen_addr: Option<SocketAddr>,
 }
 
 impl ApiConfig {
@@ -116,6 +126,8 @@ impl std::fmt::Debug for ApiConfig {
             .field("write_timeout", &self.write_timeout)
             .field("max_connections", &self.max_connections)
             .field("max_event_streams", &self.max_event_streams)
+            .field("allowed_hosts", &self.allowed_hosts)
+            .field("listen_addr", &self.listen_addr)
             .finish()
     }
 }
@@ -131,6 +143,8 @@ impl Default for ApiConfig {
             write_timeout: WRITE_TIMEOUT,
             max_connections: MAX_CONNECTIONS,
             max_event_streams: MAX_EVENT_STREAMS,
+            allowed_hosts: Vec::new(),
+            listen_addr: None,
         }
     }
 }
@@ -217,6 +231,11 @@ pub fn router(service: Service, config: &ApiConfig, shutdown: Shutdown) -> Route
         // A wrong method on the status page's routes answers JSON too (the API's own routes have theirs, behind
         // the token check, which this does not replace).
         .method_not_allowed_fallback(method_not_allowed)
+        // Outermost, on every route: foreign Host names (DNS rebinding) and cross-site state changes (CSRF).
+        .layer(middleware::from_fn_with_state(
+            Arc::new(HostPolicy::new(&config.allowed_hosts, config.listen_addr)),
+            origin::check,
+        ))
 }
 
 /// An error as the API returns it: a status and `{"error": "..."}`.
@@ -640,7 +659,11 @@ pub async fn run_daemon(
         let complete = complete_tx.clone();
         tokio::spawn(async move { service.run_queue(shutdown, complete).await })
     };
-    let app = router(service, config, trigger.subscribe());
+    let mut config = config.clone();
+    if config.listen_addr.is_none() {
+        config.listen_addr = listener.local_addr().ok();
+    }
+    let app = router(service, &config, trigger.subscribe());
     let server = tokio::spawn(serve_with(
         listener,
         app,

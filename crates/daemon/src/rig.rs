@@ -88,6 +88,17 @@ impl Scene for SwitchScene {
             None => 0.0,
         }
     }
+
+    fn detector_power_series_w(&self, pose: &Pose, band: &Band, times_s: &[f64], out: &mut Vec<f64>) {
+        match self.optics.read().unwrap_or_else(|e| e.into_inner()).as_ref() {
+            // The optics compute the geometry once for all the instants.
+            Some(o) => o.detector_power_series_w(pose, band, times_s, out),
+            None => {
+                out.clear();
+                out.resize(times_s.len(), 0.0);
+            }
+        }
+    }
 }
 
 impl Rig {

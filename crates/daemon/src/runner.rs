@@ -1,7 +1,8 @@
 //! The run loop behind [`crate::engine::run_campaign`].
 //!
 //! Order of work: rebuild the campaign (plan and schedule) from the text stored with it, materials included
-//! (its `[resolved]` table: no file is read); connect the sample (dry-runs); home axes that lost their
+//! (its `[resolved]` table: no file is read), or take it as this process just prepared it when that is provably
+//! the same (`crate::engine::take_prepared`); connect the sample (dry-runs); home axes that lost their
 //! reference; a calibration preamble (darks for every band, then the normalisation readings for every band:
 //! direct beam for the absolute method, reference sample for the relative one) on every start and resume; then
 //! the schedule's steps from the first uncommitted point, with the schedule's own dark and normalisation steps in
@@ -36,6 +37,7 @@
 //! state in memory for status requests (`Store::set_state`).
 
 mod reference;
+mod rehome;
 
 use std::collections::BTreeMap;
 use std::future::Future;
@@ -196,9 +198,16 @@ pub(crate) async fn run(
             rig.file().instrument.name
         )));
     }
-    let origin = format!("<stored campaign {id}>");
-    let c = campaign::parse(&rec.campaign_toml, &origin, &Sources::Stored, &file)
-        .map_err(|e| not_runnable(format!("its stored campaign file no longer validates: {e}")))?;
+    // Prepared in this process moments ago (`gonio run`, the daemon's queue): the very campaign the stored text
+    // parses to, already planned and ordered (crate::engine's module doc). Otherwise the stored text is parsed.
+    let c = match crate::engine::take_prepared(&rec.campaign_toml, &file) {
+        Some(c) => c,
+        None => {
+            let origin = format!("<stored campaign {id}>");
+            campaign::parse(&rec.campaign_toml, &origin, &Sources::Stored, &file)
+                .map_err(|e| not_runnable(format!("its stored campaign file no longer validates: {e}")))?
+        }
+    };
     let total = c.total_points();
     if total != rec.total_points {
         return Err(not_runnable(format!(
@@ -474,12 +483,9 @@ impl<'a> Run<'a> {
         )))
     }
 
+    /// Home an axis that lost its reference, never sweeping an arm through the other ([`rehome`]).
     async fn home(&self, a: &RigAxis) -> Result<(), Interrupt> {
-        tracing::info!(axis = %a.config.name, "homing");
-        tokio::select! {
-            r = a.driver.home() => r.map_err(|e| Interrupt::Pause(format!("homing {}: {e}", a.config.name))),
-            _ = self.estop_signal() => Err(Interrupt::Estop),
-        }
+        self.home_safely(a).await
     }
 
     async fn go(&mut self) -> Result<(), Interrupt> {
@@ -491,7 +497,8 @@ impl<'a> Run<'a> {
         for (name, identity) in &ids {
             self.st(|s| s.record_device(self.id, name, identity))?;
         }
-        // Reference every axis and learn where it is.
+        // Reference every axis (the arms in a collision-safe order) and learn where it is.
+        let mut unreferenced = Vec::new();
         for a in self.rig.axes() {
             let status = self
                 .device(Dev::Axis(a), &format!("status of {}", a.config.name), || {
@@ -499,9 +506,10 @@ impl<'a> Run<'a> {
                 })
                 .await?;
             if !status.referenced {
-                self.home(a).await?;
+                unreferenced.push(a);
             }
         }
+        self.home_at_start_up(&unreferenced).await?;
         self.read_positions().await?;
 
         if self.done >= self.total {
@@ -685,8 +693,18 @@ impl<'a> Run<'a> {
             },
         };
         let axes = self.rig.axes();
+        // Where each axis finally goes in this move: its last leg in its last phase. Every other leg is a via
+        // point (a backlash overshoot, the parted pose of a separating move), verified within the wider via-point
+        // tolerance since the load lags the motor there.
+        let mut last_phase: BTreeMap<usize, usize> = BTreeMap::new();
+        for (p, phase) in movement.phases.iter().enumerate() {
+            for m in phase {
+                last_phase.insert(m.axis_index, p);
+            }
+        }
+        let last_phase = &last_phase;
         let mut arrived = Vec::new();
-        for phase in &movement.phases {
+        for (phase_index, phase) in movement.phases.iter().enumerate() {
             let this = &*self;
             // Set by the first axis of the phase that fails; the others then fail because they were stopped.
             let stopping = std::sync::atomic::AtomicBool::new(false);
@@ -703,34 +721,60 @@ impl<'a> Run<'a> {
                 };
                 let phys = a.config.physical_from_controller_deg(*last);
                 let what = format!("move {} to {phys:.4} deg", a.config.name);
-                // With a backlash overshoot the driver's own approach (overshoot, then up to the target) runs
-                // the same waypoints; an overshoot point itself cannot be verified (the load lags by the
-                // backlash), only the final arrival can.
-                let backlash = m.waypoints_deg.len() > 1;
-                let op = || async {
-                    if backlash {
-                        a.driver.move_to(phys).await
+                let final_leg = last_phase.get(&m.axis_index) == Some(&phase_index);
+                let arrival = |to: f64, destination: bool| {
+                    if destination {
+                        a.driver.wait_arrived(to)
                     } else {
-                        a.driver.start_move(phys).await?;
-                        a.driver.wait_arrived(phys).await
+                        a.driver.wait_passed_via(to)
                     }
                 };
                 if phase.len() < 2 {
+                    // Alone in its phase: with a backlash overshoot, the driver's own approach runs the same
+                    // waypoints.
+                    let op = || async {
+                        if m.waypoints_deg.len() > 1 {
+                            a.driver.move_to(phys).await
+                        } else {
+                            a.driver.start_move(phys).await?;
+                            arrival(phys, final_leg).await
+                        }
+                    };
                     let pos = this.device(Dev::Axis(a), &what, op).await?;
                     return Ok::<_, Interrupt>(Ok((m.axis_index, pos)));
                 }
-                // One attempt inside a multi-axis phase; on failure stop the phase's other axes at once.
+                // One attempt inside a multi-axis phase; on failure stop the phase's other axes at once. The
+                // legs (overshoot, approach) are commanded here one by one rather than by the driver's own
+                // approach, so that an axis told to stop never starts its next leg.
+                let stopped = || stopping.load(std::sync::atomic::Ordering::SeqCst);
+                let legs = async {
+                    let mut pos = f64::NAN;
+                    let n = m.waypoints_deg.len();
+                    for (i, waypoint) in m.waypoints_deg.iter().enumerate() {
+                        if stopped() {
+                            return Err(None::<DriverError>);
+                        }
+                        let to = a.config.physical_from_controller_deg(*waypoint);
+                        a.driver.start_move(to).await.map_err(Some)?;
+                        if stopped() {
+                            // The phase's stop may have gone out just before this leg started: stop again.
+                            let _ = a.driver.stop().await;
+                            return Err(None);
+                        }
+                        pos = arrival(to, final_leg && i + 1 == n).await.map_err(Some)?;
+                    }
+                    Ok(pos)
+                };
                 let r = tokio::select! {
-                    r = op() => r,
+                    r = legs => r,
                     _ = this.estop_signal() => return Err(Interrupt::Estop),
                 };
                 match r {
                     Ok(pos) => Ok(Ok((m.axis_index, pos))),
-                    Err(_) if stopping.load(std::sync::atomic::Ordering::SeqCst) => {
-                        // Stopped short by us: not this axis's fault.
-                        Ok(Err((None, String::new())))
-                    }
-                    Err(e) => {
+                    // Stopped short by us: not this axis's fault.
+                    Err(None) => Ok(Err((None, String::new()))),
+                    Err(Some(_)) if stopped() => Ok(Err((None, String::new()))),
+                    Err(Some(e)) => {
                         stopping.store(true, std::sync::atomic::Ordering::SeqCst);
                         for other in phase.iter().filter(|o| o.axis_index != m.axis_index) {
                             if let Some(b) = axes.get(other.axis_index) {
@@ -788,7 +832,7 @@ impl<'a> Run<'a> {
     /// The arms start closer than the safety separation (e.g. both at zero after power-up): the scheduler's
     /// planner refuses any move from there. Moving both arms at once is safe when each moves away from the other
     /// (or stays), so that their separation only grows. When the target has each arm on its side of the other,
-    /// that is the whole move (one phase, every axis, backlash waypoints included). Otherwise the arms are first
+    /// that is the whole move (every axis at once, see `simultaneous_phases`). Otherwise the arms are first
     /// parted about their midpoint into the target's order (each moving away from the other), and the planner
     /// takes it from there. None when neither is possible (e.g. the parted pose is beyond a limit).
     fn separating_move(&self, target: &Pose) -> Option<gonio_scheduler::timing::Move> {
@@ -805,12 +849,12 @@ impl<'a> Run<'a> {
         }
         let away = |from: f64, to: f64, sign: f64| (to - from) * sign >= 0.0;
         if away(l0, l1, side) && away(d0, d1, -side) {
-            let (phase, settle_s) = self.simultaneous_phase(&self.current, target);
+            let (phases, settle_s) = self.simultaneous_phases(&self.current, target);
             tracing::info!(
                 "arms closer than the safety separation: separating them in one simultaneous move"
             );
             return Some(gonio_scheduler::timing::Move {
-                phases: vec![phase],
+                phases,
                 motion_s: 0.0,
                 settle_s,
             });
@@ -834,12 +878,11 @@ impl<'a> Run<'a> {
             return None;
         }
         let rest = self.c.time.plan_move(&parted, target).ok()?;
-        let (phase, settle_s) = self.simultaneous_phase(&self.current, &parted);
+        let (mut phases, settle_s) = self.simultaneous_phases(&self.current, &parted);
         tracing::info!(
             ?parted,
             "arms closer than the safety separation: parting them into the target's order first"
         );
-        let mut phases = vec![phase];
         phases.extend(rest.phases);
         Some(gonio_scheduler::timing::Move {
             phases,
@@ -848,30 +891,44 @@ impl<'a> Run<'a> {
         })
     }
 
-    /// One phase moving every axis from `from` to `to` at once (backlash waypoints included), and the longest
-    /// settle time of the axes that move.
-    fn simultaneous_phase(&self, from: &Pose, to: &Pose) -> (Vec<gonio_scheduler::timing::AxisMotion>, f64) {
-        let mut phase = Vec::new();
+    /// Every axis moved from `from` to `to` at once, as phases that each take every moving axis one leg further
+    /// (first every backlash overshoot point, then the approaches), and the longest settle time of the axes that
+    /// move. The overshoot point lies beyond the target in the direction of travel, so while the arms are parted
+    /// each only moves away from the other until both reach it: their separation only grows before they are
+    /// apart. (A single phase would let one arm come back from its overshoot while the other, stalled early, is
+    /// still close: caught by crates/daemon/tests/safety.rs.)
+    fn simultaneous_phases(
+        &self,
+        from: &Pose,
+        to: &Pose,
+    ) -> (Vec<Vec<gonio_scheduler::timing::AxisMotion>>, f64) {
+        let mut phases: Vec<Vec<gonio_scheduler::timing::AxisMotion>> = Vec::new();
         let mut settle = 0.0f64;
         for (i, role) in ROLES.iter().enumerate() {
             let Some(model) = self.c.time.axes.get(i).and_then(|m| m.as_ref()) else {
                 continue;
             };
-            let start = model.controller_deg(from.get(*role));
+            let mut at = model.controller_deg(from.get(*role));
             let end = model.controller_deg(to.get(*role));
-            let waypoints = model.waypoints(start, end);
+            let waypoints = model.waypoints(at, end);
             if waypoints.is_empty() {
                 continue;
             }
             settle = settle.max(model.settle_s);
-            phase.push(gonio_scheduler::timing::AxisMotion {
-                role: *role,
-                axis_index: model.axis_index,
-                duration_s: model.travel_time_s(start, &waypoints),
-                waypoints_deg: waypoints,
-            });
+            for (leg, waypoint) in waypoints.into_iter().enumerate() {
+                if phases.len() <= leg {
+                    phases.push(Vec::new());
+                }
+                phases[leg].push(gonio_scheduler::timing::AxisMotion {
+                    role: *role,
+                    axis_index: model.axis_index,
+                    duration_s: model.travel_time_s(at, &[waypoint]),
+                    waypoints_deg: vec![waypoint],
+                });
+                at = waypoint;
+            }
         }
-        (phase, settle)
+        (phases, settle)
     }
 
     async fn wheel_to(&mut self, position: u8) -> Result<(), Interrupt> {
@@ -1109,7 +1166,7 @@ impl<'a> Run<'a> {
                         "the reference sample at {b} nm overloads the detector: choose a larger range"
                     )));
                 }
-                let dark = self.darks.get(&band_key(*b)).map(|d| d.1).unwrap_or(Reading::exact(0.0));
+                let dark = self.dark(*b);
                 let net_w = v - dark.value_w;
                 if net_w <= 0.0 {
                     return Err(Interrupt::Pause(format!(
@@ -1123,22 +1180,14 @@ impl<'a> Run<'a> {
                     _ => 0.0,
                 };
                 let net = Reading::new(net_w, u.hypot(dark.std_w).hypot(positioning));
-                let t = self.t();
-                self.norm.entry(band_key(*b)).or_default().push((t, net));
-                let rec =
-                    CalibrationRecord { kind: "reference".into(), band_nm: Some(*b), t_s: t, value_w: v, u_w: u };
-                self.st(|s| s.record_calibration(self.id, &rec))?;
+                self.keep_normalisation("reference", *b, net, v, u)?;
             }
             Ok(())
         }
         .await;
-        result.map_err(calibration_failure)?;
-        if let Some(blank) = self.blank_position() {
-            self.wheel_to(blank).await.map_err(calibration_failure)?;
-        }
-        self.operator(
+        self.end_normalisation(
+            result,
             "Reference calibration done: take the reference sample out and mount the sample again, then confirm.",
-            Holder::Sample,
         )
         .await
     }
@@ -1178,7 +1227,7 @@ impl<'a> Run<'a> {
                         "the direct beam at {b} nm overloads the detector: choose a larger range or attenuate"
                     )));
                 }
-                let dark = self.darks.get(&band_key(*b)).map(|d| d.1).unwrap_or(Reading::exact(0.0));
+                let dark = self.dark(*b);
                 let net = Reading::new(v - dark.value_w, u.hypot(dark.std_w));
                 if net.value_w <= 0.0 {
                     return Err(Interrupt::Pause(format!(
@@ -1186,24 +1235,59 @@ impl<'a> Run<'a> {
                         dark.value_w
                     )));
                 }
-                let t = self.t();
-                self.norm.entry(band_key(*b)).or_default().push((t, net));
-                let rec =
-                    CalibrationRecord { kind: "direct-beam".into(), band_nm: Some(*b), t_s: t, value_w: v, u_w: u };
-                self.st(|s| s.record_calibration(self.id, &rec))?;
+                self.keep_normalisation("direct-beam", *b, net, v, u)?;
             }
             Ok(())
         }
         .await;
+        self.end_normalisation(
+            result,
+            "Direct-beam calibration done: mount the sample again, then confirm.",
+        )
+        .await
+    }
+
+    /// The last dark reading of band `nm` (zero, exactly, when none was taken).
+    fn dark(&self, nm: f64) -> Reading {
+        self.darks
+            .get(&band_key(nm))
+            .map(|d| d.1)
+            .unwrap_or(Reading::exact(0.0))
+    }
+
+    /// Keep a band's net normalisation reading for the drift extrapolation, and store the raw one as `kind`.
+    fn keep_normalisation(
+        &mut self,
+        kind: &str,
+        nm: f64,
+        net: Reading,
+        value_w: f64,
+        u_w: f64,
+    ) -> Result<(), Interrupt> {
+        let t = self.t();
+        self.norm.entry(band_key(nm)).or_default().push((t, net));
+        let rec = CalibrationRecord {
+            kind: kind.into(),
+            band_nm: Some(nm),
+            t_s: t,
+            value_w,
+            u_w,
+        };
+        self.st(|s| s.record_calibration(self.id, &rec))
+    }
+
+    /// The end of a normalisation sequence: its failure is a calibration failure; then the beam is closed and
+    /// the operator puts the sample back (`message`).
+    async fn end_normalisation(
+        &mut self,
+        result: Result<(), Interrupt>,
+        message: &str,
+    ) -> Result<(), Interrupt> {
         result.map_err(calibration_failure)?;
         if let Some(blank) = self.blank_position() {
             self.wheel_to(blank).await.map_err(calibration_failure)?;
         }
-        self.operator(
-            "Direct-beam calibration done: mount the sample again, then confirm.",
-            Holder::Sample,
-        )
-        .await
+        self.operator(message, Holder::Sample).await
     }
 
     /// The normalisation reading (net direct beam, or net reference signal) at time `t` for a band,
@@ -1262,11 +1346,7 @@ impl<'a> Run<'a> {
             Err(other) => return Err(other),
         };
         let t = self.t();
-        let dark = self
-            .darks
-            .get(&band_key(band_nm))
-            .map(|d| d.1)
-            .unwrap_or(Reading::exact(0.0));
+        let dark = self.dark(band_nm);
         let incident = self.normalisation(band_nm, t).unwrap_or(Reading::exact(f64::NAN));
         let wi = Direction::from_spherical_deg(g.theta_i_deg, g.phi_i_deg);
         let wo = Direction::from_spherical_deg(g.theta_o_deg, g.phi_o_deg);

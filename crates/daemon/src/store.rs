@@ -1,10 +1,24 @@
 //! The durable store: one SQLite file (bundled build) holding campaigns, their resolved configuration, device
 //! identities, calibration readings and every measured point.
 //!
-//! Durability: WAL journal with `synchronous = FULL`, and one transaction per point, so that after a crash or a
-//! power cut (`kill -9` at any moment) a point is either entirely in the store or not at all. The primary key
-//! (campaign, index) makes it impossible to store a point twice; resuming means continuing from
-//! [`Store::next_index`], the first index not committed.
+//! Durability: WAL journal and one transaction per point, so that after a crash a point is either entirely in
+//! the store or not at all. The primary key (campaign, index) makes it impossible to store a point twice; resuming
+//! means continuing from [`Store::next_index`], the first index not committed. How far a commit survives depends
+//! on the campaign ([`Durability`]):
+//! - a campaign on the real instrument: `synchronous = FULL`, every commit is fsync'd before it returns: a
+//!   committed point survives a crash of the process (`kill -9` at any moment), of the operating system, and a
+//!   power cut;
+//! - a dry-run (every device simulated, [`NewCampaign::dry_run`]): `synchronous = NORMAL` in WAL mode, commits are
+//!   not fsync'd (only checkpoints are): a committed point survives a crash or `kill -9` of the process (the
+//!   write-ahead log is in the operating system's cache, which the next opening reads), but the last commits may
+//!   be lost when the operating system crashes or the power fails. Either way the store stays consistent (a
+//!   commit is whole or absent) and resuming continues from the first point not committed. Nothing of value is at
+//!   stake: a simulated point is measured again in microseconds, and the fsync per point cost a dry-run most of
+//!   its time.
+//!
+//! Every write sets the level its campaign needs (writes that belong to no campaign use FULL), so a real campaign
+//! never commits at the dry-run's level, whatever ran before on the same connection. A FULL commit fsyncs the whole
+//! log, earlier NORMAL commits with it.
 //!
 //! Values are stored as SQLite REALs, which are IEEE-754 doubles: what is read back is bit-identical to what was
 //! written.
@@ -241,6 +255,35 @@ pub struct CalibrationRecord {
     pub u_w: f64,
 }
 
+/// How far a commit survives (module doc): the store picks it from the campaign written to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Durability {
+    /// `synchronous = FULL`: survives a crash of the process or the operating system and a power cut (campaigns
+    /// on the real instrument, and writes that belong to no campaign).
+    PowerLoss,
+    /// `synchronous = NORMAL` (WAL): survives a crash or `kill -9` of the process, not of the operating system
+    /// (dry-runs).
+    ProcessCrash,
+}
+
+impl Durability {
+    /// The level a campaign's writes get.
+    pub fn for_campaign(dry_run: bool) -> Durability {
+        if dry_run {
+            Durability::ProcessCrash
+        } else {
+            Durability::PowerLoss
+        }
+    }
+
+    fn pragma(self) -> &'static str {
+        match self {
+            Durability::PowerLoss => "PRAGMA synchronous = FULL",
+            Durability::ProcessCrash => "PRAGMA synchronous = NORMAL",
+        }
+    }
+}
+
 /// The store. One connection; callers serialise access (the daemon owns it on one task).
 #[derive(Debug)]
 pub struct Store {
@@ -248,6 +291,10 @@ pub struct Store {
     path: PathBuf,
     /// Campaign states that could not be written (disk trouble): (state, message), shown until written.
     unrecorded: HashMap<CampaignId, (CampaignState, Option<String>)>,
+    /// The connection's `synchronous` level now.
+    durability: Durability,
+    /// Campaigns' dry-run flags as stored (they never change): which level their writes get.
+    dry_runs: HashMap<CampaignId, bool>,
 }
 
 impl Store {
@@ -262,18 +309,73 @@ impl Store {
             path: path.clone(),
             source,
         })?;
-        let mut store = Store {
-            conn,
-            path,
-            unrecorded: HashMap::new(),
-        };
+        let mut store = Store::with_connection(conn, path);
         store.configure()?;
         store.migrate()?;
         Ok(store)
     }
 
+    fn with_connection(conn: Connection, path: PathBuf) -> Store {
+        Store {
+            conn,
+            path,
+            unrecorded: HashMap::new(),
+            durability: Durability::PowerLoss,
+            dry_runs: HashMap::new(),
+        }
+    }
+
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// Call `hook` inside every commit, after the transaction's writes and before SQLite makes them durable
+    /// (SQLite's commit hook; `true` from it turns the commit into a rollback). For crash tests, which kill the
+    /// process there: a kill in the middle of a commit, placed exactly.
+    pub fn on_commit<F: FnMut() -> bool + Send + 'static>(&mut self, hook: F) -> Result<(), StoreError> {
+        self.conn
+            .commit_hook(Some(hook))
+            .map_err(|source| StoreError::Write {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    /// The durability the connection is set to now (the level of the last write).
+    pub fn durability(&self) -> Durability {
+        self.durability
+    }
+
+    /// Before a write: set the level the written campaign needs (`None`: no campaign, FULL).
+    fn durability_for_write(&mut self, campaign: Option<CampaignId>) -> Result<(), StoreError> {
+        let wanted = match campaign {
+            None => Durability::PowerLoss,
+            Some(id) => match self.dry_runs.get(&id) {
+                Some(dry) => Durability::for_campaign(*dry),
+                None => {
+                    let dry: Option<bool> = self
+                        .conn
+                        .prepare_cached("SELECT dry_run FROM campaigns WHERE id = ?1")
+                        .and_then(|mut st| st.query_row([id.0], |r| r.get(0)).optional())
+                        .map_err(self.read_err())?;
+                    match dry {
+                        Some(d) => {
+                            self.dry_runs.insert(id, d);
+                            Durability::for_campaign(d)
+                        }
+                        // Not (yet) a campaign: the write fails on its own; keep the strict level meanwhile.
+                        None => Durability::PowerLoss,
+                    }
+                }
+            },
+        };
+        if wanted != self.durability {
+            self.conn
+                .execute_batch(wanted.pragma())
+                .map_err(self.write_err())?;
+            self.durability = wanted;
+        }
+        Ok(())
     }
 
     fn configure(&mut self) -> Result<(), StoreError> {
@@ -431,6 +533,7 @@ impl Store {
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_secs_f64())
             .unwrap_or(0.0);
+        self.durability_for_write(None)?;
         self.conn
             .execute(
                 "INSERT INTO campaigns (name, state, campaign_toml, instrument_toml, total_points, dry_run,
@@ -447,7 +550,9 @@ impl Store {
                 ],
             )
             .map_err(self.write_err())?;
-        Ok(CampaignId(self.conn.last_insert_rowid()))
+        let id = CampaignId(self.conn.last_insert_rowid());
+        self.dry_runs.insert(id, new.dry_run);
+        Ok(id)
     }
 
     pub fn campaign(&self, id: CampaignId) -> Result<CampaignRecord, StoreError> {
@@ -471,8 +576,8 @@ impl Store {
         }
         let state: String = self
             .conn
-            .query_row("SELECT state FROM campaigns WHERE id = ?1", [id.0], |r| r.get(0))
-            .optional()
+            .prepare_cached("SELECT state FROM campaigns WHERE id = ?1")
+            .and_then(|mut st| st.query_row([id.0], |r| r.get(0)).optional())
             .map_err(self.read_err())?
             .ok_or(StoreError::NoSuchCampaign(id))?;
         state.parse()
@@ -482,7 +587,9 @@ impl Store {
     fn overlay(&self, mut record: CampaignRecord) -> CampaignRecord {
         if let Some((state, message)) = self.unrecorded.get(&record.id) {
             record.state = *state;
-            if message.is_some() {
+            if *state == CampaignState::Completed {
+                record.last_error = None;
+            } else if message.is_some() {
                 record.last_error.clone_from(message);
             }
         }
@@ -509,13 +616,17 @@ impl Store {
         state: CampaignState,
         last_error: Option<&str>,
     ) -> Result<(), StoreError> {
-        let result = self
-            .conn
-            .execute(
-                "UPDATE campaigns SET state = ?2, last_error = COALESCE(?3, last_error) WHERE id = ?1",
-                params![id.0, state.as_str(), last_error],
-            )
-            .map_err(self.write_err());
+        let result = self.durability_for_write(Some(id)).and_then(|()| {
+            self.conn
+                .prepare_cached(
+                    // A completed campaign has no error left to show: a pause's reason from before its
+                    // resume is cleared (it stays in the log and the events).
+                    "UPDATE campaigns SET state = ?2, last_error = CASE WHEN ?2 = 'completed' THEN NULL \
+                         ELSE COALESCE(?3, last_error) END WHERE id = ?1",
+                )
+                .and_then(|mut st| st.execute(params![id.0, state.as_str(), last_error]))
+                .map_err(self.write_err())
+        });
         match result {
             Ok(0) => Err(StoreError::NoSuchCampaign(id)),
             Ok(_) => {
@@ -558,6 +669,7 @@ impl Store {
     }
 
     pub fn set_operator_message(&mut self, id: CampaignId, message: Option<&str>) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
         self.conn
             .execute(
                 "UPDATE campaigns SET operator_message = ?2 WHERE id = ?1",
@@ -569,6 +681,7 @@ impl Store {
 
     /// Record the identity string a device reported (e.g. `*IDN?`), replacing an earlier one.
     pub fn record_device(&mut self, id: CampaignId, name: &str, identity: &str) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
         self.conn
             .execute(
                 "INSERT OR REPLACE INTO devices (campaign_id, name, identity) VALUES (?1, ?2, ?3)",
@@ -590,13 +703,23 @@ impl Store {
     }
 
     pub fn record_calibration(&mut self, id: CampaignId, cal: &CalibrationRecord) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
         self.conn
-            .execute(
+            .prepare_cached(
                 "INSERT INTO calibrations (campaign_id, seq, kind, band_nm, t_s, value_w, u_w)
                  VALUES (?1, (SELECT COALESCE(MAX(seq), 0) + 1 FROM calibrations WHERE campaign_id = ?1),
                          ?2, ?3, ?4, ?5, ?6)",
-                params![id.0, cal.kind, cal.band_nm, cal.t_s, cal.value_w, cal.u_w],
             )
+            .and_then(|mut st| {
+                st.execute(params![
+                    id.0,
+                    cal.kind,
+                    cal.band_nm,
+                    cal.t_s,
+                    cal.value_w,
+                    cal.u_w
+                ])
+            })
             .map_err(self.write_err())?;
         Ok(())
     }
@@ -622,17 +745,21 @@ impl Store {
         rows.collect::<Result<_, _>>().map_err(self.read_err())
     }
 
-    /// Commit one point durably, in its own transaction. A point already committed is refused, never
-    /// overwritten.
+    /// Commit one point in its own transaction, as durably as its campaign asks ([`Durability`]). A point
+    /// already committed is refused, never overwritten.
     pub fn commit_point(&mut self, id: CampaignId, p: &PointRecord) -> Result<(), StoreError> {
         let readback = serde_json::to_string(&p.readback_deg)
             .map_err(|e| StoreError::Corrupt(format!("cannot encode read-back positions: {e}")))?;
         let flags = p.flags.join(";");
-        let result = self.conn.execute(
+        self.durability_for_write(Some(id))?;
+        // Prepared once per connection (SQLite's parse and plan cost as much as the insert itself).
+        let result = self.conn.prepare_cached(
             "INSERT INTO points (campaign_id, idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg,
              signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json, truth_point_sr,
              truth_aperture_sr) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17)",
-            params![
+        );
+        let result = result.and_then(|mut st| {
+            st.execute(params![
                 id.0,
                 to_i64(p.index),
                 p.band_nm,
@@ -650,8 +777,8 @@ impl Store {
                 readback,
                 p.truth_point_sr,
                 p.truth_aperture_sr
-            ],
-        );
+            ])
+        });
         match result {
             Ok(_) => Ok(()),
             // Only the primary key means "already committed"; any other constraint is a bug, not a duplicate.
@@ -676,11 +803,8 @@ impl Store {
         // really are 0..count so that a hole (which would mean a bug) is reported rather than skipped.
         let (count, max): (i64, Option<i64>) = self
             .conn
-            .query_row(
-                "SELECT COUNT(*), MAX(idx) FROM points WHERE campaign_id = ?1",
-                [id.0],
-                |r| Ok((r.get(0)?, r.get(1)?)),
-            )
+            .prepare_cached("SELECT COUNT(*), MAX(idx) FROM points WHERE campaign_id = ?1")
+            .and_then(|mut st| st.query_row([id.0], |r| Ok((r.get(0)?, r.get(1)?))))
             .map_err(self.read_err())?;
         match max {
             None => Ok(0),
@@ -1003,6 +1127,77 @@ mod tests {
         );
     }
 
+    /// SQLite's own word on the connection's level: 1 NORMAL, 2 FULL.
+    fn synchronous(store: &Store) -> i64 {
+        store
+            .conn
+            .query_row("PRAGMA synchronous", [], |r| r.get(0))
+            .expect("pragma")
+    }
+
+    #[test]
+    fn dry_runs_commit_at_normal_and_real_campaigns_at_full_whatever_ran_before() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut store = Store::open(dir.path()).expect("open");
+        assert_eq!(synchronous(&store), 2);
+        let dry = store.create_campaign(&new_campaign(3)).expect("dry");
+        let real = store
+            .create_campaign(&NewCampaign {
+                dry_run: false,
+                ..new_campaign(3)
+            })
+            .expect("real");
+        // Creating a campaign belongs to no campaign yet: FULL.
+        assert_eq!(synchronous(&store), 2);
+
+        store.commit_point(dry, &point(0)).expect("commit");
+        assert_eq!(
+            (synchronous(&store), store.durability()),
+            (1, Durability::ProcessCrash)
+        );
+        // Right after a dry-run's commit, every kind of write of the real campaign is back at FULL.
+        store.commit_point(real, &point(0)).expect("commit");
+        assert_eq!(
+            (synchronous(&store), store.durability()),
+            (2, Durability::PowerLoss)
+        );
+        store.commit_point(dry, &point(1)).expect("commit");
+        store
+            .set_state(real, CampaignState::Running, None)
+            .expect("state");
+        assert_eq!(synchronous(&store), 2);
+        store.commit_point(dry, &point(2)).expect("commit");
+        let cal = CalibrationRecord {
+            kind: "dark".into(),
+            band_nm: Some(550.0),
+            t_s: 1.0,
+            value_w: 1e-11,
+            u_w: 1e-13,
+        };
+        store.record_calibration(real, &cal).expect("cal");
+        assert_eq!(synchronous(&store), 2);
+        store.record_calibration(dry, &cal).expect("cal");
+        assert_eq!(synchronous(&store), 1);
+        store.record_device(real, "meter", "x").expect("dev");
+        assert_eq!(synchronous(&store), 2);
+        store.set_operator_message(dry, Some("m")).expect("msg");
+        assert_eq!(synchronous(&store), 1);
+        store.set_operator_message(real, Some("m")).expect("msg");
+        assert_eq!(synchronous(&store), 2);
+
+        // A reopened store learns each campaign's level from the file.
+        drop(store);
+        let mut store = Store::open(dir.path()).expect("reopen");
+        store.set_state(dry, CampaignState::Running, None).expect("state");
+        assert_eq!(synchronous(&store), 1);
+        store.commit_point(real, &point(1)).expect("commit");
+        assert_eq!(synchronous(&store), 2);
+        assert_eq!(
+            store.points(dry).expect("points"),
+            (0..3).map(point).collect::<Vec<_>>()
+        );
+    }
+
     #[test]
     fn unknown_campaign_is_a_typed_error() {
         let dir = tempfile::tempdir().expect("tempdir");
@@ -1022,11 +1217,7 @@ mod tests {
         // Open a second, read-only connection to the same file: writes through it must fail cleanly.
         let ro = Connection::open_with_flags(store.path(), rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
             .expect("read-only open");
-        let mut ro_store = Store {
-            conn: ro,
-            path: store.path().to_path_buf(),
-            unrecorded: HashMap::new(),
-        };
+        let mut ro_store = Store::with_connection(ro, store.path().to_path_buf());
         let err = ro_store.commit_point(id, &point(1)).expect_err("read-only");
         assert!(err.is_write_failure(), "{err}");
         assert_eq!(store.points(id).expect("points"), vec![point(0)]);
@@ -1056,11 +1247,7 @@ mod tests {
         // A state that cannot be written (read-only connection) is shown from memory until written.
         let ro = Connection::open_with_flags(store.path(), rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
             .expect("read-only open");
-        let mut ro_store = Store {
-            conn: ro,
-            path: store.path().to_path_buf(),
-            unrecorded: HashMap::new(),
-        };
+        let mut ro_store = Store::with_connection(ro, store.path().to_path_buf());
         let e = ro_store
             .set_state(id, CampaignState::Paused, Some("disk trouble"))
             .expect_err("read-only");

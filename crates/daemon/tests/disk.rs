@@ -3,12 +3,13 @@
 //! with a reason naming the store file and SQLite's error, nothing moves any more, every committed point is kept,
 //! and once there is room again it resumes from the first point not committed: every planned point exactly once.
 
-use std::sync::{Arc, Mutex};
+mod common;
+
+use std::sync::Arc;
 use std::time::Duration;
 
-use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_campaign};
-use gonio_daemon::store::{CampaignState, STORE_FILE, Store};
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_daemon::engine::{Control, Event, run_campaign};
+use gonio_daemon::store::{CampaignState, STORE_FILE};
 
 const CAMPAIGN: &str = r#"[campaign]
 id = "disk-full"
@@ -37,21 +38,11 @@ preset = "white-styrofoam"
 
 #[tokio::test(start_paused = true)]
 async fn a_full_store_pauses_the_campaign_and_it_resumes_once_there_is_room() {
-    let file = InstrumentFile::simulated();
-    let dir = tempfile::tempdir().expect("tempdir");
-    let prepared = prepare_campaign(CAMPAIGN, "disk.toml", dir.path(), &file).expect("valid");
-    let mut store = Store::open(dir.path()).expect("store");
-    let id = store
-        .create_campaign(&prepared.new_campaign(CAMPAIGN, SIMULATED_INSTRUMENT_TOML))
-        .expect("create");
-    let store = Arc::new(Mutex::new(store));
-    let rig = Rig::connect_with_time_scale(&file, None, 1.0).await.expect("rig");
+    let campaign = common::stored_campaign(CAMPAIGN, "disk.toml").await;
+    let (store, id, rig, dir) = (&campaign.store, campaign.id, &campaign.rig, &campaign.dir);
     let control = Control::new();
     let mut rx = control.subscribe();
-    let task = {
-        let (store, rig, control) = (Arc::clone(&store), rig.clone(), control.clone());
-        tokio::spawn(async move { run_campaign(store, id, &rig, control).await })
-    };
+    let task = campaign.spawn_run(&control);
 
     // After a few points, the store may not grow by a single page any more.
     loop {
@@ -101,7 +92,7 @@ async fn a_full_store_pauses_the_campaign_and_it_resumes_once_there_is_room() {
     );
     assert_eq!(record.last_error.as_deref(), Some(reason.as_str()));
     assert!(
-        (at_pause.len() as u64) < prepared.total_points,
+        (at_pause.len() as u64) < campaign.total_points,
         "the store filled up before the end ({} points)",
         at_pause.len()
     );
@@ -126,12 +117,12 @@ async fn a_full_store_pauses_the_campaign_and_it_resumes_once_there_is_room() {
         .expect("lock")
         .set_max_pages(None)
         .expect("lift the cap");
-    let state = run_campaign(Arc::clone(&store), id, &rig, Control::new())
+    let state = run_campaign(Arc::clone(store), id, rig, Control::new())
         .await
         .expect("resume");
     assert_eq!(state, CampaignState::Completed);
     let all = store.lock().expect("lock").points(id).expect("points");
-    assert_eq!(all.len() as u64, prepared.total_points);
+    assert_eq!(all.len() as u64, campaign.total_points);
     for (i, p) in all.iter().enumerate() {
         assert_eq!(p.index, i as u64, "every planned point exactly once");
     }

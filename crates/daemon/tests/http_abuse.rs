@@ -7,64 +7,18 @@
 //! than what the daemon needs, so a pass does not depend on the machine's speed, and a daemon that blocked would
 //! show as the wait running out.
 
+mod common;
+
 use std::net::SocketAddr;
-use std::sync::Arc;
 use std::time::Duration;
 
+use common::tcp::server;
 use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::control::Control;
-use gonio_daemon::rig::Rig;
-use gonio_daemon::service::{EngineRunner, Service, ShutdownTrigger};
-use gonio_daemon::store::Store;
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
 /// Longest wait for an answer the daemon should give at once (generous: a blocked daemon waits forever).
 const ANSWER: Duration = Duration::from_secs(10);
-
-struct Server {
-    addr: SocketAddr,
-    trigger: ShutdownTrigger,
-    _dir: tempfile::TempDir,
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        self.trigger.trigger();
-    }
-}
-
-async fn server(config: ApiConfig) -> Server {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let instrument = InstrumentFile::simulated();
-    let rig = Rig::connect(&instrument, None).await.expect("simulated rig");
-    let runner = Arc::new(EngineRunner::new(
-        instrument,
-        SIMULATED_INSTRUMENT_TOML.to_string(),
-        dir.path().to_path_buf(),
-        rig,
-    ));
-    let store = Store::open(dir.path()).expect("store");
-    let service = Service::new(store, runner, Control::new()).expect("service");
-    let trigger = ShutdownTrigger::new();
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
-    let addr = listener.local_addr().expect("addr");
-    let router = api::router(service, &config, trigger.subscribe());
-    let (complete, _) = tokio::sync::mpsc::channel(1);
-    tokio::spawn(api::serve_with(
-        listener,
-        router,
-        config.connection_limits(),
-        trigger.subscribe(),
-        complete,
-    ));
-    Server {
-        addr,
-        trigger,
-        _dir: dir,
-    }
-}
 
 /// A response as read off the wire.
 #[derive(Debug)]
@@ -131,7 +85,7 @@ fn get(path: &str, token: Option<&str>) -> Vec<u8> {
     let auth = token
         .map(|t| format!("Authorization: Bearer {t}\r\n"))
         .unwrap_or_default();
-    format!("GET {path} HTTP/1.1\r\nHost: test\r\n{auth}Connection: close\r\n\r\n").into_bytes()
+    format!("GET {path} HTTP/1.1\r\nHost: localhost\r\n{auth}Connection: close\r\n\r\n").into_bytes()
 }
 
 /// A normal client still gets the campaign list.
@@ -190,7 +144,7 @@ async fn slowloris_headers_cannot_lock_out_other_clients() {
         let stream = TcpStream::connect(s.addr).await.expect("connect");
         tricklers.push(trickle(
             stream,
-            b"GET /api/campaigns HTTP/1.1\r\nHost: test\r\nX-Slow: ",
+            b"GET /api/campaigns HTTP/1.1\r\nHost: localhost\r\nX-Slow: ",
             Duration::from_millis(200),
         ));
     }
@@ -244,7 +198,7 @@ async fn a_keep_alive_connection_idle_past_the_deadline_is_closed() {
     let s = server(config(|c| c.header_read_timeout = Duration::from_secs(1))).await;
     let mut stream = TcpStream::connect(s.addr).await.expect("connect");
     stream
-        .write_all(b"GET /api/campaigns HTTP/1.1\r\nHost: test\r\n\r\n")
+        .write_all(b"GET /api/campaigns HTTP/1.1\r\nHost: localhost\r\n\r\n")
         .await
         .expect("send");
     let a = tokio::time::timeout(ANSWER, read_answer(&mut stream))
@@ -263,9 +217,11 @@ async fn a_body_trickled_past_the_deadline_gets_408() {
     let s = server(config(|c| c.body_read_timeout = Duration::from_secs(1))).await;
     let stream = TcpStream::connect(s.addr).await.expect("connect");
     let (mut rd, mut wr) = stream.into_split();
-    wr.write_all(b"POST /api/campaigns HTTP/1.1\r\nHost: test\r\nContent-Length: 1000\r\n\r\n[campaign]\n")
-        .await
-        .expect("send");
+    wr.write_all(
+        b"POST /api/campaigns HTTP/1.1\r\nHost: localhost\r\nContent-Length: 1000\r\n\r\n[campaign]\n",
+    )
+    .await
+    .expect("send");
     let trickler = tokio::spawn(async move {
         loop {
             tokio::time::sleep(Duration::from_millis(100)).await;
@@ -296,7 +252,7 @@ async fn body_tricklers_cannot_lock_out_other_clients() {
         let stream = TcpStream::connect(s.addr).await.expect("connect");
         tricklers.push(trickle(
             stream,
-            b"POST /api/campaigns HTTP/1.1\r\nHost: test\r\nContent-Length: 100000\r\n\r\n[campaign]\n",
+            b"POST /api/campaigns HTTP/1.1\r\nHost: localhost\r\nContent-Length: 100000\r\n\r\n[campaign]\n",
             Duration::from_millis(200),
         ));
     }
@@ -339,13 +295,13 @@ async fn oversized_bodies_and_headers_are_refused_without_reading_them() {
     // Announced: refused at once, the 10 MB are never sent.
     let a = exchange(
         s.addr,
-        b"POST /api/campaigns HTTP/1.1\r\nHost: test\r\nContent-Length: 10000000\r\nConnection: close\r\n\r\n",
+        b"POST /api/campaigns HTTP/1.1\r\nHost: localhost\r\nContent-Length: 10000000\r\nConnection: close\r\n\r\n",
     )
     .await;
     assert_eq!(a.status, 413, "{a:?}");
     assert!(a.body.contains("4096"), "{a:?}");
     // Chunked, past the limit.
-    let mut raw = b"POST /api/campaigns HTTP/1.1\r\nHost: test\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n"
+    let mut raw = b"POST /api/campaigns HTTP/1.1\r\nHost: localhost\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n"
         .to_vec();
     for _ in 0..8 {
         raw.extend_from_slice(format!("{:x}\r\n{}\r\n", 1000, "#".repeat(1000)).as_bytes());
@@ -355,7 +311,7 @@ async fn oversized_bodies_and_headers_are_refused_without_reading_them() {
     assert_eq!(a.status, 413, "{a:?}");
     // A header block past hyper's limit.
     let big = format!(
-        "GET /api/campaigns HTTP/1.1\r\nHost: test\r\nX-Big: {}\r\nConnection: close\r\n\r\n",
+        "GET /api/campaigns HTTP/1.1\r\nHost: localhost\r\nX-Big: {}\r\nConnection: close\r\n\r\n",
         "a".repeat(1 << 20)
     );
     let answer = tokio::time::timeout(ANSWER, async {
@@ -383,9 +339,9 @@ async fn garbage_on_the_wire_is_refused_and_the_daemon_goes_on() {
         junk.as_slice(),
         b"\r\n\r\n\r\n",
         b"GET / HTTP/9.9\r\n\r\n",
-        b"GET /api/campaigns HTTP/1.1\r\nHost: test\r\nContent-Length: -1\r\n\r\n",
-        b"GET /api/campaigns HTTP/1.1\r\nHost: test\r\nContent-Length: 1\r\nContent-Length: 2\r\n\r\n",
-        b"POST /api/campaigns HTTP/1.1\r\nHost: test\r\nTransfer-Encoding: chunked\r\n\r\nzz\r\n",
+        b"GET /api/campaigns HTTP/1.1\r\nHost: localhost\r\nContent-Length: -1\r\n\r\n",
+        b"GET /api/campaigns HTTP/1.1\r\nHost: localhost\r\nContent-Length: 1\r\nContent-Length: 2\r\n\r\n",
+        b"POST /api/campaigns HTTP/1.1\r\nHost: localhost\r\nTransfer-Encoding: chunked\r\n\r\nzz\r\n",
     ] {
         let answer = tokio::time::timeout(ANSWER, async {
             let mut stream = TcpStream::connect(s.addr).await.expect("connect");
@@ -471,7 +427,7 @@ async fn with_a_token_every_api_request_needs_it_over_tcp() {
                 .map(|t| format!("Authorization: Bearer {t}\r\n"))
                 .unwrap_or_default();
             let raw = format!(
-                "{method} {path} HTTP/1.1\r\nHost: test\r\n{auth}Content-Length: 0\r\nConnection: close\r\n\r\n"
+                "{method} {path} HTTP/1.1\r\nHost: localhost\r\n{auth}Content-Length: 0\r\nConnection: close\r\n\r\n"
             );
             let a = exchange(s.addr, raw.as_bytes()).await;
             assert_eq!(a.status, 401, "{method} {path} with {wrong:?}: {a:?}");
@@ -482,7 +438,7 @@ async fn with_a_token_every_api_request_needs_it_over_tcp() {
         }
         // Other schemes carrying the right token are not accepted either.
         let raw = format!(
-            "{method} {path} HTTP/1.1\r\nHost: test\r\nAuthorization: Basic {token}\r\nContent-Length: 0\r\n\
+            "{method} {path} HTTP/1.1\r\nHost: localhost\r\nAuthorization: Basic {token}\r\nContent-Length: 0\r\n\
              Connection: close\r\n\r\n"
         );
         assert_eq!(
@@ -494,7 +450,7 @@ async fn with_a_token_every_api_request_needs_it_over_tcp() {
     // The right token, with the scheme in any case (RFC 9110): through the token check.
     for scheme in ["Bearer", "bearer", "BEARER"] {
         let raw = format!(
-            "GET /api/campaigns HTTP/1.1\r\nHost: test\r\nAuthorization: {scheme} {token}\r\nConnection: close\r\n\r\n"
+            "GET /api/campaigns HTTP/1.1\r\nHost: localhost\r\nAuthorization: {scheme} {token}\r\nConnection: close\r\n\r\n"
         );
         let a = exchange(s.addr, raw.as_bytes()).await;
         assert_eq!(a.status, 200, "{scheme}: {a:?}");
@@ -523,16 +479,7 @@ fn the_daemon_listens_on_loopback_unless_told_otherwise() {
 #[tokio::test]
 async fn run_daemon_refuses_a_public_listener_without_a_token() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let instrument = InstrumentFile::simulated();
-    let rig = Rig::connect(&instrument, None).await.expect("rig");
-    let runner = Arc::new(EngineRunner::new(
-        instrument,
-        SIMULATED_INSTRUMENT_TOML.to_string(),
-        dir.path().to_path_buf(),
-        rig,
-    ));
-    let service =
-        Service::new(Store::open(dir.path()).expect("store"), runner, Control::new()).expect("service");
+    let service = common::tcp::service(dir.path()).await;
     // Bound on every interface: run_daemon returns at once instead of serving (the signal never comes).
     let listener = tokio::net::TcpListener::bind("0.0.0.0:0").await.expect("bind");
     let returned = tokio::time::timeout(

@@ -4,13 +4,12 @@
 
 mod common;
 
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use axum::http::StatusCode;
-use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_campaign};
-use gonio_daemon::store::{CampaignState, Store};
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use common::next_point;
+use gonio_daemon::engine::{Control, Event};
+use gonio_daemon::store::CampaignState;
 use tokio::sync::broadcast::Receiver;
 
 const CAMPAIGN: &str = r#"[campaign]
@@ -47,32 +46,14 @@ async fn next_state(rx: &mut Receiver<Event>) -> (CampaignState, Option<String>)
     }
 }
 
-async fn next_point(rx: &mut Receiver<Event>) -> u64 {
-    loop {
-        if let Event::Point { point, .. } = rx.recv().await.expect("event") {
-            return point.index;
-        }
-    }
-}
-
 #[tokio::test(start_paused = true)]
 async fn pausing_is_announced_at_once_and_can_be_withdrawn() {
-    let file = InstrumentFile::simulated();
-    let dir = tempfile::tempdir().expect("tempdir");
-    let prepared = prepare_campaign(CAMPAIGN, "pausing.toml", dir.path(), &file).expect("valid");
-    let mut store = Store::open(dir.path()).expect("store");
-    let id = store
-        .create_campaign(&prepared.new_campaign(CAMPAIGN, SIMULATED_INSTRUMENT_TOML))
-        .expect("create");
-    let store = Arc::new(Mutex::new(store));
+    let campaign = common::stored_campaign(CAMPAIGN, "pausing.toml").await;
+    let (store, id) = (&campaign.store, campaign.id);
     let state_in_store = || store.lock().expect("lock").campaign(id).expect("campaign").state;
-    let rig = Rig::connect_with_time_scale(&file, None, 1.0).await.expect("rig");
     let control = Control::new();
     let mut rx = control.subscribe();
-    let task = {
-        let (store, rig, control) = (Arc::clone(&store), rig.clone(), control.clone());
-        tokio::spawn(async move { run_campaign(store, id, &rig, control).await })
-    };
+    let task = campaign.spawn_run(&control);
     assert_eq!(next_point(&mut rx).await, 0);
 
     // A pause withdrawn before the safe point: pausing, then running again, and the run goes on.

@@ -25,7 +25,7 @@ use gonio_daemon::store::{CampaignState, Store};
 use gonio_instrument::{Axis, AxisRole, InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::{Kinematics, Pose};
-use gonio_simulator::recording::{MotionCommand, MotionRecord, Piece};
+use gonio_simulator::recording::{MotionCommand, MotionRecord, Piece, check_arm_separation, physical_pieces};
 use proptest::prelude::*;
 
 /// Longest time from an emergency-stop request to the stop command at every axis (simulated seconds).
@@ -221,9 +221,59 @@ struct Outcome {
     estops: Vec<(f64, f64)>,
     points: Vec<gonio_daemon::store::PointRecord>,
     final_state: CampaignState,
+    /// When the detector's controller was reset during the run, and the arms' pose then.
+    sabotaged: Option<(f64, gonio_simulator::scene::Pose)>,
 }
 
 async fn run_case(case: &Case) -> Result<Outcome, TestCaseError> {
+    run_case_with(case, &Sabotage::default()).await
+}
+
+/// Controller resets behind the engine's back: `<addr>RS` on the arms' chain makes an SMC100 stop dead and
+/// forget its reference, as a brown-out of the controller does; the engine meets it as a lost reference.
+#[derive(Debug, Clone, Default)]
+struct Sabotage {
+    /// Before the engine starts: raw SMC100 commands on the arms' chain, each followed by a wait (simulated s).
+    setup: Vec<(&'static str, f64)>,
+    /// During the run: reset the detector arm's controller once the light arm sits still between the detector
+    /// and the detector's home (0 deg), so that homing it there would sweep it through the light arm.
+    reset_detector_behind_light: bool,
+}
+
+impl Sabotage {
+    fn any(&self) -> bool {
+        self.reset_detector_behind_light || !self.setup.is_empty()
+    }
+}
+
+/// Send raw commands to a simulated serial device on a connection of its own; the connection is returned so
+/// that it stays open.
+async fn send_raw(
+    sim: &gonio_simulator::SimInstrument,
+    device: &str,
+    line: &str,
+) -> Result<tokio::io::DuplexStream, TestCaseError> {
+    use tokio::io::AsyncWriteExt;
+    let mut port = sim
+        .serial_port(device)
+        .map_err(|e| TestCaseError::fail(format!("open {device}: {e}")))?;
+    port.write_all(format!("{line}\r\n").as_bytes())
+        .await
+        .map_err(|e| TestCaseError::fail(format!("write to {device}: {e}")))?;
+    Ok(port)
+}
+
+/// Light arm still and strictly between the detector arm and 0, the detector clear of it.
+fn light_between_detector_and_home(
+    a: &gonio_simulator::scene::Pose,
+    b: &gonio_simulator::scene::Pose,
+) -> bool {
+    let still = (a.light_deg - b.light_deg).abs() < 1e-9 && (a.detector_deg - b.detector_deg).abs() < 1e-9;
+    let (l, d) = (b.light_deg, b.detector_deg);
+    still && l.signum() == d.signum() && l.abs() >= 5.0 && d.abs() >= l.abs() + 10.0
+}
+
+async fn run_case_with(case: &Case, sabotage: &Sabotage) -> Result<Outcome, TestCaseError> {
     let mut file = InstrumentFile::simulated();
     let f = &mut file.simulator.faults;
     (f.seed, f.stall_rate, f.garble_rate, f.drop_rate) = (
@@ -244,9 +294,29 @@ async fn run_case(case: &Case) -> Result<Outcome, TestCaseError> {
         .await
         .map_err(|e| TestCaseError::fail(e.to_string()))?;
     let sim = rig.sim().expect("the simulated instrument").clone();
+    let clock = sim.clock();
+    let mut ports = Vec::new();
+    for (line, wait_s) in &sabotage.setup {
+        ports.push(send_raw(&sim, "arms", line).await?);
+        clock.sleep_s(*wait_s).await;
+    }
     sim.start_motion_recording();
     let control = Control::new();
-    let clock = sim.clock();
+    let saboteur = sabotage.reset_detector_behind_light.then(|| {
+        let sim = sim.clone();
+        tokio::spawn(async move {
+            let mut before = sim.pose();
+            loop {
+                clock.sleep_s(0.02).await;
+                let now = sim.pose();
+                if light_between_detector_and_home(&before, &now) {
+                    let at = sim.now_s();
+                    return send_raw(&sim, "arms", "2RS").await.map(|port| (at, now, port));
+                }
+                before = now;
+            }
+        })
+    });
 
     let mut pending = case.interruptions.iter();
     let mut estops: Vec<(f64, f64)> = Vec::new();
@@ -317,7 +387,8 @@ async fn run_case(case: &Case) -> Result<Outcome, TestCaseError> {
     let final_state = match final_state {
         Some(s) => s,
         // Under injected faults a campaign may still be paused by them: the motion checks apply all the same.
-        None if case.faults.any() && state == CampaignState::Paused => state,
+        // So may a sabotage (the test then checks the motion before the state).
+        None if (case.faults.any() || sabotage.any()) && state == CampaignState::Paused => state,
         None => {
             return Err(TestCaseError::fail(
                 "the campaign neither completed nor was aborted",
@@ -325,6 +396,19 @@ async fn run_case(case: &Case) -> Result<Outcome, TestCaseError> {
         }
     };
     let end_s = sim.now_s();
+    let sabotaged = match saboteur {
+        Some(task) if task.is_finished() => {
+            let (at, pose, _port) = task
+                .await
+                .map_err(|e| TestCaseError::fail(format!("saboteur: {e}")))??;
+            Some((at, pose))
+        }
+        Some(task) => {
+            task.abort();
+            None
+        }
+        None => None,
+    };
     if let Some(t) = open_estop.take() {
         estops.push((t, end_s));
     }
@@ -340,115 +424,18 @@ async fn run_case(case: &Case) -> Result<Outcome, TestCaseError> {
         estops,
         points,
         final_state,
+        sabotaged,
     })
 }
 
 // ---------------------------------------------------------------- the checks
 
-/// Pieces in physical degrees: `a = direction * (p - zero_offset)`.
-fn physical(axis: &Axis, pieces: Vec<Piece>) -> Vec<Piece> {
-    let dir = f64::from(axis.direction);
-    pieces
-        .into_iter()
-        .map(|p| Piece {
-            p0_deg: dir * (p.p0_deg - axis.zero_offset_deg),
-            v0_deg_s: dir * p.v0_deg_s,
-            a_deg_s2: dir * p.a_deg_s2,
-            ..p
-        })
-        .collect()
-}
-
-/// Position and velocity of a piece at `t` (inside it).
-fn state_at(p: &Piece, t: f64) -> (f64, f64) {
-    (p.position_at(t), p.v0_deg_s + p.a_deg_s2 * (t - p.t0_s))
-}
-
-/// One interval between the breakpoints of both trajectories, with `f = l - d` at its ends and its extremes.
-#[derive(Debug, Clone, Copy)]
-struct Stretch {
-    ta: f64,
-    tb: f64,
-    fa: f64,
-    lo: f64,
-    hi: f64,
-}
-
-/// `l(t) - d(t)` on each interval between the breakpoints of both trajectories: on each such interval the
-/// difference is one quadratic, whose extremes lie at its ends or at its vertex.
-fn difference_extremes(l: &[Piece], d: &[Piece]) -> Vec<Stretch> {
-    let mut breaks: Vec<f64> = l.iter().chain(d.iter()).flat_map(|p| [p.t0_s, p.t1_s]).collect();
-    breaks.sort_by(f64::total_cmp);
-    breaks.dedup();
-    let covering = |pieces: &[Piece], t: f64| pieces.iter().find(|p| p.t0_s <= t && t <= p.t1_s).copied();
-    let mut out = Vec::new();
-    for w in breaks.windows(2) {
-        let (ta, tb) = (w[0], w[1]);
-        if tb <= ta {
-            continue;
-        }
-        let mid = 0.5 * (ta + tb);
-        let (Some(lp), Some(dp)) = (covering(l, mid), covering(d, mid)) else {
-            continue;
-        };
-        let ((l0, lv), (d0, dv)) = (state_at(&lp, ta), state_at(&dp, ta));
-        let (c0, c1, c2) = (l0 - d0, lv - dv, 0.5 * (lp.a_deg_s2 - dp.a_deg_s2));
-        let f = |t: f64| c0 + c1 * (t - ta) + c2 * (t - ta) * (t - ta);
-        let (fa, fb) = (f(ta), f(tb));
-        let (mut lo, mut hi) = (fa.min(fb), fa.max(fb));
-        if c2 != 0.0 {
-            let tv = ta - c1 / (2.0 * c2);
-            if tv > ta && tv < tb {
-                lo = lo.min(f(tv));
-                hi = hi.max(f(tv));
-            }
-        }
-        out.push(Stretch { ta, tb, fa, lo, hi });
-    }
-    out
-}
-
-/// The separation rule on the arms' trajectories: `Err` names the first stretch where they were too close.
-/// Returns the smallest separation seen once apart.
+/// The separation rule on the arms' physical trajectories, with the scheduler's own tolerance: `Err` names the
+/// first stretch where they were too close; `Ok` is the smallest separation seen once apart.
 fn check_separation(l: &[Piece], d: &[Piece], constraints: &Constraints) -> Result<f64, String> {
-    let sep = constraints.min_arm_separation_deg;
-    let mut apart = false;
-    let mut min_seen = f64::INFINITY;
-    for Stretch { ta, tb, fa, lo, hi } in difference_extremes(l, d) {
-        // The arms are within 200 degrees of each other (axis limits +-100): |l - d| is their separation
-        // whenever it is below 180, which is all that matters here.
-        let nearest = if lo > 0.0 {
-            lo
-        } else if hi < 0.0 {
-            -hi
-        } else {
-            0.0
-        };
-        let farthest = lo.abs().max(hi.abs());
-        apart |= constraints.separation_ok(fa.abs());
-        if apart {
-            min_seen = min_seen.min(nearest);
-            if !constraints.separation_ok(nearest) {
-                return Err(format!(
-                    "arms {nearest:.6} deg apart between t = {ta:.4} s and {tb:.4} s (minimum {sep} deg)"
-                ));
-            }
-        } else {
-            // Before the arms are first apart (power-up), their separation may only grow.
-            if nearest + EPS_DEG < fa.abs() {
-                return Err(format!(
-                    "before the arms were apart their separation shrank from {:.6} to {nearest:.6} deg between \
-                     t = {ta:.4} s and {tb:.4} s",
-                    fa.abs()
-                ));
-            }
-            apart = constraints.separation_ok(farthest);
-            if apart {
-                min_seen = min_seen.min(farthest);
-            }
-        }
-    }
-    Ok(min_seen)
+    check_arm_separation(l, d, constraints.min_arm_separation_deg, |s| {
+        constraints.separation_ok(s)
+    })
 }
 
 fn check(case: &Case, o: &Outcome) -> Result<(), TestCaseError> {
@@ -472,7 +459,7 @@ fn check(case: &Case, o: &Outcome) -> Result<(), TestCaseError> {
                 );
             }
         }
-        for p in physical(axis, record.motor_pieces(o.end_s)) {
+        for p in physical_pieces(axis, record.motor_pieces(o.end_s)) {
             let mut values = vec![p.position_at(p.t0_s), p.position_at(p.t1_s)];
             if p.a_deg_s2 != 0.0 {
                 let tv = p.t0_s - p.v0_deg_s / p.a_deg_s2;
@@ -498,14 +485,14 @@ fn check(case: &Case, o: &Outcome) -> Result<(), TestCaseError> {
         return Err(TestCaseError::fail("no arm axes"));
     };
     let motor = check_separation(
-        &physical(la, lr.motor_pieces(o.end_s)),
-        &physical(da, dr.motor_pieces(o.end_s)),
+        &physical_pieces(la, lr.motor_pieces(o.end_s)),
+        &physical_pieces(da, dr.motor_pieces(o.end_s)),
         &constraints,
     );
     prop_assert!(motor.is_ok(), "motors: {}\n{case:#?}", motor.unwrap_err());
     let load = check_separation(
-        &physical(la, lr.load_pieces(la.backlash_deg, o.end_s)),
-        &physical(da, dr.load_pieces(da.backlash_deg, o.end_s)),
+        &physical_pieces(la, lr.load_pieces(la.backlash_deg, o.end_s)),
+        &physical_pieces(da, dr.load_pieces(da.backlash_deg, o.end_s)),
         &constraints,
     );
     prop_assert!(load.is_ok(), "loads: {}\n{case:#?}", load.unwrap_err());
@@ -644,44 +631,6 @@ proptest! {
     }
 }
 
-// ---------------------------------------------------------------- the checker itself
-
-fn piece(t0_s: f64, t1_s: f64, p0_deg: f64, v0_deg_s: f64, a_deg_s2: f64) -> Piece {
-    Piece {
-        t0_s,
-        t1_s,
-        p0_deg,
-        v0_deg_s,
-        a_deg_s2,
-    }
-}
-
-#[test]
-fn the_separation_check_finds_a_brief_approach_between_samples() {
-    let c = Constraints::new(&InstrumentFile::simulated().instrument, None);
-    // Both arms apart at every breakpoint, but the detector swings (quadratic) to within 9.5 deg of the
-    // light arm in between: the vertex must be found.
-    let light = vec![piece(0.0, 2.0, 0.0, 0.0, 0.0)];
-    // d(t) = 20 - 10.5 * 4 t (1 - t)... as one quadratic: d(t) = 20 - 42 t + 42 t^2 on [0, 1], min 9.5 at 0.5.
-    let detector = vec![
-        piece(0.0, 1.0, 20.0, -42.0, 84.0),
-        piece(1.0, 2.0, 20.0, 0.0, 0.0),
-    ];
-    let err = check_separation(&light, &detector, &c).expect_err("too close at t = 0.5");
-    assert!(err.contains("9.5"), "{err}");
-    // The same swing kept at 10.5 deg at its closest is fine, and the minimum is reported.
-    let detector = vec![
-        piece(0.0, 1.0, 20.0, -38.0, 76.0),
-        piece(1.0, 2.0, 20.0, 0.0, 0.0),
-    ];
-    let min = check_separation(&light, &detector, &c).expect("apart");
-    assert!((min - 10.5).abs() < 1e-9, "{min}");
-    // Arms that start together may only separate until they are apart.
-    let detector = vec![piece(0.0, 1.0, 0.0, 12.0, 0.0), piece(1.0, 2.0, 12.0, -4.0, 0.0)];
-    let err = check_separation(&light, &detector, &c).expect_err("came back");
-    assert!(err.contains("8.0"), "{err}");
-}
-
 /// Cases the property found, kept as regressions.
 fn regression(campaign_edit: &[(&str, &str)], faults: FaultLevel, interruptions: Vec<Interruption>) -> Case {
     let mut campaign = r#"[campaign]
@@ -734,38 +683,67 @@ fn regression_a_stalled_move_keeps_the_arms_apart() {
         },
         Vec::new(),
     );
-    if std::env::var("GONIO_SAFETY_DEBUG").is_ok() {
-        let rt = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .start_paused(true)
-            .build()
-            .expect("rt");
-        let o = rt.block_on(run_case(&case)).expect("ran");
-        for (axis, r) in &o.records {
-            if !matches!(axis.role, AxisRole::LightArm | AxisRole::DetectorArm) {
-                continue;
-            }
-            for c in r.commands.iter().filter(|c| c.t_s < 8.0) {
-                eprintln!("{} cmd {:.4} {:?}", axis.name, c.t_s, c.command);
-            }
-            for c in r.changes.iter().filter(|c| c.t_s < 8.0) {
-                eprintln!(
-                    "{} chg {:.4} {:?} motor {:.4} rest {:.4} end {:?} segs {:?}",
-                    axis.name,
-                    c.t_s,
-                    c.kind,
-                    c.motor_deg,
-                    c.rest_deg,
-                    c.end,
-                    c.segments
-                        .iter()
-                        .map(|s| (s.t0_s, s.end_s(), s.p0_deg))
-                        .collect::<Vec<_>>()
-                );
-            }
+    dump_arm_records_if_debugging(&case, 8.0);
+    run_and_check(&case).unwrap_or_else(|e| panic!("{e}"));
+}
+
+/// With GONIO_SAFETY_DEBUG set, prints the arms' commands and motion changes up to `until_s` (simulated) - what
+/// it takes to see why a case failed.
+fn dump_arm_records_if_debugging(case: &Case, until_s: f64) {
+    if std::env::var("GONIO_SAFETY_DEBUG").is_err() {
+        return;
+    }
+    let o = paused_runtime().block_on(run_case(case)).expect("ran");
+    for (axis, r) in &o.records {
+        if !matches!(axis.role, AxisRole::LightArm | AxisRole::DetectorArm) {
+            continue;
+        }
+        for c in r.commands.iter().filter(|c| c.t_s < until_s) {
+            eprintln!("{} cmd {:.4} {:?}", axis.name, c.t_s, c.command);
+        }
+        for c in r.changes.iter().filter(|c| c.t_s < until_s) {
+            eprintln!(
+                "{} chg {:.4} {:?} motor {:.4} rest {:.4} end {:?} segs {:?}",
+                axis.name,
+                c.t_s,
+                c.kind,
+                c.motor_deg,
+                c.rest_deg,
+                c.end,
+                c.segments
+                    .iter()
+                    .map(|s| (s.t0_s, s.end_s(), s.p0_deg))
+                    .collect::<Vec<_>>()
+            );
         }
     }
-    run_and_check(&case).unwrap_or_else(|e| panic!("{e}"));
+}
+
+/// The first move after power-up parts the arms (both at 0): with stalls at every other move, at whatever moment
+/// one arm stops, the other must not come back towards it (a backlash approach) before they are apart. Two
+/// targets: each arm on its own side (one simultaneous move), and both on one side (parted about the midpoint
+/// first). Found by the property above on a fresh CI machine; with the parting move's legs in one phase, seed 5
+/// of the second target fails.
+#[test]
+fn stalls_while_the_arms_part_after_power_up_never_bring_them_closer() {
+    let grid = "kind = \"isotropic\"\ntheta_i_deg = { from = 0.0, to = 60.0, step = 10 }\ntheta_o_deg = [20.0, 50.0]\n\
+                delta_phi_deg = { from = 0.0, to = 180.0, step = 20 }\n";
+    for points in ["[[30.0, 0.0, 40.0, 180.0]]", "[[20.0, 0.0, 45.0, 0.0]]"] {
+        for seed in 0..24 {
+            let case = regression(
+                &[(grid, &format!("kind = \"points\"\npoints = {points}\n"))],
+                FaultLevel {
+                    seed,
+                    stall_rate: 0.5,
+                    garble_rate: 0.0,
+                    drop_rate: 0.0,
+                },
+                Vec::new(),
+            );
+            assert!(case.campaign.contains(points), "the plan edit applied");
+            run_and_check(&case).unwrap_or_else(|e| panic!("{points}, seed {seed}: {e}"));
+        }
+    }
 }
 
 #[test]
@@ -795,4 +773,123 @@ fn the_planner_keeps_a_stopping_margin_between_arms_that_move_together() {
         )
         .expect("move");
     assert_eq!(m.phases.len(), 1, "{m:?}");
+}
+
+// ---------------------------------------------------------------- recovery homing (issue #8)
+
+/// A campaign whose points put the detector arm beyond the light arm on one side (theta_i 20..30 deg with the
+/// detector at theta_o 50..70 deg on the same side: light at +-20..30 deg, detector at +-50..70 deg).
+fn behind_light_case() -> Case {
+    regression(
+        &[(
+            "kind = \"isotropic\"\ntheta_i_deg = { from = 0.0, to = 60.0, step = 10 }\ntheta_o_deg = [20.0, 50.0]\n\
+             delta_phi_deg = { from = 0.0, to = 180.0, step = 20 }\n",
+            "kind = \"points\"\npoints = [[30.0, 0.0, 60.0, 0.0], [30.0, 0.0, 70.0, 0.0], [20.0, 0.0, 50.0, 0.0], \
+             [20.0, 180.0, 50.0, 0.0]]\n",
+        )],
+        FaultLevel {
+            seed: 0,
+            stall_rate: 0.0,
+            garble_rate: 0.0,
+            drop_rate: 0.0,
+        },
+        Vec::new(),
+    )
+}
+
+/// Homes recorded on an axis after `t_s`.
+fn homes_after(o: &Outcome, role: AxisRole, t_s: f64) -> usize {
+    o.records
+        .iter()
+        .filter(|(a, _)| a.role == role)
+        .flat_map(|(_, r)| r.commands.iter())
+        .filter(|c| matches!(c.command, MotionCommand::Home) && c.t_s >= t_s)
+        .count()
+}
+
+fn paused_runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .start_paused(true)
+        .build()
+        .expect("runtime")
+}
+
+#[test]
+fn a_detector_that_loses_its_reference_behind_the_light_arm_is_homed_without_a_collision() {
+    let case = behind_light_case();
+    assert!(
+        case.campaign.contains("[30.0, 0.0, 60.0, 0.0]"),
+        "the plan edit applied"
+    );
+    let sabotage = Sabotage {
+        reset_detector_behind_light: true,
+        ..Sabotage::default()
+    };
+    let o = paused_runtime()
+        .block_on(async {
+            tokio::time::timeout(Duration::from_secs(24 * 3600), run_case_with(&case, &sabotage)).await
+        })
+        .expect("no hang")
+        .unwrap_or_else(|e| panic!("{e}"));
+    // The scenario happened: the controller was reset with the light arm between the detector and its home,
+    // and the engine homed the detector afterwards; the arms kept their separation throughout (exact
+    // trajectories) and the limits held.
+    check(&case, &o).unwrap_or_else(|e| panic!("{e}"));
+    let (at, pose) = o
+        .sabotaged
+        .expect("the light arm sat between the detector and its home at some point");
+    assert!(
+        pose.light_deg.abs() < pose.detector_deg.abs() && pose.light_deg * pose.detector_deg > 0.0,
+        "{pose:?}"
+    );
+    assert!(
+        homes_after(&o, AxisRole::DetectorArm, at) >= 1,
+        "the detector was homed again"
+    );
+    // The campaign completed with every point measured.
+    assert_eq!(o.final_state, CampaignState::Completed);
+    assert_eq!(o.points.len(), 4);
+    assert!(
+        o.points.iter().all(|p| p.brdf_sr.is_some()),
+        "{:?}",
+        o.points.iter().map(|p| &p.flags).collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn arms_found_without_reference_at_start_up_are_homed_in_a_safe_order() {
+    let case = behind_light_case();
+    // Both arms referenced, the detector parked at -20 deg and the light arm at -50 deg, then both controllers
+    // reset: homing the light arm first would sweep it through the detector on its way to 0.
+    let sabotage = Sabotage {
+        setup: vec![
+            ("1OR", 0.0),
+            ("2OR", 2.0),
+            ("2PA-20", 3.0),
+            ("1PA-50", 5.0),
+            ("1RS", 0.0),
+            ("2RS", 3.0),
+        ],
+        ..Sabotage::default()
+    };
+    let o = paused_runtime()
+        .block_on(async {
+            tokio::time::timeout(Duration::from_secs(24 * 3600), run_case_with(&case, &sabotage)).await
+        })
+        .expect("no hang")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let start = |role: AxisRole| {
+        o.records
+            .iter()
+            .find(|(a, _)| a.role == role)
+            .and_then(|(_, r)| r.motor_pieces(o.end_s).first().map(|p| p.p0_deg))
+    };
+    assert_eq!(start(AxisRole::LightArm), Some(-50.0));
+    assert_eq!(start(AxisRole::DetectorArm), Some(-20.0));
+    assert!(homes_after(&o, AxisRole::LightArm, 0.0) >= 1);
+    assert!(homes_after(&o, AxisRole::DetectorArm, 0.0) >= 1);
+    check(&case, &o).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(o.final_state, CampaignState::Completed);
+    assert_eq!(o.points.len(), 4);
 }

@@ -192,6 +192,29 @@ impl Fw102c {
             })
     }
 
+    /// The position after a turn decides whether the right filter is in the beam. Its answer is one bare digit
+    /// without a checksum, so a garbled digit would confirm a turn that did not happen: two reads must agree.
+    /// Bounded; a typed Protocol error when they never do.
+    async fn verified_position(&self) -> Result<u8, DriverError> {
+        let mut seen: Vec<u8> = Vec::new();
+        for _ in 0..=ATTEMPTS {
+            let p = self.do_position().await?;
+            // Confirmed by any earlier read: one garbled answer among good ones is outvoted.
+            if seen.contains(&p) {
+                return Ok(p);
+            }
+            if !seen.is_empty() {
+                tracing::warn!(wheel = %self.name, ?seen, now = p, "position reads disagree; reading again");
+            }
+            seen.push(p);
+        }
+        Err(DriverError::Protocol {
+            device: self.name.clone(),
+            request: "pos?".into(),
+            detail: format!("consecutive reads never agreed: {seen:?}"),
+        })
+    }
+
     pub async fn do_go_to(&self, position: u8) -> Result<(), DriverError> {
         let count = self.do_position_count().await?;
         if !(1..=count).contains(&position) {
@@ -212,7 +235,7 @@ impl Fw102c {
         tracing::info!(wheel = %self.name, from = current, to = position, "turning");
         // `pos=N` is idempotent: retried on a lost prompt.
         self.exchange(&format!("pos={position}"), timeout, true).await?;
-        let now = self.do_position().await?;
+        let now = self.verified_position().await?;
         if now != position {
             return Err(DriverError::MotionFault {
                 device: self.name.clone(),

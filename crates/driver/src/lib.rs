@@ -12,7 +12,8 @@
 //! - [`discovery`]: what serial ports and USB instruments this machine can see (`gonio devices`).
 //!
 //! Invariants: every wait has a deadline; only idempotent requests are retried, and boundedly; "arrived" means
-//! the controller finished AND the read-back is within tolerance; parsers never panic on device bytes.
+//! the controller finished AND the read-back is within tolerance; a position acted on comes from a checksummed
+//! reply or from two reads that agree within the encoder resolution; parsers never panic on device bytes.
 
 pub mod discovery;
 pub mod error;

@@ -333,6 +333,10 @@ impl Pm100 {
         self.restore_config().await?;
         let n = self.averaging.lock().map(|g| *g).unwrap_or(1);
         let timeout = Duration::from_secs_f64(f64::from(n) * SAMPLE_S * 2.0) + QUERY_TIMEOUT;
+        // The reading decides a point's value, yet it is not read twice as the serial drivers read positions: each
+        // MEAS:POW? is a new measurement (two differ by the noise), and USB data packets carry a CRC16 that the
+        // host controller checks, so bytes arrive as sent or not at all. What is checked here: the USBTMC framing
+        // (bTag, transfer size, EOM), the number's syntax, and the range for overload.
         let a = self.query("MEAS:POW?", timeout).await?;
         let timestamp = SystemTime::now();
         let range_w = self.number("SENS:POW:RANG?", QUERY_TIMEOUT).await?;

@@ -4,15 +4,21 @@
 //! set command is followed, in the same exchange, by `<addr>TE` (last command error, `@` = none). Status `TS`
 //! answers 4 hex digits of positioner error bits and 2 hex digits of controller state. `PA` is idempotent and may
 //! be retried; `OR` (home) and `PR` are never retried blindly. A wait loop treats DISABLE (3C..3E) and the NOT
-//! REFERENCED states as terminal.
+//! REFERENCED states as terminal (once a second TS confirms them).
+//!
+//! Replies carry no checksum, so a position the driver acts on is read twice in one exchange and the two reads
+//! must agree within the encoder resolution ([`Smc100Axis::verified_position`]). Several queries share one
+//! exchange where the manual allows it (one command per line): a move is `TP TP PA TE`, then `PT TS` (plus
+//! `TP TP` once the move should be over) on a [`PollSchedule`](crate::motion::PollSchedule).
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use tokio::time::Instant;
 
 use crate::error::{DriverError, ErrorKind};
-use crate::motion::{approach_waypoints, check_speed, move_deadline, trapezoid_time_s};
+use crate::motion::{PollSchedule, approach_waypoints, check_speed, move_deadline, trapezoid_time_s};
 use crate::traits::{Axis, AxisLimits, AxisStatus};
 use crate::transport::{BoxFuture, LinePort, TransportError, escape_bytes};
 
@@ -20,8 +26,14 @@ use crate::transport::{BoxFuture, LinePort, TransportError, escape_bytes};
 const REPLY_TIMEOUT: Duration = Duration::from_millis(300);
 /// Attempts for idempotent requests (queries, PA).
 const ATTEMPTS: usize = 3;
-/// Status polling interval while waiting for a move.
-const POLL: Duration = Duration::from_millis(50);
+/// Shortest pause between two status questions to one controller: the manual (section 6.4, "Command Execution
+/// Time") gives about 10 ms for a controller to execute a TP query, so asking faster only queues questions.
+const POLL_MIN: Duration = Duration::from_millis(10);
+/// Longest pause between two status questions while a move runs: bounds how late a stall is noticed.
+const POLL_MAX: Duration = Duration::from_millis(50);
+/// Span of two position reads in one exchange of a moving axis (two TP executions and their replies), for the
+/// agreement allowed between them: what the axis travels at full speed in that time.
+const MOVING_READ_WINDOW_S: f64 = 0.05;
 
 /// Controller state, from the last two hex digits of `TS`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -254,21 +266,45 @@ impl Smc100Chain {
         }
     }
 
-    /// Send a query `<addr><cc><arg>` and return the value of the matching reply. Lines from other addresses or
-    /// commands are discarded (traced). Queries are idempotent: retried on timeout or garbage, bounded.
-    pub async fn query(&self, addr: u8, cc: &str, arg: &str) -> Result<String, DriverError> {
-        let request = format!("{addr}{cc}{arg}");
+    /// One exchange: write `lines` (each `<addr><cc><arg>`; terminators added here) in one go, then read the
+    /// replies to the commands named in `expect`, in order (see [`read_replies`]). Several short lines may go out
+    /// together: the controller takes them one after the other, and XON/XOFF flow control lets it pause the host
+    /// should its input fill. (One command per line: the manual forbids several commands on one line.)
+    async fn exchange(
+        &self,
+        lines: &[String],
+        addr: u8,
+        expect: &[&str],
+    ) -> Result<Vec<Option<String>>, TransportError> {
+        let mut s = self.port.session().await;
+        s.discard_stale().await?;
+        let deadline = Instant::now() + REPLY_TIMEOUT;
+        let mut bytes = String::new();
+        for line in lines {
+            bytes.push_str(line);
+            bytes.push_str("\r\n");
+        }
+        s.send(bytes.as_bytes(), deadline).await?;
+        read_replies(&mut s, addr, expect, deadline).await
+    }
+
+    /// Several queries `(cc, arg)` to one controller in one exchange: the value of each reply, in order; `None`
+    /// for one that never came (lost or garbled beyond recognition) while a later one did. Queries are
+    /// idempotent: the exchange is retried, boundedly, when the last reply does not come.
+    pub async fn queries(
+        &self,
+        addr: u8,
+        queries: &[(&str, &str)],
+    ) -> Result<Vec<Option<String>>, DriverError> {
+        let lines: Vec<String> = queries
+            .iter()
+            .map(|(cc, arg)| format!("{addr}{cc}{arg}"))
+            .collect();
+        let expect: Vec<&str> = queries.iter().map(|(cc, _)| *cc).collect();
+        let request = lines.join(" ");
         let mut last = None;
         for attempt in 1..=ATTEMPTS {
-            let mut s = self.port.session().await;
-            let r = async {
-                s.discard_stale().await?;
-                let deadline = Instant::now() + REPLY_TIMEOUT;
-                s.send(format!("{request}\r\n").as_bytes(), deadline).await?;
-                read_matching(&mut s, addr, cc, deadline).await
-            }
-            .await;
-            match r {
+            match self.exchange(&lines, addr, &expect).await {
                 Ok(v) => return Ok(v),
                 Err(TransportError::Disconnected(d)) => {
                     return Err(self.transport_error(addr, &request, TransportError::Disconnected(d)));
@@ -282,25 +318,52 @@ impl Smc100Chain {
         Err(self.transport_error(addr, &request, last.unwrap_or(TransportError::Timeout)))
     }
 
+    /// Send a query `<addr><cc><arg>` and return the value of the matching reply. Lines from other addresses or
+    /// commands are discarded (traced). Queries are idempotent: retried on timeout or garbage, bounded.
+    pub async fn query(&self, addr: u8, cc: &str, arg: &str) -> Result<String, DriverError> {
+        self.queries(addr, &[(cc, arg)])
+            .await?
+            .pop()
+            .flatten()
+            // Unreachable in practice: the exchange ends only with its last reply.
+            .ok_or_else(|| DriverError::Protocol {
+                device: self.dev(addr),
+                request: format!("{addr}{cc}{arg}"),
+                detail: "no reply value".into(),
+            })
+    }
+
     /// Send a set command and read `TE` in the same exchange. `idempotent` commands are retried when the TE reply
     /// is lost; others (OR, PR, ST) are sent once, and a lost TE is reported as a timeout.
     pub async fn command(&self, addr: u8, cc: &str, arg: &str, idempotent: bool) -> Result<(), DriverError> {
+        self.command_after(addr, &[], cc, arg, idempotent)
+            .await
+            .map(|_| ())
+    }
+
+    /// Like [`Smc100Chain::command`], with `queries` answered just before the command runs, in the same exchange
+    /// (e.g. the position a move starts from). Returns the queries' values in order, `None` for a lost one.
+    pub async fn command_after(
+        &self,
+        addr: u8,
+        queries: &[(&str, &str)],
+        cc: &str,
+        arg: &str,
+        idempotent: bool,
+    ) -> Result<Vec<Option<String>>, DriverError> {
         let request = format!("{addr}{cc}{arg}");
+        let mut lines: Vec<String> = queries.iter().map(|(q, a)| format!("{addr}{q}{a}")).collect();
+        lines.push(request.clone());
+        lines.push(format!("{addr}TE"));
+        let mut expect: Vec<&str> = queries.iter().map(|(q, _)| *q).collect();
+        expect.push("TE");
         let attempts = if idempotent { ATTEMPTS } else { 1 };
         let mut last = TransportError::Timeout;
         let mut refused = None;
         for attempt in 1..=attempts {
-            let mut s = self.port.session().await;
-            let r = async {
-                s.discard_stale().await?;
-                let deadline = Instant::now() + REPLY_TIMEOUT;
-                s.send(format!("{request}\r\n{addr}TE\r\n").as_bytes(), deadline)
-                    .await?;
-                read_matching(&mut s, addr, "TE", deadline).await
-            }
-            .await;
-            match r {
-                Ok(v) => {
+            match self.exchange(&lines, addr, &expect).await {
+                Ok(mut values) => {
+                    let v = values.pop().flatten().unwrap_or_default();
                     // A code the controller does not have is a garbled reply, not a refusal.
                     let code = parse_te(&v)
                         .filter(|c| *c == '@' || describe_te(*c) != describe_te('?'))
@@ -310,7 +373,7 @@ impl Smc100Chain {
                             detail: format!("not an error code: {v:?}"),
                         })?;
                     if code == '@' {
-                        return Ok(());
+                        return Ok(values);
                     }
                     let e = if code == 'H' {
                         DriverError::NotReferenced {
@@ -400,19 +463,39 @@ impl Smc100Chain {
     }
 }
 
-/// Read lines until one from `addr` answering `cc`; other lines are stale and dropped with a trace.
-async fn read_matching(
+/// Read the replies from `addr` to the commands `expect` (two-letter codes), which come in the order the
+/// commands were sent: each reply fills the first open slot at or after the last one filled that names its
+/// command. Ends when the last slot is filled; a slot skipped on the way (its reply lost, or garbled in its address
+/// or code) stays `None`. Lines from other controllers or for other commands are stale and dropped with a trace.
+async fn read_replies(
     s: &mut crate::transport::line::Session<'_>,
     addr: u8,
-    cc: &str,
+    expect: &[&str],
     deadline: Instant,
-) -> Result<String, TransportError> {
+) -> Result<Vec<Option<String>>, TransportError> {
+    let mut values: Vec<Option<String>> = vec![None; expect.len()];
+    if expect.is_empty() {
+        return Ok(values);
+    }
+    let mut next = 0;
     loop {
         let line = s.read_line(deadline).await?;
-        match parse_reply(&line) {
-            Some((a, c, v)) if a == addr && c == cc.as_bytes() => return Ok(v.to_string()),
-            _ => {
-                tracing::debug!(line = %escape_bytes(&line), expected = %format!("{addr}{cc}"), "unexpected line discarded")
+        let slot = parse_reply(&line).and_then(|(a, c, v)| {
+            let at = (next..expect.len()).find(|i| expect.get(*i).is_some_and(|e| e.as_bytes() == c))?;
+            (a == addr).then_some((at, v))
+        });
+        match slot {
+            Some((at, v)) => {
+                if let Some(cell) = values.get_mut(at) {
+                    *cell = Some(v.to_string());
+                }
+                next = at + 1;
+                if next >= expect.len() {
+                    return Ok(values);
+                }
+            }
+            None => {
+                tracing::debug!(line = %escape_bytes(&line), expected = %format!("{addr}{expect:?}"), "unexpected line discarded")
             }
         }
     }
@@ -428,6 +511,10 @@ pub struct Smc100Axis {
     motion: Mutex<(f64, f64)>,
     /// Controller position where the last move started.
     last_start: Mutex<Option<f64>>,
+    /// The last move was already over at its first status question (a move that was tiny, or a controller much
+    /// faster than its configured motion, like the simulator at a large time scale): the first question of the
+    /// next move then asks for the read-back at once, saving an exchange.
+    early_finish: AtomicBool,
 }
 
 impl Smc100Axis {
@@ -439,6 +526,7 @@ impl Smc100Axis {
             cfg,
             motion,
             last_start: Mutex::new(None),
+            early_finish: AtomicBool::new(false),
         }
     }
 
@@ -470,21 +558,106 @@ impl Smc100Axis {
         Ok(())
     }
 
-    /// Status with the position converted to physical degrees.
+    /// Whether two position reads (controller units) agree: within the encoder resolution for an axis at rest;
+    /// for a moving axis, within what it travels at full speed between the two reads.
+    fn reads_agree(&self, a: f64, b: f64, moving: bool) -> bool {
+        let mut tolerance = self.cfg.encoder_resolution_deg.max(1e-6) + 1e-9;
+        if moving {
+            let (v, _) = self.speed_accel();
+            tolerance += v.abs() * MOVING_READ_WINDOW_S;
+        }
+        (a - b).abs() <= tolerance
+    }
+
+    /// The controller position (controller units), read for a decision: where a move starts from, where it
+    /// ended, where the engine plans from. Why two reads: a reply garbled inside a well-formed number
+    /// (`1TP12.345` with one digit changed) parses like a good one, and this protocol has no checksum. Two reads
+    /// in one exchange must agree within the encoder resolution (one corrupted byte cannot make both wrong
+    /// alike); a moving axis is allowed its travel between them. Retried, boundedly; a typed Protocol error
+    /// when the reads never agree.
+    pub async fn verified_position(&self) -> Result<f64, DriverError> {
+        let mut seen = Vec::new();
+        for attempt in 1..=ATTEMPTS {
+            let r = self.chain.queries(self.addr, &[("TP", ""), ("TP", "")]).await?;
+            let (a, b) = (number_at(&r, 0), number_at(&r, 1));
+            if let (Some(a), Some(b)) = (a, b) {
+                if self.reads_agree(a, b, false) {
+                    return Ok(b);
+                }
+                // Reads of a moving axis differ by its travel: that is motion, not garbage.
+                if let Ok(ts) = self.chain.ts(self.addr).await
+                    && is_moving(ts.state)
+                    && self.reads_agree(a, b, true)
+                {
+                    return Ok(b);
+                }
+            }
+            tracing::warn!(axis = %self.dev(), attempt, replies = ?r, "two position reads disagree; reading again");
+            seen.push(format!("{r:?}"));
+        }
+        Err(DriverError::Protocol {
+            device: self.dev(),
+            request: format!("{}TP (read twice)", self.addr),
+            detail: format!(
+                "the two reads never agreed within the encoder resolution ({} deg): {}",
+                self.cfg.encoder_resolution_deg,
+                seen.join(", ")
+            ),
+        })
+    }
+
+    /// A TS reading that would end a wait or report a fault (DISABLE, NOT REFERENCED, CONFIGURATION, and error
+    /// bits when `errors_matter`) is confirmed by a second TS before anything acts on it: one garbled byte turns
+    /// READY (33) into DISABLE (3C). Returns the latest reading (the second when a confirmation was asked).
+    async fn confirmed(&self, ts: Ts, errors_matter: bool) -> Result<Ts, DriverError> {
+        let alarming = (errors_matter && ts.errors != 0)
+            || matches!(
+                ts.state,
+                State::Disable(_) | State::NotReferenced(_) | State::Configuration | State::Unknown(_)
+            );
+        if !alarming {
+            return Ok(ts);
+        }
+        let again = self.chain.ts(self.addr).await?;
+        if again != ts {
+            tracing::warn!(axis = %self.dev(), first = %ts_reason(&ts), second = %ts_reason(&again), "status changed on a second look");
+        }
+        Ok(again)
+    }
+
+    /// Status with the position converted to physical degrees: TS and two TP reads in one exchange.
     pub async fn read_status(&self) -> Result<AxisStatus, DriverError> {
-        let ts = self.chain.ts(self.addr).await?;
-        let pos = self.chain.number(self.addr, "TP", "").await?;
-        let fault = match ts.state {
-            State::Disable(_) | State::Unknown(_) => Some(ts_reason(&ts)),
-            _ if ts.errors != 0 => Some(ts_reason(&ts)),
-            _ => None,
-        };
-        Ok(AxisStatus {
-            position_deg: self.cfg.physical_from_controller_deg(pos),
-            moving: matches!(ts.state, State::Moving | State::Homing(_) | State::Jogging(_)),
-            referenced: !matches!(ts.state, State::NotReferenced(_) | State::Configuration),
-            fault,
-            raw: format!("TS errors {:04X}, {}", ts.errors, ts.state.describe()),
+        let mut seen = Vec::new();
+        for attempt in 1..=ATTEMPTS {
+            let r = self
+                .chain
+                .queries(self.addr, &[("TS", ""), ("TP", ""), ("TP", "")])
+                .await?;
+            let ts = r.first().and_then(|v| v.as_deref()).and_then(parse_ts);
+            if let (Some(ts), Some(a), Some(b)) = (ts, number_at(&r, 1), number_at(&r, 2))
+                && self.reads_agree(a, b, is_moving(ts.state))
+            {
+                let ts = self.confirmed(ts, true).await?;
+                let fault = match ts.state {
+                    State::Disable(_) | State::Unknown(_) => Some(ts_reason(&ts)),
+                    _ if ts.errors != 0 => Some(ts_reason(&ts)),
+                    _ => None,
+                };
+                return Ok(AxisStatus {
+                    position_deg: self.cfg.physical_from_controller_deg(b),
+                    moving: is_moving(ts.state),
+                    referenced: !matches!(ts.state, State::NotReferenced(_) | State::Configuration),
+                    fault,
+                    raw: format!("TS errors {:04X}, {}", ts.errors, ts.state.describe()),
+                });
+            }
+            tracing::warn!(axis = %self.dev(), attempt, replies = ?r, "status replies malformed or disagreeing; reading again");
+            seen.push(format!("{r:?}"));
+        }
+        Err(DriverError::Protocol {
+            device: self.dev(),
+            request: format!("{0}TS {0}TP {0}TP", self.addr),
+            detail: format!("no consistent status: {}", seen.join(", ")),
         })
     }
 
@@ -500,9 +673,13 @@ impl Smc100Axis {
             State::Disable(_) => {
                 tracing::info!(axis = %self.dev(), state = %ts.state.describe(), "leaving DISABLE (MM1)");
                 self.chain.command(self.addr, "MM", "1", true).await?;
-                self.wait_state(|s| matches!(s, State::Ready(_)), Duration::from_secs(5), None)
-                    .await
-                    .map(|_| ())
+                self.wait_state(
+                    |s| matches!(s, State::Ready(_)),
+                    Wait::plain(Duration::from_secs(5), Duration::ZERO),
+                    None,
+                )
+                .await
+                .map(|_| ())
             }
             State::NotReferenced(_) => {
                 tracing::info!(axis = %self.dev(), "homing (OR)");
@@ -527,9 +704,13 @@ impl Smc100Axis {
                 let (v, a) = self.speed_accel();
                 let span = self.cfg.max_deg - self.cfg.min_deg;
                 let deadline = move_deadline(span, v * 0.25, a) + Duration::from_secs(10);
-                self.wait_state(|s| matches!(s, State::Ready(_)), deadline, None)
-                    .await
-                    .map(|_| ())
+                self.wait_state(
+                    |s| matches!(s, State::Ready(_)),
+                    Wait::plain(deadline, Duration::ZERO),
+                    None,
+                )
+                .await
+                .map(|_| ())
             }
             other => Err(DriverError::Rejected {
                 device: self.dev(),
@@ -539,19 +720,74 @@ impl Smc100Axis {
         }
     }
 
-    /// Poll TS until `done(state)`. DISABLE, NOT REFERENCED (unless awaited), CONFIGURATION and unknown states
-    /// end the wait with the device's reason. Returns the final TS.
+    /// Poll TS until `done(state)`, on a [`PollSchedule`] (the first question at once). DISABLE, NOT REFERENCED
+    /// (unless awaited), CONFIGURATION and unknown states end the wait with the device's reason, once confirmed
+    /// (see [`Smc100Axis::confirmed`]). Returns the final TS and, when `wait.readback` asked for it and the final
+    /// question carried two agreeing TP reads, the read-back position (controller units).
     async fn wait_state(
         &self,
         done: impl Fn(State) -> bool,
-        timeout: Duration,
+        wait: Wait,
         target_deg: Option<f64>,
-    ) -> Result<Ts, DriverError> {
-        let deadline = Instant::now() + timeout;
+    ) -> Result<(Ts, Option<f64>), DriverError> {
+        let start = Instant::now();
+        let mut timeout = wait.timeout;
+        let mut schedule = PollSchedule::new(start + wait.predicted, POLL_MIN, POLL_MAX);
+        let mut first = true;
         loop {
-            let ts = self.chain.ts(self.addr).await?;
+            let now = Instant::now();
+            let pt_arg = wait.pt_distance.filter(|_| first).map(wire_number);
+            // A question asked when the move should be over also asks for the read-back (two TP), so that the
+            // arrival costs no further exchange.
+            let readback = wait.readback
+                && (schedule.expect_over(now) || (first && self.early_finish.load(Ordering::Relaxed)));
+            let mut queries: Vec<(&str, &str)> = Vec::with_capacity(4);
+            if let Some(arg) = pt_arg.as_deref() {
+                queries.push(("PT", arg));
+            }
+            queries.push(("TS", ""));
+            if readback {
+                queries.extend([("TP", ""), ("TP", "")]);
+            }
+            let r = self.chain.queries(self.addr, &queries).await?;
+            let mut at = 0;
+            if pt_arg.is_some() {
+                // The controller's own estimate of the move time can only lengthen the deadline: it knows its
+                // real profile.
+                if let Some(pt) = number_at(&r, 0)
+                    && (0.0..600.0).contains(&pt)
+                {
+                    timeout = timeout.max(Duration::from_secs_f64(2.0 * pt + 2.0));
+                }
+                at = 1;
+            }
+            let (ts, read) = match r.get(at).and_then(|v| v.as_deref()).and_then(parse_ts) {
+                Some(ts) => {
+                    // (A wait acts on the state only; error bits are for the status report.)
+                    let confirmed = self.confirmed(ts, false).await?;
+                    // Read-back values count only when they followed this very TS (not a confirmation).
+                    let read = match (number_at(&r, at + 1), number_at(&r, at + 2)) {
+                        (Some(a), Some(b)) if confirmed == ts && self.reads_agree(a, b, false) => Some(b),
+                        _ => None,
+                    };
+                    (confirmed, read)
+                }
+                None => {
+                    tracing::warn!(axis = %self.dev(), replies = ?r, "malformed TS reply; asking again");
+                    (
+                        self.confirmed(self.chain.ts(self.addr).await?, false).await?,
+                        None,
+                    )
+                }
+            };
             if done(ts.state) {
-                return Ok(ts);
+                if wait.readback && first {
+                    self.early_finish.store(true, Ordering::Relaxed);
+                }
+                return Ok((ts, read));
+            }
+            if wait.readback && first {
+                self.early_finish.store(false, Ordering::Relaxed);
             }
             match ts.state {
                 State::Moving | State::Homing(_) => {}
@@ -570,7 +806,9 @@ impl Smc100Axis {
                     });
                 }
             }
-            if Instant::now() >= deadline {
+            let now = Instant::now();
+            let deadline = start + timeout;
+            if now >= deadline {
                 tracing::warn!(axis = %self.dev(), "deadline passed while moving; stopping the axis");
                 let _ = self.chain.stop_all(&[self.addr]).await;
                 return Err(DriverError::Timeout {
@@ -582,7 +820,8 @@ impl Smc100Axis {
                     timeout,
                 });
             }
-            tokio::time::sleep(POLL).await;
+            first = false;
+            tokio::time::sleep(schedule.next_pause(now).min(deadline - now)).await;
         }
     }
 
@@ -590,16 +829,34 @@ impl Smc100Axis {
     pub async fn do_start_move(&self, target_deg: f64) -> Result<(), DriverError> {
         self.check_limits(target_deg)?;
         let controller = self.cfg.controller_from_physical_deg(target_deg);
-        let start = self.chain.number(self.addr, "TP", "").await.ok();
         if let Ok(mut g) = self.last_start.lock() {
-            *g = start;
+            *g = None;
         }
         tracing::info!(axis = %self.dev(), target_deg, controller, "move absolute");
+        // The position the move starts from (read twice, see `verified_position`) goes out in the same exchange
+        // as PA: the distance sets the deadline and when to ask whether the move is over. When the two reads do
+        // not agree the start stays unknown and the wait assumes the whole travel (a longer deadline, no harm).
         match self
             .chain
-            .command(self.addr, "PA", &wire_number(controller), true)
+            .command_after(
+                self.addr,
+                &[("TP", ""), ("TP", "")],
+                "PA",
+                &wire_number(controller),
+                true,
+            )
             .await
         {
+            Ok(start) => {
+                let start = match (number_at(&start, 0), number_at(&start, 1)) {
+                    (Some(a), Some(b)) if self.reads_agree(a, b, false) => Some(b),
+                    _ => None,
+                };
+                if let Ok(mut g) = self.last_start.lock() {
+                    *g = start;
+                }
+                Ok(())
+            }
             // A retried PA whose first copy got through (only its TE reply was lost) meets the axis already
             // MOVING: that is success if the controller's set-point is our target. During a move the set-point
             // (TH) is the profile generator's position, which reaches the target only at the end of the move:
@@ -616,7 +873,11 @@ impl Smc100Axis {
                 let (v, a) = self.speed_accel();
                 let timeout = move_deadline(self.cfg.max_deg - self.cfg.min_deg, v, a);
                 match self
-                    .wait_state(|s| matches!(s, State::Ready(_)), timeout, Some(target_deg))
+                    .wait_state(
+                        |s| matches!(s, State::Ready(_)),
+                        Wait::plain(timeout, Duration::ZERO),
+                        Some(target_deg),
+                    )
                     .await
                 {
                     Ok(_) => {}
@@ -643,7 +904,7 @@ impl Smc100Axis {
                     ),
                 })
             }
-            other => other,
+            Err(other) => Err(other),
         }
     }
 
@@ -661,26 +922,39 @@ impl Smc100Axis {
             Some(s) => (controller_target - s).abs(),
             None => self.cfg.max_deg - self.cfg.min_deg,
         };
-        let mut timeout = move_deadline(distance, v, a);
-        // The controller's own estimate (PT) can only lengthen the deadline: it knows its real profile.
-        if let Ok(pt) = self.chain.number(self.addr, "PT", &wire_number(distance)).await
-            && pt.is_finite()
-            && (0.0..600.0).contains(&pt)
-        {
-            timeout = timeout.max(Duration::from_secs_f64(2.0 * pt + 2.0));
-        }
-        let ts = self
-            .wait_state(|s| matches!(s, State::Ready(_)), timeout, Some(target_deg))
+        let predicted = trapezoid_time_s(distance, v, a);
+        let wait = Wait {
+            timeout: move_deadline(distance, v, a),
+            predicted: Duration::from_secs_f64(if predicted.is_finite() {
+                predicted.clamp(0.0, 600.0)
+            } else {
+                0.0
+            }),
+            pt_distance: Some(distance),
+            readback: true,
+        };
+        let (ts, read_c) = self
+            .wait_state(|s| matches!(s, State::Ready(_)), wait, Some(target_deg))
             .await?;
-        // READY: verify the read-back; a garbled number is re-read rather than trusted.
+        // READY: verify the read-back. The position decides whether the move arrived and becomes the point's
+        // recorded position, hence two agreeing reads (see `verified_position`), never one.
+        let mut read_c = match read_c {
+            Some(p) => p,
+            None => self.verified_position().await?,
+        };
         let mut read = f64::NAN;
-        for _ in 0..ATTEMPTS {
-            let pos = self.chain.number(self.addr, "TP", "").await?;
-            read = self.cfg.physical_from_controller_deg(pos);
+        for attempt in 1..=ATTEMPTS {
+            read = self.cfg.physical_from_controller_deg(read_c);
             if (read - target_deg).abs() <= tolerance_deg {
                 tracing::info!(axis = %self.dev(), target_deg, read_back_deg = read, "arrived");
                 return Ok(read);
             }
+            if attempt == ATTEMPTS {
+                break;
+            }
+            // A servo may still settle into its deadband just after READY: look again, a little later.
+            tokio::time::sleep(POLL_MIN).await;
+            read_c = self.verified_position().await?;
         }
         Err(DriverError::MotionFault {
             device: self.dev(),
@@ -697,7 +971,8 @@ impl Smc100Axis {
     /// Move with the backlash approach and verified arrival.
     pub async fn do_move_to(&self, target_deg: f64) -> Result<f64, DriverError> {
         self.check_limits(target_deg)?;
-        let current = self.chain.number(self.addr, "TP", "").await?;
+        // Where the axis is decides whether the approach needs the backlash overshoot: a verified read.
+        let current = self.verified_position().await?;
         let mut read = f64::NAN;
         for (step_deg, tolerance) in approach_waypoints(&self.cfg, current, target_deg) {
             self.do_start_move(step_deg).await?;
@@ -755,6 +1030,40 @@ impl Smc100Axis {
     }
 }
 
+/// How long to wait for a state, and what else to ask on the way (see [`Smc100Axis::wait_state`]).
+#[derive(Debug, Clone, Copy)]
+struct Wait {
+    /// Deadline from the start of the wait (lengthened by the controller's PT estimate when asked).
+    timeout: Duration,
+    /// When the awaited state is predicted, from the start of the wait.
+    predicted: Duration,
+    /// Ask PT for this distance with the first question.
+    pt_distance: Option<f64>,
+    /// Ask for the read-back (two TP) with the questions made when the move should be over.
+    readback: bool,
+}
+
+impl Wait {
+    fn plain(timeout: Duration, predicted: Duration) -> Wait {
+        Wait {
+            timeout,
+            predicted,
+            pt_distance: None,
+            readback: false,
+        }
+    }
+}
+
+/// The number in reply `i` of an exchange, if it came and parses.
+fn number_at(replies: &[Option<String>], i: usize) -> Option<f64> {
+    replies.get(i)?.as_deref().and_then(parse_number)
+}
+
+/// States in which the axis moves by itself.
+fn is_moving(state: State) -> bool {
+    matches!(state, State::Moving | State::Homing(_) | State::Jogging(_))
+}
+
 fn ts_reason(ts: &Ts) -> String {
     let bits = describe_error_bits(ts.errors);
     if bits.is_empty() {
@@ -793,9 +1102,13 @@ impl Axis for Smc100Axis {
     fn wait_arrived(&self, target_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>> {
         Box::pin(self.do_wait_arrived(target_deg))
     }
+    fn wait_passed_via(&self, via_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>> {
+        Box::pin(self.wait_arrived_within(via_deg, crate::motion::via_point_tolerance_deg(&self.cfg)))
+    }
     fn position_deg(&self) -> BoxFuture<'_, Result<f64, DriverError>> {
+        // The engine plans moves (and their collision safety) from this: a verified read.
         Box::pin(async move {
-            let pos = self.chain.number(self.addr, "TP", "").await?;
+            let pos = self.verified_position().await?;
             Ok(self.cfg.physical_from_controller_deg(pos))
         })
     }

@@ -45,6 +45,9 @@ pub trait Axis: Send + Sync + std::fmt::Debug {
     fn start_move(&self, target_deg: f64) -> BoxFuture<'_, Result<(), DriverError>>;
     /// Wait until the move to `target_deg` is over and verify the arrival. Returns the read-back position.
     fn wait_arrived(&self, target_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>>;
+    /// Like [`Axis::wait_arrived`] for a via point of a longer move (a backlash overshoot): there the load may
+    /// lag the motor by the backlash, so the arrival is verified within the tolerance plus twice the backlash.
+    fn wait_passed_via(&self, via_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>>;
     /// Read-back position.
     fn position_deg(&self) -> BoxFuture<'_, Result<f64, DriverError>>;
     /// Full status.

@@ -1,12 +1,16 @@
 //! Zaber motion devices over the ASCII protocol, written from Zaber's ASCII protocol manual.
 //!
 //! Every command carries a message id (0..=99) and a checksum: `/<dev> <axis> <id> <command>:<CC>\n`. Replies
-//! `@DD A [id] FL STATUS WW data[:CC]` are matched by device, axis and id; their checksum is verified when present
-//! (devices add one when asked to); alerts (`!`) and info lines (`#`) interleaved with replies are handled, and a
+//! `@DD A [id] FL STATUS WW data[:CC]` are matched by device, axis and id; their checksum is verified when present,
+//! and the driver turns a device's reply checksums on (`set comm.checksum 1`) whenever a reply comes without one;
+//! an idle axis's position is only taken from a checksummed reply or confirmed by a second read (see
+//! [`ZaberChain`]). Alerts (`!`) and info lines (`#`) interleaved with replies are handled, and a
 //! reply or info line ending in `\` continues in the next `#... cont` info line. `move abs`, `get`, `stop` and
 //! `warnings` are idempotent and retried (bounded); `home` is sent once. Positions are integer microsteps,
-//! converted to degrees with the axis's `microstep_deg`.
+//! converted to degrees with the axis's `microstep_deg`. A wait for a move asks at once, then on a
+//! [`PollSchedule`](crate::motion::PollSchedule).
 
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -14,13 +18,18 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use crate::error::DriverError;
-use crate::motion::{approach_waypoints, check_speed, move_deadline};
+use crate::motion::{PollSchedule, approach_waypoints, check_speed, move_deadline, trapezoid_time_s};
 use crate::traits::{Axis, AxisLimits, AxisStatus};
 use crate::transport::{BoxFuture, LinePort, TransportError, escape_bytes};
 
 const REPLY_TIMEOUT: Duration = Duration::from_millis(300);
 const ATTEMPTS: usize = 3;
-const POLL: Duration = Duration::from_millis(50);
+/// Shortest pause between two status questions to one device. The manual sets no minimum (a device answers each
+/// command before the next is sent, as this driver waits for every reply); 10 ms leaves the shared chain free for
+/// the other axes between questions.
+const POLL_MIN: Duration = Duration::from_millis(10);
+/// Longest pause between two status questions while a move runs: bounds how late a stall is noticed.
+const POLL_MAX: Duration = Duration::from_millis(50);
 /// Zaber's speed data unit: microsteps/s x 1.6384.
 const SPEED_UNIT: f64 = 1.6384;
 /// Zaber's acceleration data unit: microsteps/s^2 x 1.6384 / 10000.
@@ -62,6 +71,8 @@ pub struct Reply {
     pub data: String,
     /// The data continues in `cont` info lines.
     pub continues: bool,
+    /// The reply carried a checksum, and it was right (a reply with a wrong one is not parsed at all).
+    pub checksummed: bool,
 }
 
 /// A decoded alert (`!DD A STATUS WW [data]`).
@@ -121,6 +132,7 @@ pub fn parse_message(line: &[u8]) -> Result<Message, ParseError> {
     }
     let rest = text.get(1..).ok_or(ParseError::Type)?;
     // A trailing ":CC" (two hex digits) is a checksum over everything between the start character and the colon.
+    let mut checksummed = false;
     let body = match rest.rfind(':') {
         Some(at)
             if rest.len() == at + 3
@@ -135,6 +147,7 @@ pub fn parse_message(line: &[u8]) -> Result<Message, ParseError> {
             if sum.wrapping_add(cs) != 0 {
                 return Err(ParseError::Checksum);
             }
+            checksummed = true;
             body
         }
         _ => rest,
@@ -185,6 +198,7 @@ pub fn parse_message(line: &[u8]) -> Result<Message, ParseError> {
                 warning,
                 data,
                 continues,
+                checksummed,
             }))
         }
         '!' => {
@@ -276,12 +290,29 @@ pub fn describe_warning(flag: &str) -> String {
     format!("{flag} ({text})")
 }
 
-/// One Zaber daisy chain: the port owner and the message-id counter.
+/// Whether a device's replies carry checksums (the device setting `comm.checksum`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Checksums {
+    /// Its replies carry them.
+    On,
+    /// A reply came without one: ask the device to add them before the next request.
+    Enable,
+    /// The device refused the setting: positions for decisions are confirmed by a second read instead.
+    Unsupported,
+}
+
+/// One Zaber daisy chain: the port owner, the message-id counter, and the checksum state of each device.
+///
+/// Replies are only trusted with a checksum: a digit garbled inside a position (`@01 1 7 OK IDLE -- 60281`) parses
+/// like a good one, and the LRC catches every single corrupted byte. Devices send checksums once their setting
+/// `comm.checksum` is 1; the driver sets it whenever a device's reply comes without one (first contact, or a
+/// device that lost the setting in a power cycle) and carries on.
 #[derive(Debug)]
 pub struct ZaberChain {
     name: String,
     port: Arc<LinePort>,
     next_id: AtomicU8,
+    checksums: Mutex<BTreeMap<u8, Checksums>>,
 }
 
 impl ZaberChain {
@@ -290,6 +321,7 @@ impl ZaberChain {
             name: name.into(),
             port,
             next_id: AtomicU8::new(0),
+            checksums: Mutex::new(BTreeMap::new()),
         })
     }
 
@@ -325,9 +357,66 @@ impl ZaberChain {
         }
     }
 
+    fn checksum_state(&self, device: u8) -> Option<Checksums> {
+        self.checksums.lock().ok().and_then(|m| m.get(&device).copied())
+    }
+
+    fn set_checksum_state(&self, device: u8, state: Checksums) {
+        if let Ok(mut m) = self.checksums.lock() {
+            m.insert(device, state);
+        }
+    }
+
+    /// Ask `device` to checksum its replies (`set comm.checksum 1`, idempotent). A refusal marks the device as
+    /// without checksums; no reply leaves the request for the next exchange.
+    async fn enable_checksums(&self, device: u8) {
+        match self.request_raw(device, 0, "set comm.checksum 1", true).await {
+            Ok(r) if r.flag == Flag::Ok => {
+                tracing::info!(chain = %self.name, device, "reply checksums enabled");
+                self.set_checksum_state(device, Checksums::On);
+            }
+            Ok(r) => {
+                tracing::warn!(chain = %self.name, device, reason = %r.data, "the device refuses reply checksums; positions will be read twice");
+                self.set_checksum_state(device, Checksums::Unsupported);
+            }
+            Err(e) => {
+                tracing::warn!(chain = %self.name, device, error = %e, "could not enable reply checksums; will ask again")
+            }
+        }
+    }
+
     /// Send `command` to `device`/`axis` and return its reply (OK or RJ; the caller decides). Idempotent commands
-    /// are retried on a lost or garbled reply, with a fresh message id each time.
+    /// are retried on a lost or garbled reply, with a fresh message id each time. Keeps the device's reply
+    /// checksums on (see [`ZaberChain`]); [`Reply::checksummed`] says whether this reply had one.
     pub async fn request(
+        &self,
+        device: u8,
+        axis: u8,
+        command: &str,
+        idempotent: bool,
+    ) -> Result<Reply, DriverError> {
+        if device != 0 && self.checksum_state(device) == Some(Checksums::Enable) {
+            self.enable_checksums(device).await;
+        }
+        let reply = self.request_raw(device, axis, command, idempotent).await?;
+        if device != 0 {
+            match (reply.checksummed, self.checksum_state(device)) {
+                (true, Some(Checksums::On)) => {}
+                (true, _) => self.set_checksum_state(device, Checksums::On),
+                (false, Some(Checksums::Unsupported)) => {}
+                (false, state) => {
+                    if state == Some(Checksums::On) {
+                        tracing::warn!(chain = %self.name, device, "a reply without checksum from a device that sends them (restarted?)");
+                    }
+                    self.set_checksum_state(device, Checksums::Enable);
+                }
+            }
+        }
+        Ok(reply)
+    }
+
+    /// [`ZaberChain::request`] without the checksum bookkeeping.
+    async fn request_raw(
         &self,
         device: u8,
         axis: u8,
@@ -504,20 +593,38 @@ impl ZaberAxis {
         Ok(r)
     }
 
-    /// `get pos`: (microsteps, busy, warning).
+    /// `get pos`: (microsteps, busy, warning). The position of an idle axis decides things (arrival, where a
+    /// move starts, where the engine plans from), and a digit garbled inside the number parses like a good one:
+    /// it is taken from a checksummed reply, or else confirmed by a second read that agrees within the encoder
+    /// resolution. (A busy axis's position decides nothing; only its busy flag and warning do, which a single
+    /// garbled byte cannot turn into another valid value.) Bounded; a typed Protocol error otherwise.
     async fn get_pos(&self) -> Result<(i64, bool, Option<String>), DriverError> {
-        let mut last = String::new();
+        let tolerance_steps = (self.cfg.encoder_resolution_deg / self.microstep_deg)
+            .round()
+            .clamp(0.0, 1e9) as i64;
+        let mut seen = Vec::new();
+        let mut unconfirmed: Vec<i64> = Vec::new();
         for _ in 0..ATTEMPTS {
             let r = self.ok("get pos", true).await?;
-            if let Ok(steps) = r.data.trim().parse::<i64>() {
+            let Ok(steps) = r.data.trim().parse::<i64>() else {
+                seen.push(r.data);
+                continue;
+            };
+            if r.checksummed || r.busy {
                 return Ok((steps, r.busy, r.warning));
             }
-            last = r.data;
+            // Confirmed by any earlier read: one garbled read among good ones is outvoted.
+            if unconfirmed.iter().any(|p| (p - steps).abs() <= tolerance_steps) {
+                return Ok((steps, r.busy, r.warning));
+            }
+            tracing::debug!(axis = %self.dev(), steps, "position without checksum; reading it again");
+            unconfirmed.push(steps);
+            seen.push(r.data);
         }
         Err(DriverError::Protocol {
             device: self.dev(),
             request: "get pos".into(),
-            detail: format!("not a position: {last:?}"),
+            detail: format!("no trustworthy position: {seen:?}"),
         })
     }
 
@@ -580,12 +687,14 @@ impl ZaberAxis {
         let (v, a) = self.speed_accel();
         let span = self.cfg.max_deg - self.cfg.min_deg;
         let deadline = Instant::now() + move_deadline(span, v, a) + Duration::from_secs(5);
+        let mut schedule = PollSchedule::new(Instant::now(), POLL_MIN, POLL_MAX);
         loop {
             let (_, busy, _) = self.get_pos().await?;
             if !busy {
                 break;
             }
-            if Instant::now() >= deadline {
+            let now = Instant::now();
+            if now >= deadline {
                 let _ = self.ok("stop", true).await;
                 return Err(DriverError::Timeout {
                     device: self.dev(),
@@ -593,7 +702,7 @@ impl ZaberAxis {
                     timeout: move_deadline(span, v, a),
                 });
             }
-            tokio::time::sleep(POLL).await;
+            tokio::time::sleep(schedule.next_pause(now).min(deadline - now)).await;
         }
         let flags = self.warnings().await?;
         if let Some(f) = flags.iter().find(|f| f.starts_with('F')) {
@@ -661,7 +770,19 @@ impl ZaberAxis {
             .map(|s| (target_deg - s).abs())
             .unwrap_or(self.cfg.max_deg - self.cfg.min_deg);
         let timeout = move_deadline(distance, v, a);
-        let deadline = Instant::now() + timeout;
+        let predicted = trapezoid_time_s(distance, v, a);
+        let now = Instant::now();
+        let deadline = now + timeout;
+        // The first question at once (the reply to `get pos` says busy or idle and where, in one exchange).
+        let mut schedule = PollSchedule::new(
+            now + Duration::from_secs_f64(if predicted.is_finite() {
+                predicted.clamp(0.0, 600.0)
+            } else {
+                0.0
+            }),
+            POLL_MIN,
+            POLL_MAX,
+        );
         let (mut steps, mut warning);
         loop {
             let (s, busy, w) = self.get_pos().await?;
@@ -687,7 +808,8 @@ impl ZaberAxis {
             if !busy {
                 break;
             }
-            if Instant::now() >= deadline {
+            let now = Instant::now();
+            if now >= deadline {
                 tracing::warn!(axis = %self.dev(), "deadline passed while moving; stopping the axis");
                 let _ = self.ok("stop", true).await;
                 return Err(DriverError::Timeout {
@@ -696,7 +818,7 @@ impl ZaberAxis {
                     timeout,
                 });
             }
-            tokio::time::sleep(POLL).await;
+            tokio::time::sleep(schedule.next_pause(now).min(deadline - now)).await;
         }
         let read = self.deg_from_steps(steps);
         if (read - target_deg).abs() <= tolerance_deg.max(self.microstep_deg) {
@@ -805,6 +927,9 @@ impl Axis for ZaberAxis {
     fn wait_arrived(&self, target_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>> {
         Box::pin(self.do_wait_arrived(target_deg))
     }
+    fn wait_passed_via(&self, via_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>> {
+        Box::pin(self.wait_arrived_within(via_deg, crate::motion::via_point_tolerance_deg(&self.cfg)))
+    }
     fn position_deg(&self) -> BoxFuture<'_, Result<f64, DriverError>> {
         Box::pin(async move { self.get_pos().await.map(|(s, _, _)| self.deg_from_steps(s)) })
     }
@@ -858,7 +983,8 @@ mod tests {
                 busy: false,
                 warning: None,
                 data: "0".into(),
-                continues: false
+                continues: false,
+                checksummed: false
             })
         );
         let body = "01 2 17 RJ BUSY WR BADDATA";
@@ -871,6 +997,7 @@ mod tests {
                 );
                 assert_eq!(r.warning.as_deref(), Some("WR"));
                 assert_eq!(r.data, "BADDATA");
+                assert!(r.checksummed);
             }
             other => panic!("not a reply: {other:?}"),
         }

@@ -2,7 +2,9 @@
 //!
 //! Listens on loopback by default; any other address needs a token (`--token` or `GONIO_TOKEN`), which every
 //! request must then carry. Stops on SIGINT/SIGTERM: the running campaign pauses at a safe point (or is
-//! emergency-stopped after the grace period) and is resumed first at the next start.
+//! emergency-stopped after the grace period) and is resumed first at the next start. Requests must name a host
+//! the daemon knows (loopback, the listening address, or `--allow-host`), and state-changing requests from a
+//! browser must come from the daemon's own origin (crates/daemon/src/api/origin.rs).
 
 use std::io::Write as _;
 use std::net::SocketAddr;
@@ -40,6 +42,11 @@ pub struct DaemonArgs {
     /// Seconds a running campaign is given to reach a safe point at shutdown before an emergency stop.
     #[arg(long, default_value_t = 20.0)]
     pub shutdown_grace_s: f64,
+    /// A host name clients may use to reach the daemon (repeatable), e.g. `--allow-host lab-pc.example.org`.
+    /// Requests naming any other host are refused (421) so that a web page cannot reach the daemon by DNS
+    /// rebinding; loopback names and addresses, and the listening address, are always allowed.
+    #[arg(long = "allow-host", value_name = "NAME")]
+    pub allow_hosts: Vec<String>,
 }
 
 pub fn run(args: DaemonArgs) -> Result<(), CliError> {
@@ -96,6 +103,7 @@ pub fn run(args: DaemonArgs) -> Result<(), CliError> {
         let _ = std::io::stdout().flush();
         let config = ApiConfig {
             token,
+            allowed_hosts: args.allow_hosts,
             ..ApiConfig::default()
         };
         api::run_daemon(listener, service, &config, stop_signal()).await;

@@ -117,6 +117,92 @@ fn dist2(a: &[f64; 6], b: &[f64; 6]) -> f64 {
     a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
 }
 
+/// Geometries closer than this (Euclidean distance of the embeddings, about radians) are one geometry.
+const SAME_GEOMETRY: f64 = 1e-6;
+
+/// Most incidence angles `first_pass_theta_i_deg` may list: a sweep each, so more than one per half degree
+/// up to grazing is no first pass (the first pass is capped at a quarter of the budget anyway).
+pub const MAX_FIRST_PASS_INCIDENCES: usize = 181;
+
+/// `first_pass_theta_i_deg`: a list or a range of finite angles, at most [`MAX_FIRST_PASS_INCIDENCES`] of them,
+/// duplicates dropped (the first occurrence kept, in order).
+fn first_pass_incidences(value: &toml::Value) -> Result<Vec<f64>, PlanError> {
+    let bad = |message: String| PlanError::Invalid {
+        table: ".adaptive".into(),
+        key: "first_pass_theta_i_deg".into(),
+        message,
+    };
+    // Count before converting: a hostile list of a million entries is refused at once.
+    if let toml::Value::Array(items) = value
+        && items.len() > MAX_FIRST_PASS_INCIDENCES
+    {
+        return Err(bad(format!(
+            "{} incidences given; at most {MAX_FIRST_PASS_INCIDENCES} (one sweep each)",
+            items.len()
+        )));
+    }
+    let list = angle_list("adaptive", "first_pass_theta_i_deg", value)?;
+    if list.len() > MAX_FIRST_PASS_INCIDENCES {
+        return Err(bad(format!(
+            "the range gives {} incidences; at most {MAX_FIRST_PASS_INCIDENCES} (one sweep each)",
+            list.len()
+        )));
+    }
+    if let Some(x) = list.iter().find(|x| !x.is_finite()) {
+        return Err(bad(format!("expected finite degrees, got {x}")));
+    }
+    // Duplicates by sorting (n log n), keeping the first occurrence of each angle in the given order.
+    let mut order: Vec<usize> = (0..list.len()).collect();
+    order.sort_by(|&a, &b| list[a].total_cmp(&list[b]).then(a.cmp(&b)));
+    let mut keep = vec![false; list.len()];
+    let mut last: Option<f64> = None;
+    for &i in &order {
+        if last.is_none_or(|l| list[i] - l > 1e-9) {
+            keep[i] = true;
+        }
+        last = Some(list[i]);
+    }
+    Ok(list
+        .into_iter()
+        .zip(keep)
+        .filter_map(|(x, k)| k.then_some(x))
+        .collect())
+}
+
+/// `geometries` without repeats (embeddings within [`SAME_GEOMETRY`] of an earlier one), in their order.
+/// Sorted along a projection of the embedding, so that each geometry is compared only with those whose
+/// projection is within the tolerance: n log n, not n^2.
+fn dedup_geometries(geometries: Vec<Geometry>) -> Vec<Geometry> {
+    // Any direction works; this one separates the sweeps' embeddings well (no two coordinates weigh alike).
+    const AXIS: [f64; 6] = [0.31, 0.43, 0.17, 0.59, 0.53, 0.29];
+    let embedded: Vec<[f64; 6]> = geometries.iter().map(embed).collect();
+    let norm = AXIS.iter().map(|c| c * c).sum::<f64>().sqrt();
+    let key: Vec<f64> = embedded
+        .iter()
+        .map(|e| e.iter().zip(AXIS).map(|(x, c)| x * c).sum::<f64>() / norm)
+        .collect();
+    let mut order: Vec<usize> = (0..geometries.len()).collect();
+    order.sort_by(|&a, &b| key[a].total_cmp(&key[b]));
+    // A repeat lies within SAME_GEOMETRY of its original, hence within it along any unit direction.
+    let mut repeat = vec![false; geometries.len()];
+    for (pos, &i) in order.iter().enumerate() {
+        for &j in order[pos + 1..]
+            .iter()
+            .take_while(|&&j| key[j] - key[i] <= SAME_GEOMETRY)
+        {
+            if dist2(&embedded[i], &embedded[j]) < SAME_GEOMETRY * SAME_GEOMETRY {
+                // The later one in the given order repeats the earlier.
+                repeat[i.max(j)] = true;
+            }
+        }
+    }
+    geometries
+        .into_iter()
+        .zip(repeat)
+        .filter_map(|(g, r)| (!r).then_some(g))
+        .collect()
+}
+
 fn transform(f: f64) -> f64 {
     f.max(0.0).ln_1p()
 }
@@ -202,7 +288,7 @@ impl Adaptive {
             return Err(bad("budget_s", format!("expected seconds > 0, got {s}")));
         }
         let incidences = match &spec.first_pass_theta_i_deg {
-            Some(v) => angle_list("adaptive", "first_pass_theta_i_deg", v)?,
+            Some(v) => first_pass_incidences(v)?,
             None => vec![0.0, 30.0, 60.0],
         };
         let reach = Reach {
@@ -233,24 +319,20 @@ impl Adaptive {
                 }
             }
         }
-        let mut first = Vec::new();
+        let mut sweeps = Vec::new();
         for ti in &incidences {
             for to in steps(spec.first_pass_step_deg, theta_max) {
                 for dp in [180.0, 0.0] {
                     if to == 0.0 && dp == 0.0 {
                         continue;
                     }
-                    let g = Geometry::new(*ti, 0.0, to, dp);
-                    if reachable(&g)
-                        && !first
-                            .iter()
-                            .any(|f: &Geometry| dist2(&embed(f), &embed(&g)) < 1e-12)
-                    {
-                        first.push(g);
-                    }
+                    sweeps.push(Geometry::new(*ti, 0.0, to, dp));
                 }
             }
         }
+        // Reciprocal pairs of the sweeps (theta_i and theta_o swapped) are one geometry: keep the first.
+        let mut first = dedup_geometries(sweeps);
+        first.retain(|g| reachable(g));
         // The first pass takes at most a quarter of the budget.
         let cap = (spec.budget_points as usize / 4).max(1);
         if first.len() > cap {

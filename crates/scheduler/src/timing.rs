@@ -18,7 +18,7 @@
 //!   configured position exceeds 6, else 12 (the FW102C's two models).
 //! - Reading: `averaging x` [`DETECTOR_SAMPLE_S`], plus the driver's range query ([`reading_time_s`]).
 //! - Driver overheads the daemon really pays: arrival seen at the next status poll
-//!   ([`ARRIVAL_POLL_LATENCY_S`] per waypoint), about [`EXCHANGE_S`] per request/reply (a filter change is four).
+//!   ([`ARRIVAL_POLL_LATENCY_S`] per waypoint), about [`EXCHANGE_S`] per request/reply (a filter change is five).
 //! - The wheel and the axes do not move at the same time (the daemon changes the filter once the axes have
 //!   settled), so the parts of the breakdown add up.
 
@@ -30,14 +30,15 @@ use crate::kinematics::{Pose, ROLES};
 /// Time for one detector sample: the PM100 takes about 3 ms per averaged sample.
 pub const DETECTOR_SAMPLE_S: f64 = 0.003;
 
-/// How late, on average, the daemon sees an axis arrive at one commanded waypoint: the motion drivers (SMC100,
-/// Zaber) poll the controller's status every 50 ms while waiting, so an arrival is seen half a period late on
-/// average. Part of the move as the daemon executes it (the next phase, the settle wait and the reading start
-/// from the seen arrival).
-pub const ARRIVAL_POLL_LATENCY_S: f64 = 0.025;
+/// How late the daemon sees an axis arrive at one commanded waypoint: the motion drivers (SMC100, Zaber) ask
+/// the controller's status at the predicted arrival (then every 10 ms, doubling to 50 ms), and a move that ends on
+/// time is seen by that first status exchange. Part of the move as the daemon executes it (the next phase, the
+/// settle wait and the reading start from the seen arrival).
+pub const ARRIVAL_POLL_LATENCY_S: f64 = EXCHANGE_S;
 
-/// Longest time the engine takes to see that an arm stopped short: one status poll period of the motion drivers.
-pub const STALL_DETECTION_S: f64 = 2.0 * ARRIVAL_POLL_LATENCY_S;
+/// Longest time the engine takes to see that an arm stopped short: while a move is predicted to run, the motion
+/// drivers ask the controller's status at least every 50 ms.
+pub const STALL_DETECTION_S: f64 = 0.05;
 
 /// One request/reply round trip with a device: a USB transaction with the meter, or a short line and its echo
 /// and prompt at 115200 baud on the wheel (about 1 ms).
@@ -47,8 +48,8 @@ pub const EXCHANGE_S: f64 = 0.001;
 const READING_EXCHANGES: f64 = 1.0;
 
 /// Exchanges of one filter change: the driver asks the position count and the position, commands `pos=N`, and
-/// checks the position after the prompt.
-const WHEEL_EXCHANGES: f64 = 4.0;
+/// checks the position after the prompt twice (a garbled digit must not confirm a wheel that did not turn).
+const WHEEL_EXCHANGES: f64 = 5.0;
 
 /// Duration of one detector reading with `averaging` samples, as the daemon takes it.
 pub fn reading_time_s(averaging: u32) -> f64 {

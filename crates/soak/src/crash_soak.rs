@@ -395,6 +395,9 @@ struct Lines {
     last: Vec<String>,
 }
 
+/// Lines of the daemon's stdout kept as its last words.
+const LAST_WORDS: usize = 8;
+
 impl Daemon {
     fn spawn(worker: &[String], args: &WorkerArgs, log: &std::path::Path) -> Result<Daemon, SoakError> {
         let Some((program, lead)) = worker.split_first() else {
@@ -423,7 +426,7 @@ impl Daemon {
                         l.points += 1;
                     }
                     l.last.push(line);
-                    if l.last.len() > 4 {
+                    if l.last.len() > LAST_WORDS {
                         l.last.remove(0);
                     }
                 }

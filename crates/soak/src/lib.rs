@@ -13,15 +13,24 @@
 //! - [`worker`]: the daemon process the crash soak kills (the daemon's service, queue and HTTP API on the
 //!   simulated instrument), with its probes for self-inflicted kills at exact moments.
 //! - [`rows`]: raw rows of the store, read with SQLite directly (independent of the store's own decoding).
+//! - [`disk_soak`]: the store made full (SQLite's own SQLITE_FULL) several times in one campaign, room given back
+//!   each time: the pause, its reason, no motion while paused, nothing committed lost, every point once.
+//! - [`http_abuse`]: slowloris, idle and body-trickling connections beyond the daemon's connection limit and
+//!   oversized bodies, while the daemon runs a campaign and a client times its status requests.
+//! - [`safety_soak`]: random campaigns with random pause/abort/estop interleavings, checked on the simulator's
+//!   motion record: closest arm approach, commanded extremes against the limits, emergency-stop latency.
 //! - [`inputs`]: random and mutated inputs through the public wire parsers and file loaders.
 //! - [`report`]: the Markdown of `RELIABILITY.md`.
 
 pub mod crash_soak;
+pub mod disk_soak;
 pub mod fault_soak;
+pub mod http_abuse;
 pub mod inputs;
 pub mod logcap;
 pub mod report;
 pub mod rows;
+pub mod safety_soak;
 pub mod setup;
 pub mod worker;
 

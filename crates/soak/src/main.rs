@@ -1,6 +1,7 @@
-//! `gonio-soak`: runs the fault soak, the crash soak and the input census, and writes `RELIABILITY.md` at the
-//! repository root (`cargo run --release -p gonio-soak`). Exits 1 when an invariant broke (the report says
-//! which), 2 when a soak could not run.
+//! `gonio-soak`: runs the fault soak, the crash soak, the disk soak, the HTTP abuse soak, the safety soak and the
+//! input census, and writes `RELIABILITY.md` at the repository root (`cargo run --release -p gonio-soak`). Exits 1
+//! when an invariant broke (the report says which), 2 when a soak could not run. `--quick` shrinks every part (a
+//! smoke run of a minute or two; its report says `--quick` in its command line).
 //!
 //! `gonio-soak worker ...` is the daemon process the crash soak starts and kills (see `gonio_soak::worker`).
 
@@ -10,9 +11,12 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, Parser, Subcommand};
 use gonio_soak::crash_soak::{CrashSoakConfig, run_crash_soak};
+use gonio_soak::disk_soak::{DiskSoakConfig, run_disk_soak};
 use gonio_soak::fault_soak::{FaultSoakConfig, run_fault_soak};
+use gonio_soak::http_abuse::{HttpAbuseConfig, run_http_abuse};
 use gonio_soak::inputs::run_inputs;
 use gonio_soak::report::Report;
+use gonio_soak::safety_soak::{SafetySoakConfig, run_safety_soak};
 use gonio_soak::worker::{DieAt, EXIT_ERROR, WorkerArgs, run_worker};
 
 const DEFAULT_SEED: u64 = 8;
@@ -21,6 +25,12 @@ const DEFAULT_CRASH_POINTS: u64 = 600;
 const DEFAULT_KILLS: u32 = 20;
 const DEFAULT_PARSER_INPUTS: u64 = 20_000;
 const DEFAULT_LOADER_INPUTS: u64 = 1_000;
+const DEFAULT_DISK_POINTS: u64 = 600;
+const DEFAULT_FILLS: u32 = 5;
+const DEFAULT_HTTP_POINTS: u64 = 300;
+const DEFAULT_SAFETY_CASES: u32 = 40;
+/// Instrument time the disk soak leaves a campaign paused on a full store (s).
+const DISK_HOLD_S: f64 = 120.0;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -54,6 +64,22 @@ struct SoakArgs {
     /// Inputs per file loader.
     #[arg(long, default_value_t = DEFAULT_LOADER_INPUTS)]
     loader_inputs: u64,
+    /// Points of the disk soak's campaign.
+    #[arg(long, default_value_t = DEFAULT_DISK_POINTS)]
+    disk_points: u64,
+    /// Times the disk soak makes the store full.
+    #[arg(long, default_value_t = DEFAULT_FILLS)]
+    fills: u32,
+    /// Points of the campaign the daemon runs under HTTP abuse.
+    #[arg(long, default_value_t = DEFAULT_HTTP_POINTS)]
+    http_points: u64,
+    /// Random campaigns of the safety soak.
+    #[arg(long, default_value_t = DEFAULT_SAFETY_CASES)]
+    safety_cases: u32,
+    /// Every part small (a smoke run of seconds; the fault soak at the CI test's higher fault rates): overrides
+    /// the sizes above.
+    #[arg(long)]
+    quick: bool,
     /// Where to write the report (default: RELIABILITY.md at the repository root).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -117,6 +143,15 @@ fn main() -> ExitCode {
 
 /// The command as typed to get these settings.
 fn command_line(a: &SoakArgs) -> String {
+    if a.quick {
+        // `--quick` sets every size itself.
+        let seed = if a.seed == DEFAULT_SEED {
+            String::new()
+        } else {
+            format!(" --seed {}", a.seed)
+        };
+        return format!("cargo run --release -p gonio-soak -- --quick{seed}");
+    }
     let mut extra = Vec::new();
     for (flag, value, default) in [
         ("--seed", a.seed, DEFAULT_SEED),
@@ -125,11 +160,20 @@ fn command_line(a: &SoakArgs) -> String {
         ("--kills", u64::from(a.kills), u64::from(DEFAULT_KILLS)),
         ("--parser-inputs", a.parser_inputs, DEFAULT_PARSER_INPUTS),
         ("--loader-inputs", a.loader_inputs, DEFAULT_LOADER_INPUTS),
+        ("--disk-points", a.disk_points, DEFAULT_DISK_POINTS),
+        ("--fills", u64::from(a.fills), u64::from(DEFAULT_FILLS)),
+        ("--http-points", a.http_points, DEFAULT_HTTP_POINTS),
+        (
+            "--safety-cases",
+            u64::from(a.safety_cases),
+            u64::from(DEFAULT_SAFETY_CASES),
+        ),
     ] {
         if value != default {
             extra.push(format!("{flag} {value}"));
         }
     }
+
     if extra.is_empty() {
         "cargo run --release -p gonio-soak".into()
     } else {
@@ -137,7 +181,33 @@ fn command_line(a: &SoakArgs) -> String {
     }
 }
 
+/// The sizes `--quick` runs with.
+fn quick(a: &SoakArgs) -> SoakArgs {
+    SoakArgs {
+        seed: a.seed,
+        points: 240,
+        crash_points: 60,
+        kills: 4,
+        parser_inputs: 2_000,
+        loader_inputs: 100,
+        disk_points: 60,
+        fills: 2,
+        http_points: 40,
+        safety_cases: 4,
+        quick: true,
+        out: a.out.clone(),
+        work: a.work.clone(),
+    }
+}
+
 fn soak(a: &SoakArgs) -> Result<bool, Box<dyn std::error::Error>> {
+    let quick_args;
+    let a = if a.quick {
+        quick_args = quick(a);
+        &quick_args
+    } else {
+        a
+    };
     let wall = Instant::now();
     let temp = tempfile::tempdir()?;
     let work = a.work.clone().unwrap_or_else(|| temp.path().to_path_buf());
@@ -148,7 +218,12 @@ fn soak(a: &SoakArgs) -> Result<bool, Box<dyn std::error::Error>> {
         .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../RELIABILITY.md")));
 
     eprintln!("gonio-soak: fault soak, {} points ...", a.points);
-    let mut fault_cfg = FaultSoakConfig::issue_8(a.points, a.seed, work.join("fault-soak"));
+    // A short run sees every kind of fault only at the higher rates of the CI test.
+    let mut fault_cfg = if a.quick {
+        FaultSoakConfig::stressed(a.points, a.seed, work.join("fault-soak"))
+    } else {
+        FaultSoakConfig::issue_8(a.points, a.seed, work.join("fault-soak"))
+    };
     fault_cfg.log_file = Some(work.join("fault-soak.log"));
     let fault = run_fault_soak(&fault_cfg)?;
     eprintln!(
@@ -178,6 +253,52 @@ fn soak(a: &SoakArgs) -> Result<bool, Box<dyn std::error::Error>> {
         crash.violations().len()
     );
 
+    eprintln!(
+        "gonio-soak: disk soak, {} fills of a {}-point campaign ...",
+        a.fills, a.disk_points
+    );
+    let disk = run_disk_soak(&DiskSoakConfig {
+        points: a.disk_points,
+        fills: a.fills,
+        seed: a.seed,
+        data_dir: work.join("disk-soak"),
+        hold_s: DISK_HOLD_S,
+    })?;
+    eprintln!(
+        "gonio-soak: disk soak: {} ({} violations)",
+        disk.final_state,
+        disk.violations().len()
+    );
+
+    eprintln!(
+        "gonio-soak: HTTP abuse, a {}-point campaign on the daemon ...",
+        a.http_points
+    );
+    let http_dir = work.join("http-abuse");
+    let http_cfg = if a.quick {
+        HttpAbuseConfig::quick(a.http_points, a.seed, http_dir)
+    } else {
+        HttpAbuseConfig::full(a.http_points, a.seed, http_dir)
+    };
+    let http = run_http_abuse(&http_cfg)?;
+    eprintln!(
+        "gonio-soak: HTTP abuse: {} status requests, slowest {:.0} ms ({} violations)",
+        http.probes(),
+        http.latency_quantile_s(1.0) * 1e3,
+        http.violations().len()
+    );
+
+    eprintln!("gonio-soak: safety, {} random campaigns ...", a.safety_cases);
+    let safety = run_safety_soak(&SafetySoakConfig {
+        cases: a.safety_cases,
+        seed: a.seed,
+    })?;
+    eprintln!(
+        "gonio-soak: safety: {} move commands ({} violations)",
+        safety.move_commands(),
+        safety.violations().len()
+    );
+
     eprintln!("gonio-soak: inputs ...");
     let inputs = run_inputs(a.seed, a.parser_inputs, a.loader_inputs);
 
@@ -186,6 +307,9 @@ fn soak(a: &SoakArgs) -> Result<bool, Box<dyn std::error::Error>> {
         seed: a.seed,
         fault,
         crash,
+        disk,
+        http,
+        safety,
         inputs,
         wall_s: wall.elapsed().as_secs_f64(),
     };

@@ -13,15 +13,16 @@
 //! Self-inflicted kills put the SIGKILL at an exact moment, which a kill from outside can only hit by chance:
 //! - mid-move: a `tracing` layer sees the driver's move command and, at the next reply read on a port (the
 //!   controller has taken the move and the axis is travelling), raises SIGKILL;
-//! - mid-commit: a thread spins on the store's mutex and raises SIGKILL while the engine holds it to write a
-//!   record (between two points the engine takes the store only to commit a point or a calibration reading).
+//! - mid-commit: SQLite's commit hook ([`Store::on_commit`]), armed once enough points are committed, raises
+//!   SIGKILL inside the next commit: the record's writes are made, the commit is not (a point, a calibration
+//!   reading or a state change, whichever the engine writes next).
 //!
 //! SIGKILL cannot be caught: the process ends there, every thread at once, exactly as under `kill -9`.
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, OnceLock, TryLockError};
+use std::sync::{Arc, Mutex};
 
 use gonio_daemon::api::{self, ApiConfig};
 use gonio_daemon::control::{Control, Event};
@@ -154,10 +155,13 @@ fn run(args: &WorkerArgs) -> Result<CampaignState, SoakError> {
     let campaign_text = read(&args.campaign)?;
     let file = InstrumentFile::parse(&instrument_text, &args.instrument.display().to_string())
         .map_err(|e| SoakError::Setup(e.to_string()))?;
-    let store_slot: Arc<OnceLock<Arc<Mutex<Store>>>> = Arc::new(OnceLock::new());
-    if let Some((DieAt::MidCommit, after)) = args.die {
-        spawn_commit_killer(Arc::clone(&store_slot), Arc::clone(&points), after);
-    }
+    let commit_killer = match args.die {
+        Some((DieAt::MidCommit, after)) => Some(CommitKiller {
+            points: Arc::clone(&points),
+            after,
+        }),
+        _ => None,
+    };
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .start_paused(true)
@@ -169,7 +173,7 @@ fn run(args: &WorkerArgs) -> Result<CampaignState, SoakError> {
         let base_dir = args.campaign.parent().map(Path::to_path_buf).unwrap_or_default();
         let runner = Arc::new(ProbeRunner {
             inner: EngineRunner::new(file, instrument_text, base_dir, rig),
-            store: store_slot,
+            commit_killer,
         });
         let service =
             Service::new(store, runner, Control::new()).map_err(|e| SoakError::Worker(e.to_string()))?;
@@ -230,10 +234,10 @@ fn campaign_name(text: &str) -> Result<String, SoakError> {
         .ok_or_else(|| SoakError::Setup("campaign file: no [campaign] id".into()))
 }
 
-/// The engine runner, noting the store the service hands it (for the mid-commit killer).
+/// The engine runner, arming the mid-commit kill on the store the service hands it.
 struct ProbeRunner {
     inner: EngineRunner,
-    store: Arc<OnceLock<Arc<Mutex<Store>>>>,
+    commit_killer: Option<CommitKiller>,
 }
 
 impl CampaignRunner for ProbeRunner {
@@ -242,7 +246,9 @@ impl CampaignRunner for ProbeRunner {
     }
 
     fn run(&self, store: Arc<Mutex<Store>>, id: CampaignId, control: Control) -> RunFuture {
-        let _ = self.store.set(Arc::clone(&store));
+        if let Some(killer) = &self.commit_killer {
+            killer.arm(&store);
+        }
         self.inner.run(store, id, control)
     }
 
@@ -251,29 +257,32 @@ impl CampaignRunner for ProbeRunner {
     }
 }
 
-/// Once `after` points are committed, SIGKILL the process while the engine holds the store.
-fn spawn_commit_killer(slot: Arc<OnceLock<Arc<Mutex<Store>>>>, points: Arc<AtomicU64>, after: u64) {
-    std::thread::spawn(move || {
-        let store = loop {
-            if points.load(Ordering::SeqCst) >= after
-                && let Some(s) = slot.get()
-            {
-                break Arc::clone(s);
+/// SIGKILL inside the first commit once `after` points are committed by this process.
+struct CommitKiller {
+    points: Arc<AtomicU64>,
+    after: u64,
+}
+
+impl CommitKiller {
+    fn arm(&self, store: &Arc<Mutex<Store>>) {
+        let (points, after) = (Arc::clone(&self.points), self.after);
+        let hook = move || {
+            let done = points.load(Ordering::SeqCst);
+            if done >= after {
+                die(&format!(
+                    "die mid-commit: inside the commit of a store write, {done} points committed by this process"
+                ));
             }
-            std::thread::sleep(std::time::Duration::from_millis(1));
+            false
         };
-        loop {
-            match store.try_lock() {
-                Err(TryLockError::WouldBlock) => die(&format!(
-                    "die mid-commit: the engine holds the store to write a record, {} points committed by this process",
-                    points.load(Ordering::SeqCst)
-                )),
-                Ok(guard) => drop(guard),
-                Err(TryLockError::Poisoned(_)) => die("die mid-commit: the store's lock is poisoned"),
-            }
-            std::thread::yield_now();
+        let armed = store
+            .lock()
+            .map_err(|_| "poisoned".to_string())
+            .and_then(|mut s| s.on_commit(hook).map_err(|e| e.to_string()));
+        if let Err(e) = armed {
+            die(&format!("die: cannot arm the mid-commit kill: {e}"));
         }
-    });
+    }
 }
 
 /// Sees the drivers' move commands: reports each, and kills the process mid-move when armed.

@@ -26,12 +26,18 @@ fn kills_at_start_up_mid_move_and_mid_commit_lose_and_change_nothing() {
     for kind in ["start-up", "mid-move", "mid-commit"] {
         assert_eq!(r.kills_of(kind), 1, "{kind}");
     }
-    // The self-inflicted kills happened where they were meant to.
+    // The self-inflicted kills happened where they were meant to: the worker said where, then died of SIGKILL.
+    // (The killing thread can be preempted between saying so and the signal on a loaded machine, so the engine's
+    // own lines may follow the announcement.)
     for round in &r.rounds {
-        let last = round.last_words.last().cloned().unwrap_or_default();
+        let said = |what: &str| round.last_words.iter().any(|w| w.starts_with(what));
         match round.plan {
-            Some(KillPlan::MidMove { .. }) => assert!(last.starts_with("die mid-move"), "{last}"),
-            Some(KillPlan::MidCommit { .. }) => assert!(last.starts_with("die mid-commit"), "{last}"),
+            Some(KillPlan::MidMove { .. }) => {
+                assert!(round.killed && said("die mid-move"), "{round:?}")
+            }
+            Some(KillPlan::MidCommit { .. }) => {
+                assert!(round.killed && said("die mid-commit"), "{round:?}")
+            }
             _ => {}
         }
     }

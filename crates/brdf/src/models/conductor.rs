@@ -38,7 +38,8 @@ pub(crate) fn check_alpha(alpha_x: f64, alpha_y: f64) -> Result<(), ParamError> 
 
 impl Conductor {
     /// Roughness in (0, 1] (values below 1e-4 are clamped to 1e-4, below 1e-3 the lobe is a delta);
-    /// `eta` > 0 and `k` >= 0 the complex refractive index.
+    /// `eta` in (0, 1000] and `k` in [0, 1000] the complex refractive index (both capped at
+    /// [`MAX_OPTICAL_CONSTANT`] at every wavelength).
     pub fn new(
         distribution: Distribution,
         masking: Masking,
@@ -88,6 +89,13 @@ impl Brdf for Conductor {
         let (eta, k) = (self.eta.at(wavelength)?, self.k.at(wavelength)?);
         if self.microfacet.is_delta() {
             return Ok(0.0);
+        }
+        // GGX: Fresnel and lobe as one ratio, one division (the hot path; the same value up to rounding).
+        if let Some((num, den, cos_d)) = self.microfacet.ggx_fraction(wi, wo)
+            && let Some((f_num, f_den)) = fresnel::conductor_ratio(cos_d, eta, k)
+        {
+            let v = (f_num * num) / (f_den * den);
+            return Ok(if v.is_finite() && v > 0.0 { v } else { 0.0 });
         }
         Ok(match self.microfacet.lobe(wi, wo) {
             Some(l) if l.value > 0.0 => fresnel::conductor(l.cos_d, eta, k) * l.value,

@@ -18,7 +18,8 @@ pub struct Mirror {
 }
 
 impl Mirror {
-    /// `eta` > 0 and `k` >= 0: the real and imaginary parts of the complex refractive index.
+    /// `eta` in (0, 1000] and `k` in [0, 1000]: the real and imaginary parts of the complex refractive index
+    /// (both capped at [`MAX_OPTICAL_CONSTANT`] at every wavelength).
     pub fn new(eta: Spectral, k: Spectral) -> Result<Mirror, ParamError> {
         check_above("eta", &eta, 0.0, "the refractive index eta")?;
         check_range("eta", &eta, 0.0, MAX_OPTICAL_CONSTANT, "the refractive index eta")?;

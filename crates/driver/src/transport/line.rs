@@ -232,15 +232,10 @@ impl std::fmt::Debug for Session<'_> {
 impl Session<'_> {
     /// Drop whatever arrived before this request (stale replies, alerts): traced, never silently.
     pub async fn discard_stale(&mut self) -> Result<(), TransportError> {
-        // Poll the source once without waiting, to pick up bytes that arrived since the last exchange.
-        let now = Instant::now();
-        loop {
-            match fill(&mut self.reader, now).await {
-                Ok(()) => continue,
-                Err(TransportError::Timeout) => break,
-                Err(e) => return Err(e),
-            }
-        }
+        // Take whatever has already arrived since the last exchange, without waiting for more. (Not a read with a
+        // deadline of "now": tokio's timer rounds every deadline up to its next 1 ms tick, which cost a whole
+        // tick per exchange, the largest part of an exchange's time over a pseudo-terminal.)
+        while fill_ready(&mut self.reader).await? {}
         if !self.reader.buf.is_empty() {
             tracing::debug!(port = %self.port.name, stale = %escape_bytes(&self.reader.buf), "discarding stale input");
             self.reader.buf.clear();
@@ -293,6 +288,55 @@ fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
         return None;
     }
     hay.windows(needle.len()).position(|w| w == needle)
+}
+
+/// Move the bytes that are already available into the buffer, without waiting: `Ok(true)` when some were,
+/// `Ok(false)` when none are pending.
+async fn fill_ready(reader: &mut Reader) -> Result<bool, TransportError> {
+    match &mut reader.source {
+        ReadSource::Closed(why) => Err(TransportError::Disconnected(why.clone())),
+        ReadSource::Stream(s) => {
+            let mut chunk = [0u8; 512];
+            let mut buf = tokio::io::ReadBuf::new(&mut chunk);
+            // One poll of the stream; `Pending` (nothing there yet) ends the loop instead of waiting.
+            let polled = std::future::poll_fn(|cx| {
+                std::task::Poll::Ready(std::pin::Pin::new(&mut *s).poll_read(cx, &mut buf))
+            })
+            .await;
+            match polled {
+                std::task::Poll::Pending => Ok(false),
+                std::task::Poll::Ready(Ok(())) if buf.filled().is_empty() => {
+                    reader.source = ReadSource::Closed("end of stream".into());
+                    Err(TransportError::Disconnected("end of stream".into()))
+                }
+                std::task::Poll::Ready(Ok(())) => {
+                    reader.buf.extend_from_slice(buf.filled());
+                    Ok(true)
+                }
+                std::task::Poll::Ready(Err(e)) => {
+                    let why = e.to_string();
+                    reader.source = ReadSource::Closed(why.clone());
+                    Err(TransportError::Disconnected(why))
+                }
+            }
+        }
+        ReadSource::Serial(rx) => match rx.try_recv() {
+            Ok(Ok(bytes)) => {
+                reader.buf.extend_from_slice(&bytes);
+                Ok(true)
+            }
+            Ok(Err(e)) => {
+                let why = e.to_string();
+                reader.source = ReadSource::Closed(why.clone());
+                Err(TransportError::Disconnected(why))
+            }
+            Err(mpsc::error::TryRecvError::Empty) => Ok(false),
+            Err(mpsc::error::TryRecvError::Disconnected) => {
+                reader.source = ReadSource::Closed("reader thread ended".into());
+                Err(TransportError::Disconnected("reader thread ended".into()))
+            }
+        },
+    }
 }
 
 /// Read one chunk into the buffer, or fail at the deadline.
@@ -480,6 +524,49 @@ mod tests {
         );
         arms.baud = Some(9600);
         assert_eq!(SerialSettings::for_device(arms).map(|s| s.baud), Some(9600));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn stale_input_is_dropped_and_the_next_reply_read() {
+        use tokio::io::AsyncWriteExt;
+        let (host, mut dev) = tokio::io::duplex(256);
+        let port = LinePort::from_stream("t", Box::new(host));
+        dev.write_all(b"1TP9.5\r\nhalf a li").await.expect("write");
+        tokio::task::yield_now().await;
+        let mut s = port.session().await;
+        s.discard_stale().await.expect("discard");
+        dev.write_all(b"1TP7\r\n").await.expect("write");
+        let line = s
+            .read_line(Instant::now() + Duration::from_millis(100))
+            .await
+            .expect("line");
+        assert_eq!(line, b"1TP7");
+        // A closed far end is reported, not waited for.
+        drop(dev);
+        drop(s);
+        let mut s = port.session().await;
+        assert!(matches!(
+            s.discard_stale().await,
+            Err(TransportError::Disconnected(_))
+        ));
+    }
+
+    #[test]
+    fn dropping_stale_input_uses_no_timer() {
+        // On a runtime without a time driver any timer panics. Dropping stale input must not wait for one: a read
+        // with a deadline of "now" still lasts until the timer's next 1 ms tick, once per exchange.
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .expect("runtime");
+        rt.block_on(async {
+            use tokio::io::AsyncWriteExt;
+            let (host, mut dev) = tokio::io::duplex(256);
+            let port = LinePort::from_stream("t", Box::new(host));
+            dev.write_all(b"stale\r\n").await.expect("write");
+            let mut s = port.session().await;
+            s.discard_stale().await.expect("with input pending");
+            s.discard_stale().await.expect("with nothing pending");
+        });
     }
 
     #[test]

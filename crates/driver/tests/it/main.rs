@@ -4,10 +4,12 @@
 //! - `scripted`: the serial drivers against scripted in-memory peers (reply matching, stale lines, priority stop,
 //!   disconnect and reconnect).
 //! - `fuzz`: every reply parser fed random bytes.
+//! - `garbled`: a digit garbled inside a well-formed number never becomes a wrong position (issue 8).
 //! - `sim`: every driver against the simulator's emulators, in process and through pseudo-terminals.
 
 mod common;
 mod fuzz;
+mod garbled;
 mod scripted;
 mod sim;
 mod usbtmc;

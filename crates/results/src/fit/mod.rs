@@ -23,7 +23,10 @@
 //! reported as such; its uncertainty is then not meaningful.
 //!
 //! Starts: a few values of the shape parameters (and of eta, k for a conductor) across their plausible range,
-//! the reflectances from the data's median (or low quantile); the best start is refined.
+//! the reflectances from the data's median (or low quantile); the best start is refined. With a robust loss,
+//! the robust rounds also start from the raw starts nearest the data, and the result with the smallest median
+//! residual wins: outliers can pull plain least squares into a wrong basin (a diffuse sample's roughness at 0,
+//! where Oren-Nayar is flat in it) that re-weighting alone cannot leave.
 //!
 //! Aperture: a measurement is the BRDF averaged over the detector's aperture, cos-weighted
 //! (`<f> = integral f cos(theta) d omega / (Omega cos(theta_o))`); fitting point values to it would widen a sharp
@@ -33,6 +36,9 @@
 //! degree 5 in the offsets: the lobe's curvature across the aperture is captured).
 
 pub mod lm;
+
+/// How many distinct refined starts a robust fit follows to the end (see `fit`'s choice by least median).
+const ROBUST_CANDIDATES: usize = 3;
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
@@ -659,17 +665,17 @@ pub fn fit(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
         }
     };
 
-    // Best of the starts, plain least squares.
+    // Each start refined by plain least squares (point values: cheap).
     let unit = vec![1.0; obs.len()];
     let mut best: Option<lm::Solution> = None;
     let mut iterations = 0;
+    let mut raw_starts: Vec<Vec<f64>> = Vec::new();
     for start in starts(opts, &defs, &obs, bands.len()) {
         let x0: Vec<f64> = defs
             .iter()
             .zip(&start)
             .map(|(d, v)| d.transform.to_internal(v.max(lo_floor(d))))
             .collect();
-        // Starts with point values (cheap); the aperture average refines the best one below.
         let f = residuals_with(&unit, false);
         if let Some(s) = lm::minimise(&f, &x0, &lower, &upper, 60) {
             iterations += s.iterations;
@@ -677,46 +683,91 @@ pub fn fit(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
                 best = Some(s);
             }
         }
+        raw_starts.push(x0);
     }
-    let Some(mut solution) = best else {
+    let Some(best) = best else {
         return Err(fail("the model cannot be evaluated at any start point".into()));
     };
 
-    // Robust rounds (IRLS).
-    let mut weights = unit.clone();
-    for _round in 0..30 {
-        let f = residuals_with(&weights, true);
-        let Some(s) = lm::minimise(&f, &solution.x, &lower, &upper, 200) else {
-            break;
-        };
-        iterations += s.iterations;
-        solution = s;
-        if opts.loss == Loss::None {
-            break;
+    // Standardised, cos-weighted residuals at `x` (the aperture-averaged model).
+    let standardised = |x: &[f64]| -> Option<Vec<f64>> {
+        let m = predict(opts, &defs, &natural(x), &obs, &bands, true)?;
+        Some(
+            obs.iter()
+                .zip(&m)
+                .map(|(o, m)| o.cos_weight * (m - o.f) / o.u)
+                .collect(),
+        )
+    };
+    let median_abs = |x: &[f64]| -> f64 {
+        standardised(x)
+            .map(|e| median(e.iter().map(|v| v.abs()).collect()))
+            .filter(|m| m.is_finite())
+            .unwrap_or(f64::INFINITY)
+    };
+    // Robust rounds (IRLS) from `x0`: weights from the residuals at the current point, then a weighted solve,
+    // until the weights settle. Returns the solution and its final weights; plain least squares is one solve.
+    let irls = |x0: &[f64], iterations: &mut usize| -> Option<(lm::Solution, Vec<f64>)> {
+        let mut x = x0.to_vec();
+        let mut weights = unit.clone();
+        let mut last: Option<lm::Solution> = None;
+        for _round in 0..30 {
+            let mut new = unit.clone();
+            if opts.loss != Loss::None {
+                let e = standardised(&x)?;
+                let scale = 1.4826 * median(e.iter().map(|v| v.abs()).collect());
+                if scale.is_finite() && scale > 0.0 {
+                    new = e.iter().map(|v| opts.loss.weight(v / scale)).collect();
+                }
+            }
+            let change = new
+                .iter()
+                .zip(&weights)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            weights = new;
+            if last.is_some() && change < 1e-4 {
+                break;
+            }
+            let f = residuals_with(&weights, true);
+            let s = lm::minimise(&f, &x, &lower, &upper, 200)?;
+            *iterations += s.iterations;
+            x = s.x.clone();
+            last = Some(s);
+            if opts.loss == Loss::None {
+                break;
+            }
         }
-        let Some(m) = predict(opts, &defs, &natural(&solution.x), &obs, &bands, true) else {
-            break;
+        last.map(|s| (s, weights))
+    };
+    // Plain least squares: from the best start. A robust loss: the outliers can pull plain least squares into
+    // the wrong basin (a diffuse sample's roughness driven to 0, where the model is flat in it), so the robust
+    // rounds also run from the raw starts nearest the data (by median residual), and the solution whose
+    // residuals have the smallest median magnitude wins (least median of squares: a criterion outliers cannot
+    // move while they are under half of the points).
+    let mut candidates = vec![best.x.clone()];
+    if opts.loss != Loss::None {
+        let mut scored: Vec<(f64, Vec<f64>)> = raw_starts.into_iter().map(|x| (median_abs(&x), x)).collect();
+        scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+        candidates.extend(scored.into_iter().take(ROBUST_CANDIDATES).map(|(_, x)| x));
+    }
+    let mut chosen: Option<(f64, lm::Solution, Vec<f64>)> = None;
+    for x0 in &candidates {
+        let Some((solution, weights)) = irls(x0, &mut iterations) else {
+            continue;
         };
-        let e: Vec<f64> = obs
-            .iter()
-            .zip(&m)
-            .map(|(o, m)| o.cos_weight * (m - o.f) / o.u)
-            .collect();
-        let scale = 1.4826 * median(e.iter().map(|v| v.abs()).collect());
-        if scale.is_nan() || scale <= 0.0 {
-            break;
-        }
-        let new: Vec<f64> = e.iter().map(|v| opts.loss.weight(v / scale)).collect();
-        let change = new
-            .iter()
-            .zip(&weights)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
-        weights = new;
-        if change < 1e-4 {
-            break;
+        let score = if candidates.len() == 1 {
+            0.0
+        } else {
+            median_abs(&solution.x)
+        };
+        if chosen.as_ref().is_none_or(|(b, _, _)| score < *b) {
+            chosen = Some((score, solution, weights));
         }
     }
+    let Some((_, mut solution, weights)) = chosen else {
+        return Err(fail("the model cannot be evaluated at the refined start".into()));
+    };
     // Final solve with the final weights (a no-op when the weights had converged).
     let f = residuals_with(&weights, true);
     if let Some(s) = lm::minimise(&f, &solution.x, &lower, &upper, 200) {

@@ -1,0 +1,874 @@
+//! The safety soak: random campaigns with random interleavings of pause, abort and emergency stop, run by the
+//! real engine on the simulated instrument, and checked against what the simulator recorded of every motion
+//! command and every axis trajectory (`gonio_simulator::recording`). The same approach as the daemon's property
+//! test (`crates/daemon/tests/safety.rs`), through the public API, with seeded cases so that the report's numbers
+//! are reproducible, and the margins measured instead of only asserted:
+//!
+//! - the closest the arms came, at any instant, once they were first apart (motors and loads with backlash),
+//!   computed exactly on the quadratic pieces of both trajectories, against `safety.min_arm_separation_deg`; the
+//!   simulator powers up with both arms at zero, so before they are first apart their separation may only grow;
+//! - every commanded target and every trajectory against the axis limits (the smallest margin seen);
+//! - the time from each emergency-stop request to the stop command at every axis, on the simulated clock, against
+//!   50 ms; and no axis commanded to move again before the campaign is resumed;
+//! - every measured point's read-back pose against the scheduler's own constraint checks.
+//!
+//! Each case runs on its own current-thread runtime with tokio's paused clock, the simulator at time scale 1: the
+//! instrument takes its real time, the wall clock almost none.
+
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use gonio_daemon::engine::{Control, Rig, prepare_campaign, run_campaign};
+use gonio_daemon::store::{CampaignState, PointRecord, Store};
+use gonio_instrument::{Axis, AxisRole, InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_scheduler::constraints::Constraints;
+use gonio_scheduler::kinematics::{Kinematics, Pose};
+use gonio_simulator::recording::{MotionCommand, MotionRecord, Piece, check_arm_separation, physical_pieces};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::SoakError;
+
+/// Longest time from an emergency-stop request to the stop command at every axis (simulated seconds).
+pub const ESTOP_DEADLINE_S: f64 = 0.050;
+/// Slack on angle comparisons (floating-point rounding of degree arithmetic).
+const EPS_DEG: f64 = 1e-9;
+/// Sample radius of every case (mm).
+const SAMPLE_RADIUS_MM: f64 = 12.5;
+
+/// What to run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SafetySoakConfig {
+    /// Random cases (campaign, interruptions, fault level).
+    pub cases: u32,
+    pub seed: u64,
+}
+
+/// An operator's request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Act {
+    Pause,
+    Abort,
+    Estop,
+}
+
+/// A request made `after_s` simulated seconds after the previous one (or after the run started).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Interruption {
+    pub after_s: f64,
+    pub act: Act,
+    /// Simulated seconds before a paused campaign is resumed.
+    pub resume_after_s: f64,
+}
+
+/// Injected device faults (the simulator's): stalled moves, garbled and lost replies.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FaultLevel {
+    pub seed: u64,
+    pub stall_rate: f64,
+    pub garble_rate: f64,
+    pub drop_rate: f64,
+}
+
+impl FaultLevel {
+    pub fn any(&self) -> bool {
+        self.stall_rate > 0.0 || self.garble_rate > 0.0 || self.drop_rate > 0.0
+    }
+}
+
+/// One random case.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Case {
+    pub campaign: String,
+    pub interruptions: Vec<Interruption>,
+    pub faults: FaultLevel,
+}
+
+fn round1(x: f64) -> f64 {
+    (x * 10.0).round() / 10.0
+}
+
+/// A plan of one of three kinds: explicit geometries (tilt and rotation move), an in-plane sweep, or a small
+/// isotropic grid; always with one geometry that every constraint allows.
+fn plan_table(rng: &mut ChaCha8Rng) -> String {
+    match rng.random_range(0..3u32) {
+        0 => {
+            let n = rng.random_range(1..8usize);
+            let mut list = vec!["[30.0, 0.0, 30.0, 180.0]".to_string()];
+            for _ in 0..n {
+                let (ti, pi, to, po) = (
+                    rng.random_range(0.0..70.0f64),
+                    rng.random_range(0.0..360.0f64),
+                    rng.random_range(0.0..80.0f64),
+                    rng.random_range(0.0..360.0f64),
+                );
+                list.push(format!(
+                    "[{}, {}, {}, {}]",
+                    round1(ti),
+                    round1(pi),
+                    round1(to),
+                    round1(po)
+                ));
+            }
+            format!("kind = \"points\"\npoints = [{}]\n", list.join(", "))
+        }
+        1 => {
+            let (ti, step, from, plane) = (
+                rng.random_range(0.0..60.0f64),
+                rng.random_range(5.0..40.0f64),
+                rng.random_range(-70.0..0.0f64),
+                rng.random_range(0.0..180.0f64),
+            );
+            format!(
+                "kind = \"in-plane\"\ntheta_i_deg = [{}, 30.0]\ntheta_o_deg = {{ from = {}, to = 70.0, step = {} }}\n\
+                 plane_phi_deg = [{}]\n",
+                round1(ti),
+                round1(from),
+                round1(step),
+                round1(plane)
+            )
+        }
+        _ => {
+            let (step, dphi) = (rng.random_range(10.0..60.0f64), rng.random_range(20.0..90.0f64));
+            format!(
+                "kind = \"isotropic\"\ntheta_i_deg = {{ from = 0.0, to = 60.0, step = {} }}\n\
+                 theta_o_deg = [20.0, 50.0]\ndelta_phi_deg = {{ from = 0.0, to = 180.0, step = {} }}\n",
+                round1(step),
+                round1(dphi)
+            )
+        }
+    }
+}
+
+fn campaign_text(rng: &mut ChaCha8Rng) -> String {
+    let grid = plan_table(rng);
+    let all = [450.0, 550.0, 650.0];
+    let mut bands: Vec<String> = all
+        .iter()
+        .filter(|_| rng.random_bool(0.5))
+        .map(|b| format!("{b:.1}"))
+        .take(2)
+        .collect();
+    if bands.is_empty() {
+        bands.push(format!("{:.1}", all[rng.random_range(0..all.len())]));
+    }
+    let repeats = rng.random_range(1..=2u32);
+    let dark = rng.random_range(1..6u32);
+    let reference = rng.random_range(2..9u32);
+    let light = round1(rng.random_range(-99.0..-81.0f64));
+    let averaging = rng.random_range(1..4u32);
+    let settle = round1(rng.random_range(0.0..0.2f64));
+    let material = if rng.random_bool(0.5) {
+        "coloured-plastic"
+    } else {
+        "spectralon"
+    };
+    format!(
+        r#"[campaign]
+id = "safety"
+[sample]
+radius_mm = {SAMPLE_RADIUS_MM}
+[plan]
+bands_nm = [{bands}]
+repeats = {repeats}
+reciprocity = false
+[plan.grid]
+{grid}
+[plan.calibration]
+dark_every_points = {dark}
+reference_every_points = {reference}
+reference_pose_deg = {{ light = {light}, detector = {detector} }}
+[calibration]
+method = "absolute"
+simulate_operator = true
+[acquisition]
+averaging = {averaging}
+settle_s = {settle}
+[material]
+preset = "{material}"
+"#,
+        bands = bands.join(", "),
+        // The detector faces the source: the direct beam.
+        detector = light + 180.0,
+    )
+}
+
+fn interruption(rng: &mut ChaCha8Rng) -> Interruption {
+    // Weights 2 : 1 : 4 (pause, abort, emergency stop), as the property test.
+    let act = match rng.random_range(0..7u32) {
+        0 | 1 => Act::Pause,
+        2 => Act::Abort,
+        _ => Act::Estop,
+    };
+    // Mostly within the first tens of seconds of a run, sometimes at once (start-up, homing, calibration).
+    let after_s = if rng.random_range(0..5u32) == 0 {
+        rng.random_range(0.0..0.5)
+    } else {
+        rng.random_range(0.5..40.0)
+    };
+    Interruption {
+        after_s,
+        act,
+        resume_after_s: rng.random_range(0.0..5.0),
+    }
+}
+
+fn faults(rng: &mut ChaCha8Rng) -> FaultLevel {
+    if rng.random_range(0..3u32) < 2 {
+        return FaultLevel {
+            seed: 0,
+            stall_rate: 0.0,
+            garble_rate: 0.0,
+            drop_rate: 0.0,
+        };
+    }
+    let seed = rng.random::<u64>();
+    let stall_rate = [0.0, 0.05, 0.2][rng.random_range(0..3usize)];
+    let garble_rate = [0.0, 0.01][rng.random_range(0..2usize)];
+    FaultLevel {
+        seed,
+        stall_rate,
+        garble_rate,
+        drop_rate: garble_rate / 2.0,
+    }
+}
+
+/// The `index`-th case of `seed`: each case has its own stream, so a case can be rerun alone.
+pub fn case(seed: u64, index: u32) -> Case {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ (u64::from(index) << 32) ^ 0x5afe_7e57);
+    let campaign = campaign_text(&mut rng);
+    let n = rng.random_range(0..6usize);
+    let interruptions = (0..n).map(|_| interruption(&mut rng)).collect();
+    let faults = faults(&mut rng);
+    Case {
+        campaign,
+        interruptions,
+        faults,
+    }
+}
+
+// ---------------------------------------------------------------- running a case
+
+/// What happened during a case, for the checks.
+struct Outcome {
+    file: InstrumentFile,
+    records: Vec<(Axis, MotionRecord)>,
+    end_s: f64,
+    /// Emergency stops: (requested at, next run started at, or the end).
+    estops: Vec<(f64, f64)>,
+    points: Vec<PointRecord>,
+    final_state: CampaignState,
+    planned_points: u64,
+    acts: [u64; 3],
+    /// What the soak did and when (simulated seconds): runs started and ended, requests made.
+    timeline: Vec<(f64, String)>,
+}
+
+async fn run_case(case: &Case, data_dir: &Path) -> Result<Outcome, String> {
+    let mut file = InstrumentFile::simulated();
+    let f = &mut file.simulator.faults;
+    (f.seed, f.stall_rate, f.garble_rate, f.drop_rate) = (
+        case.faults.seed,
+        case.faults.stall_rate,
+        case.faults.garble_rate,
+        case.faults.drop_rate,
+    );
+    let prepared = prepare_campaign(&case.campaign, "safety.toml", Path::new("."), &file)
+        .map_err(|e| format!("generated campaign refused: {e}"))?;
+    let mut store = Store::open(data_dir).map_err(|e| e.to_string())?;
+    let id = store
+        .create_campaign(&prepared.new_campaign(&case.campaign, SIMULATED_INSTRUMENT_TOML))
+        .map_err(|e| e.to_string())?;
+    let store = Arc::new(Mutex::new(store));
+    let rig = Rig::connect_with_time_scale(&file, None, 1.0)
+        .await
+        .map_err(|e| e.to_string())?;
+    let sim = rig
+        .sim()
+        .ok_or("the simulated instrument has no simulator")?
+        .clone();
+    sim.start_motion_recording();
+    let control = Control::new();
+    let clock = sim.clock();
+
+    let mut pending = case.interruptions.iter();
+    let mut estops: Vec<(f64, f64)> = Vec::new();
+    let mut open_estop: Option<f64> = None;
+    let mut final_state = None;
+    let mut acts = [0u64; 3];
+    let mut timeline = Vec::new();
+    // Faults may pause a campaign by themselves (three failed points in a row): resume it a few times.
+    let runs = case.interruptions.len() + if case.faults.any() { 6 } else { 2 };
+    let mut state = CampaignState::Queued;
+    for _run in 0..runs {
+        if let Some(t) = open_estop.take() {
+            estops.push((t, sim.now_s()));
+        }
+        timeline.push((sim.now_s(), "run started".to_string()));
+        let mut task = {
+            let (store, rig, control) = (Arc::clone(&store), rig.clone(), control.clone());
+            tokio::spawn(async move { run_campaign(store, id, &rig, control).await })
+        };
+        let mut resume_after_s = 0.0;
+        let joined = loop {
+            let Some(next) = pending.next() else {
+                break (&mut task).await;
+            };
+            tokio::select! {
+                r = &mut task => break r,
+                _ = clock.sleep_s(next.after_s) => {
+                    timeline.push((sim.now_s(), format!("{:?} requested", next.act)));
+                    resume_after_s = next.resume_after_s;
+                    match next.act {
+                        Act::Pause => { acts[0] += 1; control.pause() }
+                        Act::Abort => { acts[1] += 1; control.abort() }
+                        Act::Estop => {
+                            acts[2] += 1;
+                            open_estop.get_or_insert(sim.now_s());
+                            control.estop();
+                        }
+                    }
+                }
+            }
+        };
+        state = joined
+            .map_err(|e| format!("engine task: {e}"))?
+            .map_err(|e| format!("engine error: {e}"))?;
+        timeline.push((sim.now_s(), format!("run ended {state}")));
+        match state {
+            CampaignState::Completed | CampaignState::Aborted => {
+                final_state = Some(state);
+                break;
+            }
+            CampaignState::Paused => {
+                clock.sleep_s(resume_after_s).await;
+                control.resume();
+            }
+            other => {
+                let last = store
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .campaign(id)
+                    .ok()
+                    .and_then(|c| c.last_error);
+                return Err(format!("run ended {other}: {last:?}"));
+            }
+        }
+    }
+    let final_state = match final_state {
+        Some(s) => s,
+        // Under injected faults a campaign may still be paused by them: the motion checks apply all the same.
+        None if case.faults.any() && state == CampaignState::Paused => state,
+        None => return Err("the campaign neither completed nor was aborted".into()),
+    };
+    let end_s = sim.now_s();
+    if let Some(t) = open_estop.take() {
+        estops.push((t, end_s));
+    }
+    let points = store
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .points(id)
+        .map_err(|e| e.to_string())?;
+    Ok(Outcome {
+        file,
+        records: sim.motion_records(),
+        end_s,
+        estops,
+        points,
+        final_state,
+        planned_points: prepared.total_points,
+        acts,
+        timeline,
+    })
+}
+
+// ---------------------------------------------------------------- the checks
+
+/// The separation rule on the arms' physical trajectories, with the scheduler's own tolerance: `Err` names the
+/// first stretch where they were too close; `Ok` is the smallest separation seen once apart.
+pub fn check_separation(l: &[Piece], d: &[Piece], constraints: &Constraints) -> Result<f64, String> {
+    check_arm_separation(l, d, constraints.min_arm_separation_deg, |s| {
+        constraints.separation_ok(s)
+    })
+}
+
+/// What one case measured.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaseResult {
+    pub index: u32,
+    pub faults: bool,
+    /// Pause, abort and emergency-stop requests made.
+    pub acts: [u64; 3],
+    pub final_state: Option<CampaignState>,
+    pub planned_points: u64,
+    pub points: u64,
+    /// Move and home commands received by the devices.
+    pub move_commands: u64,
+    /// Closest approach of the arms once apart (deg): motors, loads.
+    pub closest_motor_deg: f64,
+    pub closest_load_deg: f64,
+    /// Smallest distance of any commanded target, and of any trajectory, to its axis limit (deg; < 0: beyond).
+    pub command_margin_deg: f64,
+    pub trajectory_margin_deg: f64,
+    /// (axis, extreme physical target commanded, the limit on that side).
+    pub extreme_command: Option<(String, f64, f64)>,
+    /// Time from each emergency-stop request to the stop at each axis (simulated seconds).
+    pub estop_latencies_s: Vec<f64>,
+    /// Broken invariants, in words.
+    pub violations: Vec<String>,
+    /// Which rules they broke.
+    pub broken: Vec<Rule>,
+}
+
+/// The rules a case is checked against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rule {
+    /// Arm separation at every instant (and only growing before the arms are first apart).
+    Separation,
+    /// Commanded targets and trajectories within the axis limits.
+    Limits,
+    /// Emergency stop at every axis within the deadline, no move before the resume.
+    Estop,
+    /// Measured points' read-back poses allowed by the scheduler's constraints.
+    MeasuredPose,
+    /// The case could not run, or ended in a state it should not.
+    Other,
+}
+
+fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
+    let inst = &o.file.instrument;
+    let constraints = Constraints::new(inst, Some(SAMPLE_RADIUS_MM));
+    let role = |r: AxisRole| o.records.iter().find(|(a, _)| a.role == r);
+    let mut v = Vec::new();
+    let mut broken = Vec::new();
+    let mut fail = |rule: Rule, message: String| {
+        if !broken.contains(&rule) {
+            broken.push(rule);
+        }
+        v.push(message);
+    };
+    let mut command_margin = f64::INFINITY;
+    let mut trajectory_margin = f64::INFINITY;
+    let mut extreme: Option<(String, f64, f64)> = None;
+    let mut moves = 0u64;
+
+    // Limits: every commanded target and every trajectory.
+    for (axis, record) in &o.records {
+        if record.truncated {
+            fail(Rule::Other, format!("record of {} truncated", axis.name));
+        }
+        for c in &record.commands {
+            match c.command {
+                MotionCommand::MoveTo { target_deg } => {
+                    moves += 1;
+                    let phys = axis.physical_from_controller_deg(target_deg);
+                    let (margin, limit) = if phys - axis.min_deg < axis.max_deg - phys {
+                        (phys - axis.min_deg, axis.min_deg)
+                    } else {
+                        (axis.max_deg - phys, axis.max_deg)
+                    };
+                    if margin < command_margin {
+                        command_margin = margin;
+                        extreme = Some((axis.name.clone(), phys, limit));
+                    }
+                    if margin < -EPS_DEG {
+                        fail(
+                            Rule::Limits,
+                            format!(
+                                "{} commanded to {phys} deg at t = {} s, limits [{}, {}]",
+                                axis.name, c.t_s, axis.min_deg, axis.max_deg
+                            ),
+                        );
+                    }
+                }
+                MotionCommand::Home => moves += 1,
+                _ => {}
+            }
+        }
+        for p in physical_pieces(axis, record.motor_pieces(o.end_s)) {
+            let mut values = vec![p.position_at(p.t0_s), p.position_at(p.t1_s)];
+            if p.a_deg_s2 != 0.0 {
+                let tv = p.t0_s - p.v0_deg_s / p.a_deg_s2;
+                if tv > p.t0_s && tv < p.t1_s {
+                    values.push(p.position_at(tv));
+                }
+            }
+            for x in values {
+                let margin = (x - axis.min_deg).min(axis.max_deg - x);
+                trajectory_margin = trajectory_margin.min(margin);
+                if margin < -EPS_DEG {
+                    fail(
+                        Rule::Limits,
+                        format!(
+                            "{} at {x} deg around t = {} s, limits [{}, {}]",
+                            axis.name, p.t0_s, axis.min_deg, axis.max_deg
+                        ),
+                    );
+                }
+            }
+        }
+    }
+
+    // Arm separation at every instant, for the motors and for the loads (what really swings).
+    let (mut closest_motor, mut closest_load) = (f64::NAN, f64::NAN);
+    match (role(AxisRole::LightArm), role(AxisRole::DetectorArm)) {
+        (Some((la, lr)), Some((da, dr))) => {
+            match check_separation(
+                &physical_pieces(la, lr.motor_pieces(o.end_s)),
+                &physical_pieces(da, dr.motor_pieces(o.end_s)),
+                &constraints,
+            ) {
+                Ok(m) => closest_motor = m,
+                Err(e) => fail(Rule::Separation, format!("motors: {e}")),
+            }
+            match check_separation(
+                &physical_pieces(la, lr.load_pieces(la.backlash_deg, o.end_s)),
+                &physical_pieces(da, dr.load_pieces(da.backlash_deg, o.end_s)),
+                &constraints,
+            ) {
+                Ok(m) => closest_load = m,
+                Err(e) => fail(Rule::Separation, format!("loads: {e}")),
+            }
+        }
+        _ => fail(Rule::Other, "no arm axes in the record".into()),
+    }
+
+    // Emergency stops: a stop on the wire at every axis within the deadline, then no move until resumed.
+    let mut latencies = Vec::new();
+    for &(requested, resumed) in &o.estops {
+        for (axis, record) in &o.records {
+            let stop = record.commands.iter().find(|c| {
+                matches!(c.command, MotionCommand::Stop { .. })
+                    && c.t_s >= requested - EPS_DEG
+                    && c.t_s <= resumed
+            });
+            let Some(stop) = stop else {
+                fail(
+                    Rule::Estop,
+                    format!(
+                        "emergency stop at t = {requested} s: no stop reached {} before the resume at {resumed} s",
+                        axis.name
+                    ),
+                );
+                continue;
+            };
+            let latency = (stop.t_s - requested).max(0.0);
+            latencies.push(latency);
+            if latency > ESTOP_DEADLINE_S {
+                fail(
+                    Rule::Estop,
+                    format!(
+                        "emergency stop at t = {requested} s reached {} after {:.1} ms (deadline {} ms)",
+                        axis.name,
+                        latency * 1e3,
+                        ESTOP_DEADLINE_S * 1e3
+                    ),
+                );
+            }
+            let moved = record.commands.iter().find(|c| {
+                matches!(c.command, MotionCommand::MoveTo { .. } | MotionCommand::Home)
+                    && c.t_s >= stop.t_s
+                    && c.t_s < resumed
+            });
+            if let Some(m) = moved {
+                fail(
+                    Rule::Estop,
+                    format!(
+                        "{} commanded {:?} at {} s, after the emergency stop at {requested} s and before the resume \
+                     at {resumed} s",
+                        axis.name, m.command, m.t_s
+                    ),
+                );
+            }
+        }
+    }
+
+    // Every measured point, by the scheduler's own rules: read-back within limits, arms apart, and the
+    // geometry it measured allowed.
+    let kinematics = Kinematics::new(inst);
+    for p in o
+        .points
+        .iter()
+        .filter(|p| p.flags.iter().all(|f| !f.starts_with("failed")))
+    {
+        let mut pose = Pose::new(0.0, 0.0, 0.0, 0.0);
+        for (name, value) in &p.readback_deg {
+            match inst.axes.iter().find(|a| &a.name == name) {
+                None => fail(
+                    Rule::MeasuredPose,
+                    format!("point {}: read-back of unknown axis {name}", p.index),
+                ),
+                Some(axis) => {
+                    if !(axis.min_deg..=axis.max_deg).contains(value) {
+                        fail(
+                            Rule::MeasuredPose,
+                            format!("point {}: {name} read back at {value}", p.index),
+                        );
+                    }
+                    pose.set(axis.role, *value);
+                }
+            }
+        }
+        if !constraints.separation_ok(pose.arm_separation_deg()) {
+            fail(
+                Rule::MeasuredPose,
+                format!(
+                    "point {} measured with the arms {} deg apart",
+                    p.index,
+                    pose.arm_separation_deg()
+                ),
+            );
+        }
+        let (wi, wo) = kinematics.forward(&pose);
+        // Positioning tolerance can push a point sitting exactly on a limit a hair over it: only a clear
+        // violation counts (the arm-separation rule is checked exactly above).
+        if let Err(reason) = constraints.check_directions(&wi, &wo) {
+            let nominal = gonio_brdf::geometry::Direction::from_spherical_deg(p.theta_i_deg, p.phi_i_deg);
+            let nominal_o = gonio_brdf::geometry::Direction::from_spherical_deg(p.theta_o_deg, p.phi_o_deg);
+            if constraints.check_directions(&nominal, &nominal_o).is_err() {
+                fail(
+                    Rule::MeasuredPose,
+                    format!(
+                        "point {} ({}, {}, {}, {}) violates {reason}",
+                        p.index, p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg
+                    ),
+                );
+            }
+        }
+    }
+    if !(matches!(o.final_state, CampaignState::Completed | CampaignState::Aborted) || case.faults.any()) {
+        fail(Rule::Other, format!("the campaign ended {}", o.final_state));
+    }
+    CaseResult {
+        index,
+        faults: case.faults.any(),
+        acts: o.acts,
+        final_state: Some(o.final_state),
+        planned_points: o.planned_points,
+        points: o.points.len() as u64,
+        move_commands: moves,
+        closest_motor_deg: closest_motor,
+        closest_load_deg: closest_load,
+        command_margin_deg: command_margin,
+        trajectory_margin_deg: trajectory_margin,
+        extreme_command: extreme,
+        estop_latencies_s: latencies,
+        violations: v,
+        broken,
+    }
+}
+
+/// Run one case and check it.
+pub fn run_and_check(index: u32, case: &Case) -> Result<CaseResult, SoakError> {
+    let dir = tempfile::tempdir().map_err(SoakError::io("temporary directory for a safety case"))?;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .start_paused(true)
+        .build()
+        .map_err(SoakError::io("cannot start the async runtime"))?;
+    let outcome = rt.block_on(async {
+        // Under the paused clock a hang turns into this timeout at once.
+        tokio::time::timeout(Duration::from_secs(7 * 24 * 3600), run_case(case, dir.path()))
+            .await
+            .unwrap_or_else(|_| Err("no end within a simulated week".into()))
+    });
+    Ok(match outcome {
+        Ok(o) => check(index, case, &o),
+        Err(e) => CaseResult {
+            index,
+            faults: case.faults.any(),
+            acts: [0; 3],
+            final_state: None,
+            planned_points: 0,
+            points: 0,
+            move_commands: 0,
+            closest_motor_deg: f64::NAN,
+            closest_load_deg: f64::NAN,
+            command_margin_deg: f64::NAN,
+            trajectory_margin_deg: f64::NAN,
+            extreme_command: None,
+            estop_latencies_s: Vec::new(),
+            violations: vec![format!("case did not run: {e}")],
+            broken: vec![Rule::Other],
+        },
+    })
+}
+
+/// Run case `index` of `seed` again and describe it for an investigation: the case, its verdict, and every motion
+/// command and profile change of the arms (physical degrees) between `from_s` and `to_s` of simulated time.
+pub fn trace(seed: u64, index: u32, from_s: f64, to_s: f64) -> Result<String, SoakError> {
+    use std::fmt::Write as _;
+    let case = case(seed, index);
+    let dir = tempfile::tempdir().map_err(SoakError::io("temporary directory for a safety case"))?;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .start_paused(true)
+        .build()
+        .map_err(SoakError::io("cannot start the async runtime"))?;
+    let o = rt
+        .block_on(run_case(&case, dir.path()))
+        .map_err(SoakError::Setup)?;
+    let result = check(index, &case, &o);
+    let mut out = String::new();
+    let _ = writeln!(out, "{case:#?}\n{result:#?}");
+    for (t, what) in &o.timeline {
+        let _ = writeln!(out, "{t:10.4} s  {what}");
+    }
+    for (axis, record) in &o.records {
+        if !matches!(axis.role, AxisRole::LightArm | AxisRole::DetectorArm) {
+            continue;
+        }
+        let phys = |p: f64| f64::from(axis.direction) * (p - axis.zero_offset_deg);
+        for c in record
+            .commands
+            .iter()
+            .filter(|c| c.t_s >= from_s && c.t_s <= to_s)
+        {
+            let _ = writeln!(out, "{:>9} {:10.4} s  command {:?}", axis.name, c.t_s, c.command);
+        }
+        for c in record.changes.iter().filter(|c| c.t_s >= from_s && c.t_s <= to_s) {
+            let _ = writeln!(
+                out,
+                "{:>9} {:10.4} s  change {:?}: motor {:.4} deg, load {:.4} deg, rest {:.4} deg, end {:?}",
+                axis.name,
+                c.t_s,
+                c.kind,
+                phys(c.motor_deg),
+                phys(c.load_deg),
+                phys(c.rest_deg),
+                c.end
+            );
+        }
+    }
+    Ok(out)
+}
+
+/// Everything the safety soak measured.
+#[derive(Debug, Clone)]
+pub struct SafetySoakReport {
+    pub config: SafetySoakConfig,
+    pub min_separation_deg: f64,
+    pub cases: Vec<CaseResult>,
+    pub wall_s: f64,
+}
+
+impl SafetySoakReport {
+    /// Every broken invariant, in words; empty when the soak passed.
+    pub fn violations(&self) -> Vec<String> {
+        self.cases
+            .iter()
+            .flat_map(|c| c.violations.iter().map(move |v| format!("case {}: {v}", c.index)))
+            .collect()
+    }
+
+    /// Cases that broke `rule`.
+    pub fn broke(&self, rule: Rule) -> usize {
+        self.cases.iter().filter(|c| c.broken.contains(&rule)).count()
+    }
+
+    /// Pause, abort and emergency-stop requests, all cases together.
+    pub fn acts(&self) -> [u64; 3] {
+        let mut a = [0; 3];
+        for c in &self.cases {
+            for (total, n) in a.iter_mut().zip(c.acts) {
+                *total += n;
+            }
+        }
+        a
+    }
+
+    pub fn move_commands(&self) -> u64 {
+        self.cases.iter().map(|c| c.move_commands).sum()
+    }
+
+    /// Smallest finite value of a per-case measure.
+    fn min_of(&self, f: impl Fn(&CaseResult) -> f64) -> f64 {
+        self.cases
+            .iter()
+            .map(f)
+            .filter(|x| x.is_finite())
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    pub fn closest_motor_deg(&self) -> f64 {
+        self.min_of(|c| c.closest_motor_deg)
+    }
+    pub fn closest_load_deg(&self) -> f64 {
+        self.min_of(|c| c.closest_load_deg)
+    }
+    pub fn command_margin_deg(&self) -> f64 {
+        self.min_of(|c| c.command_margin_deg)
+    }
+    pub fn trajectory_margin_deg(&self) -> f64 {
+        self.min_of(|c| c.trajectory_margin_deg)
+    }
+
+    /// The case and axis of the commanded target closest to a limit.
+    pub fn extreme_command(&self) -> Option<(String, f64, f64)> {
+        self.cases
+            .iter()
+            .filter(|c| c.command_margin_deg.is_finite())
+            .min_by(|a, b| a.command_margin_deg.total_cmp(&b.command_margin_deg))
+            .and_then(|c| c.extreme_command.clone())
+    }
+
+    pub fn estop_latencies_s(&self) -> Vec<f64> {
+        let mut v: Vec<f64> = self
+            .cases
+            .iter()
+            .flat_map(|c| c.estop_latencies_s.iter().copied())
+            .collect();
+        v.sort_by(f64::total_cmp);
+        v
+    }
+
+    /// Final states: completed, aborted, paused (by faults), did not run.
+    pub fn final_states(&self) -> [u64; 4] {
+        let mut s = [0; 4];
+        for c in &self.cases {
+            let k = match c.final_state {
+                Some(CampaignState::Completed) => 0,
+                Some(CampaignState::Aborted) => 1,
+                Some(_) => 2,
+                None => 3,
+            };
+            s[k] += 1;
+        }
+        s
+    }
+}
+
+/// Run the safety soak: `cases` seeded random cases, each checked.
+pub fn run_safety_soak(cfg: &SafetySoakConfig) -> Result<SafetySoakReport, SoakError> {
+    let wall = Instant::now();
+    let file = InstrumentFile::simulated();
+    let mut cases = Vec::new();
+    for i in 0..cfg.cases {
+        cases.push(run_and_check(i, &case(cfg.seed, i))?);
+    }
+    Ok(SafetySoakReport {
+        config: cfg.clone(),
+        min_separation_deg: file.instrument.safety.min_arm_separation_deg,
+        cases,
+        wall_s: wall.elapsed().as_secs_f64(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cases_are_reproducible_and_valid() {
+        let file = InstrumentFile::simulated();
+        for i in 0..20 {
+            let a = case(3, i);
+            assert_eq!(a, case(3, i));
+            prepare_campaign(&a.campaign, "safety.toml", Path::new("."), &file)
+                .unwrap_or_else(|e| panic!("case {i}: {e}\n{}", a.campaign));
+        }
+        assert_ne!(case(3, 0), case(3, 1));
+    }
+}
