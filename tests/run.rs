@@ -238,6 +238,90 @@ fn kill_9_at_random_moments_then_resume_loses_and_repeats_nothing() {
     assert_eq!(csv.lines().count() as u64, total + 1);
 }
 
+/// SIGINT in the middle of a dry-run (which runs its paused clock without an I/O driver, its signal handlers on a
+/// thread of their own): all motion stops, the exit says so and how to resume, and the resumed run completes with
+/// every point once.
+#[test]
+fn sigint_stops_a_dry_run_and_the_rerun_resumes_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // Over 1,000 points: about a second of wall time, so the signal lands long before the end on any machine.
+    let big = SMALL
+        .replace("id = \"small\"", "id = \"sigint\"")
+        .replace("bands_nm = [450.0, 650.0]", "bands_nm = [650.0]")
+        .replace("step = 25.0 }\ntheta_o_deg", "step = 5.0 }\ntheta_o_deg")
+        .replace(
+            "theta_o_deg = { from = 0.0, to = 75.0, step = 25.0 }",
+            "theta_o_deg = { from = 0.0, to = 75.0, step = 5.0 }",
+        )
+        .replace("step = 60.0 }", "step = 20.0 }");
+    let campaign = write_campaign(dir.path(), &big);
+    let out = dir.path().join("out");
+    let child = gonio()
+        .arg("run")
+        .arg(&campaign)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while committed_count(&out) < 1 {
+        assert!(std::time::Instant::now() < deadline, "no point committed");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(child.id() as i32),
+        nix::sys::signal::Signal::SIGINT,
+    )
+    .expect("SIGINT");
+    let o = child.wait_with_output().expect("wait");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{stderr}");
+    assert!(
+        o.status.code().is_some(),
+        "exited by itself, not by the signal: {:?}",
+        o.status
+    );
+    assert!(
+        stderr.contains("signal received: stopping all motion")
+            && stderr.contains("interrupted: motion stopped")
+            && stderr.contains("to resume"),
+        "{stderr}"
+    );
+    let total = run_json(&out)["campaign"]["total_points"]
+        .as_u64()
+        .expect("total");
+    let stopped_at = snapshot(&out);
+    assert!(total > 1000, "{total} points planned");
+    assert!(
+        !stopped_at.is_empty() && (stopped_at.len() as u64) < total,
+        "stopped after {} of {total} points",
+        stopped_at.len()
+    );
+
+    let o = gonio()
+        .arg("run")
+        .arg(&campaign)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .output()
+        .expect("resume");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let all = snapshot(&out);
+    assert_eq!(
+        &all[..stopped_at.len()],
+        &stopped_at[..],
+        "committed points unchanged"
+    );
+    assert_eq!(all.len() as u64, total);
+    for (i, p) in all.iter().enumerate() {
+        assert_eq!(p.index, i as u64);
+    }
+}
+
 /// Without `[plan.calibration]` there is no reference pose in the plan: the direct-beam readings taken at the
 /// start must still find a safe pose (the engine's default, detector facing the source), never "stay where the
 /// arms are" (both at 0 deg after power-up, which no safe move can reach).

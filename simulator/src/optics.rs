@@ -34,7 +34,10 @@
 //! # Cost
 //! A Lambertian sample costs one BRDF evaluation per reading (its integral is `f` times the exact projected solid
 //! angle of the cone); smooth models a few to a few tens; a lobe on or near the aperture adaptively more; a delta
-//! lobe none. No random number is drawn when the noise is off.
+//! lobe none. A cone across the horizon (near grazing) is integrated over its part above the horizon only, where
+//! the integrand stays smooth: tens to a hundred or so evaluations for Oren-Nayar (a few thousand when its
+//! azimuthal kink crosses the cone), 200 to 1000 for a grazing microfacet lobe. No random number is drawn when the
+//! noise is off.
 
 pub mod aperture;
 pub mod cap;
@@ -45,13 +48,13 @@ use std::sync::RwLock;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use gonio_brdf::material::Material;
-use gonio_brdf::radiometry::{aperture_half_angle_rad, aperture_solid_angle_sr, projected_solid_angle_sr};
+use gonio_brdf::radiometry::{aperture_half_angle_rad, aperture_solid_angle_sr};
 use gonio_brdf::{Brdf, Direction, SpectrumError, Wavelength};
 use gonio_instrument::Instrument;
 
 use crate::kinematics::{self, PoseGeometry};
 use crate::scene::{Band, Pose, Scene};
-use aperture::{Cone, ConeIntegral, Peak, Plan};
+use aperture::{Cone, ConeIntegral, Features, Peak, Plan};
 use footprint::Footprint;
 use source::SourceModel;
 
@@ -499,19 +502,15 @@ impl Optics {
                 error: 0.0,
                 evaluations: 0,
             }
-        } else if r.regular == RegularPart::Flat {
-            // Constant over the upper hemisphere: evaluate anywhere above it, times the exact projected solid
-            // angle of the cone (clipped to the upper hemisphere if the cone crosses the horizon).
-            let at = if wo_m.z() > 0.0 { wo_m } else { Direction::NORMAL };
-            let f = r.material.eval(&wi_m, &at, r.wavelength).map_err(err)?;
-            let value = f * projected_solid_angle_sr(&wo_m, self.aperture_half_rad);
-            ConeIntegral {
-                value,
-                error: 4.0 * f64::EPSILON * value.abs(),
-                evaluations: 1,
-            }
         } else {
-            let plan = self.plan(r.regular, &wi_m, &cone);
+            // Constant over the upper hemisphere (Lambertian): one evaluation at a direction above the horizon
+            // times the exact projected solid angle of the cone, clipped to the upper hemisphere if the cone
+            // crosses the horizon (then with an error estimate of its own).
+            let (plan, features) = if r.regular == RegularPart::Flat {
+                (Plan::Flat, Features::default())
+            } else {
+                self.plan(r.regular, &wi_m, &cone)
+            };
             let mut failure = None;
             let mut f = |w: &Direction| match r.material.eval(&wi_m, w, r.wavelength) {
                 Ok(v) => v,
@@ -520,7 +519,7 @@ impl Optics {
                     0.0
                 }
             };
-            let result = aperture::integrate(&cone, &mut f, plan, self.tolerance);
+            let result = aperture::integrate(&cone, &mut f, plan, &features, self.tolerance);
             if let Some(e) = failure {
                 return Err(err(e));
             }
@@ -554,42 +553,73 @@ impl Optics {
     /// lobe of width alpha (in slope) is about 2 alpha wide in outgoing directions around the mirror direction,
     /// and at an angular distance D from its peak a microfacet tail (~ D^-4) varies on the scale D/4; a kink at
     /// distance K from the axis limits the scale to K. The ratio q = beta / scale decides: a kink within 2 beta,
-    /// a feature narrower than the aperture (q > 1), a cone crossing the horizon or tabulated data go to the
-    /// adaptive rule (seeded with the lobe's peak); otherwise the tensor sequence, from the centre rule when the
-    /// aperture is tiny compared with the scale.
-    fn plan(&self, regular: RegularPart, wi_m: &Direction, cone: &Cone) -> Plan {
+    /// a feature narrower than the aperture (q > 1) or tabulated data go to the adaptive rule (seeded with the
+    /// lobe's peak); otherwise the tensor sequence, from the coarsest rule when the aperture is tiny compared
+    /// with the scale.
+    ///
+    /// A cone across the horizon: the integrator works on its part above the horizon in latitude coordinates,
+    /// where the horizon is no kink, a kink along a circle of latitude (Oren-Nayar's theta_o = theta_i) is cut
+    /// exactly (`kink_theta`, so it does not count as a kink here), and a narrow lobe is mapped out (its peak and
+    /// its width across the plane of incidence): a smooth model there always takes the tensor sequence, which
+    /// falls back to the adaptive rule by itself if it does not converge.
+    fn plan(&self, regular: RegularPart, wi_m: &Direction, cone: &Cone) -> (Plan, Features) {
         let beta = cone.half_angle;
+        let across_horizon = !cone.above_horizon();
         let mirror = wi_m.reflect_about_normal();
-        let peak = self.lobe_width.filter(|w| *w > 0.0).map(|w| Peak {
-            direction: mirror,
-            width: 2.0 * w,
+        let peak = self.lobe_width.filter(|w| *w > 0.0).map(|w| {
+            let width = 2.0 * w;
+            // A microfacet lobe is a function of the half vector, which turns by 1 / (cos theta_i + cos theta_o)
+            // per unit of out-of-plane angle: narrower across than along near grazing. Phong's is symmetric
+            // about the mirror direction.
+            let across = match regular {
+                RegularPart::Kinked(Kinks::Phong) => (width, 0.0),
+                _ => (w * wi_m.z().max(0.0), w),
+            };
+            Peak {
+                direction: mirror,
+                width,
+                across,
+            }
         });
+        let mut features = Features {
+            peak,
+            kink_theta: None,
+        };
         let mut scale: f64 = 1.0;
         if let Some(p) = peak {
             let distance = (mirror.angle_to(&cone.axis) - beta).max(0.0);
             scale = scale.min(p.width.max(distance / 4.0));
         }
         match regular {
-            RegularPart::Tabulated => return Plan::Adaptive { peak },
+            RegularPart::Tabulated => return (Plan::Adaptive, features),
             RegularPart::Kinked(k) => {
-                let d = kink_distance(k, wi_m, &cone.axis);
+                let loci = kink_loci(k, wi_m, &cone.axis);
+                let mut d = loci.other;
+                if let Some((theta, distance)) = loci.latitude {
+                    if !across_horizon {
+                        d = d.min(distance);
+                    } else if distance < 2.0 * beta {
+                        features.kink_theta = Some(theta);
+                    }
+                }
                 if d < 2.0 * beta {
-                    return Plan::Adaptive { peak };
+                    return (Plan::Adaptive, features);
                 }
                 scale = scale.min(d);
             }
             _ => {}
         }
         let q = beta / scale;
-        if !cone.above_horizon() || q > 1.0 {
-            Plan::Adaptive { peak }
+        let plan = if q > 1.0 && !across_horizon {
+            Plan::Adaptive
         } else if q < 0.03 {
             Plan::Tensor { start: 0 }
         } else if q < 0.3 {
             Plan::Tensor { start: 1 }
         } else {
             Plan::Tensor { start: 3 }
-        }
+        };
+        (plan, features)
     }
 
     /// A sample-frame direction in the material's own frame (rotated by -orientation about the normal).
@@ -639,30 +669,46 @@ fn regular_part(material: &Material) -> RegularPart {
     }
 }
 
-/// Angular distance (rad) from the cone's axis to the nearest kink locus of the model.
-fn kink_distance(kinks: Kinks, wi_m: &Direction, axis: &Direction) -> f64 {
+/// Where a model's kinks lie relative to a cone's axis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct KinkLoci {
+    /// Angular distance (rad) from the axis to the nearest kink that is not a circle of latitude.
+    other: f64,
+    /// A kink along the circle of latitude theta (rad) that matters near the axis, and its angular distance
+    /// from the axis.
+    latitude: Option<(f64, f64)>,
+}
+
+/// The kink loci of the model near a cone's axis.
+fn kink_loci(kinks: Kinks, wi_m: &Direction, axis: &Direction) -> KinkLoci {
     let a = [axis.x(), axis.y(), axis.z()];
     match kinks {
         Kinks::OrenNayar => {
             // Both terms vanish with sin(theta_i) (the azimuth of wi is then meaningless): no kink.
             let s = wi_m.sin_theta();
             if s == 0.0 {
-                return f64::INFINITY;
+                return KinkLoci {
+                    other: f64::INFINITY,
+                    latitude: None,
+                };
             }
             let n = [wi_m.x() / s, wi_m.y() / s, 0.0];
             let along = kinematics::dot(&a, &n);
             let to_plane = along.abs().min(1.0).asin();
-            if along < 0.0 {
-                // The axis lies where cos(phi_o - phi_i) < 0: the max(0, .) factor is 0 up to the plane, so the
-                // theta_o = theta_i kink is invisible there.
-                return to_plane;
+            // Where the axis lies on the side cos(phi_o - phi_i) < 0, the max(0, .) factor is 0 up to the plane,
+            // so the theta_o = theta_i kink is invisible there.
+            let latitude = (along >= 0.0).then(|| (wi_m.theta(), (axis.theta() - wi_m.theta()).abs()));
+            KinkLoci {
+                other: to_plane,
+                latitude,
             }
-            let to_cone = (axis.theta() - wi_m.theta()).abs();
-            to_plane.min(to_cone)
         }
         Kinks::Phong => {
             let r = wi_m.reflect_about_normal();
-            kinematics::dot(&a, &[r.x(), r.y(), r.z()]).abs().min(1.0).asin()
+            KinkLoci {
+                other: kinematics::dot(&a, &[r.x(), r.y(), r.z()]).abs().min(1.0).asin(),
+                latitude: None,
+            }
         }
     }
 }

@@ -163,8 +163,9 @@ pub fn in_process(text: &str) -> Result<Throughput, String> {
 
 /// In process, paused clock, the store in a directory under `base`.
 pub fn in_process_in(text: &str, base: &Path) -> Result<Throughput, String> {
+    // The runtime `gonio run` gives an in-process dry-run: current thread, paused clock, timers only.
     let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
+        .enable_time()
         .start_paused(true)
         .build()
         .map_err(|e| e.to_string())?;

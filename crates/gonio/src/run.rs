@@ -126,8 +126,11 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
     // simulator on the real clock, sped up instead.
     let paused_clock = record.dry_run && !file.instrument.devices.iter().any(|d| d.is_sim_pty());
     let runtime = if paused_clock {
+        // Timers only: every device is in process, and polling an I/O driver at each step of the simulated clock
+        // costs about a fifth of a dry-run's time (BENCHMARKS.md, section 3). Signals are watched on a thread of
+        // their own (`watch_signals`).
         tokio::runtime::Builder::new_current_thread()
-            .enable_all()
+            .enable_time()
             .start_paused(true)
             .build()
     } else {
@@ -267,16 +270,15 @@ async fn drive(
 
     let run = engine::run_campaign(Arc::clone(&store), id, &rig, control.clone());
     tokio::pin!(run);
+    let mut signalled = watch_signals();
     let mut interrupted = false;
     let result = loop {
         tokio::select! {
             r = &mut run => break r,
-            _ = signal() => {
-                if !interrupted {
-                    interrupted = true;
-                    bar.suspend(|| eprintln!("gonio: signal received: stopping all motion"));
-                    control.estop();
-                }
+            Ok(()) = &mut signalled, if !interrupted => {
+                interrupted = true;
+                bar.suspend(|| eprintln!("gonio: signal received: stopping all motion"));
+                control.estop();
             }
         }
     };
@@ -284,6 +286,27 @@ async fn drive(
     listener.abort();
     let state = result.map_err(|e| CliError::input(e.to_string()))?;
     Ok((state, identities, interrupted))
+}
+
+/// Fires at the first SIGINT or SIGTERM. The handlers need tokio's I/O driver, which the paused-clock runtime of
+/// a dry-run does without: they run on a thread of their own with a small runtime that has it. When that thread
+/// cannot start, the sender is dropped (never `Ok`) and the default action of a signal (terminate) applies; the
+/// store stays consistent anyway.
+fn watch_signals() -> tokio::sync::oneshot::Receiver<()> {
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    let watcher = std::thread::Builder::new()
+        .name("gonio-signals".into())
+        .spawn(move || {
+            let runtime = tokio::runtime::Builder::new_current_thread().enable_io().build();
+            if let Ok(runtime) = runtime {
+                runtime.block_on(signal());
+                let _ = tx.send(());
+            }
+        });
+    if let Err(e) = watcher {
+        tracing::warn!("cannot watch for signals: {e}");
+    }
+    rx
 }
 
 /// SIGINT or SIGTERM.
