@@ -409,9 +409,12 @@ impl<'a> Run<'a> {
         let attempts = self.c.acquisition.retries + 1;
         let mut last = String::new();
         for attempt in 1..=attempts {
+            // Biased, the stop first: an emergency stop requested at the same instant must win before the
+            // operation sends anything (an unbiased select polls in random order; crates/daemon/tests/safety.rs).
             let r = tokio::select! {
-                r = op() => r,
+                biased;
                 _ = self.estop_signal() => return Err(Interrupt::Estop),
+                r = op() => r,
             };
             let e = match r {
                 Ok(v) => return Ok(v),
@@ -751,7 +754,7 @@ impl<'a> Run<'a> {
                     let mut pos = f64::NAN;
                     let n = m.waypoints_deg.len();
                     for (i, waypoint) in m.waypoints_deg.iter().enumerate() {
-                        if stopped() {
+                        if stopped() || this.control.estop_requested() {
                             return Err(None::<DriverError>);
                         }
                         let to = a.config.physical_from_controller_deg(*waypoint);
@@ -766,8 +769,9 @@ impl<'a> Run<'a> {
                     Ok(pos)
                 };
                 let r = tokio::select! {
-                    r = legs => r,
+                    biased;
                     _ = this.estop_signal() => return Err(Interrupt::Estop),
+                    r = legs => r,
                 };
                 match r {
                     Ok(pos) => Ok(Ok((m.axis_index, pos))),
@@ -1052,11 +1056,12 @@ impl<'a> Run<'a> {
     async fn operator(&mut self, message: &str, holder: Holder) -> Result<(), Interrupt> {
         let simulated = self.optics.is_some() && self.c.calibration.simulate_operator;
         if !simulated {
+            // A confirmation given before the question does not count: dropped before the question is announced,
+            // since an operator (or a script) may answer as soon as it is, before this task runs again.
+            let _ = self.control.take_confirm();
             self.st(|s| s.set_state(self.id, CampaignState::WaitingOperator, None))?;
             self.st(|s| s.set_operator_message(self.id, Some(message)))?;
             self.emit_state(CampaignState::WaitingOperator, Some(message.to_string()));
-            // A confirmation given before the question does not count.
-            let _ = self.control.take_confirm();
             loop {
                 let n = self.control.notified();
                 tokio::pin!(n);

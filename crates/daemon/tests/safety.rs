@@ -536,10 +536,15 @@ fn check(case: &Case, o: &Outcome) -> Result<(), TestCaseError> {
                     ESTOP_DEADLINE_S * 1e3
                 )));
             };
-            let moved = record.commands.iter().find(|c| {
-                matches!(c.command, MotionCommand::MoveTo { .. } | MotionCommand::Home)
-                    && c.t_s >= stop.t_s
-                    && c.t_s < resumed
+            // After the stop on the wire (the record keeps the wire's order: a move sent at the same simulated
+            // instant just before the stop is overridden by it).
+            let stop_at = record
+                .commands
+                .iter()
+                .position(|c| std::ptr::eq(c, stop))
+                .unwrap_or(0);
+            let moved = record.commands[stop_at..].iter().find(|c| {
+                matches!(c.command, MotionCommand::MoveTo { .. } | MotionCommand::Home) && c.t_s < resumed
             });
             prop_assert!(
                 moved.is_none(),
@@ -744,6 +749,41 @@ fn stalls_while_the_arms_part_after_power_up_never_bring_them_closer() {
             run_and_check(&case).unwrap_or_else(|e| panic!("{points}, seed {seed}: {e}"));
         }
     }
+}
+
+/// Found by 2,000 cases of the property: an emergency stop requested while a move to the direct-beam pose was
+/// about to be commanded.
+#[test]
+fn regression_no_move_follows_an_emergency_stop() {
+    let campaign = "[campaign]\nid = \"safety\"\n[sample]\nradius_mm = 12.5\n[plan]\nbands_nm = [450.0, 550.0]\n\
+                    repeats = 2\nreciprocity = false\n[plan.grid]\nkind = \"in-plane\"\ntheta_i_deg = [33.1, 30.0]\n\
+                    theta_o_deg = { from = -34.1, to = 70.0, step = 17.5 }\nplane_phi_deg = [0]\n\n\
+                    [plan.calibration]\ndark_every_points = 2\nreference_every_points = 8\n\
+                    reference_pose_deg = { light = -92.4, detector = 87.6 }\n[calibration]\nmethod = \"absolute\"\n\
+                    simulate_operator = true\n[acquisition]\naveraging = 2\nsettle_s = 0\n[material]\n\
+                    preset = \"coloured-plastic\"\n";
+    let at = |after_s: f64, act: Act, resume_after_s: f64| Interruption {
+        after_s,
+        act,
+        resume_after_s,
+    };
+    let case = Case {
+        campaign: campaign.to_string(),
+        interruptions: vec![
+            at(31.896661086574937, Act::Estop, 2.5466193053150383),
+            at(15.843385221868195, Act::Pause, 2.258435173555382),
+            at(22.09177096578683, Act::Estop, 4.28170610943841),
+            at(8.35480664433951, Act::Pause, 1.347550436137215),
+            at(29.33946274657714, Act::Estop, 3.363159090915477),
+        ],
+        faults: FaultLevel {
+            seed: 13289665035780048564,
+            stall_rate: 0.0,
+            garble_rate: 0.0,
+            drop_rate: 0.0,
+        },
+    };
+    run_and_check(&case).unwrap_or_else(|e| panic!("{e}"));
 }
 
 #[test]
