@@ -34,6 +34,13 @@ averaging = 10
 preset = "coloured-plastic"
 "#;
 
+/// `gonio run CAMPAIGN --out OUT --quiet`.
+fn quiet_run(campaign: &Path, out: &Path) -> Command {
+    let mut c = gonio();
+    c.arg("run").arg(campaign).arg("--out").arg(out).arg("--quiet");
+    c
+}
+
 fn write_campaign(dir: &Path, text: &str) -> PathBuf {
     let p = dir.join("campaign.toml");
     std::fs::write(&p, text).expect("write campaign");
@@ -49,14 +56,7 @@ fn dry_run_matches_ground_truth_and_writes_csv_and_json() {
     let dir = tempfile::tempdir().expect("tempdir");
     let campaign = write_campaign(dir.path(), SMALL);
     let out = dir.path().join("out");
-    let o = gonio()
-        .arg("run")
-        .arg(&campaign)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .output()
-        .expect("run");
+    let o = quiet_run(&campaign, &out).output().expect("run");
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "gonio run failed: {stderr}");
     assert_eq!(
@@ -159,12 +159,7 @@ fn kill_9_at_random_moments_then_resume_loses_and_repeats_nothing() {
     let mut kills_mid_run = 0;
     let mut before: Vec<PointRecord> = Vec::new();
     for round in 0..40 {
-        let mut child = gonio()
-            .arg("run")
-            .arg(&campaign)
-            .arg("--out")
-            .arg(&out)
-            .arg("--quiet")
+        let mut child = quiet_run(&campaign, &out)
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()
@@ -256,12 +251,7 @@ fn sigint_stops_a_dry_run_and_the_rerun_resumes_it() {
         .replace("step = 60.0 }", "step = 20.0 }");
     let campaign = write_campaign(dir.path(), &big);
     let out = dir.path().join("out");
-    let child = gonio()
-        .arg("run")
-        .arg(&campaign)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
+    let child = quiet_run(&campaign, &out)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -301,14 +291,7 @@ fn sigint_stops_a_dry_run_and_the_rerun_resumes_it() {
         stopped_at.len()
     );
 
-    let o = gonio()
-        .arg("run")
-        .arg(&campaign)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .output()
-        .expect("resume");
+    let o = quiet_run(&campaign, &out).output().expect("resume");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let all = snapshot(&out);
     assert_eq!(
@@ -335,14 +318,7 @@ fn a_campaign_without_calibration_settings_runs_to_completion() {
     assert!(!text.contains("plan.calibration"));
     let campaign = write_campaign(dir.path(), &text);
     let out = dir.path().join("out");
-    let o = gonio()
-        .arg("run")
-        .arg(&campaign)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .output()
-        .expect("run");
+    let o = quiet_run(&campaign, &out).output().expect("run");
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "gonio run failed: {stderr}");
     let json = run_json(&out);
