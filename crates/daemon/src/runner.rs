@@ -410,7 +410,7 @@ impl<'a> Run<'a> {
         let mut last = String::new();
         for attempt in 1..=attempts {
             // Biased, the stop first: an emergency stop requested at the same instant must win before the
-            // operation sends anything (an unbiased select polls in random order; crates/daemon/tests/safety.rs).
+            // operation sends anything (an unbiased select polls in random order; crates/soak/tests/safety_soak.rs).
             let r = tokio::select! {
                 biased;
                 _ = self.estop_signal() => return Err(Interrupt::Estop),
@@ -633,7 +633,7 @@ impl<'a> Run<'a> {
     async fn move_to(&mut self, target: &Pose) -> Result<(), Interrupt> {
         // A phase of several axes is collision-safe only as a whole: when one of its axes fails (a stall), the
         // others are stopped and the move is planned again from where the axes really are, instead of retrying
-        // the failed axis alone while the others go on (issue #8: crates/daemon/tests/safety.rs).
+        // the failed axis alone while the others go on (issue #8: crates/soak/tests/safety_soak.rs).
         // Each axis gets the retries a single operation gets (`acquisition.retries`); every round charges at
         // least one axis, so the loop is bounded.
         let attempts = self.c.acquisition.retries + 1;
@@ -900,7 +900,7 @@ impl<'a> Run<'a> {
     /// move. The overshoot point lies beyond the target in the direction of travel, so while the arms are parted
     /// each only moves away from the other until both reach it: their separation only grows before they are
     /// apart. (A single phase would let one arm come back from its overshoot while the other, stalled early, is
-    /// still close: caught by crates/daemon/tests/safety.rs.)
+    /// still close: caught by crates/soak/tests/safety_soak.rs.)
     fn simultaneous_phases(
         &self,
         from: &Pose,

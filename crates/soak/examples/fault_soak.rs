@@ -25,11 +25,17 @@ fn main() {
         Ok(r) => {
             println!(
                 "{:#?}\n{:#?}\n{:#?}\n{:#?}",
-                r.points, r.injected, r.log, r.events
+                r.committed.points, r.injected, r.log, r.events
             );
             println!(
                 "state {} {:?}, pauses {:?}, rows {}, instrument {:.0} s, sim clock {:.0} s, wall {:.1} s",
-                r.final_state, r.last_error, r.pauses, r.rows, r.instrument_s, r.sim_clock_s, r.wall_s
+                r.final_state,
+                r.last_error,
+                r.pauses,
+                r.committed.rows,
+                r.instrument_s,
+                r.sim_clock_s,
+                r.wall_s
             );
             println!("violations: {:#?}", r.violations());
         }

@@ -24,8 +24,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::SoakError;
-use crate::fault_soak::{PointCheck, check_points};
-use crate::rows::Snapshot;
+use crate::rows::{RowSummary, Snapshot};
 use crate::setup::{SoakCampaign, build_campaign, instrument_with_faults};
 use crate::worker::{DieAt, EXIT_COMPLETED, WorkerArgs};
 
@@ -116,10 +115,9 @@ pub struct CrashSoakReport {
     /// Rows that changed or vanished after a kill (must be empty).
     pub changed: Vec<String>,
     pub final_state: Option<CampaignState>,
-    pub rows: u64,
-    pub indices_in_order: bool,
-    /// The final points against the simulator's ground truth (every restart recalibrated).
-    pub points: PointCheck,
+    /// The final points against the plan and the simulator's ground truth (every restart recalibrated); their
+    /// indices in order in the raw rows too.
+    pub committed: RowSummary,
     /// Instrument time of the campaign (s): its last point or calibration.
     pub instrument_s: f64,
     pub wall_s: f64,
@@ -153,18 +151,7 @@ impl CrashSoakReport {
         if self.final_state != Some(CampaignState::Completed) {
             v.push(format!("the campaign ended {:?}", self.final_state));
         }
-        if self.rows != self.campaign.total_points || !self.indices_in_order {
-            v.push(format!(
-                "{} rows for {} planned points (indices in order: {})",
-                self.rows, self.campaign.total_points, self.indices_in_order
-            ));
-        }
-        for w in &self.points.wrong {
-            v.push(format!("silently wrong value: {w}"));
-        }
-        for u in &self.points.unexplained {
-            v.push(format!("point without value or reason: {u}"));
-        }
+        v.extend(self.committed.violations());
         v
     }
 }
@@ -350,22 +337,27 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
     }
     let store = Store::open(&data)?;
     let record = store.campaigns()?.into_iter().find(|c| c.name == campaign.name);
-    let mut check = PointCheck::default();
-    let (final_state, rows, indices_in_order, instrument_s) = match &record {
+    let (final_state, committed, instrument_s) = match &record {
         Some(c) => {
             let points = store.points(c.id)?;
-            check = check_points(&points);
+            let mut committed = RowSummary::of(campaign.total_points, &points);
             let cals = store.calibrations(c.id)?;
             let t = points
                 .iter()
                 .map(|p| p.t_s)
                 .chain(cals.iter().map(|c| c.t_s))
                 .fold(0.0f64, f64::max);
-            let in_order = points.iter().enumerate().all(|(i, p)| p.index == i as u64)
-                && last.points.iter().enumerate().all(|(i, r)| r.key.1 == i as i64);
-            (Some(c.state), points.len() as u64, in_order, t)
+            committed.indices_in_order &= last.points.iter().enumerate().all(|(i, r)| r.key.1 == i as i64);
+            (Some(c.state), committed, t)
         }
-        None => (None, 0, false, 0.0),
+        None => (
+            None,
+            RowSummary {
+                planned: campaign.total_points,
+                ..RowSummary::default()
+            },
+            0.0,
+        ),
     };
     Ok(CrashSoakReport {
         config: cfg.clone(),
@@ -373,9 +365,7 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
         rounds,
         changed,
         final_state,
-        rows,
-        indices_in_order,
-        points: check,
+        committed,
         instrument_s,
         wall_s: wall.elapsed().as_secs_f64(),
         problems,

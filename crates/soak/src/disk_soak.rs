@@ -30,8 +30,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::SoakError;
-use crate::fault_soak::{PointCheck, check_points};
-use crate::rows::Snapshot;
+use crate::rows::{RowSummary, Snapshot};
 use crate::setup::{SoakCampaign, build_campaign};
 
 /// What to run.
@@ -81,11 +80,10 @@ pub struct DiskSoakReport {
     pub fills: Vec<Fill>,
     pub final_state: CampaignState,
     pub last_error: Option<String>,
-    pub rows: u64,
-    pub indices_in_order: bool,
+    /// The final points against the plan and the simulator's ground truth.
+    pub committed: RowSummary,
     /// Rows committed before a fill that changed or vanished by the end (one entry per fill with a difference).
     pub changed: Vec<String>,
-    pub points: PointCheck,
     pub hung: bool,
     /// Simulated seconds at the end.
     pub instrument_s: f64,
@@ -142,31 +140,18 @@ impl DiskSoakReport {
                 self.last_error.clone().unwrap_or_default()
             ));
         }
-        if self.rows != self.campaign.total_points || !self.indices_in_order {
-            v.push(format!(
-                "{} rows for {} planned points (indices in order: {})",
-                self.rows, self.campaign.total_points, self.indices_in_order
-            ));
-        }
+        v.extend(self.committed.violations());
         for c in &self.changed {
             v.push(format!("committed rows changed: {c}"));
-        }
-        for w in &self.points.wrong {
-            v.push(format!("silently wrong value: {w}"));
-        }
-        for u in &self.points.unexplained {
-            v.push(format!("point without value or reason: {u}"));
         }
         v
     }
 
     /// Points lost or wrong: missing rows, changed rows, silently wrong values, points without value or reason.
     pub fn data_lost(&self) -> u64 {
-        self.campaign.total_points.saturating_sub(self.rows)
+        self.committed.lost()
             + self.changed.len() as u64
             + self.fills.iter().filter(|f| f.changed_at_pause.is_some()).count() as u64
-            + self.points.wrong.len() as u64
-            + self.points.unexplained.len() as u64
     }
 }
 
@@ -229,16 +214,15 @@ pub fn run_disk_soak(cfg: &DiskSoakConfig) -> Result<DiskSoakReport, SoakError> 
     let record = s.campaign(id)?;
     let points = s.points(id)?;
     drop(s);
+    let committed = RowSummary::of(campaign.total_points, &points);
     Ok(DiskSoakReport {
         config: cfg.clone(),
         campaign,
+        committed,
         fills,
         final_state: record.state,
         last_error: record.last_error,
-        rows: points.len() as u64,
-        indices_in_order: points.iter().enumerate().all(|(i, p)| p.index == i as u64),
         changed,
-        points: check_points(&points),
         hung,
         instrument_s,
         wall_s: wall.elapsed().as_secs_f64(),

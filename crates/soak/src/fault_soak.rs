@@ -25,6 +25,7 @@ use tracing_subscriber::layer::SubscriberExt as _;
 
 use crate::SoakError;
 use crate::logcap::{LogCapture, LogCounts, runtime_logging_to};
+use crate::rows::RowSummary;
 use crate::setup::{SoakCampaign, build_campaign, instrument_with_faults};
 
 /// What to run.
@@ -258,10 +259,8 @@ pub struct FaultSoakReport {
     /// The campaign did not end within its instrument-time budget (five times the prediction, at least an
     /// hour): a hang.
     pub hung: bool,
-    /// Rows in the store, and whether their indices are exactly 0..rows.
-    pub rows: u64,
-    pub indices_in_order: bool,
-    pub points: PointCheck,
+    /// The final points against the plan and the simulator's ground truth.
+    pub committed: RowSummary,
     /// The simulator's own counters.
     pub injected: FaultCounts,
     /// What the log said.
@@ -341,18 +340,7 @@ impl FaultSoakReport {
                 self.pauses
             ));
         }
-        if self.rows != self.campaign.total_points || !self.indices_in_order {
-            v.push(format!(
-                "{} rows for {} planned points (indices in order: {})",
-                self.rows, self.campaign.total_points, self.indices_in_order
-            ));
-        }
-        for w in &self.points.wrong {
-            v.push(format!("silently wrong value: {w}"));
-        }
-        for u in &self.points.unexplained {
-            v.push(format!("point without value or reason: {u}"));
-        }
+        v.extend(self.committed.violations());
         // Every injected fault is in the log, one report each.
         for (name, message) in INJECTED_LOG_KINDS {
             let counted = counter(&self.injected, name);
@@ -451,17 +439,16 @@ pub fn run_fault_soak(cfg: &FaultSoakConfig) -> Result<FaultSoakReport, SoakErro
         .map(|p| p.t_s)
         .chain(calibrations.iter().map(|c| c.t_s))
         .fold(0.0f64, f64::max);
+    let committed = RowSummary::of(campaign.total_points, &points);
     Ok(FaultSoakReport {
         config: cfg.clone(),
         faults_toml: crate::setup::faults_toml(&faults),
         campaign,
+        committed,
         final_state: record.state,
         last_error: record.last_error,
         pauses: driven.pauses,
         hung: driven.hung,
-        rows: points.len() as u64,
-        indices_in_order: points.iter().enumerate().all(|(i, p)| p.index == i as u64),
-        points: check_points(&points),
         injected: driven.injected,
         log: capture.counts(),
         events: driven.events,

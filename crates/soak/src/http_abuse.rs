@@ -18,7 +18,7 @@
 //! the campaign completed with one valid row per planned point.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -33,7 +33,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
 use crate::SoakError;
-use crate::fault_soak::{PointCheck, check_points};
+use crate::rows::RowSummary;
 use crate::setup::{SoakCampaign, build_campaign};
 
 /// What to run.
@@ -193,9 +193,8 @@ pub struct HttpAbuseReport {
     pub probe_failures: Vec<String>,
     pub final_state: Option<CampaignState>,
     pub last_error: Option<String>,
-    pub rows: u64,
-    pub indices_in_order: bool,
-    pub points: PointCheck,
+    /// The final points against the plan and the simulator's ground truth.
+    pub committed: RowSummary,
     /// Wall time of the campaign under attack (s).
     pub campaign_wall_s: f64,
     pub wall_s: f64,
@@ -274,26 +273,13 @@ impl HttpAbuseReport {
                 self.last_error.clone().unwrap_or_default()
             ));
         }
-        if self.rows != self.campaign.total_points || !self.indices_in_order {
-            v.push(format!(
-                "{} rows for {} planned points (indices in order: {})",
-                self.rows, self.campaign.total_points, self.indices_in_order
-            ));
-        }
-        for w in &self.points.wrong {
-            v.push(format!("silently wrong value: {w}"));
-        }
-        for u in &self.points.unexplained {
-            v.push(format!("point without value or reason: {u}"));
-        }
+        v.extend(self.committed.violations());
         v
     }
 
     /// Points lost or wrong.
     pub fn data_lost(&self) -> u64 {
-        self.campaign.total_points.saturating_sub(self.rows)
-            + self.points.wrong.len() as u64
-            + self.points.unexplained.len() as u64
+        self.committed.lost()
     }
 }
 
@@ -301,13 +287,16 @@ impl HttpAbuseReport {
 
 /// A response as read off the wire.
 #[derive(Debug)]
-struct Answer {
-    status: u16,
-    body: String,
+pub struct Answer {
+    pub status: u16,
+    /// The status line and headers, as sent.
+    pub head: String,
+    pub body: String,
 }
 
-/// Read one response (headers, then a Content-Length body or up to EOF); None when the connection closes first.
-async fn read_answer(stream: &mut (impl tokio::io::AsyncRead + Unpin)) -> Option<Answer> {
+/// Read one response (headers, then a Content-Length body, nothing more of an event stream, or else up to EOF);
+/// None when the connection closes first. Shared with the daemon's abuse tests (`tests/http_abuse.rs`).
+pub async fn read_answer(stream: &mut (impl tokio::io::AsyncRead + Unpin)) -> Option<Answer> {
     let mut buf = Vec::new();
     let mut chunk = [0u8; 4096];
     let head_end = loop {
@@ -336,18 +325,21 @@ async fn read_answer(stream: &mut (impl tokio::io::AsyncRead + Unpin)) -> Option
                 }
             }
         }
+        // An event stream never ends: its head is the answer.
+        None if head.to_ascii_lowercase().contains("text/event-stream") => {}
         None => {
             let _ = stream.read_to_end(&mut body).await;
         }
     }
     Some(Answer {
         status,
+        head,
         body: String::from_utf8_lossy(&body).into_owned(),
     })
 }
 
 /// Send a request on a new connection and read the answer; Err says what went wrong.
-async fn exchange(addr: SocketAddr, raw: &[u8]) -> Result<Answer, String> {
+pub async fn exchange(addr: SocketAddr, raw: &[u8]) -> Result<Answer, String> {
     let mut stream = TcpStream::connect(addr)
         .await
         .map_err(|e| format!("connect: {e}"))?;
@@ -490,6 +482,63 @@ async fn oversized(
     }
 }
 
+/// The daemon's service as `gonio daemon` builds it: the store in `data`, the simulated instrument of `file` at
+/// `time_scale` simulated seconds per second. No queue runs until it is served (`api::run_daemon`).
+pub async fn daemon_service(file: InstrumentFile, data: &Path, time_scale: f64) -> Result<Service, String> {
+    let rig = Rig::connect_with_time_scale(&file, None, time_scale)
+        .await
+        .map_err(|e| format!("instrument: {e}"))?;
+    let runner = Arc::new(EngineRunner::new(
+        file,
+        SIMULATED_INSTRUMENT_TOML.to_string(),
+        data.to_path_buf(),
+        rig,
+    ));
+    let store = Store::open(data).map_err(|e| e.to_string())?;
+    Service::new(store, runner, Control::new()).map_err(|e| e.to_string())
+}
+
+/// The daemon as `gonio daemon` runs it, on a loopback port: [`daemon_service`] served by `api::run_daemon` in a
+/// task of the current runtime. Dropping it signals the shutdown; [`LoopbackDaemon::shut_down`] also waits for it.
+#[derive(Debug)]
+pub struct LoopbackDaemon {
+    pub addr: SocketAddr,
+    stop: tokio::sync::oneshot::Sender<()>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl LoopbackDaemon {
+    /// Start the daemon with its data in `data` and the API limits of `api_config` on 127.0.0.1, a free port.
+    pub async fn start(
+        file: InstrumentFile,
+        data: &Path,
+        time_scale: f64,
+        api_config: &ApiConfig,
+    ) -> Result<LoopbackDaemon, String> {
+        let service = daemon_service(file, data, time_scale).await?;
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+            .await
+            .map_err(|e| format!("bind: {e}"))?;
+        let addr = listener.local_addr().map_err(|e| format!("address: {e}"))?;
+        let (stop, signal) = tokio::sync::oneshot::channel::<()>();
+        let api_config = api_config.clone();
+        let task = tokio::spawn(async move {
+            // A dropped sender ends the wait as a sent signal does.
+            api::run_daemon(listener, service, &api_config, async {
+                let _ = signal.await;
+            })
+            .await;
+        });
+        Ok(LoopbackDaemon { addr, stop, task })
+    }
+
+    /// Signal the shutdown and wait until the daemon has finished it.
+    pub async fn shut_down(self) {
+        let _ = self.stop.send(());
+        let _ = self.task.await;
+    }
+}
+
 /// The campaign's state from a status answer.
 fn state_of(body: &str) -> Option<CampaignState> {
     let v: serde_json::Value = serde_json::from_str(body).ok()?;
@@ -513,42 +562,25 @@ pub fn run_http_abuse(cfg: &HttpAbuseConfig) -> Result<HttpAbuseReport, SoakErro
     let daemon = {
         let (data, api_config, scale) = (cfg.data_dir.clone(), cfg.api.clone(), cfg.time_scale);
         std::thread::spawn(move || {
-            let started = (|| -> Result<_, String> {
-                let rt = tokio::runtime::Builder::new_multi_thread()
-                    .enable_all()
-                    .build()
-                    .map_err(|e| format!("daemon runtime: {e}"))?;
-                let setup = rt.block_on(async {
-                    let rig = Rig::connect_with_time_scale(&file, None, scale)
-                        .await
-                        .map_err(|e| format!("instrument: {e}"))?;
-                    let runner = Arc::new(EngineRunner::new(
-                        file,
-                        SIMULATED_INSTRUMENT_TOML.to_string(),
-                        data.clone(),
-                        rig,
-                    ));
-                    let store = Store::open(&data).map_err(|e| e.to_string())?;
-                    let service = Service::new(store, runner, Control::new()).map_err(|e| e.to_string())?;
-                    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-                        .await
-                        .map_err(|e| format!("bind: {e}"))?;
-                    let addr = listener.local_addr().map_err(|e| format!("address: {e}"))?;
-                    Ok::<_, String>((service, listener, addr))
-                })?;
-                Ok((rt, setup))
-            })();
-            match started {
+            let rt = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
+                Ok(rt) => rt,
                 Err(e) => {
-                    let _ = addr_tx.send(Err(e));
+                    let _ = addr_tx.send(Err(format!("daemon runtime: {e}")));
+                    return;
                 }
-                Ok((rt, (service, listener, addr))) => {
-                    let _ = addr_tx.send(Ok(addr));
-                    rt.block_on(api::run_daemon(listener, service, &api_config, async {
+            };
+            rt.block_on(async {
+                match LoopbackDaemon::start(file, &data, scale, &api_config).await {
+                    Err(e) => {
+                        let _ = addr_tx.send(Err(e));
+                    }
+                    Ok(daemon) => {
+                        let _ = addr_tx.send(Ok(daemon.addr));
                         let _ = stop_rx.await;
-                    }));
+                        daemon.shut_down().await;
+                    }
                 }
-            }
+            });
         })
     };
     let addr = addr_rx
@@ -575,6 +607,7 @@ pub fn run_http_abuse(cfg: &HttpAbuseConfig) -> Result<HttpAbuseReport, SoakErro
         Some(r) => store.points(r.id)?,
         None => Vec::new(),
     };
+    let committed = RowSummary::of(campaign.total_points, &points);
     Ok(HttpAbuseReport {
         max_connections: cfg.api.max_connections,
         header_read_timeout_s: cfg.api.header_read_timeout.as_secs_f64(),
@@ -590,9 +623,7 @@ pub fn run_http_abuse(cfg: &HttpAbuseConfig) -> Result<HttpAbuseReport, SoakErro
         probe_failures: outcome.failures,
         final_state: record.as_ref().map(|r| r.state),
         last_error: record.and_then(|r| r.last_error),
-        rows: points.len() as u64,
-        indices_in_order: points.iter().enumerate().all(|(i, p)| p.index == i as u64),
-        points: check_points(&points),
+        committed,
         campaign,
         campaign_wall_s: outcome.campaign_wall_s,
         wall_s: wall.elapsed().as_secs_f64(),

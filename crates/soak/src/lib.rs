@@ -12,13 +12,18 @@
 //!   start-up), restarted each time; the committed rows are compared byte for byte.
 //! - [`worker`]: the daemon process the crash soak kills (the daemon's service, queue and HTTP API on the
 //!   simulated instrument), with its probes for self-inflicted kills at exact moments.
-//! - [`rows`]: raw rows of the store, read with SQLite directly (independent of the store's own decoding).
+//! - [`rows`]: a campaign's committed points against its plan ([`rows::RowSummary`]: the row verdict of the fault,
+//!   crash, disk and HTTP soaks), and raw rows of the store, read with SQLite directly (independent of the store's
+//!   own decoding).
 //! - [`disk_soak`]: the store made full (SQLite's own SQLITE_FULL) several times in one campaign, room given back
 //!   each time: the pause, its reason, no motion while paused, nothing committed lost, every point once.
 //! - [`http_abuse`]: slowloris, idle and body-trickling connections beyond the daemon's connection limit and
-//!   oversized bodies, while the daemon runs a campaign and a client times its status requests.
+//!   oversized bodies, while the daemon runs a campaign and a client times its status requests; the daemon on a
+//!   loopback port and HTTP read off the wire, shared with the abuse tests (`tests/http_abuse.rs`).
 //! - [`safety_soak`]: random campaigns with random pause/abort/estop interleavings, checked on the simulator's
-//!   motion record: closest arm approach, commanded extremes against the limits, emergency-stop latency.
+//!   motion record: closest arm approach, commanded extremes against the limits, emergency-stop latency; its
+//!   [`safety_soak::scenarios`] are the fixed cases (regressions, controllers reset behind the engine's back) of
+//!   the safety tests (`tests/safety_soak.rs`).
 //! - [`inputs`]: random and mutated inputs through the public wire parsers and file loaders.
 //! - [`report`]: the Markdown of `RELIABILITY.md`.
 

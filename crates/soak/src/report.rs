@@ -79,13 +79,9 @@ impl Report {
     pub fn data_lost(&self) -> u64 {
         let f = &self.fault;
         let c = &self.crash;
-        f.campaign.total_points.saturating_sub(f.rows)
-            + f.points.wrong.len() as u64
-            + f.points.unexplained.len() as u64
-            + c.campaign.total_points.saturating_sub(c.rows)
+        f.committed.lost()
+            + c.committed.lost()
             + c.changed.len() as u64
-            + c.points.wrong.len() as u64
-            + c.points.unexplained.len() as u64
             + self.disk.data_lost()
             + self.http.data_lost()
     }
@@ -117,7 +113,7 @@ impl Report {
         let _ = writeln!(
             m,
             "| fault soak | {} points, {:.2} instrument hours, {} wall | {} garbled and {} dropped replies, {} stalled moves, {} disconnects of every device, {} replies delayed | {} valid, {} failed with a reason, {} silently wrong, campaign {} |",
-            f.rows,
+            f.committed.rows,
             f.instrument_s / 3600.0,
             secs(f.wall_s),
             f.injected.garbled,
@@ -125,15 +121,15 @@ impl Report {
             f.log.stalls_manifested,
             f.injected.outages,
             f.injected.delayed,
-            f.points.valid,
-            f.points.failed_total(),
-            f.points.wrong.len(),
+            f.committed.points.valid,
+            f.committed.points.failed_total(),
+            f.committed.points.wrong.len(),
             f.final_state
         );
         let _ = writeln!(
             m,
             "| crash soak | {} points, {:.2} instrument hours, {} wall | {} × `kill -9` ({} mid-move, {} mid-commit, {} start-up, {} random), {} restarts | {} rows for {} planned, {} committed rows changed, {} silently wrong, campaign {} |",
-            c.rows,
+            c.committed.rows,
             c.instrument_s / 3600.0,
             secs(c.wall_s),
             c.kills(),
@@ -142,10 +138,10 @@ impl Report {
             c.kills_of("start-up"),
             c.kills_of("random"),
             c.rounds.len().saturating_sub(1),
-            c.rows,
+            c.committed.rows,
             c.campaign.total_points,
             c.changed.len(),
-            c.points.wrong.len(),
+            c.committed.points.wrong.len(),
             c.final_state
                 .map(|s| s.to_string())
                 .unwrap_or_else(|| "missing".into())
@@ -256,7 +252,7 @@ impl Report {
             m,
             "- {} move commands were sent ({:.2} per point); {} events were lost by the listener\n",
             f.log.moves,
-            f.log.moves as f64 / f.rows.max(1) as f64,
+            f.log.moves as f64 / f.committed.rows.max(1) as f64,
             f.events.lagged
         );
         let _ = writeln!(
@@ -279,34 +275,34 @@ impl Report {
                 .filter(|_| f.final_state != gonio_daemon::store::CampaignState::Completed)
                 .map(|e| format!(" ({e})"))
                 .unwrap_or_default(),
-            f.rows,
+            f.committed.rows,
             f.campaign.total_points,
-            f.indices_in_order,
+            f.committed.indices_in_order,
             f.pauses.len()
         );
         let _ = writeln!(
             m,
             "- {} valid: within 5 standard uncertainties (+1e-6 relative) of the simulator's aperture-averaged \
              ground truth (largest deviation {:.2} u)",
-            f.points.valid, f.points.max_error_in_u
+            f.committed.points.valid, f.committed.points.max_error_in_u
         );
         let _ = writeln!(
             m,
             "- {} recorded as failed with the device's reason: {}",
-            f.points.failed_total(),
-            top(&f.points.failed, 8)
+            f.committed.points.failed_total(),
+            top(&f.committed.points.failed, 8)
         );
         let _ = writeln!(
             m,
             "- {} flagged by the measurement (no value): {}",
-            f.points.flagged_total(),
-            top(&f.points.flagged, 8)
+            f.committed.points.flagged_total(),
+            top(&f.committed.points.flagged, 8)
         );
         let _ = writeln!(
             m,
             "- **{} silently wrong**, {} without value or reason\n",
-            f.points.wrong.len(),
-            f.points.unexplained.len()
+            f.committed.points.wrong.len(),
+            f.committed.points.unexplained.len()
         );
 
         // ------------------------------------------------------------------ crash soak
@@ -374,13 +370,13 @@ impl Report {
             c.final_state
                 .map(|s| s.to_string())
                 .unwrap_or_else(|| "missing".into()),
-            c.rows,
+            c.committed.rows,
             c.campaign.total_points,
-            c.indices_in_order,
+            c.committed.indices_in_order,
             c.changed.len(),
-            c.points.valid,
-            c.points.wrong.len(),
-            c.points.unexplained.len(),
+            c.committed.points.valid,
+            c.committed.points.wrong.len(),
+            c.committed.points.unexplained.len(),
             c.instrument_s,
             secs(c.wall_s)
         );
@@ -459,7 +455,7 @@ impl Report {
         let _ = writeln!(
             m,
             "| disk trouble | {} points, {:.2} instrument hours, {} wall | the store full (SQLITE_FULL) {} times, {:.0} s of instrument time each before room came back | paused {} of {} times with the store's path and SQLite's reason, {} move commands while paused, {} rows for {} planned, {} committed rows changed, campaign {} |",
-            d.rows,
+            d.committed.rows,
             d.instrument_s / 3600.0,
             secs(d.wall_s),
             d.fills.len(),
@@ -467,7 +463,7 @@ impl Report {
             paused,
             d.fills.len(),
             moves,
-            d.rows,
+            d.committed.rows,
             d.campaign.total_points,
             d.changed.len(),
             d.final_state
@@ -495,7 +491,7 @@ impl Report {
             h.final_state
                 .map(|s| s.to_string())
                 .unwrap_or_else(|| "missing".into()),
-            h.rows
+            h.committed.rows
         );
         let s = &self.safety;
         let [pauses, aborts, estops] = s.acts();
@@ -582,13 +578,13 @@ impl Report {
              points (indices in order: {}; each planned point exactly once), **{} committed rows changed or lost** by the end; {} points valid against the ground \
              truth, {} silently wrong, {} without value or reason; {:.0} s of instrument time, {} wall.\n",
             d.final_state,
-            d.rows,
+            d.committed.rows,
             d.campaign.total_points,
-            d.indices_in_order,
+            d.committed.indices_in_order,
             d.changed.len(),
-            d.points.valid,
-            d.points.wrong.len(),
-            d.points.unexplained.len(),
+            d.committed.points.valid,
+            d.committed.points.wrong.len(),
+            d.committed.points.unexplained.len(),
             d.instrument_s,
             secs(d.wall_s)
         );
@@ -701,12 +697,12 @@ impl Report {
             h.final_state
                 .map(|s| s.to_string())
                 .unwrap_or_else(|| "missing".into()),
-            h.rows,
+            h.committed.rows,
             h.campaign.total_points,
-            h.indices_in_order,
-            h.points.valid,
-            h.points.wrong.len(),
-            h.points.unexplained.len(),
+            h.committed.indices_in_order,
+            h.committed.points.valid,
+            h.committed.points.wrong.len(),
+            h.committed.points.unexplained.len(),
             secs(h.campaign_wall_s)
         );
     }
@@ -723,8 +719,8 @@ impl Report {
              grids; one or two bands, repeats, darks and direct-beam readings at random cadences; a third of them \
              with stalled moves and garbled or lost replies), each interrupted by up to five random requests (pause, \
              abort, emergency stop, at random instants, resumed after a random wait), run by the real engine on the \
-             simulated instrument on a paused clock (`crates/soak/src/safety_soak.rs`, the approach of \
-             `crates/daemon/tests/safety.rs`). Every check reads the simulator's record of what reached each \
+             simulated instrument on a paused clock (`crates/soak/src/safety_soak.rs`, also run by the tests in \
+             `crates/soak/tests/safety_soak.rs`). Every check reads the simulator's record of what reached each \
              device over the wire and of each axis's exact trajectory (quadratic pieces, motor and load with \
              backlash).\n",
             s.cases.len()

@@ -1,13 +1,68 @@
-//! Raw rows of the store, read with SQLite directly: every column of every row as its bytes (integers and reals
-//! by their bit patterns, text and blobs as stored), so that "byte-identical" means exactly that and does not
-//! depend on the store's own decoding (which, for instance, turns NULL readings into NaN).
+//! The store's rows after a soak: [`RowSummary`], a campaign's committed points against its plan (the verdict
+//! every soak that runs a campaign ends with), and [`Snapshot`], the raw rows read with SQLite directly: every
+//! column of every row as its bytes (integers and reals by their bit patterns, text and blobs as stored), so that
+//! "byte-identical" means exactly that and does not depend on the store's own decoding (which, for instance, turns
+//! NULL readings into NaN).
 
 use std::path::Path;
 
+use gonio_daemon::store::PointRecord;
 use rusqlite::types::ValueRef;
 use rusqlite::{Connection, OpenFlags};
 
 use crate::SoakError;
+use crate::fault_soak::{PointCheck, check_points};
+
+/// A campaign's committed points against its plan.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RowSummary {
+    /// Points the plan holds.
+    pub planned: u64,
+    /// Point rows in the store.
+    pub rows: u64,
+    /// Their indices are exactly 0..rows.
+    pub indices_in_order: bool,
+    /// Their values against the simulator's ground truth.
+    pub points: PointCheck,
+}
+
+impl RowSummary {
+    /// The summary of a campaign's `points` (as the store returns them, in index order) against `planned`.
+    pub fn of(planned: u64, points: &[PointRecord]) -> RowSummary {
+        RowSummary {
+            planned,
+            rows: points.len() as u64,
+            indices_in_order: points.iter().enumerate().all(|(i, p)| p.index == i as u64),
+            points: check_points(points),
+        }
+    }
+
+    /// Every broken rule, in words: one row per planned point with its indices in order, no silently wrong
+    /// value, no point without a value or a reason. Empty when the rows are right.
+    pub fn violations(&self) -> Vec<String> {
+        let mut v = Vec::new();
+        if self.rows != self.planned || !self.indices_in_order {
+            v.push(format!(
+                "{} rows for {} planned points (indices in order: {})",
+                self.rows, self.planned, self.indices_in_order
+            ));
+        }
+        for w in &self.points.wrong {
+            v.push(format!("silently wrong value: {w}"));
+        }
+        for u in &self.points.unexplained {
+            v.push(format!("point without value or reason: {u}"));
+        }
+        v
+    }
+
+    /// Points lost or wrong: missing rows, silently wrong values, points without value or reason.
+    pub fn lost(&self) -> u64 {
+        self.planned.saturating_sub(self.rows)
+            + self.points.wrong.len() as u64
+            + self.points.unexplained.len() as u64
+    }
+}
 
 /// One row: its key and its bytes.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -132,6 +187,49 @@ fn encode(out: &mut Vec<u8>, v: ValueRef<'_>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_row_summary_names_each_kind_of_violation() {
+        let mut s = RowSummary {
+            planned: 3,
+            rows: 3,
+            indices_in_order: true,
+            points: PointCheck::default(),
+        };
+        assert_eq!(s.violations(), Vec::<String>::new());
+        assert_eq!(s.lost(), 0);
+        s.rows = 2;
+        assert_eq!(
+            s.violations(),
+            ["2 rows for 3 planned points (indices in order: true)"]
+        );
+        assert_eq!(s.lost(), 1);
+        s.rows = 3;
+        s.indices_in_order = false;
+        assert_eq!(
+            s.violations(),
+            ["3 rows for 3 planned points (indices in order: false)"]
+        );
+        assert_eq!(s.lost(), 0, "rows out of order are reported, not counted as lost");
+        s.indices_in_order = true;
+        s.points.wrong.push("point 1".into());
+        s.points.unexplained.push("point 2".into());
+        assert_eq!(
+            s.violations(),
+            [
+                "silently wrong value: point 1",
+                "point without value or reason: point 2"
+            ]
+        );
+        assert_eq!(s.lost(), 2);
+    }
+
+    #[test]
+    fn a_row_summary_of_no_points_is_every_point_lost() {
+        let s = RowSummary::of(5, &[]);
+        assert_eq!((s.rows, s.indices_in_order, s.lost()), (0, true, 5));
+        assert_eq!(s.violations().len(), 1);
+    }
 
     fn row(k: i64, b: &[u8]) -> RawRow {
         RawRow {

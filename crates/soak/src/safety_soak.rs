@@ -1,19 +1,26 @@
 //! The safety soak: random campaigns with random interleavings of pause, abort and emergency stop, run by the
 //! real engine on the simulated instrument, and checked against what the simulator recorded of every motion
-//! command and every axis trajectory (`gonio_simulator::recording`). The same approach as the daemon's property
-//! test (`crates/daemon/tests/safety.rs`), through the public API, with seeded cases so that the report's numbers
-//! are reproducible, and the margins measured instead of only asserted:
+//! command and every axis trajectory (`gonio_simulator::recording`). Through the public API, with seeded cases so
+//! that the report's numbers are reproducible, and the margins measured instead of only asserted:
 //!
 //! - the closest the arms came, at any instant, once they were first apart (motors and loads with backlash),
 //!   computed exactly on the quadratic pieces of both trajectories, against `safety.min_arm_separation_deg`; the
 //!   simulator powers up with both arms at zero, so before they are first apart their separation may only grow;
 //! - every commanded target and every trajectory against the axis limits (the smallest margin seen);
 //! - the time from each emergency-stop request to the stop command at every axis, on the simulated clock, against
-//!   50 ms; and no axis commanded to move again before the campaign is resumed;
-//! - every measured point's read-back pose against the scheduler's own constraint checks.
+//!   50 ms; and no axis commanded to move again before the campaign is resumed (after the stop in the order of the
+//!   wire, which the record keeps: a move sent at the same simulated instant just before the stop is overridden);
+//! - every measured point's read-back pose against the scheduler's own constraint checks (`Constraints`,
+//!   `Pose::arm_separation_deg`): the independent reference for what is measured.
 //!
 //! Each case runs on its own current-thread runtime with tokio's paused clock, the simulator at time scale 1: the
 //! instrument takes its real time, the wall clock almost none.
+//!
+//! The same runs and checks serve the tests (`tests/safety_soak.rs`): a property over random seeds, and the fixed
+//! cases of [`scenarios`] (regressions, controllers reset behind the engine's back), checked by [`check`] and
+//! inspected through [`Outcome`].
+
+pub mod scenarios;
 
 use std::path::Path;
 use std::sync::{Arc, Mutex};
@@ -25,10 +32,12 @@ use gonio_instrument::{Axis, AxisRole, InstrumentFile, SIMULATED_INSTRUMENT_TOML
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::{Kinematics, Pose};
 use gonio_simulator::recording::{MotionCommand, MotionRecord, Piece, check_arm_separation, physical_pieces};
+use gonio_simulator::scene::Pose as SimPose;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::SoakError;
+pub use scenarios::Sabotage;
 
 /// Longest time from an emergency-stop request to the stop command at every axis (simulated seconds).
 pub const ESTOP_DEADLINE_S: f64 = 0.050;
@@ -216,12 +225,7 @@ fn interruption(rng: &mut ChaCha8Rng) -> Interruption {
 
 fn faults(rng: &mut ChaCha8Rng) -> FaultLevel {
     if rng.random_range(0..3u32) < 2 {
-        return FaultLevel {
-            seed: 0,
-            stall_rate: 0.0,
-            garble_rate: 0.0,
-            drop_rate: 0.0,
-        };
+        return FaultLevel::NONE;
     }
     let seed = rng.random::<u64>();
     let stall_rate = [0.0, 0.05, 0.2][rng.random_range(0..3usize)];
@@ -251,21 +255,40 @@ pub fn case(seed: u64, index: u32) -> Case {
 // ---------------------------------------------------------------- running a case
 
 /// What happened during a case, for the checks.
-struct Outcome {
-    file: InstrumentFile,
-    records: Vec<(Axis, MotionRecord)>,
-    end_s: f64,
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub file: InstrumentFile,
+    /// The simulator's record of every axis.
+    pub records: Vec<(Axis, MotionRecord)>,
+    /// Simulated seconds at the end.
+    pub end_s: f64,
     /// Emergency stops: (requested at, next run started at, or the end).
-    estops: Vec<(f64, f64)>,
-    points: Vec<PointRecord>,
-    final_state: CampaignState,
-    planned_points: u64,
-    acts: [u64; 3],
+    pub estops: Vec<(f64, f64)>,
+    pub points: Vec<PointRecord>,
+    pub final_state: CampaignState,
+    pub planned_points: u64,
+    /// Pause, abort and emergency-stop requests made.
+    pub acts: [u64; 3],
     /// What the soak did and when (simulated seconds): runs started and ended, requests made.
-    timeline: Vec<(f64, String)>,
+    pub timeline: Vec<(f64, String)>,
+    /// A sabotage during the run ([`Sabotage::reset_detector_behind_light`]): when the detector's controller was
+    /// reset (simulated s), and the arms' pose then.
+    pub sabotaged: Option<(f64, SimPose)>,
 }
 
-async fn run_case(case: &Case, data_dir: &Path) -> Result<Outcome, String> {
+impl Outcome {
+    /// Home commands the axis of `role` received at or after `t_s` (simulated).
+    pub fn homes_after(&self, role: AxisRole, t_s: f64) -> usize {
+        self.records
+            .iter()
+            .filter(|(a, _)| a.role == role)
+            .flat_map(|(_, r)| r.commands.iter())
+            .filter(|c| matches!(c.command, MotionCommand::Home) && c.t_s >= t_s)
+            .count()
+    }
+}
+
+async fn run_case(case: &Case, data_dir: &Path, sabotage: &Sabotage) -> Result<Outcome, String> {
     let mut file = InstrumentFile::simulated();
     let f = &mut file.simulator.faults;
     (f.seed, f.stall_rate, f.garble_rate, f.drop_rate) = (
@@ -288,9 +311,12 @@ async fn run_case(case: &Case, data_dir: &Path) -> Result<Outcome, String> {
         .sim()
         .ok_or("the simulated instrument has no simulator")?
         .clone();
+    let clock = sim.clock();
+    // Held to the end of the case: closing them is not part of the scenario.
+    let _ports = scenarios::set_up(&sim, sabotage).await?;
     sim.start_motion_recording();
     let control = Control::new();
-    let clock = sim.clock();
+    let saboteur = scenarios::spawn_saboteur(&sim, sabotage);
 
     let mut pending = case.interruptions.iter();
     let mut estops: Vec<(f64, f64)> = Vec::new();
@@ -335,7 +361,13 @@ async fn run_case(case: &Case, data_dir: &Path) -> Result<Outcome, String> {
         state = joined
             .map_err(|e| format!("engine task: {e}"))?
             .map_err(|e| format!("engine error: {e}"))?;
-        timeline.push((sim.now_s(), format!("run ended {state}")));
+        let progress = store
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .campaign(id)
+            .map(|c| format!("{} points done, last error {:?}", c.points_done, c.last_error))
+            .unwrap_or_else(|e| format!("no record: {e}"));
+        timeline.push((sim.now_s(), format!("run ended {state}: {progress}")));
         match state {
             CampaignState::Completed | CampaignState::Aborted => {
                 final_state = Some(state);
@@ -359,10 +391,22 @@ async fn run_case(case: &Case, data_dir: &Path) -> Result<Outcome, String> {
     let final_state = match final_state {
         Some(s) => s,
         // Under injected faults a campaign may still be paused by them: the motion checks apply all the same.
-        None if case.faults.any() && state == CampaignState::Paused => state,
+        // So may a sabotage (its test then checks the motion before the state).
+        None if (case.faults.any() || sabotage.any()) && state == CampaignState::Paused => state,
         None => return Err("the campaign neither completed nor was aborted".into()),
     };
     let end_s = sim.now_s();
+    let sabotaged = match saboteur {
+        Some(task) if task.is_finished() => {
+            let (at, pose, _port) = task.await.map_err(|e| format!("saboteur: {e}"))??;
+            Some((at, pose))
+        }
+        Some(task) => {
+            task.abort();
+            None
+        }
+        None => None,
+    };
     if let Some(t) = open_estop.take() {
         estops.push((t, end_s));
     }
@@ -381,6 +425,7 @@ async fn run_case(case: &Case, data_dir: &Path) -> Result<Outcome, String> {
         planned_points: prepared.total_points,
         acts,
         timeline,
+        sabotaged,
     })
 }
 
@@ -437,7 +482,8 @@ pub enum Rule {
     Other,
 }
 
-fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
+/// Check what happened in case `index` against every rule; the verdict and the margins measured.
+pub fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
     let inst = &o.file.instrument;
     let constraints = Constraints::new(inst, Some(SAMPLE_RADIUS_MM));
     let role = |r: AxisRole| o.records.iter().find(|(a, _)| a.role == r);
@@ -539,21 +585,28 @@ fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
     let mut latencies = Vec::new();
     for &(requested, resumed) in &o.estops {
         for (axis, record) in &o.records {
-            let stop = record.commands.iter().find(|c| {
+            let stop_at = record.commands.iter().position(|c| {
                 matches!(c.command, MotionCommand::Stop { .. })
                     && c.t_s >= requested - EPS_DEG
                     && c.t_s <= resumed
             });
-            let Some(stop) = stop else {
+            let Some(stop_at) = stop_at else {
+                let next = record
+                    .commands
+                    .iter()
+                    .find(|c| c.t_s >= requested - EPS_DEG)
+                    .map(|c| format!("{:?} at {} s", c.command, c.t_s));
                 fail(
                     Rule::Estop,
                     format!(
-                        "emergency stop at t = {requested} s: no stop reached {} before the resume at {resumed} s",
+                        "emergency stop at t = {requested} s: no stop reached {} before the resume at {resumed} s \
+                         (next command: {next:?})",
                         axis.name
                     ),
                 );
                 continue;
             };
+            let stop = &record.commands[stop_at];
             let latency = (stop.t_s - requested).max(0.0);
             latencies.push(latency);
             if latency > ESTOP_DEADLINE_S {
@@ -567,10 +620,10 @@ fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
                     ),
                 );
             }
-            let moved = record.commands.iter().find(|c| {
-                matches!(c.command, MotionCommand::MoveTo { .. } | MotionCommand::Home)
-                    && c.t_s >= stop.t_s
-                    && c.t_s < resumed
+            // After the stop on the wire (the record keeps the wire's order: a move sent at the same simulated
+            // instant just before the stop is overridden by it, one sent just after it is a violation).
+            let moved = record.commands[stop_at..].iter().find(|c| {
+                matches!(c.command, MotionCommand::MoveTo { .. } | MotionCommand::Home) && c.t_s < resumed
             });
             if let Some(m) = moved {
                 fail(
@@ -660,21 +713,39 @@ fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
     }
 }
 
-/// Run one case and check it.
-pub fn run_and_check(index: u32, case: &Case) -> Result<CaseResult, SoakError> {
+/// Longest simulated time a random case may take (under the paused clock a hang turns into it at once).
+const CASE_LIMIT: Duration = Duration::from_secs(7 * 24 * 3600);
+/// Longest simulated time a fixed scenario may take (a few points).
+const SCENARIO_LIMIT: Duration = Duration::from_secs(24 * 3600);
+
+/// Run `case` with `sabotage` on a runtime of its own with tokio's paused clock, within `limit` of simulated time.
+/// The outer `Err`: no runtime or directory; the inner one: the case could not run.
+fn run_paused(
+    case: &Case,
+    sabotage: &Sabotage,
+    limit: Duration,
+) -> Result<Result<Outcome, String>, SoakError> {
     let dir = tempfile::tempdir().map_err(SoakError::io("temporary directory for a safety case"))?;
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .start_paused(true)
         .build()
         .map_err(SoakError::io("cannot start the async runtime"))?;
-    let outcome = rt.block_on(async {
-        // Under the paused clock a hang turns into this timeout at once.
-        tokio::time::timeout(Duration::from_secs(7 * 24 * 3600), run_case(case, dir.path()))
+    Ok(rt.block_on(async {
+        tokio::time::timeout(limit, run_case(case, dir.path(), sabotage))
             .await
-            .unwrap_or_else(|_| Err("no end within a simulated week".into()))
-    });
-    Ok(match outcome {
+            .unwrap_or_else(|_| {
+                Err(format!(
+                    "no end within {} simulated hours",
+                    limit.as_secs() / 3600
+                ))
+            })
+    }))
+}
+
+/// Run one case and check it.
+pub fn run_and_check(index: u32, case: &Case) -> Result<CaseResult, SoakError> {
+    Ok(match run_paused(case, &Sabotage::default(), CASE_LIMIT)? {
         Ok(o) => check(index, case, &o),
         Err(e) => CaseResult {
             index,
@@ -696,21 +767,25 @@ pub fn run_and_check(index: u32, case: &Case) -> Result<CaseResult, SoakError> {
     })
 }
 
-/// Run case `index` of `seed` again and describe it for an investigation: the case, its verdict, and every motion
-/// command and profile change of the arms (physical degrees) between `from_s` and `to_s` of simulated time.
+/// Run a fixed case under `sabotage` (none: `Sabotage::default()`) and return what happened, for [`check`] and a
+/// test's own questions; a case that could not run is an error.
+pub fn run_scenario(case: &Case, sabotage: &Sabotage) -> Result<Outcome, SoakError> {
+    run_paused(case, sabotage, SCENARIO_LIMIT)?.map_err(SoakError::Setup)
+}
+
+/// Run case `index` of `seed` again and describe it for an investigation ([`describe`]).
 pub fn trace(seed: u64, index: u32, from_s: f64, to_s: f64) -> Result<String, SoakError> {
-    use std::fmt::Write as _;
     let case = case(seed, index);
-    let dir = tempfile::tempdir().map_err(SoakError::io("temporary directory for a safety case"))?;
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .start_paused(true)
-        .build()
-        .map_err(SoakError::io("cannot start the async runtime"))?;
-    let o = rt
-        .block_on(run_case(&case, dir.path()))
-        .map_err(SoakError::Setup)?;
+    let o = run_paused(&case, &Sabotage::default(), CASE_LIMIT)?.map_err(SoakError::Setup)?;
     let result = check(index, &case, &o);
+    Ok(describe(&case, &o, &result, from_s, to_s))
+}
+
+/// A case for an investigation: the case, its verdict, what the soak did when, and every motion command and
+/// profile change of the arms (physical degrees; the segments of each profile in controller degrees) between
+/// `from_s` and `to_s` of simulated time.
+pub fn describe(case: &Case, o: &Outcome, result: &CaseResult, from_s: f64, to_s: f64) -> String {
+    use std::fmt::Write as _;
     let mut out = String::new();
     let _ = writeln!(out, "{case:#?}\n{result:#?}");
     for (t, what) in &o.timeline {
@@ -731,18 +806,23 @@ pub fn trace(seed: u64, index: u32, from_s: f64, to_s: f64) -> Result<String, So
         for c in record.changes.iter().filter(|c| c.t_s >= from_s && c.t_s <= to_s) {
             let _ = writeln!(
                 out,
-                "{:>9} {:10.4} s  change {:?}: motor {:.4} deg, load {:.4} deg, rest {:.4} deg, end {:?}",
+                "{:>9} {:10.4} s  change {:?}: motor {:.4} deg, load {:.4} deg, rest {:.4} deg, end {:?}, \
+                 segments (t0, end, p0) {:?}",
                 axis.name,
                 c.t_s,
                 c.kind,
                 phys(c.motor_deg),
                 phys(c.load_deg),
                 phys(c.rest_deg),
-                c.end
+                c.end,
+                c.segments
+                    .iter()
+                    .map(|s| (s.t0_s, s.end_s(), s.p0_deg))
+                    .collect::<Vec<_>>()
             );
         }
     }
-    Ok(out)
+    out
 }
 
 /// Everything the safety soak measured.

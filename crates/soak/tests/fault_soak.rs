@@ -12,7 +12,12 @@ fn a_faulty_instrument_gives_valid_or_failed_points_never_wrong_ones() {
     let r = run_fault_soak(&cfg).expect("the soak runs");
     eprintln!(
         "injected {:?}; points valid {} failed {:?} flagged {:?}; engine events {:?}; wall {:.1} s",
-        r.injected, r.points.valid, r.points.failed, r.points.flagged, r.events.faults, r.wall_s
+        r.injected,
+        r.committed.points.valid,
+        r.committed.points.failed,
+        r.committed.points.flagged,
+        r.events.faults,
+        r.wall_s
     );
     assert_eq!(r.violations(), Vec::<String>::new());
 
