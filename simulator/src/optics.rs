@@ -44,6 +44,7 @@ pub mod cap;
 pub mod footprint;
 pub mod source;
 
+use std::f64::consts::FRAC_PI_2;
 use std::sync::RwLock;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -584,6 +585,7 @@ impl Optics {
         let mut features = Features {
             peak,
             kink_theta: None,
+            kink_azimuth: None,
         };
         let mut scale: f64 = 1.0;
         if let Some(p) = peak {
@@ -600,6 +602,16 @@ impl Optics {
                         d = d.min(distance);
                     } else if distance < 2.0 * beta {
                         features.kink_theta = Some(theta);
+                    }
+                }
+                if let Some(azimuth) = loci.meridian {
+                    if loci.other < 2.0 * beta {
+                        features.kink_azimuth = Some(azimuth);
+                    }
+                    // A vertical plane through the normal is a meridian in latitude coordinates, cut exactly
+                    // there; above the horizon it stays a kink for the adaptive rule (cut along its trace).
+                    if across_horizon {
+                        d = f64::INFINITY;
                     }
                 }
                 if d < 2.0 * beta {
@@ -674,6 +686,8 @@ fn regular_part(material: &Material) -> RegularPart {
 struct KinkLoci {
     /// Angular distance (rad) from the axis to the nearest kink that is not a circle of latitude.
     other: f64,
+    /// When that kink is a vertical plane through the normal: its azimuth (rad) on the axis's side.
+    meridian: Option<f64>,
     /// A kink along the circle of latitude theta (rad) that matters near the axis, and its angular distance
     /// from the axis.
     latitude: Option<(f64, f64)>,
@@ -689,6 +703,7 @@ fn kink_loci(kinks: Kinks, wi_m: &Direction, axis: &Direction) -> KinkLoci {
             if s == 0.0 {
                 return KinkLoci {
                     other: f64::INFINITY,
+                    meridian: None,
                     latitude: None,
                 };
             }
@@ -698,8 +713,12 @@ fn kink_loci(kinks: Kinks, wi_m: &Direction, axis: &Direction) -> KinkLoci {
             // Where the axis lies on the side cos(phi_o - phi_i) < 0, the max(0, .) factor is 0 up to the plane,
             // so the theta_o = theta_i kink is invisible there.
             let latitude = (along >= 0.0).then(|| (wi_m.theta(), (axis.theta() - wi_m.theta()).abs()));
+            // The plane cos(phi_o - phi_i) = 0 is at the azimuths phi_i +- pi/2: the one the axis lies nearer.
+            let across = kinematics::dot(&a, &[-n[1], n[0], 0.0]);
+            let meridian = wi_m.phi() + if across >= 0.0 { FRAC_PI_2 } else { -FRAC_PI_2 };
             KinkLoci {
                 other: to_plane,
+                meridian: Some(meridian),
                 latitude,
             }
         }
@@ -707,6 +726,7 @@ fn kink_loci(kinks: Kinks, wi_m: &Direction, axis: &Direction) -> KinkLoci {
             let r = wi_m.reflect_about_normal();
             KinkLoci {
                 other: kinematics::dot(&a, &[r.x(), r.y(), r.z()]).abs().min(1.0).asin(),
+                meridian: None,
                 latitude: None,
             }
         }

@@ -43,7 +43,7 @@ fn optics(inst: &Instrument, material: Material) -> Optics {
 /// `[max(0, delta - pi/2), min(beta, delta + pi/2)]`, `delta = atan2(B, A)`, and the rule runs over that
 /// interval only (z vanishes linearly at its end: no kink). The phi range is cut where that end meets the rim
 /// (`cos(phi - phi0) = -A cot(beta) / C`), where the interval's end has a kink in phi. Composite 8-point
-/// Gauss-Legendre: `panels_phi` panels per phi piece, `panels_rho` per rho interval.
+/// Gauss-Legendre: `panels_phi` panels per phi piece (with the end panels graded), `panels_rho` per rho interval.
 fn brute_clipped(
     axis: &Direction,
     beta: f64,
@@ -83,9 +83,21 @@ fn brute_clipped(
     let gl = gauss_legendre(8);
     let mut total = 0.0;
     for span in cuts.windows(2) {
-        let h = (span[1] - span[0]) / panels_phi as f64;
-        for p in 0..panels_phi {
-            let mid = span[0] + (p as f64 + 0.5) * h;
+        let length = span[1] - span[0];
+        // Uniform panels, the two at the ends graded geometrically down to 1e-12 of the span: with the axis
+        // just off the horizon, the interval's end rho_max(phi) ~ e_axis / |B(phi)| turns sharply next to a
+        // rim cut (within ~e_axis / beta of it), which uniform panels resolve only slowly.
+        let mut breaks: Vec<f64> = (0..=panels_phi).map(|p| p as f64 / panels_phi as f64).collect();
+        let mut fine = 1.0 / panels_phi as f64;
+        while fine > 1e-12 {
+            fine *= 0.25;
+            breaks.push(fine);
+            breaks.push(1.0 - fine);
+        }
+        breaks.sort_by(f64::total_cmp);
+        for panel in breaks.windows(2) {
+            let h = (panel[1] - panel[0]) * length;
+            let mid = span[0] + 0.5 * (panel[0] + panel[1]) * length;
             for node in gl.iter() {
                 let (x, w) = (node.x, node.weight);
                 let phi = mid + 0.5 * h * x;
@@ -280,18 +292,23 @@ fn grazing_geometries(beta: f64) -> Vec<(Direction, Direction)> {
 /// from the rule at half the resolution, required below 1e-9 relative (a thousandth of the tolerance the
 /// simulator is held to; the rule converges spectrally, so the finer one is far closer than that).
 fn reference(m: &Material, wi: &Direction, wo: &Direction, beta: f64) -> (f64, f64) {
-    let r = m.at_wavelength(wl(550.0)).expect("in range");
-    let mut g = |w: &Direction| r.eval(wi, w, wl(550.0)).expect("eval") * w.z();
-    let coarse = brute_clipped(wo, beta, 64, 6, &mut g);
-    let fine = brute_clipped(wo, beta, 128, 12, &mut g);
-    let bound = (coarse - fine).abs();
+    let (fine, bound) = brute_reference(m, wi, wo, beta);
     assert!(
         bound <= 1e-9 * fine.abs(),
-        "reference not converged: {coarse:e} vs {fine:e}: wi {:?} wo {:?} beta {beta}",
+        "reference not converged: {fine:e} +- {bound:e}: wi {:?} wo {:?} beta {beta}",
         wi.to_spherical_deg(),
         wo.to_spherical_deg()
     );
     (fine, bound)
+}
+
+/// The brute-force rule at two resolutions: (the finer result, the difference), converged or not.
+fn brute_reference(m: &Material, wi: &Direction, wo: &Direction, beta: f64) -> (f64, f64) {
+    let r = m.at_wavelength(wl(550.0)).expect("in range");
+    let mut g = |w: &Direction| r.eval(wi, w, wl(550.0)).expect("eval") * w.z();
+    let coarse = brute_clipped(wo, beta, 64, 6, &mut g);
+    let fine = brute_clipped(wo, beta, 128, 12, &mut g);
+    (fine, (coarse - fine).abs())
 }
 
 /// Every seed material at near-grazing cones of half-angle 0.01, 0.05 and 0.1 rad, through the optics' own plan,
@@ -321,7 +338,9 @@ fn seed_materials_near_grazing_meet_the_tolerance_with_honest_estimates_and_few_
                 );
                 assert!(err <= 1e-6 * exact.abs(), "{what}");
                 assert!(err <= t.integral_error + slack, "estimate not honest: {what}");
-                assert!(t.integral_error <= 1e-6 * exact.abs(), "{what}");
+                // Relative to the reading, as the rules' acceptance test defines it (an estimate can be exactly the
+                // tolerance).
+                assert!(t.integral_error <= 1e-6 * t.integral.abs(), "{what}");
                 assert!(t.evaluations < 2000, "{what}");
                 if name == "mirror" {
                     assert_eq!((t.integral, t.evaluations), (0.0, 0), "{what}");
@@ -384,7 +403,13 @@ fn benchmark_near_grazing_readings_are_cheap() {
 /// bounded by the adaptive rule's budget.
 #[test]
 fn random_near_grazing_geometries_meet_the_tolerance() {
-    let mut uniform = xorshift(0x2545_F491_4F6C_DD1D);
+    // GONIO_HORIZON_SEED and GONIO_HORIZON_CASES (per material and half-angle) run a wider search locally.
+    let env = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<u64>().ok());
+    let seed = env("GONIO_HORIZON_SEED").unwrap_or(0x2545_F491_4F6C_DD1D);
+    let cases = env("GONIO_HORIZON_CASES").unwrap_or(4);
+    let mut uniform = xorshift(seed.max(1));
+    let (mut checked, mut unconverged) = (0u64, 0u64);
+    let mut most_evaluations: Vec<(u32, String)> = Vec::new();
     let mut materials: Vec<(String, Material)> = SEEDS
         .iter()
         .map(|n| (n.to_string(), Material::preset(n).expect("preset")))
@@ -403,7 +428,7 @@ fn random_near_grazing_geometries_meet_the_tolerance() {
         let inst = instrument(beta);
         for (name, m) in &materials {
             let o = optics(&inst, m.clone());
-            for case in 0..4 {
+            for case in 0..cases {
                 let frac = (uniform() * 2.0 - 1.0) * 0.98;
                 let phi_o = uniform() * 2.0 * PI;
                 let wo = axis_at(beta, frac, phi_o);
@@ -414,7 +439,13 @@ fn random_near_grazing_geometries_meet_the_tolerance() {
                     Direction::from_spherical(uniform() * 89f64.to_radians(), uniform() * 2.0 * PI)
                 };
                 let t = o.truth_aperture(&wi, &wo, wl(550.0)).expect("truth");
-                let (exact, slack) = reference(m, &wi, &wo, beta);
+                let (exact, slack) = brute_reference(m, &wi, &wo, beta);
+                if slack > 1e-9 * exact.abs() {
+                    // A lobe too sharp for the brute-force rule at this geometry: no reference to judge by.
+                    unconverged += 1;
+                    continue;
+                }
+                checked += 1;
                 let err = (t.integral - exact).abs();
                 let what = format!(
                     "{name} beta {beta} wi {:?} wo {:?}: {} vs {exact} ({:e} relative, estimate {:e}, {} evaluations)",
@@ -426,9 +457,97 @@ fn random_near_grazing_geometries_meet_the_tolerance() {
                     t.evaluations
                 );
                 assert!(err <= 1e-6 * exact.abs(), "{what}");
-                assert!(err <= t.integral_error + slack, "estimate not honest: {what}");
+                // The reference sums some 400,000 terms: its own rounding (seen up to 1.4e-13 relative) is
+                // allowed for, far below the estimates that matter.
+                let rounding = 1e-12 * exact.abs();
+                assert!(
+                    err <= t.integral_error + slack + rounding,
+                    "estimate not honest: {what}"
+                );
                 assert!(t.evaluations < 20_000, "{what}");
+                most_evaluations.push((t.evaluations, what));
             }
         }
+    }
+    most_evaluations.sort();
+    let total: u64 = most_evaluations.iter().map(|(n, _)| u64::from(*n)).sum();
+    eprintln!("{total} evaluations in all");
+    for (_, what) in most_evaluations.iter().rev().take(3) {
+        eprintln!("most evaluations: {what}");
+    }
+    eprintln!("{checked} geometries checked, {unconverged} without a converged reference");
+    // The brute-force rule resolves all but a few of the sharpest lobes: the test must still judge nearly all.
+    assert!(
+        unconverged * 10 <= checked,
+        "{unconverged} of {} unjudged",
+        checked + unconverged
+    );
+}
+
+/// Geometries the random search above found wanting, each with what went wrong, through the optics' own plan:
+/// within the tolerance, with an estimate that covers the error.
+#[test]
+fn regression_near_grazing_geometries_that_once_failed() {
+    let conductor = material(
+        "[material]\nmodel = \"conductor\"\ndistribution = \"ggx\"\nmasking = \"height-correlated\"\nalpha = 0.03\neta = 0.35\nk = 2.7",
+    );
+    let phong = material("[material]\nmodel = \"phong\"\ndiffuse = 0.3\nspecular = 0.5\nexponent = 200");
+    let preset = |name: &str| Material::preset(name).expect("preset");
+    let cases = [
+        // The lobe's ridge (0.001 rad across) leaves the visible sliver through the cone's rim: the row integral
+        // drops from the whole ridge to none of it within 0.01 of sigma. Was 1.8e-6 off, estimate 2.8e-9.
+        (
+            "ridge across the rim",
+            conductor,
+            0.05,
+            (88.63049233503513, -143.3355844563051),
+            (92.4288778369316, 37.5786678128201),
+        ),
+        // Oren-Nayar's cos(phi_o - phi_i) = 0 plane through the cone: 1.05e-6 off after 204 evaluations of the
+        // adaptive rule; now a meridian, cut exactly.
+        (
+            "Oren-Nayar plane",
+            preset("construction-paper"),
+            0.01,
+            (84.48691724275444, 64.68180453107583),
+            (90.31958999600992, -24.90697884202061),
+        ),
+        // A Phong tail 16 degrees from its peak: two coarse rules agreed by chance (differences 5.2e-5, then
+        // 3.0e-7), the last 6.3e-7 off with an estimate of 5.2e-7.
+        (
+            "Phong tail",
+            phong,
+            0.05,
+            (71.59581937676629, -39.61410630487529),
+            (87.65074156010797, 147.65415654478292),
+        ),
+        // An extrapolation from one steep fall: estimate 7.5e-7, actual 1.0e-6.
+        (
+            "plastic, one fall",
+            preset("coloured-plastic"),
+            0.1,
+            (83.74735419475044, 163.5794023866274),
+            (92.9414836097941, -17.127238484119545),
+        ),
+    ];
+    for (what, m, beta, (ti, pi), (to, po)) in cases {
+        let o = optics(&instrument(beta), m.clone());
+        let (wi, wo) = (
+            Direction::from_spherical_deg(ti, pi),
+            Direction::from_spherical_deg(to, po),
+        );
+        let t = o.truth_aperture(&wi, &wo, wl(550.0)).expect("truth");
+        let (exact, slack) = reference(&m, &wi, &wo, beta);
+        let err = (t.integral - exact).abs();
+        let report = format!(
+            "{what}: {} vs {exact} ({:e} relative, estimate {:e}, {} evaluations)",
+            t.integral,
+            err / exact.abs(),
+            t.integral_error / exact.abs(),
+            t.evaluations
+        );
+        assert!(err <= 1e-6 * exact.abs(), "{report}");
+        assert!(err <= t.integral_error + slack, "estimate not honest: {report}");
+        assert!(t.integral_error <= 1e-6 * t.integral.abs(), "{report}");
     }
 }
