@@ -34,9 +34,11 @@
 //!
 //! The error estimate for the tensor sequences ([`converge`]): the difference d_k between successive levels
 //! measures the error of the coarser one; the finer one is reported with `2 d_k`, more when the differences fall
-//! slowly (the rest of a geometric tail). A result is accepted from the second difference on, never the first:
-//! two coarse rules can agree by chance when both miss the same feature (seen: a plastic lobe's flank, two
-//! rules 3.4e-8 apart and both 1.2e-5 off). Only when the differences have fallen steeply twice in a row (steady
+//! slowly (the rest of a geometric tail). A result is accepted from the second difference on: two coarse rules
+//! can agree by chance when both miss the same feature (seen: a plastic lobe's flank, two rules 3.4e-8 apart
+//! and both 1.2e-5 off). The exception is a sequence from the centre rule above the horizon, planned for a BRDF
+//! smooth on a scale 30 times the aperture's (a diffuse sample): the centre rule's error is second order, which
+//! the next rule, exact to degree 3, cannot share, so their difference is the centre rule's error. Only when the differences have fallen steeply twice in a row (steady
 //! exponential convergence, as for a smooth lobe) may the acceptance extrapolate to `10 d_k (d_k / d_{k-1})`; a
 //! kink in the BRDF (Oren-Nayar has two: at cos(phi_o - phi_i) = 0 and at theta_o = theta_i) makes the
 //! differences fall irregularly and can fool any extrapolation from one ratio. The latitude sequence is guarded
@@ -487,7 +489,8 @@ fn tensor<F: ApertureFunction>(
 
 /// A sequence of rules of increasing order, `rule(it, level)` for level = `first..=last`, until the error
 /// estimate from successive levels (module docs) meets the tolerance; None if the last level does not. Needs
-/// `last >= first + 2`: a result is accepted from the second difference on.
+/// `last >= first + 2`: a result is accepted from the second difference on (the first, unguarded from the centre
+/// rule).
 ///
 /// `guarded`: never report less than `GUARD_FIRST` (at the second difference) or `GUARD` (later) times the
 /// previous difference. Across the horizon two coarse rules have agreed by chance more closely still (a lobe's
@@ -509,7 +512,11 @@ fn converge<F: ApertureFunction>(
         let scale = value.abs();
         let rounding = 64.0 * f64::EPSILON * scale;
         let error = match history {
-            // Not before two differences: two rules can agree by chance.
+            // From the centre rule (the BRDF smooth on a scale over 30 times the aperture's), the first
+            // difference is the centre rule's second-order error, which the next rule (exact to degree 3)
+            // cannot share by chance: it may accept.
+            [None, _] if first == 0 && !guarded => (PLAIN * d).max(rounding),
+            // Otherwise not before two differences: two rules can agree by chance.
             [None, _] => f64::INFINITY,
             [Some(pd), previous] => {
                 let steady = pd > 0.0
