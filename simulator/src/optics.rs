@@ -559,10 +559,12 @@ impl Optics {
     /// with the scale.
     ///
     /// A cone across the horizon: the integrator works on its part above the horizon in latitude coordinates,
-    /// where the horizon is no kink, a kink along a circle of latitude (Oren-Nayar's theta_o = theta_i) is cut
-    /// exactly (`kink_theta`, so it does not count as a kink here), and a narrow lobe is mapped out (its peak and
-    /// its width across the plane of incidence): a smooth model there always takes the tensor sequence, which
-    /// falls back to the adaptive rule by itself if it does not converge.
+    /// where the horizon is no kink, Oren-Nayar's kinks are coordinate lines cut exactly (theta_o = theta_i, a
+    /// circle of latitude: `kink_theta`; cos(phi_o - phi_i) = 0, a meridian: `kink_azimuth`), so they do not count
+    /// as kinks here, and a narrow lobe is mapped out (its peak, its width across the plane of incidence, and
+    /// where its ridge crosses the cone's rim): Oren-Nayar and a smooth model there always take the tensor
+    /// sequence, which falls back to the adaptive rule by itself if it does not converge. Above the horizon the
+    /// adaptive rule is told of the Oren-Nayar plane too (`kink_azimuth`) and starts cut along its trace.
     fn plan(&self, regular: RegularPart, wi_m: &Direction, cone: &Cone) -> (Plan, Features) {
         let beta = cone.half_angle;
         let across_horizon = !cone.above_horizon();

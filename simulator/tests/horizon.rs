@@ -440,6 +440,15 @@ fn random_near_grazing_geometries_meet_the_tolerance() {
                 };
                 let t = o.truth_aperture(&wi, &wo, wl(550.0)).expect("truth");
                 let (exact, slack) = brute_reference(m, &wi, &wo, beta);
+                // The brute-force rule does not cut at Oren-Nayar's cos(phi_o - phi_i) = 0 plane: with the kink
+                // inside its panels it converges erratically, and its error has been seen at 10 times the
+                // difference between its two resolutions (2.2e-9 against 2.1e-10; the simulator's reading,
+                // which cuts there, agreed with the brute force at 4x the resolution to 5e-11).
+                let slack = if matches!(m, Material::OrenNayar(_)) {
+                    10.0 * slack
+                } else {
+                    slack
+                };
                 if slack > 1e-9 * exact.abs() {
                     // A lobe too sharp for the brute-force rule at this geometry: no reference to judge by.
                     unconverged += 1;
