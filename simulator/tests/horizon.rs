@@ -530,6 +530,15 @@ fn regression_near_grazing_geometries_that_once_failed() {
             (71.59581937676629, -39.61410630487529),
             (87.65074156010797, 147.65415654478292),
         ),
+        // Accepted at the last level with a floor of 1/100 of the previous difference: 3.2e-6 off, estimate
+        // 4.6e-7.
+        (
+            "gold, slow last levels",
+            preset("gold"),
+            0.1,
+            (84.69201337399767, -72.0239923440677),
+            (84.9485665937101, 110.10255362314808),
+        ),
         // An extrapolation from one steep fall: estimate 7.5e-7, actual 1.0e-6.
         (
             "plastic, one fall",

@@ -54,8 +54,8 @@ pub(super) struct Latitude {
     kink_offset: Option<f64>,
 }
 
-/// At most: one piece per focus (the lobe's row, two rim crossings), cut at the kinks (a latitude, and a
-/// meridian's two rim crossings).
+/// Enough for every piece the features make: one per focus (the lobe's row, two rim crossings), cut at the kinks
+/// (a latitude, and a meridian's two rim crossings), 6 in all.
 const MAX_PIECES: usize = 8;
 
 /// `(centre, scale)`: `sigma = centre + scale tan(t)`.
@@ -324,7 +324,14 @@ impl Latitude {
             bounds.push(hi);
             bounds.sort_by(f64::total_cmp);
             for w in bounds.windows(2) {
-                if w[1] <= w[0] || self.piece_count == MAX_PIECES {
+                if w[1] <= w[0] {
+                    continue;
+                }
+                if self.piece_count == MAX_PIECES {
+                    // More pieces than the features can make (module docs); should it happen, the last piece
+                    // stretches to the end: any of the maps spans any range, and no part of the cone is lost.
+                    let last = &mut self.pieces[MAX_PIECES - 1];
+                    last.t[1] = Piece::new(w[0], w[1], last.map).t[1];
                     continue;
                 }
                 let mut piece = Piece::new(w[0], w[1], map);
@@ -641,5 +648,21 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn more_pieces_than_room_still_cover_the_whole_range() {
+        let mut lat = Latitude::new(0.1, 0.02, 0.0).expect("across");
+        let m = lat.sigma_max;
+        let foci: Vec<Focus> = (1..=5)
+            .map(|k| Focus {
+                sigma: m * k as f64 / 6.0,
+                scale: 0.01,
+            })
+            .collect();
+        let cuts: Vec<f64> = (1..=5).map(|k| m * (k as f64 + 0.5) / 6.0).collect();
+        lat.set_pieces(&foci, &cuts);
+        assert_eq!(lat.pieces().len(), MAX_PIECES);
+        assert_pieces_cover_sigma(&lat);
     }
 }
