@@ -363,17 +363,41 @@ fn detector_blocks_the_beam_near_retro_reflection() {
     assert!(free.power_w > 0.0);
 }
 
-/// Random geometries over every preset, at the instrument's aperture and at a five times larger one: the adaptive
-/// aperture integral must agree with a brute-force rule to 1e-6 relative, and say so in its own error estimate.
-#[test]
-fn aperture_integral_meets_the_tolerance_over_all_presets_and_random_geometries() {
-    let mut state = 0x1234_5678_9ABC_DEF0u64;
-    let mut uniform = move || {
+/// Uniform draws in [0, 1) from a xorshift generator (seed nonzero).
+fn xorshift(seed: u64) -> impl FnMut() -> f64 {
+    let mut state = seed;
+    move || {
         state ^= state << 13;
         state ^= state >> 7;
         state ^= state << 17;
         (state >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// A random (wi, wo) above the horizon for a cone of half-angle beta: wi up to 80 deg; wo anywhere up to
+/// 85 deg - beta, or, `near_mirror`, within 3 beta of wi's mirror direction, where the lobes are.
+fn random_geometry(
+    uniform: &mut impl FnMut() -> f64,
+    beta: f64,
+    near_mirror: bool,
+) -> (Direction, Direction) {
+    let wi = Direction::from_spherical(uniform() * 80f64.to_radians(), uniform() * 2.0 * PI);
+    let max_theta_o = 85f64.to_radians() - beta;
+    let wo = if near_mirror {
+        let m = wi.reflect_about_normal();
+        let theta = (m.theta() + (uniform() - 0.5) * 6.0 * beta).clamp(0.0, max_theta_o);
+        Direction::from_spherical(theta, m.phi() + (uniform() - 0.5) * 6.0 * beta)
+    } else {
+        Direction::from_spherical(uniform() * max_theta_o, uniform() * 2.0 * PI)
     };
+    (wi, wo)
+}
+
+/// Random geometries over every preset, at the instrument's aperture and at a five times larger one: the adaptive
+/// aperture integral must agree with a brute-force rule to 1e-6 relative, and say so in its own error estimate.
+#[test]
+fn aperture_integral_meets_the_tolerance_over_all_presets_and_random_geometries() {
+    let mut uniform = xorshift(0x1234_5678_9ABC_DEF0);
     for aperture_mm in [2.5, 12.5] {
         let mut inst = instrument();
         inst.detector.aperture_radius_mm = aperture_mm;
@@ -391,16 +415,7 @@ fn aperture_integral_meets_the_tolerance_over_all_presets_and_random_geometries(
                 let resolved = m.at_wavelength(wl(nm)).expect("in range");
                 let optics = quiet(&inst, sample(m.clone(), 25.0));
                 for case in 0..5 {
-                    let wi = Direction::from_spherical(uniform() * 80f64.to_radians(), uniform() * 2.0 * PI);
-                    // Half the cases near the specular direction, where the lobes are.
-                    let max_theta_o = 85f64.to_radians() - beta;
-                    let wo = if case % 2 == 0 {
-                        let m = wi.reflect_about_normal();
-                        let theta = (m.theta() + (uniform() - 0.5) * 6.0 * beta).clamp(0.0, max_theta_o);
-                        Direction::from_spherical(theta, m.phi() + (uniform() - 0.5) * 6.0 * beta)
-                    } else {
-                        Direction::from_spherical(uniform() * max_theta_o, uniform() * 2.0 * PI)
-                    };
+                    let (wi, wo) = random_geometry(&mut uniform, beta, case % 2 == 0);
                     let t = optics.truth_aperture(&wi, &wo, wl(nm)).expect("truth");
                     let bf = brute_cone(&wo, beta, 200, 512, &mut |w| {
                         resolved.eval(&wi, w, wl(nm)).expect("eval") * w.z()
@@ -732,13 +747,7 @@ fn tight_reference(material: &Material, wi: &Direction, wo: &Direction, beta: f6
 fn error_estimates_cover_the_error_over_random_geometries() {
     let env = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<u64>().ok());
     let cases = env("GONIO_OPTICS_CASES").unwrap_or(8);
-    let mut state = env("GONIO_OPTICS_SEED").unwrap_or(0x9E37_79B9_7F4A_7C15).max(1);
-    let mut uniform = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut uniform = xorshift(env("GONIO_OPTICS_SEED").unwrap_or(0x9E37_79B9_7F4A_7C15).max(1));
     for aperture_mm in [2.5, 12.5] {
         let mut inst = instrument();
         inst.detector.aperture_radius_mm = aperture_mm;
@@ -753,15 +762,7 @@ fn error_estimates_cover_the_error_over_random_geometries() {
             let m = Material::preset(name).expect("preset");
             let optics = quiet(&inst, sample(m.clone(), 25.0));
             for case in 0..cases {
-                let wi = Direction::from_spherical(uniform() * 80f64.to_radians(), uniform() * 2.0 * PI);
-                let max_theta_o = 85f64.to_radians() - beta;
-                let wo = if case % 2 == 0 {
-                    let m = wi.reflect_about_normal();
-                    let theta = (m.theta() + (uniform() - 0.5) * 6.0 * beta).clamp(0.0, max_theta_o);
-                    Direction::from_spherical(theta, m.phi() + (uniform() - 0.5) * 6.0 * beta)
-                } else {
-                    Direction::from_spherical(uniform() * max_theta_o, uniform() * 2.0 * PI)
-                };
+                let (wi, wo) = random_geometry(&mut uniform, beta, case % 2 == 0);
                 check_estimate(name, &optics, &m, &wi, &wo, beta);
             }
         }
