@@ -8,6 +8,8 @@ use std::process::{Child, Command, Output, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use rand::{Rng, SeedableRng};
+
 const GONIO: &str = env!("CARGO_BIN_EXE_gonio");
 
 /// A small dry-run campaign on the simulated instrument.
@@ -54,10 +56,18 @@ impl Drop for Daemon {
 
 /// `time_scale`: simulated seconds per real second for the simulated instrument.
 fn start_daemon(data: &Path, time_scale: &str, env: &[(&str, &str)]) -> Daemon {
+    start_daemon_on(data, time_scale, env, None)
+}
+
+/// [`start_daemon`] on the instrument file `instrument` (default: the embedded simulated one).
+fn start_daemon_on(data: &Path, time_scale: &str, env: &[(&str, &str)], instrument: Option<&Path>) -> Daemon {
     let mut cmd = Command::new(GONIO);
     cmd.args(["daemon", "--listen", "127.0.0.1:0", "--data"])
-        .arg(data)
-        .args(["--sim-time-scale", time_scale, "--shutdown-grace-s", "5"])
+        .arg(data);
+    if let Some(file) = instrument {
+        cmd.arg("--instrument").arg(file);
+    }
+    cmd.args(["--sim-time-scale", time_scale, "--shutdown-grace-s", "5"])
         .env_remove("GONIO_TOKEN")
         .stdout(Stdio::piped())
         .stderr(Stdio::null());
@@ -299,4 +309,128 @@ fn sigterm_stops_the_daemon_cleanly_and_the_campaign_resumes_on_restart() {
         (0..14).map(|i| i.to_string()).collect::<Vec<_>>(),
         "each point exactly once"
     );
+}
+
+/// An adaptive campaign: gold, one band, a budget of 120 points in passes of 20.
+const ADAPTIVE: &str = r#"[campaign]
+id = "adaptive"
+[sample]
+radius_mm = 12.5
+[material]
+preset = "gold"
+[plan]
+bands_nm = [550.0]
+[plan.adaptive]
+budget_points = 120
+batch_points = 20
+target_error = 0.0
+first_pass_step_deg = 15.0
+[plan.calibration]
+dark_every_points = 50
+reference_every_s = 60.0
+reference_pose_deg = { light = -90.0, detector = 90.0 }
+[acquisition]
+averaging = 2
+"#;
+
+/// The embedded simulated instrument without noise and drift: every reading is the same function of the
+/// geometry whenever it is taken, so an interrupted run must measure exactly what an uninterrupted one does.
+fn noiseless_instrument(dir: &Path) -> std::path::PathBuf {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/instruments/simulated.toml"),
+    )
+    .expect("simulated.toml");
+    let quiet = text
+        .replace("drift_per_hour = 0.002", "drift_per_hour = 0.0")
+        .replace("relative_noise = 1.0e-4", "relative_noise = 0.0")
+        .replace("noise = true", "noise = false");
+    assert_eq!(
+        quiet.matches("= 0.0\n").count() - text.matches("= 0.0\n").count(),
+        2,
+        "{quiet}"
+    );
+    assert!(quiet.contains("noise = false"));
+    let path = dir.join("noiseless.toml");
+    std::fs::write(&path, quiet).expect("write");
+    path
+}
+
+/// The committed points of campaign 1 in a daemon's store: (index, band, geometry) with the values' bits.
+fn committed(data: &Path) -> Vec<(u64, u64, [u64; 4], Option<u64>)> {
+    let Ok(store) = gonio_daemon::store::Store::open(data) else {
+        return Vec::new();
+    };
+    store
+        .points(gonio_daemon::store::CampaignId(1))
+        .unwrap_or_default()
+        .iter()
+        .map(|p| {
+            (
+                p.index,
+                p.band_nm.to_bits(),
+                [p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg].map(f64::to_bits),
+                p.brdf_sr.map(f64::to_bits),
+            )
+        })
+        .collect()
+}
+
+/// Submit `ADAPTIVE` and wait for it to complete; the daemon is killed with SIGKILL once the store holds each of
+/// `kills` points (ascending) and started again.
+fn run_adaptive(data: &Path, instrument: &Path, kills: &[usize]) -> Vec<(u64, u64, [u64; 4], Option<u64>)> {
+    let campaign = data.with_extension("toml");
+    std::fs::write(&campaign, ADAPTIVE).expect("write");
+    let mut daemon = start_daemon_on(data, "40", &[], Some(instrument));
+    let out = ctl(&daemon, &["submit", campaign.to_str().expect("path")], &[]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    for &at in kills {
+        let start = Instant::now();
+        while committed(data).len() < at {
+            assert!(
+                start.elapsed() < Duration::from_secs(120),
+                "never reached {at} points: {}",
+                committed(data).len()
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let pid = nix::unistd::Pid::from_raw(i32::try_from(daemon.child.id()).expect("pid"));
+        nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGKILL).expect("SIGKILL");
+        let _ = daemon.child.wait();
+        drop(daemon);
+        daemon = start_daemon_on(data, "40", &[], Some(instrument));
+    }
+    let out = ctl(&daemon, &["watch", "1"], &[]);
+    assert!(
+        out.status.success(),
+        "{} {}",
+        text(&out.stdout),
+        text(&out.stderr)
+    );
+    let status = text(&ctl(&daemon, &["status", "1"], &[]).stdout);
+    assert!(status.contains("completed"), "{status}");
+    committed(data)
+}
+
+#[test]
+fn an_adaptive_campaign_killed_5_times_resumes_to_the_points_of_an_uninterrupted_run() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let instrument = noiseless_instrument(dir.path());
+    let whole = run_adaptive(&dir.path().join("whole"), &instrument, &[]);
+    // The whole budget is placed, beyond the first pass (22 geometries at a 15 degree step).
+    assert_eq!(whole.len(), 120, "{whole:?}");
+    assert!(whole.iter().all(|p| p.3.is_some()), "every point has a value");
+    // Five kills at random moments (seeded), in the first pass and in later passes.
+    let mut rng = rand::rngs::StdRng::seed_from_u64(15);
+    let mut kills: Vec<usize> = (0..5).map(|_| rng.random_range(5..115)).collect();
+    kills.sort_unstable();
+    kills.dedup();
+    let killed = run_adaptive(&dir.path().join("killed"), &instrument, &kills);
+    // 0 lost, 0 duplicated (indices 0..n, each once), and the very same points: each pass was derived from the
+    // committed points, as the uninterrupted run derived it.
+    let indices: Vec<u64> = killed.iter().map(|p| p.0).collect();
+    assert_eq!(indices, (0..killed.len() as u64).collect::<Vec<_>>());
+    assert_eq!(killed.len(), whole.len(), "kills at {kills:?}");
+    for (a, b) in whole.iter().zip(&killed) {
+        assert_eq!(a, b, "kills at {kills:?}: the runs differ at point {}", a.0);
+    }
 }

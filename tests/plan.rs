@@ -1,6 +1,7 @@
-//! `gonio plan` end to end: the real binary on the demo campaign and on a small campaign written here.
+//! `gonio plan` end to end: the real binary on the demo campaign and on a small campaign written here, and
+//! against `gonio run` on every shipped campaign (the same campaigns accepted, the same predicted duration).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn repo_root() -> PathBuf {
@@ -93,4 +94,126 @@ fn plan_errors_name_the_key_and_exit_2() {
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("bands_nm") && stderr.contains("451"), "{stderr}");
+}
+
+/// `gonio plan CAMPAIGN`'s prediction for the whole campaign (s), or its error.
+fn plan_prediction(campaign: &Path) -> Result<f64, String> {
+    let out = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .arg("plan")
+        .arg(campaign)
+        .output()
+        .expect("run gonio plan");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    if !out.status.success() {
+        return Err(String::from_utf8_lossy(&out.stderr).into_owned());
+    }
+    stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("predicted duration: "))
+        .and_then(|rest| rest.split(" s").next())
+        .and_then(|n| n.trim().parse().ok())
+        .ok_or_else(|| format!("no prediction in\n{stdout}"))
+}
+
+/// `gonio run CAMPAIGN` to completion: its run.json's predicted instrument time (s), or its error.
+fn run_prediction(campaign: &Path, out: &Path) -> Result<f64, String> {
+    let run = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .arg("run")
+        .arg(campaign)
+        .arg("--out")
+        .arg(out)
+        .arg("--quiet")
+        .output()
+        .expect("run gonio run");
+    if !run.status.success() {
+        return Err(String::from_utf8_lossy(&run.stderr).into_owned());
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("run.json")).expect("run.json"))
+            .expect("json");
+    json.pointer("/timing/predicted_instrument_s")
+        .and_then(serde_json::Value::as_f64)
+        .ok_or_else(|| "run.json without timing.predicted_instrument_s".to_string())
+}
+
+/// A campaign with what `gonio run` and `gonio plan` predicted for it (or their errors).
+type Compared = (PathBuf, Result<f64, String>, Result<f64, String>);
+
+/// Every shipped campaign, and the demo with slow acquisition settings (which the time model must see): what
+/// `gonio run` accepts, `gonio plan` accepts, with the same predicted duration (plan prints 0.1 s).
+#[test]
+fn plan_accepts_every_campaign_run_accepts_and_predicts_the_same_duration() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let demo = std::fs::read_to_string(repo_root().join("config/campaigns/demo.toml")).expect("demo");
+    let slow = demo
+        .replace("averaging = 10 ", "averaging = 1000 ")
+        .replace("settle_s = 0.0 ", "settle_s = 2.0 ");
+    assert_ne!(slow, demo, "the demo's acquisition settings moved");
+    let slow_path = dir.path().join("slow-demo.toml");
+    std::fs::write(&slow_path, &slow).expect("write");
+    let mut campaigns: Vec<PathBuf> = std::fs::read_dir(repo_root().join("config/campaigns"))
+        .expect("config/campaigns")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+        .collect();
+    campaigns.sort();
+    campaigns.push(slow_path.clone());
+    // Two at a time: the runs are independent processes.
+    let results: Vec<Compared> = campaigns
+        .chunks(2)
+        .flat_map(|pair| {
+            let handles: Vec<_> = pair
+                .iter()
+                .enumerate()
+                .map(|(k, c)| {
+                    let c = c.clone();
+                    let out = dir.path().join(format!(
+                        "out-{}-{k}",
+                        c.file_stem()
+                            .map(|s| s.to_string_lossy().into_owned())
+                            .unwrap_or_default()
+                    ));
+                    std::thread::spawn(move || {
+                        let run = run_prediction(&c, &out);
+                        (c.clone(), run, plan_prediction(&c))
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("thread"))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let mut compared = 0;
+    for (campaign, run, plan) in &results {
+        let Ok(run_s) = run else { continue };
+        let plan_s = plan.as_ref().unwrap_or_else(|e| {
+            panic!(
+                "{}: gonio run accepts it, gonio plan refuses it: {e}",
+                campaign.display()
+            )
+        });
+        assert!(
+            (plan_s - run_s).abs() <= 0.051,
+            "{}: gonio plan predicts {plan_s} s, gonio run {run_s} s",
+            campaign.display()
+        );
+        compared += 1;
+    }
+    assert!(compared >= 6, "only {compared} campaigns ran: {results:?}");
+    // The slow settings are in the prediction (the demo has 213 points: 1000 samples and 2 s more settling
+    // each are minutes).
+    let prediction = |p: &Path| {
+        results
+            .iter()
+            .find(|r| r.0 == p)
+            .and_then(|r| r.2.clone().ok())
+            .expect("predicted")
+    };
+    let (fast, slow) = (
+        prediction(&repo_root().join("config/campaigns/demo.toml")),
+        prediction(&slow_path),
+    );
+    assert!(slow > fast + 300.0, "demo {fast} s, slow demo {slow} s");
 }

@@ -26,7 +26,7 @@ use gonio_instrument::Instrument;
 use gonio_scheduler::adaptive::{Adaptive, AdaptiveSpec, Measured};
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
-use gonio_scheduler::plan::{self, BuildContext, CampaignDoc, Plan, PlanSpec, SampleTraits};
+use gonio_scheduler::plan::{self, BuildContext, Plan, PlanSpec, SampleTraits};
 use gonio_scheduler::schedule::{self, StepKind};
 use gonio_scheduler::timing::TimeModel;
 
@@ -206,8 +206,8 @@ fn measured_geometries(plan: &Plan) -> Vec<Geometry> {
 
 /// A grid strategy: (points, predicted s, measured geometries).
 pub fn grid_plan(setup: &Setup, full: bool, step: f64) -> Result<(usize, f64, Vec<Geometry>), String> {
-    let doc = CampaignDoc::parse(&grid_text(full, step), "bench").map_err(|e| e.to_string())?;
-    let plan = plan::build(&doc.plan, &ctx(setup.instrument, !full)).map_err(|e| e.to_string())?;
+    let spec = PlanSpec::from_toml(&grid_text(full, step), "bench").map_err(|e| e.to_string())?;
+    let plan = plan::build(&spec, &ctx(setup.instrument, !full)).map_err(|e| e.to_string())?;
     let sched = schedule::schedule(&plan, &setup.time, None);
     let geometries = measured_geometries(&plan);
     Ok((geometries.len(), sched.breakdown.total_s(), geometries))

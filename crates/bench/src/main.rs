@@ -33,7 +33,7 @@ use std::time::Instant;
 
 use gonio_brdf::{Brdf, Direction, Material, Wavelength};
 use gonio_instrument::InstrumentFile;
-use gonio_scheduler::plan::{self, BuildContext, CampaignDoc, SampleTraits};
+use gonio_scheduler::plan::{self, BuildContext, PlanSpec, SampleTraits};
 use gonio_scheduler::timing::TimeModel;
 
 use readings::{FixedComparison, ReadingPoint, time_us};
@@ -89,7 +89,7 @@ fn main() {
     let orderings: Vec<Result<ordering::OrderingResult, String>> =
         ["config/campaigns/demo.toml", "config/campaigns/plan-demo.toml"]
             .iter()
-            .map(|c| ordering::run(&inst, &root.join(c)))
+            .map(|c| ordering::run(&InstrumentFile::simulated(), &root.join(c)))
             .collect();
 
     eprintln!("(3) end-to-end throughput...");
@@ -353,7 +353,7 @@ fn ordering_time(inst: &gonio_instrument::Instrument) -> Result<(f64, usize), St
     let text = "[plan]\nbands_nm = [550.0]\n[plan.grid]\nkind = \"full\"\n\
                 theta_i_deg = { from = 0.0, to = 80.0, step = 10.0 }\nphi_i_deg = { from = 0.0, to = 340.0, step = 20.0 }\n\
                 theta_o_deg = { from = 0.0, to = 80.0, step = 10.0 }\nphi_o_deg = { from = 0.0, to = 340.0, step = 20.0 }\n";
-    let doc = CampaignDoc::parse(text, "bench").map_err(|e| e.to_string())?;
+    let spec = PlanSpec::from_toml(text, "bench").map_err(|e| e.to_string())?;
     let ctx = BuildContext {
         instrument: inst,
         traits: SampleTraits {
@@ -363,7 +363,7 @@ fn ordering_time(inst: &gonio_instrument::Instrument) -> Result<(f64, usize), St
         sample_radius_mm: None,
         start: None,
     };
-    let plan = plan::build(&doc.plan, &ctx).map_err(|e| e.to_string())?;
+    let plan = plan::build(&spec, &ctx).map_err(|e| e.to_string())?;
     let poses: Vec<_> = plan
         .geometries
         .iter()

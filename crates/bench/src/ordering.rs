@@ -12,11 +12,11 @@
 
 use std::path::Path;
 
-use gonio_instrument::Instrument;
+use gonio_campaign::Sources;
+use gonio_instrument::InstrumentFile;
 use gonio_scheduler::kinematics::Pose;
 use gonio_scheduler::order;
-use gonio_scheduler::plan::{self, BuildContext, CampaignDoc, SampleTraits};
-use gonio_scheduler::schedule::{self, BandMode};
+use gonio_scheduler::schedule::BandMode;
 use gonio_scheduler::timing::TimeModel;
 
 #[derive(Debug, Clone)]
@@ -34,23 +34,15 @@ pub struct OrderingResult {
     pub order_time_s: f64,
 }
 
-/// Order one campaign file (its `[plan]` and `[sample]`; the material decides isotropy and flatness).
-pub fn run(instrument: &Instrument, path: &Path) -> Result<OrderingResult, String> {
+/// Order one campaign file, prepared as `gonio plan` and `gonio run` prepare it (its material decides isotropy
+/// and flatness; its acquisition settings the time model).
+pub fn run(file: &InstrumentFile, path: &Path) -> Result<OrderingResult, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let doc = CampaignDoc::parse(&text, &path.display().to_string()).map_err(|e| e.to_string())?;
-    // The demo campaigns' materials (coloured plastic, gold) are isotropic and vary with wavelength.
-    let ctx = BuildContext {
-        instrument,
-        traits: SampleTraits {
-            isotropic: true,
-            spectrally_flat: false,
-        },
-        sample_radius_mm: doc.sample.as_ref().and_then(|s| s.radius_mm),
-        start: None,
-    };
-    let plan = plan::build(&doc.plan, &ctx).map_err(|e| e.to_string())?;
-    let time = TimeModel::new(instrument);
-    let sched = schedule::schedule(&plan, &time, None);
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let prepared =
+        gonio_campaign::load_and_prepare(&text, &path.display().to_string(), &Sources::Local(base), file)
+            .map_err(|e| e.to_string())?;
+    let (plan, time, sched) = (&prepared.plan, &prepared.time, &prepared.schedule);
     let (o, r) = (&sched.breakdown, &sched.raster);
     let reps: Vec<Pose> = plan
         .geometries
@@ -58,7 +50,7 @@ pub fn run(instrument: &Instrument, path: &Path) -> Result<OrderingResult, Strin
         .filter_map(|g| g.candidates.first().map(|c| c.0))
         .collect();
     let start = std::time::Instant::now();
-    let tour = order::order(&reps, None, &time);
+    let tour = order::order(&reps, None, time);
     let order_time_s = start.elapsed().as_secs_f64();
     let raster: Vec<usize> = (0..reps.len()).collect();
     Ok(OrderingResult {
@@ -71,9 +63,9 @@ pub fn run(instrument: &Instrument, path: &Path) -> Result<OrderingResult, Strin
         schedule_ratio: (o.motion_s + o.settle_s) / (r.motion_s + r.settle_s),
         ordered_motion_s: o.motion_s + o.settle_s,
         raster_motion_s: r.motion_s + r.settle_s,
-        path_s: order::path_cost(&tour, &reps, None, &time),
-        raster_path_s: order::path_cost(&raster, &reps, None, &time),
-        bound_s: assignment_bound(&reps, &time),
+        path_s: order::path_cost(&tour, &reps, None, time),
+        raster_path_s: order::path_cost(&raster, &reps, None, time),
+        bound_s: assignment_bound(&reps, time),
         order_time_s,
     })
 }

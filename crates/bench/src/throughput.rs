@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_campaign};
+use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_prepared_campaign};
 use gonio_daemon::store::{CampaignState, Store};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 
@@ -135,7 +135,7 @@ async fn run_once(
         }
     });
     let start = Instant::now();
-    let state = run_campaign(Arc::clone(&store), id, &rig, control)
+    let state = run_prepared_campaign(Arc::clone(&store), id, &rig, control, &prepared)
         .await
         .map_err(|e| format!("run: {e}"))?;
     let wall_s = start.elapsed().as_secs_f64();

@@ -1,29 +1,28 @@
 //! The campaign engine: runs one stored campaign on a connected [`Rig`], point by point, committing each point
 //! durably, obeying [`Control`] requests at safe points, and resuming from the first uncommitted point.
 //!
-//! Preparing a campaign resolves the materials it names once ([`Sources`]): [`prepare_campaign`] for a local
-//! file (`gonio run`: names relative to the file's directory), [`prepare_submitted_campaign`] for one submitted
-//! to the daemon (presets and files inside its data directory only). What is stored is the file's text with the
-//! resolved materials appended ([`PreparedCampaign::new_campaign`]), so that running and resuming read no file.
+//! Preparing a campaign ([`gonio_campaign::prepare`], through [`prepare_campaign`] for a local file or
+//! [`prepare_submitted_campaign`] for one submitted to the daemon) resolves the materials it names once
+//! ([`Sources`]). What is stored is the file's text with the resolved materials appended
+//! ([`PreparedCampaign::new_campaign`]), so that running and resuming read no file.
 //!
 //! Start-up: preparing builds the plan and orders it (for a large plan most of the time before the first point).
-//! The engine runs the stored text, which must not be ordered a second time when the campaign runs right after it
-//! was prepared in the same process (`gonio run`, the daemon's queue): prepared campaigns are kept, by their
-//! stored text, in a small process-wide cache that the run takes them from (`take_prepared`). Only a campaign
-//! whose stored text provably parses to the very same campaign is kept (see `reusable`); anything else (another
-//! process, a restart, a resume after the entry was taken, a measured material whose data file the stored text
-//! names) parses and orders the stored text again, which stays the source of truth.
+//! A campaign run right after it was prepared (`gonio run`, the daemon's queue) need not be ordered a second
+//! time: the [`PreparedCampaign`] value carries the prepared campaign to [`run_prepared_campaign`] when the
+//! stored text provably parses to the very same campaign (see `reusable`). Anything else (another process, a
+//! restart, a resume, a measured material whose data file the stored text names) parses and orders the stored
+//! text again, which stays the source of truth.
 
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 
-use crate::campaign::Campaign;
-use crate::campaign::sources::{Resolved, material_from_stored};
+use gonio_campaign::sources::{Resolved, material_from_stored, resolved_trailer};
+use gonio_campaign::{Campaign, Prepared};
 
-pub use crate::campaign::{CampaignError, Sources};
 pub use crate::control::{Control, Event};
 pub use crate::rig::Rig;
 use crate::store::{CampaignId, CampaignState, NewCampaign, Store, StoreError};
+pub use gonio_campaign::{CampaignError, Sources};
 use gonio_instrument::InstrumentFile;
 
 /// Why the engine could not run a campaign (as opposed to a campaign that ended `failed`, which is a state).
@@ -46,18 +45,29 @@ pub enum EngineError {
     NotRunnable { id: CampaignId, message: String },
 }
 
-/// What the service needs to store a new campaign.
-#[derive(Debug, Clone, PartialEq)]
+/// What the service needs to store a new campaign, and the prepared campaign for its first run.
+#[derive(Debug, Clone)]
 pub struct PreparedCampaign {
     /// The campaign (sample) id from `[campaign] id`.
     pub name: String,
     pub description: Option<String>,
+    /// Points the campaign measures (an adaptive campaign: its budget, the most it measures).
     pub total_points: u64,
     pub dry_run: bool,
-    /// Predicted instrument time (s) from the time model.
+    /// Predicted instrument time (s) from the time model (an adaptive campaign: its whole budget).
     pub predicted_s: f64,
     /// Appended to the campaign text when it is stored: the `[resolved]` materials (empty when it names none).
     pub resolved_toml: String,
+    /// The prepared campaign, when the stored text provably parses to it (`reusable`), with the stored text and
+    /// the instrument it was prepared for: the run takes it instead of planning and ordering again.
+    kept: Option<Arc<Kept>>,
+}
+
+#[derive(Debug)]
+struct Kept {
+    stored_toml: String,
+    instrument: gonio_instrument::Instrument,
+    prepared: Prepared,
 }
 
 impl PreparedCampaign {
@@ -77,6 +87,15 @@ impl PreparedCampaign {
     /// The campaign text as it is stored: `campaign_toml` followed by the resolved materials.
     pub fn stored_campaign_toml(&self, campaign_toml: &str) -> String {
         format!("{campaign_toml}{}", self.resolved_toml)
+    }
+
+    /// The prepared campaign for a stored campaign with this text on this instrument, if it is the one this value
+    /// carries: what parsing the stored text would give, without ordering its plan again.
+    pub(crate) fn reuse_for(&self, stored_toml: &str, instrument: &InstrumentFile) -> Option<Prepared> {
+        self.kept
+            .as_ref()
+            .filter(|k| k.stored_toml == stored_toml && k.instrument == instrument.instrument)
+            .map(|k| k.prepared.clone())
     }
 }
 
@@ -113,62 +132,34 @@ pub fn prepare_submitted_campaign(
     )
 }
 
-/// Validate a campaign with names resolving under `sources`.
+/// Validate a campaign to run, with names resolving under `sources`.
 pub fn prepare_campaign_with(
     text: &str,
     origin: &str,
     sources: &Sources,
     instrument: &InstrumentFile,
 ) -> Result<PreparedCampaign, EngineError> {
-    let c = crate::campaign::parse(text, origin, sources, instrument)?;
-    let prepared = PreparedCampaign {
+    let p = gonio_campaign::load_and_prepare(text, origin, sources, instrument)?;
+    p.require_sample(&instrument.instrument)?;
+    let c = &p.campaign;
+    let resolved_toml = resolved_trailer(&c.resolved);
+    let mut prepared = PreparedCampaign {
         name: c.id.clone(),
         description: c.description.clone(),
-        total_points: c.total_points(),
+        total_points: p.total_points(),
         dry_run: c.dry_run,
-        predicted_s: c.schedule.breakdown.total_s(),
-        resolved_toml: crate::campaign::sources::resolved_trailer(&c.resolved),
+        predicted_s: p.predicted_s(),
+        resolved_toml,
+        kept: None,
     };
-    if reusable(&c, &prepared.resolved_toml) {
-        keep_prepared(prepared.stored_campaign_toml(text), instrument, c);
+    if reusable(c, &prepared.resolved_toml) {
+        prepared.kept = Some(Arc::new(Kept {
+            stored_toml: prepared.stored_campaign_toml(text),
+            instrument: instrument.instrument.clone(),
+            prepared: p,
+        }));
     }
     Ok(prepared)
-}
-
-/// Prepared campaigns kept for their run (module doc), newest last.
-static PREPARED: Mutex<Vec<Kept>> = Mutex::new(Vec::new());
-/// How many prepared campaigns are kept: enough for a queue being filled while one runs; a schedule is a few
-/// hundred bytes per point.
-const KEEP_PREPARED: usize = 4;
-
-struct Kept {
-    stored_toml: String,
-    instrument: gonio_instrument::Instrument,
-    campaign: Campaign,
-}
-
-fn keep_prepared(stored_toml: String, instrument: &InstrumentFile, campaign: Campaign) {
-    let mut kept = PREPARED.lock().unwrap_or_else(|e| e.into_inner());
-    kept.retain(|k| k.stored_toml != stored_toml || k.instrument != instrument.instrument);
-    if kept.len() >= KEEP_PREPARED {
-        kept.remove(0);
-    }
-    kept.push(Kept {
-        stored_toml,
-        instrument: instrument.instrument.clone(),
-        campaign,
-    });
-}
-
-/// The campaign this process prepared with exactly this stored text for this instrument, if it is still kept:
-/// what parsing the stored text would give (see `reusable`), without ordering its plan again. Taken out of the
-/// cache: a later run of the same text (a resume) parses it.
-pub(crate) fn take_prepared(stored_toml: &str, instrument: &InstrumentFile) -> Option<Campaign> {
-    let mut kept = PREPARED.lock().unwrap_or_else(|e| e.into_inner());
-    let at = kept
-        .iter()
-        .position(|k| k.stored_toml == stored_toml && k.instrument == instrument.instrument)?;
-    Some(kept.remove(at).campaign)
 }
 
 /// True when parsing the stored text (the prepared text with `resolved_toml` appended, materials from its
@@ -209,13 +200,26 @@ fn reusable(c: &Campaign, resolved_toml: &str) -> bool {
 }
 
 /// Run (or resume from `store.next_index(id)`) one stored campaign to a final or paused state.
+/// The stored text is parsed and ordered again.
 pub async fn run_campaign(
     store: Arc<Mutex<Store>>,
     id: CampaignId,
     rig: &Rig,
     control: Control,
 ) -> Result<CampaignState, EngineError> {
-    crate::runner::run(store, id, rig, control).await
+    crate::runner::run(store, id, rig, control, None).await
+}
+
+/// [`run_campaign`] for a campaign this process just prepared: `prepared` is taken instead of parsing and
+/// ordering the stored text again when it is provably what that text parses to (module doc).
+pub async fn run_prepared_campaign(
+    store: Arc<Mutex<Store>>,
+    id: CampaignId,
+    rig: &Rig,
+    control: Control,
+    prepared: &PreparedCampaign,
+) -> Result<CampaignState, EngineError> {
+    crate::runner::run(store, id, rig, control, Some(prepared)).await
 }
 
 #[cfg(test)]
@@ -252,19 +256,22 @@ k = { 450 = 1.9, 550 = 2.45, 650 = 3.6 }
         format!("[campaign]\nid = \"{id}\"\n{GRID}{rest}")
     }
 
-    /// Prepare `text`, then compare what the run would take from the cache with what parsing the stored text
-    /// gives: the same campaign down to every step's time and pose (debug forms hold every value exactly).
+    /// Prepare `text`, then compare what the run would take from the prepared value with what parsing the
+    /// stored text gives: the same campaign down to every step's time and pose (debug forms hold every value
+    /// exactly) except the text itself and its origin.
     fn prepared_equals_stored_parse(text: &str, dir: &Path) {
         let file = InstrumentFile::simulated();
         let prepared = prepare_campaign(text, "campaign.toml", dir, &file).expect("prepare");
         let stored = prepared.stored_campaign_toml(text);
-        let kept = take_prepared(&stored, &file).expect("kept for the run");
-        let parsed =
-            crate::campaign::parse(&stored, "<stored>", &Sources::Stored, &file).expect("stored parse");
+        let mut kept = prepared.reuse_for(&stored, &file).expect("kept for the run");
+        let parsed = gonio_campaign::load_and_prepare(&stored, "<stored>", &Sources::Stored, &file)
+            .expect("stored parse");
         assert!(kept.schedule.steps.len() > 10);
+        // What differs by construction: where the text came from, and the stored `[resolved]` table.
+        kept.campaign.origin = parsed.campaign.origin.clone();
+        kept.campaign.text = parsed.campaign.text.clone();
+        kept.campaign.file.resolved = parsed.campaign.file.resolved.clone();
         assert_eq!(format!("{kept:?}"), format!("{parsed:?}"));
-        // Taken: a second run of the same text (a resume) parses the stored text.
-        assert!(take_prepared(&stored, &file).is_none());
     }
 
     #[test]
@@ -298,29 +305,26 @@ k = { 450 = 1.9, 550 = 2.45, 650 = 3.6 }
         // Another instrument description, or another text, does not match.
         let mut other = file.clone();
         other.instrument.name.push_str(" (modified)");
-        assert!(take_prepared(&stored, &other).is_none());
-        assert!(take_prepared(&t, &file).is_none());
-        assert!(take_prepared(&stored, &file).is_some());
+        assert!(prepared.reuse_for(&stored, &other).is_none());
+        assert!(prepared.reuse_for(&t, &file).is_none());
+        assert!(prepared.reuse_for(&stored, &file).is_some());
 
         // A material whose stored description names a data file is read again by the stored parse: not reusable.
-        let mut c = crate::campaign::parse(&t, "campaign.toml", &Sources::Local(dir.path().into()), &file)
+        let mut c = gonio_campaign::load(&t, "campaign.toml", &Sources::Local(dir.path().into()), &file)
             .expect("parse");
-        let trailer = crate::campaign::sources::resolved_trailer(&c.resolved);
+        let trailer = resolved_trailer(&c.resolved);
         assert!(reusable(&c, &trailer));
         if let Some(spec) = c.resolved.material.as_mut() {
             spec.file = Some("/data/sample.binary".into());
         }
-        let trailer = crate::campaign::sources::resolved_trailer(&c.resolved);
+        let trailer = resolved_trailer(&c.resolved);
         assert!(!reusable(&c, &trailer));
         // A table that does not describe the prepared material (here: another albedo) is not reusable either.
-        let mut c = crate::campaign::parse(&t, "campaign.toml", &Sources::Local(dir.path().into()), &file)
+        let mut c = gonio_campaign::load(&t, "campaign.toml", &Sources::Local(dir.path().into()), &file)
             .expect("parse");
-        let honest = crate::campaign::sources::resolved_trailer(&c.resolved);
+        let honest = resolved_trailer(&c.resolved);
         c.resolved.material = Material::preset("spectralon").ok().map(|m| m.spec());
-        assert!(!reusable(
-            &c,
-            &crate::campaign::sources::resolved_trailer(&c.resolved)
-        ));
+        assert!(!reusable(&c, &resolved_trailer(&c.resolved)));
         assert!(!reusable(&c, &honest));
     }
 }

@@ -2,7 +2,8 @@
 //!
 //! Module map:
 //! - [`store`]: the durable SQLite store (campaigns, configuration, devices, calibrations, points) and resume.
-//! - [`campaign`]: the campaign file (schema, validation with file/line/key messages, plan and schedule).
+//! - [`campaign`]: the campaign model (re-exported `gonio-campaign`: the typed file, the one loader, the one
+//!   prepare).
 //! - [`rig`]: the connected instrument (drivers for every device; the in-process simulator for dry-runs).
 //! - [`control`]: the seam to whoever drives a run: [`control::Control`] requests in, [`control::Event`]s out.
 //! - [`engine`]: [`engine::run_campaign`], [`engine::prepare_campaign`], [`engine::EngineError`].
@@ -14,7 +15,6 @@
 //! - [`status_page`]: the live status page at `/` (embedded HTML/CSS/JS).
 
 pub mod api;
-pub mod campaign;
 pub mod control;
 pub mod engine;
 pub mod export;
@@ -25,5 +25,6 @@ pub mod status_page;
 pub mod store;
 
 pub use control::{Control, Event};
-pub use engine::{EngineError, PreparedCampaign, prepare_campaign, run_campaign};
+pub use engine::{EngineError, PreparedCampaign, prepare_campaign, run_campaign, run_prepared_campaign};
+pub use gonio_campaign as campaign;
 pub use rig::Rig;

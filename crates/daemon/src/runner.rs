@@ -50,15 +50,15 @@ use gonio_brdf::measurement::{
 use gonio_brdf::{Direction, Wavelength};
 use gonio_driver::{DetectorConfig, DriverError, ErrorKind, PowerRange};
 use gonio_instrument::{AxisRole, InstrumentFile};
-use gonio_scheduler::kinematics::{Kinematics, Pose, ROLES};
+use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose, ROLES};
 use gonio_scheduler::schedule::{Step, StepKind};
 use gonio_simulator::optics::{Optics, SampleSpec};
 
-use crate::campaign::{self, Campaign, Method, Range, Sources};
 use crate::control::{Control, Event};
-use crate::engine::EngineError;
+use crate::engine::{EngineError, PreparedCampaign};
 use crate::rig::{Rig, RigAxis, futures_join_all};
 use crate::store::{CalibrationRecord, CampaignId, CampaignState, PointRecord, Store, StoreError};
+use gonio_campaign::{Method, NextPass, Prepared, Range, Sources};
 use reference::Transfer;
 
 /// Failed points in a row after which the campaign pauses instead of recording more failures.
@@ -152,7 +152,7 @@ struct Run<'a> {
     id: CampaignId,
     rig: &'a Rig,
     control: Control,
-    c: Campaign,
+    c: Prepared,
     file: InstrumentFile,
     axis_names: Vec<String>,
     clock: Clock,
@@ -174,6 +174,27 @@ struct Run<'a> {
     reference: Option<ReferenceRun>,
     done: u64,
     total: u64,
+    /// The pass being measured: its predicted duration, the index after its last point, and the predicted
+    /// seconds per point of all passes so far (ETA of an adaptive plan).
+    pass_total_s: f64,
+    pass_end: u64,
+    s_per_point: f64,
+}
+
+/// One pass of the schedule: a fixed plan's only one, or one of an adaptive plan's.
+struct Pass {
+    schedule: gonio_scheduler::schedule::Schedule,
+    /// Index of its first point.
+    first_index: u64,
+    /// Predicted instrument time of this pass and every one before it (s).
+    elapsed_s: f64,
+    number: u32,
+}
+
+impl Pass {
+    fn end_index(&self) -> u64 {
+        self.first_index + self.schedule.measure_steps().count() as u64
+    }
 }
 
 pub(crate) async fn run(
@@ -181,6 +202,7 @@ pub(crate) async fn run(
     id: CampaignId,
     rig: &Rig,
     control: Control,
+    prepared: Option<&PreparedCampaign>,
 ) -> Result<CampaignState, EngineError> {
     control.clear_requests();
     control.attach_rig(rig);
@@ -200,36 +222,39 @@ pub(crate) async fn run(
     }
     // Prepared in this process moments ago (`gonio run`, the daemon's queue): the very campaign the stored text
     // parses to, already planned and ordered (crate::engine's module doc). Otherwise the stored text is parsed.
-    let c = match crate::engine::take_prepared(&rec.campaign_toml, &file) {
+    let c = match prepared.and_then(|p| p.reuse_for(&rec.campaign_toml, &file)) {
         Some(c) => c,
         None => {
             let origin = format!("<stored campaign {id}>");
-            campaign::parse(&rec.campaign_toml, &origin, &Sources::Stored, &file)
+            gonio_campaign::load_and_prepare(&rec.campaign_toml, &origin, &Sources::Stored, &file)
                 .map_err(|e| not_runnable(format!("its stored campaign file no longer validates: {e}")))?
         }
     };
     let total = c.total_points();
-    if total != rec.total_points {
+    // An adaptive campaign that reached its target error early records the points it measured as its total.
+    let adaptive_ended_early = c.adaptive.is_some() && rec.total_points < total;
+    if total != rec.total_points && !adaptive_ended_early {
         return Err(not_runnable(format!(
             "the stored campaign plans {total} points now but {} when submitted",
             rec.total_points
         )));
     }
-    if c.dry_run != rig.is_dry_run() {
+    let total = total.min(rec.total_points);
+    if c.campaign.dry_run != rig.is_dry_run() {
         return Err(not_runnable(
             "the campaign's dry-run flag does not match the connected instrument".into(),
         ));
     }
     let sample_spec = |material: &gonio_brdf::material::Material| SampleSpec {
         material: material.clone(),
-        radius_mm: c.sample_radius_mm,
+        radius_mm: c.campaign.sample_radius_mm,
         orientation_deg: 0.0,
     };
-    let optics = match (&c.material, rig.is_dry_run()) {
+    let optics = match (&c.campaign.material, rig.is_dry_run()) {
         (Some(m), true) => Some(rig.mount_sample(sample_spec(m), file.simulator.seed)?),
         _ => None,
     };
-    let reference = match (&c.calibration.reference, c.calibration.method) {
+    let reference = match (&c.campaign.calibration.reference, c.campaign.calibration.method) {
         (Some(r), Method::Relative) => Some(ReferenceRun {
             name: r.name.clone(),
             transfer: Transfer::new(r.material.clone(), &r.geometry),
@@ -285,6 +310,9 @@ pub(crate) async fn run(
         reference,
         done,
         total,
+        pass_total_s: 0.0,
+        pass_end: total,
+        s_per_point: 0.0,
     };
     let outcome = {
         let watch = follow_pause_requests(Arc::clone(&run.store), id, run.control.clone());
@@ -406,7 +434,7 @@ impl<'a> Run<'a> {
         F: FnMut() -> Fut,
         Fut: Future<Output = Result<T, DriverError>>,
     {
-        let attempts = self.c.acquisition.retries + 1;
+        let attempts = self.c.campaign.acquisition.retries + 1;
         let mut last = String::new();
         for attempt in 1..=attempts {
             // Biased, the stop first: an emergency stop requested at the same instant must win before the
@@ -518,18 +546,20 @@ impl<'a> Run<'a> {
         if self.done >= self.total {
             return Ok(());
         }
-        let steps: Vec<Step> = self.c.schedule.steps.clone();
-        let mut measure_seen = 0u64;
-        let mut start = steps.len();
-        for (i, s) in steps.iter().enumerate() {
-            if s.kind == StepKind::Measure {
-                if measure_seen == self.done {
-                    start = i;
-                    break;
-                }
-                measure_seen += 1;
-            }
-        }
+        // The pass holding the first uncommitted point: the schedule itself, or for an adaptive plan the pass the
+        // committed points lead to (replayed from the store: gonio_campaign::passes).
+        let Some(mut pass) = self.locate_pass()? else {
+            // An adaptive campaign whose planner had already stopped when it was interrupted.
+            return Ok(());
+        };
+        let steps = &pass.schedule.steps;
+        let within = self.done - pass.first_index;
+        let start = steps
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.kind == StepKind::Measure)
+            .nth(usize::try_from(within).unwrap_or(usize::MAX))
+            .map_or(steps.len(), |(i, _)| i);
         if self.done > 0 {
             tracing::info!(campaign = %self.id, from = self.done, "resuming");
         }
@@ -537,13 +567,14 @@ impl<'a> Run<'a> {
         let bands = self.c.plan.bands_nm.clone();
         let fresh = self.done == 0 && self.t_base == 0.0;
         if fresh {
+            let steps = pass.schedule.steps.clone();
             self.start_up(&steps).await?;
         }
         // Calibration preamble: darks and the normalisation readings (direct beam or reference sample) for every
         // band, on every (re)start. On a fresh start the schedule's own leading dark and reference steps are that
         // preamble (so the run follows the predicted steps); a resume, or a plan without them, gets the engine's
         // own.
-        let leading = steps.get(..start).unwrap_or_default();
+        let leading = pass.schedule.steps.get(..start).unwrap_or_default();
         let scheduled_preamble = fresh
             && leading.iter().any(|s| s.kind == StepKind::Dark)
             && leading.iter().any(|s| s.kind == StepKind::Reference);
@@ -554,12 +585,27 @@ impl<'a> Run<'a> {
             self.normalise(&bands, None).await?;
             start
         };
+        loop {
+            self.follow_pass(&pass);
+            self.run_steps(&pass.schedule.steps, i, &bands).await?;
+            match self.next_pass(&pass)? {
+                Some(next) => {
+                    pass = next;
+                    i = 0;
+                }
+                None => return Ok(()),
+            }
+        }
+    }
+
+    /// The schedule's steps from `i` on.
+    async fn run_steps(&mut self, steps: &[Step], mut i: usize, bands: &[f64]) -> Result<(), Interrupt> {
         while i < steps.len() {
             self.safe_point()?;
             let Some(step) = steps.get(i) else { break };
             match step.kind {
                 StepKind::Dark => {
-                    self.darks_all(&bands).await?;
+                    self.darks_all(bands).await?;
                     i += 1;
                 }
                 StepKind::Reference => {
@@ -573,7 +619,7 @@ impl<'a> Run<'a> {
                         i += 1;
                     }
                     if group.is_empty() {
-                        group = bands.clone();
+                        group = bands.to_vec();
                     }
                     self.normalise(&group, Some(pose)).await?;
                 }
@@ -585,6 +631,84 @@ impl<'a> Run<'a> {
             }
         }
         Ok(())
+    }
+
+    /// The pass that holds point `self.done`: the schedule of a fixed plan; for an adaptive one, the passes are
+    /// derived again from the committed points, exactly as the run that committed them derived them. None when
+    /// the adaptive planner stops before that point.
+    fn locate_pass(&mut self) -> Result<Option<Pass>, Interrupt> {
+        let mut pass = Pass {
+            schedule: self.c.schedule.clone(),
+            first_index: 0,
+            elapsed_s: self.c.schedule.breakdown.total_s(),
+            number: 0,
+        };
+        while self.c.adaptive.is_some() && self.done >= pass.end_index() {
+            match self.next_pass(&pass)? {
+                Some(next) => pass = next,
+                None => return Ok(None),
+            }
+        }
+        Ok(Some(pass))
+    }
+
+    /// The pass after `pass` (an adaptive plan; a fixed one has one pass), from every point committed up to the
+    /// end of `pass`, read back from the store. When the planner stops, a total below the budget becomes the
+    /// campaign's total.
+    fn next_pass(&mut self, pass: &Pass) -> Result<Option<Pass>, Interrupt> {
+        let Some(adaptive) = &self.c.adaptive else {
+            return Ok(None);
+        };
+        let end = pass.end_index();
+        let points = self.st(|s| s.points_from(self.id, 0))?;
+        let measured =
+            gonio_campaign::measured_geometries(points.iter().take_while(|p| p.index < end).map(|p| {
+                (
+                    Geometry::new(p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg),
+                    p.brdf_sr,
+                )
+            }));
+        match adaptive.next_pass(&measured, pass.elapsed_s, &pass.schedule) {
+            NextPass::Pass {
+                schedule,
+                error_estimate,
+            } => {
+                let points = schedule.measure_steps().count();
+                tracing::info!(
+                    campaign = %self.id,
+                    pass = pass.number + 1,
+                    first_point = end,
+                    points,
+                    error_estimate,
+                    "adaptive plan: next pass placed from the points measured"
+                );
+                Ok(Some(Pass {
+                    elapsed_s: pass.elapsed_s + schedule.breakdown.total_s(),
+                    schedule,
+                    first_index: end,
+                    number: pass.number + 1,
+                }))
+            }
+            NextPass::Done {
+                reason,
+                error_estimate,
+            } => {
+                tracing::info!(campaign = %self.id, points = end, ?reason, error_estimate, "adaptive plan complete");
+                if end < self.total {
+                    self.st(|s| s.set_total_points(self.id, end))?;
+                    self.total = end;
+                }
+                Ok(None)
+            }
+        }
+    }
+
+    /// Progress and ETA follow `pass`: the rest of its predicted time, plus, for an adaptive plan, the rest of
+    /// the budget at the predicted time per point of the passes placed so far.
+    fn follow_pass(&mut self, pass: &Pass) {
+        self.pass_total_s = pass.schedule.breakdown.total_s();
+        self.pass_end = pass.end_index();
+        self.s_per_point = pass.elapsed_s / pass.end_index().max(1) as f64;
     }
 
     /// Bring the instrument to the state the schedule starts from (its first step's pose, the wheel on its first
@@ -605,7 +729,10 @@ impl<'a> Run<'a> {
     }
 
     fn progress(&self, next_start_s: Option<f64>) {
-        let eta_s = next_start_s.map(|s| (self.c.schedule.breakdown.total_s() - s).max(0.0));
+        let eta_s = next_start_s.map(|s| {
+            let later = self.total.saturating_sub(self.pass_end) as f64 * self.s_per_point;
+            (self.pass_total_s - s).max(0.0) + later
+        });
         self.control.emit(Event::Progress {
             campaign: self.id,
             done: self.done,
@@ -636,7 +763,7 @@ impl<'a> Run<'a> {
         // the failed axis alone while the others go on (issue #8: crates/soak/tests/safety_soak.rs).
         // Each axis gets the retries a single operation gets (`acquisition.retries`); every round charges at
         // least one axis, so the loop is bounded.
-        let attempts = self.c.acquisition.retries + 1;
+        let attempts = self.c.campaign.acquisition.retries + 1;
         let mut failures: BTreeMap<usize, u32> = BTreeMap::new();
         loop {
             let PhaseBroken { failed, reason } = match self.move_once(target).await {
@@ -979,8 +1106,8 @@ impl<'a> Run<'a> {
         if self.configured_nm != Some(nm) {
             let config = DetectorConfig {
                 wavelength_nm: nm,
-                averaging: self.c.acquisition.averaging,
-                range: match self.c.acquisition.range {
+                averaging: self.c.campaign.acquisition.averaging,
+                range: match self.c.campaign.acquisition.range {
                     Range::Auto => PowerRange::Auto,
                     Range::FixedW(w) => PowerRange::Fixed { full_scale_w: w },
                 },
@@ -1003,7 +1130,7 @@ impl<'a> Run<'a> {
             .await?;
         // Under auto-range the meter may report its largest range; the resolution is that of the smallest range
         // holding the reading, which is what auto-ranging settles on.
-        let range_w = match self.c.acquisition.range {
+        let range_w = match self.c.campaign.acquisition.range {
             Range::Auto => self
                 .file
                 .instrument
@@ -1054,7 +1181,7 @@ impl<'a> Run<'a> {
     /// Ask the operator to do something and wait for the confirmation; in dry-runs the simulated sample holder
     /// then holds `holder` (at once with the simulated operator).
     async fn operator(&mut self, message: &str, holder: Holder) -> Result<(), Interrupt> {
-        let simulated = self.optics.is_some() && self.c.calibration.simulate_operator;
+        let simulated = self.optics.is_some() && self.c.campaign.calibration.simulate_operator;
         if !simulated {
             // A confirmation given before the question does not count: dropped before the question is announced,
             // since an operator (or a script) may answer as soon as it is, before this task runs again.
@@ -1114,7 +1241,7 @@ impl<'a> Run<'a> {
     /// The normalisation readings of `bands` for the campaign's method: direct beam (at `pose`, else the plan's
     /// reference pose) or reference sample (at the reference geometry).
     async fn normalise(&mut self, bands: &[f64], pose: Option<Pose>) -> Result<(), Interrupt> {
-        match self.c.calibration.method {
+        match self.c.campaign.calibration.method {
             Method::Absolute => self.direct_beam(bands, pose).await,
             Method::Relative => self.reference_sample(bands).await,
         }
@@ -1433,7 +1560,7 @@ impl<'a> Run<'a> {
         };
         let footprint = Footprint {
             beam_radius_mm: inst.source.beam_radius_mm,
-            sample_radius_mm: self.c.sample_radius_mm,
+            sample_radius_mm: self.c.campaign.sample_radius_mm,
             detector_field_radius_mm: Some(inst.detector.field_radius_mm),
         };
         let limits = ValidityLimits {
@@ -1447,7 +1574,7 @@ impl<'a> Run<'a> {
                     signal_dark: dark,
                     reference: norm,
                     reference_dark: Reading::exact(0.0),
-                    reference_brdf_rel_std: self.c.calibration.reference_rel_std,
+                    reference_brdf_rel_std: self.c.campaign.calibration.reference_rel_std,
                 },
                 &r.transfer,
                 wavelength,
@@ -1525,11 +1652,11 @@ impl<'a> Run<'a> {
     }
 }
 
-fn config_for(nm: f64, c: &Campaign) -> DetectorConfig {
+fn config_for(nm: f64, c: &Prepared) -> DetectorConfig {
     DetectorConfig {
         wavelength_nm: nm,
-        averaging: c.acquisition.averaging,
-        range: match c.acquisition.range {
+        averaging: c.campaign.acquisition.averaging,
+        range: match c.campaign.acquisition.range {
             Range::Auto => PowerRange::Auto,
             Range::FixedW(w) => PowerRange::Fixed { full_scale_w: w },
         },

@@ -27,7 +27,7 @@ use tokio::sync::{Notify, broadcast, mpsc, watch};
 use gonio_instrument::InstrumentFile;
 
 use crate::control::{Control, Event};
-use crate::engine::{prepare_submitted_campaign, run_campaign};
+use crate::engine::{PreparedCampaign, prepare_submitted_campaign, run_prepared_campaign};
 use crate::rig::Rig;
 use crate::store::{CampaignId, CampaignRecord, CampaignState, NewCampaign, Store, StoreError};
 
@@ -69,17 +69,32 @@ impl From<StoreError> for ServiceError {
 /// A future the runner returns, boxed so that [`CampaignRunner`] stays object-safe.
 pub type RunFuture = Pin<Box<dyn Future<Output = Result<CampaignState, String>> + Send>>;
 
+/// A validated submission: the record the store keeps, and the campaign as the engine prepared it, which the
+/// queue keeps with its entry for the campaign's first run (so that it is not planned and ordered twice).
+#[derive(Debug, Clone)]
+pub struct Submission {
+    pub campaign: NewCampaign,
+    pub prepared: Option<Arc<PreparedCampaign>>,
+}
+
 /// What the service needs from the campaign engine: validate a submission, run a stored campaign, export its
 /// points. The daemon uses [`EngineRunner`]; tests of the queue logic use a fake.
 pub trait CampaignRunner: Send + Sync + 'static {
     /// Validate a submitted campaign file and resolve it into what the store keeps. The error is the message a
     /// person reads (file, line, key, what was expected).
     /// `origin` names the file in messages (the client's file name, or "submitted campaign").
-    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<NewCampaign, String>;
+    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, String>;
 
     /// Run (or resume from its first uncommitted point) a stored campaign until it is final or paused. The
-    /// engine keeps the store's state up to date and reports through `control`.
-    fn run(&self, store: Arc<Mutex<Store>>, id: CampaignId, control: Control) -> RunFuture;
+    /// engine keeps the store's state up to date and reports through `control`. `prepared`: what
+    /// [`CampaignRunner::prepare`] gave for it, on its first run.
+    fn run(
+        &self,
+        store: Arc<Mutex<Store>>,
+        id: CampaignId,
+        control: Control,
+        prepared: Option<Arc<PreparedCampaign>>,
+    ) -> RunFuture;
 
     /// The campaign's points as CSV (the columns of `gonio run`).
     fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String>;
@@ -167,7 +182,13 @@ struct RunState {
     resume_first: VecDeque<CampaignId>,
     /// Last predicted remaining time per campaign (s).
     eta_s: HashMap<CampaignId, f64>,
+    /// Queued campaigns as the engine prepared them, for their first run (at most [`KEEP_PREPARED`]: the
+    /// others are planned again from their stored text when they start, as a resumed one always is).
+    prepared: HashMap<CampaignId, Arc<PreparedCampaign>>,
 }
+
+/// How many prepared campaigns the queue keeps: a schedule is a few hundred bytes per point.
+const KEEP_PREPARED: usize = 8;
 
 struct Shared {
     store: Arc<Mutex<Store>>,
@@ -247,12 +268,21 @@ impl Service {
 
     /// Validate and queue a campaign.
     pub fn submit(&self, campaign_toml: &str, origin: &str) -> Result<CampaignId, ServiceError> {
-        let new = self
+        let Submission {
+            campaign: new,
+            prepared,
+        } = self
             .shared
             .runner
             .prepare(campaign_toml, origin)
             .map_err(ServiceError::Invalid)?;
         let id = lock(&self.shared.store).create_campaign(&new)?;
+        if let Some(p) = prepared {
+            let mut run = lock(&self.shared.run);
+            if run.prepared.len() < KEEP_PREPARED {
+                run.prepared.insert(id, p);
+            }
+        }
         tracing::info!(campaign = %id, name = %new.name, points = new.total_points, "campaign queued");
         self.emit_state(id, CampaignState::Queued, None);
         self.shared.wake.notify_one();
@@ -500,10 +530,13 @@ impl Service {
         events: &mut broadcast::Receiver<Event>,
     ) -> bool {
         tracing::info!(campaign = %id, "campaign starts");
-        let mut run = self
-            .shared
-            .runner
-            .run(self.shared.store.clone(), id, self.shared.control.clone());
+        let prepared = lock(&self.shared.run).prepared.remove(&id);
+        let mut run = self.shared.runner.run(
+            self.shared.store.clone(),
+            id,
+            self.shared.control.clone(),
+            prepared,
+        );
         let result = loop {
             tokio::select! {
                 result = &mut run => break Some(result),
@@ -661,18 +694,29 @@ impl EngineRunner {
 }
 
 impl CampaignRunner for EngineRunner {
-    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<NewCampaign, String> {
-        prepare_submitted_campaign(campaign_toml, origin, &self.base_dir, &self.instrument)
-            .map(|p| p.new_campaign(campaign_toml, &self.instrument_toml))
-            .map_err(|e| e.to_string())
+    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, String> {
+        let p = prepare_submitted_campaign(campaign_toml, origin, &self.base_dir, &self.instrument)
+            .map_err(|e| e.to_string())?;
+        Ok(Submission {
+            campaign: p.new_campaign(campaign_toml, &self.instrument_toml),
+            prepared: Some(Arc::new(p)),
+        })
     }
 
-    fn run(&self, store: Arc<Mutex<Store>>, id: CampaignId, control: Control) -> RunFuture {
+    fn run(
+        &self,
+        store: Arc<Mutex<Store>>,
+        id: CampaignId,
+        control: Control,
+        prepared: Option<Arc<PreparedCampaign>>,
+    ) -> RunFuture {
         let rig = self.rig.clone();
         Box::pin(async move {
-            run_campaign(store, id, &rig, control)
-                .await
-                .map_err(|e| e.to_string())
+            match &prepared {
+                Some(p) => run_prepared_campaign(store, id, &rig, control, p).await,
+                None => crate::engine::run_campaign(store, id, &rig, control).await,
+            }
+            .map_err(|e| e.to_string())
         })
     }
 
@@ -732,22 +776,31 @@ mod tests {
     }
 
     impl CampaignRunner for FakeRunner {
-        fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<NewCampaign, String> {
+        fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, String> {
             let points: u64 = campaign_toml
                 .strip_prefix("points = ")
                 .and_then(|n| n.trim().parse().ok())
                 .ok_or_else(|| format!("{origin}:1: key `points`: expected `points = N`"))?;
-            Ok(NewCampaign {
-                name: format!("fake {points}"),
-                campaign_toml: campaign_toml.into(),
-                instrument_toml: String::new(),
-                total_points: points,
-                dry_run: true,
-                software_version: "test".into(),
+            Ok(Submission {
+                campaign: NewCampaign {
+                    name: format!("fake {points}"),
+                    campaign_toml: campaign_toml.into(),
+                    instrument_toml: String::new(),
+                    total_points: points,
+                    dry_run: true,
+                    software_version: "test".into(),
+                },
+                prepared: None,
             })
         }
 
-        fn run(&self, store: Arc<Mutex<Store>>, id: CampaignId, control: Control) -> RunFuture {
+        fn run(
+            &self,
+            store: Arc<Mutex<Store>>,
+            id: CampaignId,
+            control: Control,
+            _prepared: Option<Arc<PreparedCampaign>>,
+        ) -> RunFuture {
             let (active, max_active, started) =
                 (self.active.clone(), self.max_active.clone(), self.started.clone());
             Box::pin(async move {

@@ -646,6 +646,23 @@ impl Store {
         }
     }
 
+    /// Set the points a campaign measures in all: an adaptive campaign that reached its target error before its
+    /// budget ends with fewer points than it was submitted with.
+    pub fn set_total_points(&mut self, id: CampaignId, total: u64) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
+        let n = self
+            .conn
+            .execute(
+                "UPDATE campaigns SET total_points = ?2 WHERE id = ?1",
+                params![id.0, to_i64(total)],
+            )
+            .map_err(self.write_err())?;
+        if n == 0 {
+            return Err(StoreError::NoSuchCampaign(id));
+        }
+        Ok(())
+    }
+
     /// Cap the store file at `pages` pages (None: SQLite's own maximum); returns the cap in force. Writes that
     /// would grow the file beyond it fail as a full disk would (SQLITE_FULL). The cap lasts while this `Store`
     /// is open.

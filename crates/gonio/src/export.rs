@@ -188,10 +188,11 @@ pub fn resolved_config(run: &Run, base_dir: &Path) -> Option<Value> {
     } else {
         Sources::Local(base_dir.to_path_buf())
     };
-    let c = match campaign::parse(campaign_toml, "<run's campaign file>", &sources, &file) {
-        Ok(c) => c,
+    let prepared = match campaign::load_and_prepare(campaign_toml, "<run's campaign file>", &sources, &file) {
+        Ok(p) => p,
         Err(e) => return Some(json!({ "error": e.to_string() })),
     };
+    let c = &prepared.campaign;
     let spec = |m: &gonio_brdf::Material| serde_json::to_value(m.spec()).unwrap_or(Value::Null);
     Some(json!({
         "campaign_id": c.id,
@@ -199,8 +200,8 @@ pub fn resolved_config(run: &Run, base_dir: &Path) -> Option<Value> {
         "instrument": file.instrument.name,
         "sample_radius_mm": c.sample_radius_mm,
         "dry_run": c.dry_run,
-        "total_points": c.total_points(),
-        "predicted_instrument_s": c.schedule.breakdown.total_s(),
+        "total_points": prepared.total_points(),
+        "predicted_instrument_s": prepared.predicted_s(),
         "material": c.material.as_ref().map(spec),
         "calibration": {
             "method": match c.calibration.method { Method::Absolute => "absolute", Method::Relative => "relative" },

@@ -9,11 +9,10 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use gonio_brdf::Brdf;
-use gonio_brdf::material::Material;
+use gonio_campaign::{Prepared, Sources};
 use gonio_instrument::InstrumentFile;
-use gonio_scheduler::adaptive::Adaptive;
-use gonio_scheduler::plan::{self, BuildContext, CampaignDoc, SampleTraits};
-use gonio_scheduler::schedule::{self, BandMode, Schedule};
+use gonio_scheduler::plan;
+use gonio_scheduler::schedule::{BandMode, Schedule};
 use gonio_scheduler::timing::TimeModel;
 
 use crate::CliError;
@@ -35,79 +34,58 @@ pub fn run(args: PlanArgs) -> Result<(), CliError> {
         Some(p) => InstrumentFile::load(p).map_err(|e| CliError::input(e.to_string()))?,
         None => InstrumentFile::simulated(),
     };
-    let instrument = file.instrument;
     let origin = args.campaign.display().to_string();
     let text = std::fs::read_to_string(&args.campaign)
         .map_err(|e| CliError::io(format!("cannot read campaign file {origin}"), e))?;
-    let doc = CampaignDoc::parse(&text, &origin).map_err(|e| CliError::input(e.to_string()))?;
     let base_dir = args.campaign.parent().map(Path::to_path_buf).unwrap_or_default();
-    let (traits, material_note) = if doc.material.is_some() {
-        let m =
-            Material::from_document(&text, &origin, &base_dir).map_err(|e| CliError::input(e.to_string()))?;
-        (
-            SampleTraits {
-                isotropic: m.is_isotropic(),
-                spectrally_flat: m.is_spectrally_flat(),
-            },
-            format!(
+    // The same loader and the same prepare as `gonio run` and the daemon: the same plan and prediction.
+    let prepared = gonio_campaign::load_and_prepare(&text, &origin, &Sources::Local(base_dir), &file)
+        .map_err(|e| CliError::input(e.to_string()))?;
+    let out = summary(&prepared, &file);
+    print!("{out}");
+    if let Some(path) = &args.points {
+        let csv = points_csv(&prepared.schedule, &prepared.time);
+        std::fs::write(path, csv).map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
+    }
+    Ok(())
+}
+
+/// What `gonio plan` prints.
+fn summary(p: &Prepared, file: &InstrumentFile) -> String {
+    let instrument = &file.instrument;
+    let c = &p.campaign;
+    let (plan, sched) = (&p.plan, &p.schedule);
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "campaign {} on instrument {} ({})",
+        c.id,
+        instrument.name,
+        plan::geometry_kind_name(instrument.geometry)
+    );
+    let _ = writeln!(
+        out,
+        "{}",
+        match &c.material {
+            Some(m) => format!(
                 "material: {} ({}, {})",
                 m.model().name(),
                 iso_word(m.is_isotropic()),
                 flat_word(m.is_spectrally_flat())
             ),
-        )
-    } else {
-        (
-            SampleTraits {
-                isotropic: false,
-                spectrally_flat: false,
-            },
-            "material: none given (treated as anisotropic and spectrally varying)".to_string(),
-        )
-    };
-    let sample_radius_mm = doc.sample.as_ref().and_then(|s| s.radius_mm);
-    let ctx = BuildContext {
-        instrument: &instrument,
-        traits,
-        sample_radius_mm,
-        start: None,
-    };
-    let time = TimeModel::new(&instrument);
-
-    let mut out = String::new();
-    let id = doc
-        .campaign
-        .as_ref()
-        .and_then(|c| c.get("id"))
-        .and_then(|v| v.as_str())
-        .unwrap_or("(no id)")
-        .to_string();
-    let _ = writeln!(
-        out,
-        "campaign {id} on instrument {} ({})",
-        instrument.name,
-        plan::geometry_kind_name(instrument.geometry)
+            None => "material: none given (treated as anisotropic and spectrally varying)".to_string(),
+        }
     );
-    let _ = writeln!(out, "{material_note}");
-
-    let plan = if let Some(spec) = &doc.plan.adaptive {
-        let adaptive = Adaptive::new(spec, &ctx).map_err(|e| CliError::input(e.to_string()))?;
-        let first = adaptive.first_pass();
+    if let Some(a) = &p.adaptive {
         let _ = writeln!(
             out,
-            "adaptive plan: budget {} points; {} reachable candidates; first pass below, the rest is placed at run time",
-            spec.budget_points,
-            adaptive.candidate_count()
+            "adaptive plan: budget {} points ({} per geometry); {} reachable candidates; first pass below, each \
+             later pass is placed at run time from the points measured",
+            a.budget_points(),
+            a.points_per_geometry(),
+            a.planner().candidate_count()
         );
-        let mut iso_spec = doc.plan.clone();
-        iso_spec.adaptive = None;
-        plan::build_from_geometries(&iso_spec, &ctx, &first, true)
-            .map_err(|e| CliError::input(e.to_string()))?
-    } else {
-        plan::build(&doc.plan, &ctx).map_err(|e| CliError::input(e.to_string()))?
-    };
-    let sched = schedule::schedule(&plan, &time, None);
-
+    }
     let geometries = plan.geometries.len();
     let _ = writeln!(
         out,
@@ -145,14 +123,21 @@ pub fn run(args: PlanArgs) -> Result<(), CliError> {
             "arm-separation", sched.dropped
         );
     }
-    print_times(&mut out, &sched);
-    print!("{out}");
-
-    if let Some(path) = &args.points {
-        let csv = points_csv(&sched, &time);
-        std::fs::write(path, csv).map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
+    if p.adaptive.is_some() {
+        let _ = writeln!(
+            out,
+            "predicted duration: {:.1} s ({}) for the whole budget, at the first pass's time per point",
+            p.predicted_s(),
+            hms(p.predicted_s())
+        );
     }
-    Ok(())
+    let label = if p.adaptive.is_some() {
+        "first pass duration"
+    } else {
+        "predicted duration"
+    };
+    print_times(&mut out, sched, label);
+    out
 }
 
 fn iso_word(iso: bool) -> &'static str {
@@ -172,7 +157,7 @@ fn hms(s: f64) -> String {
     format!("{}h{:02}m{:02}s", total / 3600, (total / 60) % 60, total % 60)
 }
 
-fn print_times(out: &mut String, sched: &Schedule) {
+fn print_times(out: &mut String, sched: &Schedule, label: &str) {
     let b = &sched.breakdown;
     let mode = match sched.mode {
         BandMode::PerGeometry => "all bands at each geometry",
@@ -181,7 +166,7 @@ fn print_times(out: &mut String, sched: &Schedule) {
     };
     let _ = writeln!(
         out,
-        "predicted duration: {:.1} s ({}), {mode}",
+        "{label}: {:.1} s ({}), {mode}",
         b.total_s(),
         hms(b.total_s())
     );

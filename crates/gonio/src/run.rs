@@ -144,7 +144,14 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
     let outcome = if record.state == CampaignState::Completed {
         Ok((CampaignState::Completed, Vec::new(), false))
     } else {
-        runtime.block_on(drive(Arc::clone(&store), id, &file, paused_clock, args.quiet))
+        runtime.block_on(drive(
+            Arc::clone(&store),
+            id,
+            &file,
+            &prepared,
+            paused_clock,
+            args.quiet,
+        ))
     };
     runtime.shutdown_timeout(std::time::Duration::from_millis(200));
     let (state, identities, interrupted) = outcome?;
@@ -191,6 +198,7 @@ async fn drive(
     store: Arc<Mutex<Store>>,
     id: CampaignId,
     file: &InstrumentFile,
+    prepared: &engine::PreparedCampaign,
     paused_clock: bool,
     quiet: bool,
 ) -> Result<(CampaignState, Vec<(String, String)>, bool), CliError> {
@@ -268,7 +276,7 @@ async fn drive(
         last_done
     });
 
-    let run = engine::run_campaign(Arc::clone(&store), id, &rig, control.clone());
+    let run = engine::run_prepared_campaign(Arc::clone(&store), id, &rig, control.clone(), prepared);
     tokio::pin!(run);
     let mut signalled = watch_signals();
     let mut interrupted = false;

@@ -4,7 +4,7 @@
 use std::time::Instant;
 
 use gonio_instrument::InstrumentFile;
-use gonio_scheduler::plan::{self, BuildContext, CampaignDoc, SampleTraits};
+use gonio_scheduler::plan::{self, BuildContext, PlanSpec, SampleTraits};
 use gonio_scheduler::schedule;
 use gonio_scheduler::timing::TimeModel;
 
@@ -14,7 +14,7 @@ fn main() {
     let text = "[plan]\nbands_nm = [550.0]\n[plan.grid]\nkind = \"full\"\n\
                 theta_i_deg = { from = 0.0, to = 80.0, step = 10.0 }\nphi_i_deg = { from = 0.0, to = 340.0, step = 20.0 }\n\
                 theta_o_deg = { from = 0.0, to = 80.0, step = 10.0 }\nphi_o_deg = { from = 0.0, to = 340.0, step = 20.0 }\n";
-    let doc = CampaignDoc::parse(text, "order_10k").expect("campaign");
+    let spec = PlanSpec::from_toml(text, "order_10k").expect("campaign");
     let ctx = BuildContext {
         instrument: &instrument,
         traits: SampleTraits {
@@ -25,7 +25,7 @@ fn main() {
         start: None,
     };
     let t0 = Instant::now();
-    let plan = plan::build(&doc.plan, &ctx).expect("plan");
+    let plan = plan::build(&spec, &ctx).expect("plan");
     let t1 = Instant::now();
     let time = TimeModel::new(&instrument);
     let poses: Vec<_> = plan.geometries.iter().map(|g| g.candidates[0].0).collect();

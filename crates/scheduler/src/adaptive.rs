@@ -29,7 +29,7 @@
 //!   the K nearest points); the tests compare it against a uniform grid of the same size.
 
 use gonio_brdf::geometry::Direction;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::constraints::Constraints;
 use crate::kinematics::{Geometry, Kinematics, Pose};
@@ -40,7 +40,7 @@ use crate::timing::TimeModel;
 const K: usize = 8;
 
 /// `[plan.adaptive]`.
-#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct AdaptiveSpec {
     /// Points to measure in all (first pass included).

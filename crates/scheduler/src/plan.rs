@@ -37,7 +37,7 @@ use std::collections::{BTreeMap, HashMap};
 
 use gonio_brdf::geometry::Direction;
 use gonio_instrument::{GeometryKind, Instrument};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSpec;
 use crate::constraints::{Constraints, Reason};
@@ -109,10 +109,10 @@ pub struct SampleTraits {
 }
 
 /// `[plan]`.
-#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct PlanSpec {
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bands_nm: Option<Vec<f64>>,
     #[serde(default = "one")]
     pub repeats: u32,
@@ -120,9 +120,9 @@ pub struct PlanSpec {
     pub reciprocity: bool,
     #[serde(default)]
     pub rotation_deg: f64,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub grid: Option<GridSpec>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub adaptive: Option<AdaptiveSpec>,
     #[serde(default)]
     pub calibration: CalibrationSpec,
@@ -135,7 +135,7 @@ fn yes() -> bool {
     true
 }
 
-#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "kebab-case")]
 pub enum GridKind {
     Full,
@@ -145,39 +145,39 @@ pub enum GridKind {
 }
 
 /// `[plan.grid]`. Angle keys take a list or `{ from, to, step }`.
-#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct GridSpec {
     pub kind: GridKind,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub theta_i_deg: Option<toml::Value>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub phi_i_deg: Option<toml::Value>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub theta_o_deg: Option<toml::Value>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub phi_o_deg: Option<toml::Value>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub delta_phi_deg: Option<toml::Value>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub plane_phi_deg: Option<toml::Value>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub points: Option<Vec<[f64; 4]>>,
 }
 
 /// `[plan.calibration]`.
-#[derive(Debug, Clone, Default, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Default, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationSpec {
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dark_every_points: Option<u32>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dark_every_s: Option<f64>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference_every_points: Option<u32>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference_every_s: Option<f64>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference_pose_deg: Option<BTreeMap<String, f64>>,
 }
 
@@ -209,32 +209,21 @@ impl Calibration {
     }
 }
 
-/// The parts of a campaign file the scheduler reads. `[campaign]` and `[material]` are kept as raw tables for
-/// their owners; only `[plan]` is strict.
-#[derive(Debug, Clone, Deserialize, PartialEq)]
-pub struct CampaignDoc {
-    #[serde(default)]
-    pub campaign: Option<toml::Table>,
-    pub plan: PlanSpec,
-    #[serde(default)]
-    pub material: Option<toml::Table>,
-    #[serde(default)]
-    pub sample: Option<SampleSpec>,
-}
-
-/// `[sample]`.
-#[derive(Debug, Clone, Deserialize, PartialEq)]
-pub struct SampleSpec {
-    #[serde(default)]
-    pub radius_mm: Option<f64>,
-}
-
-impl CampaignDoc {
-    pub fn parse(text: &str, origin: &str) -> Result<CampaignDoc, PlanError> {
-        toml::from_str(text).map_err(|e| PlanError::Parse {
-            origin: origin.to_string(),
-            message: e.to_string(),
-        })
+impl PlanSpec {
+    /// The `[plan]` table of a TOML document, other tables ignored. Campaign files are read by
+    /// `gonio-campaign` (the one loader, which validates every table); this is for plans on their own (the
+    /// scheduler's tests, examples and benchmarks).
+    pub fn from_toml(text: &str, origin: &str) -> Result<PlanSpec, PlanError> {
+        #[derive(Deserialize)]
+        struct PlanOnly {
+            plan: PlanSpec,
+        }
+        toml::from_str::<PlanOnly>(text)
+            .map(|d| d.plan)
+            .map_err(|e| PlanError::Parse {
+                origin: origin.to_string(),
+                message: e.to_string(),
+            })
     }
 }
 

@@ -88,6 +88,35 @@ pub struct Schedule {
     pub lower_bound_s: f64,
     /// (geometry, band) readings dropped while walking because no safe move reached them.
     pub dropped: usize,
+    /// Where the calibration cadence and the wheel stand after the last step: what a schedule that continues
+    /// this one starts from ([`schedule_continuing`]).
+    pub end: Cadence,
+}
+
+/// The state a schedule leaves behind for one that continues it (an adaptive campaign's next pass): the
+/// calibration cadence's counters and the wheel, so that a dark or a normalisation falls due across passes as
+/// it would within one schedule.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Cadence {
+    /// Measure steps since the last dark.
+    pub points_since_dark: u32,
+    /// Measure steps since the last normalisation (reference) reading.
+    pub points_since_reference: u32,
+    /// Instrument time since the last dark (s).
+    pub since_dark_s: f64,
+    /// Instrument time since the last normalisation reading (s).
+    pub since_reference_s: f64,
+    /// The filter wheel's position (None: unknown).
+    pub wheel: Option<u8>,
+}
+
+/// How a walk starts and ends: a complete schedule opens and closes with darks and normalisation readings
+/// (when the plan asks for them); a continued one carries the cadence of the schedule before it and leaves the
+/// closing ones to whoever decides that the campaign ends.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Frame {
+    Complete,
+    Open { from: Option<Cadence> },
 }
 
 impl Schedule {
@@ -154,19 +183,21 @@ impl<'a> Walker<'a> {
         time: &'a TimeModel,
         start: Option<&Pose>,
         representative: &'a [Pose],
+        from: Option<Cadence>,
     ) -> Walker<'a> {
+        let c = from.unwrap_or_default();
         Walker {
             plan,
             time,
             pose: start.copied(),
-            wheel: None,
+            wheel: c.wheel,
             t: 0.0,
             steps: Vec::new(),
             breakdown: Breakdown::default(),
-            points_since_dark: 0,
-            points_since_reference: 0,
-            last_dark_s: 0.0,
-            last_reference_s: 0.0,
+            points_since_dark: c.points_since_dark,
+            points_since_reference: c.points_since_reference,
+            last_dark_s: -c.since_dark_s,
+            last_reference_s: -c.since_reference_s,
             pass: 0,
             dropped: 0,
             representative,
@@ -417,14 +448,21 @@ impl<'a> Walker<'a> {
         }
     }
 
-    fn finish(mut self, first: Pose) -> (Vec<Step>, Breakdown, usize) {
-        if self.plan.calibration.darks() {
+    fn finish(mut self, first: Pose, close: bool) -> Walked {
+        if close && self.plan.calibration.darks() {
             self.dark(first);
         }
-        if self.plan.calibration.references() {
+        if close && self.plan.calibration.references() {
             self.reference(first);
         }
-        (self.steps, self.breakdown, self.dropped)
+        let end = Cadence {
+            points_since_dark: self.points_since_dark,
+            points_since_reference: self.points_since_reference,
+            since_dark_s: self.t - self.last_dark_s,
+            since_reference_s: self.t - self.last_reference_s,
+            wheel: self.wheel,
+        };
+        (self.steps, self.breakdown, self.dropped, end)
     }
 }
 
@@ -448,22 +486,34 @@ enum Visits<'a> {
     },
 }
 
+/// Steps, their time, readings dropped, and the cadence at the end.
+type Walked = (Vec<Step>, Breakdown, usize, Cadence);
+
 fn walk(
     plan: &Plan,
     time: &TimeModel,
     start: Option<&Pose>,
     representative: &[Pose],
     visits: Visits,
-) -> (Vec<Step>, Breakdown, usize) {
-    let mut w = Walker::new(plan, time, start, representative);
+    frame: Frame,
+) -> Walked {
+    let from = match frame {
+        Frame::Complete => None,
+        Frame::Open { from } => from,
+    };
+    let mut w = Walker::new(plan, time, start, representative, from);
     let first_node = match &visits {
         Visits::PerGeometry { tour, .. } | Visits::PerBand { tour } => tour.first().copied(),
     };
     let Some(first_node) = first_node else {
-        return (Vec::new(), Breakdown::default(), 0);
+        return (Vec::new(), Breakdown::default(), 0, from.unwrap_or_default());
     };
     let first = start.copied().unwrap_or(representative[first_node]);
-    w.begin(first);
+    // A continued schedule's cadence comes from the one before it: only a schedule that starts a campaign
+    // opens with darks and normalisation readings.
+    if from.is_none() {
+        w.begin(first);
+    }
     for pass in 0..plan.repeats {
         w.pass = pass;
         match &visits {
@@ -511,11 +561,27 @@ fn walk(
             }
         }
     }
-    w.finish(first)
+    w.finish(first, frame == Frame::Complete)
 }
 
 /// Order a plan and predict its duration. `start`: the instrument's current pose, if known.
 pub fn schedule(plan: &Plan, time: &TimeModel, start: Option<&Pose>) -> Schedule {
+    schedule_framed(plan, time, start, Frame::Complete)
+}
+
+/// Order a plan that a later one may continue (an adaptive campaign's passes): like [`schedule`], but no
+/// closing darks or normalisation readings, and, with `from` (the [`Schedule::end`] of the schedule before it),
+/// no opening ones either: the calibration cadence carries on from where that schedule left it.
+pub fn schedule_continuing(
+    plan: &Plan,
+    time: &TimeModel,
+    start: Option<&Pose>,
+    from: Option<Cadence>,
+) -> Schedule {
+    schedule_framed(plan, time, start, Frame::Open { from })
+}
+
+fn schedule_framed(plan: &Plan, time: &TimeModel, start: Option<&Pose>, frame: Frame) -> Schedule {
     let anchor = start.copied().or(plan.anchor);
     // Representative pose per geometry: the candidate cheapest to reach from the anchor (else the first).
     let representative: Vec<Pose> = plan
@@ -532,7 +598,7 @@ pub fn schedule(plan: &Plan, time: &TimeModel, start: Option<&Pose>) -> Schedule
         })
         .collect();
     let raster_tour: Vec<usize> = (0..plan.geometries.len()).collect();
-    let (raster_steps, raster, raster_dropped) = walk(
+    let (raster_steps, raster, raster_dropped, raster_end) = walk(
         plan,
         time,
         start,
@@ -542,10 +608,11 @@ pub fn schedule(plan: &Plan, time: &TimeModel, start: Option<&Pose>) -> Schedule
             smart: false,
             reverse_passes: false,
         },
+        frame,
     );
     let tour = order::order(&representative, start, time);
     let mut best = {
-        let (s, b, d) = walk(
+        let (s, b, d, e) = walk(
             plan,
             time,
             start,
@@ -555,25 +622,27 @@ pub fn schedule(plan: &Plan, time: &TimeModel, start: Option<&Pose>) -> Schedule
                 smart: true,
                 reverse_passes: true,
             },
+            frame,
         );
-        (s, b, d, BandMode::PerGeometry)
+        (s, b, d, e, BandMode::PerGeometry)
     };
     if plan.bands_nm.len() > 1 && time.wheel.is_some() {
-        let (s, b, d) = walk(
+        let (s, b, d, e) = walk(
             plan,
             time,
             start,
             &representative,
             Visits::PerBand { tour: &tour },
+            frame,
         );
         if b.total_s() < best.1.total_s() {
-            best = (s, b, d, BandMode::PerBand);
+            best = (s, b, d, e, BandMode::PerBand);
         }
     }
     if raster.total_s() < best.1.total_s() {
-        best = (raster_steps, raster, raster_dropped, BandMode::Raster);
+        best = (raster_steps, raster, raster_dropped, raster_end, BandMode::Raster);
     }
-    let (steps, breakdown, dropped, mode) = best;
+    let (steps, breakdown, dropped, end, mode) = best;
 
     // Lower bound: moves (crate::order), readings (exact), wheel (each further band needs at least one step),
     // and the calibration readings the point counts force.
@@ -605,6 +674,8 @@ pub fn schedule(plan: &Plan, time: &TimeModel, start: Option<&Pose>) -> Schedule
         }
     };
     let mut calibration_lb = 0.0;
+    // Only a complete schedule is forced to open and close with calibration readings.
+    let readings = if frame == Frame::Complete { readings } else { 0 };
     if plan.calibration.darks() && readings > 0 {
         calibration_lb += forced(plan.calibration.dark_every_points) as f64 * time.reading_s;
     }
@@ -613,7 +684,7 @@ pub fn schedule(plan: &Plan, time: &TimeModel, start: Option<&Pose>) -> Schedule
             * plan.bands_nm.len() as f64
             * time.reading_s;
     }
-    let lower_bound_s = if readings == 0 {
+    let lower_bound_s = if plan.geometries.is_empty() {
         0.0
     } else {
         moves_lb + integration_lb + wheel_lb + calibration_lb
@@ -625,6 +696,7 @@ pub fn schedule(plan: &Plan, time: &TimeModel, start: Option<&Pose>) -> Schedule
         raster,
         lower_bound_s,
         dropped,
+        end,
     }
 }
 

@@ -10,7 +10,7 @@ use gonio_instrument::Instrument;
 use gonio_scheduler::constraints::{Constraints, Reason};
 use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
 use gonio_scheduler::order;
-use gonio_scheduler::plan::{self, BuildContext, CampaignDoc, Plan, SampleTraits};
+use gonio_scheduler::plan::{self, BuildContext, Plan, PlanSpec, SampleTraits};
 use gonio_scheduler::schedule::{self, Schedule, StepKind};
 use gonio_scheduler::timing::TimeModel;
 use proptest::prelude::*;
@@ -25,14 +25,14 @@ const ANISO: SampleTraits = SampleTraits {
 };
 
 fn build(text: &str, inst: &Instrument, traits: SampleTraits) -> Result<Plan, String> {
-    let doc = CampaignDoc::parse(text, "test.toml").map_err(|e| e.to_string())?;
+    let spec = PlanSpec::from_toml(text, "test.toml").map_err(|e| e.to_string())?;
     let ctx = BuildContext {
         instrument: inst,
         traits,
         sample_radius_mm: None,
         start: None,
     };
-    plan::build(&doc.plan, &ctx).map_err(|e| e.to_string())
+    plan::build(&spec, &ctx).map_err(|e| e.to_string())
 }
 
 fn err(text: &str) -> String {

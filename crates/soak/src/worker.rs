@@ -26,9 +26,10 @@ use std::sync::{Arc, Mutex};
 
 use gonio_daemon::api::{self, ApiConfig};
 use gonio_daemon::control::{Control, Event};
+use gonio_daemon::engine::PreparedCampaign;
 use gonio_daemon::rig::Rig;
-use gonio_daemon::service::{CampaignRunner, EngineRunner, RunFuture, Service};
-use gonio_daemon::store::{CampaignId, CampaignRecord, CampaignState, NewCampaign, Store};
+use gonio_daemon::service::{CampaignRunner, EngineRunner, RunFuture, Service, Submission};
+use gonio_daemon::store::{CampaignId, CampaignRecord, CampaignState, Store};
 use gonio_instrument::InstrumentFile;
 use tracing::field::{Field, Visit};
 use tracing::{Level, Subscriber};
@@ -241,15 +242,21 @@ struct ProbeRunner {
 }
 
 impl CampaignRunner for ProbeRunner {
-    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<NewCampaign, String> {
+    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, String> {
         self.inner.prepare(campaign_toml, origin)
     }
 
-    fn run(&self, store: Arc<Mutex<Store>>, id: CampaignId, control: Control) -> RunFuture {
+    fn run(
+        &self,
+        store: Arc<Mutex<Store>>,
+        id: CampaignId,
+        control: Control,
+        prepared: Option<Arc<PreparedCampaign>>,
+    ) -> RunFuture {
         if let Some(killer) = &self.commit_killer {
             killer.arm(&store);
         }
-        self.inner.run(store, id, control)
+        self.inner.run(store, id, control, prepared)
     }
 
     fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {

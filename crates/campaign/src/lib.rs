@@ -1,0 +1,29 @@
+//! gonio-campaign: what a campaign is, read one way and prepared one way.
+//!
+//! Module map:
+//! - [`model`]: the campaign file as typed data ([`CampaignFile`], `Serialize` and `Deserialize`): its tables.
+//! - [`load`]: the one loader: text to a validated [`Campaign`], with messages that name the file, the line, the
+//!   key and what was expected ([`CampaignError`]).
+//! - [`sources`]: where the materials a campaign names come from ([`Sources`]) and the `[resolved]` table a
+//!   stored campaign carries.
+//! - `materials`: resolving the sample and the reference, and checking the reference can normalise.
+//! - [`prepare`]: the one prepare: plan, schedule and time model ([`Prepared`]), used by `gonio plan`,
+//!   `gonio run`, the daemon, the exports and the benchmarks.
+//! - [`passes`]: adaptive plans at run time: each later pass from the points measured so far ([`AdaptivePlan`]).
+
+pub mod error;
+pub mod load;
+mod materials;
+pub mod model;
+pub mod passes;
+pub mod prepare;
+pub mod sources;
+
+pub use error::{CampaignError, line_of};
+pub use gonio_scheduler::adaptive::{Measured, StopReason};
+pub use load::{Acquisition, CalibrationSettings, Campaign, Range, Reference, load};
+pub use materials::DEFAULT_REFERENCE_GEOMETRY_DEG;
+pub use model::{CampaignFile, Method};
+pub use passes::{AdaptivePlan, NextPass, measured_geometries};
+pub use prepare::{Prepared, campaign_time_model, load_and_prepare, prepare, sample_traits};
+pub use sources::{Resolved, Sources};

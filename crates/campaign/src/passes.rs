@@ -1,0 +1,197 @@
+//! Adaptive plans at run time: each pass after the first is placed by the scheduler's adaptive planner from the
+//! points measured so far, until the point budget, the time budget or the target error is reached.
+//!
+//! Determinism (what resuming relies on): a pass is a pure function of the points committed before it (their
+//! geometries and values, read back from the store), the predicted instrument time of the passes before it, and
+//! where the pass before it ended (its last pose and calibration cadence). A campaign resumed after any
+//! interruption replays the same derivation from the same committed points and so places the same passes as an
+//! uninterrupted run that measured the same values.
+//!
+//! Points and budgets: `budget_points` counts points as everywhere else (one geometry at one band, each repeat
+//! counted), so a campaign at B bands with R repeats measures at most `budget_points / (B x R)` geometries. The
+//! planner refines on one value per geometry: the mean of that geometry's valid BRDF values over its bands
+//! ([`measured_geometries`]); failed and saturated readings carry no value.
+//!
+//! Time budget: `budget_s` is compared with the predicted instrument time of the passes placed so far (the
+//! schedules' own predictions), not with a clock, so that the decision does not depend on when a resume happened.
+
+use gonio_scheduler::adaptive::{Adaptive, AdaptiveSpec, Measured, StopReason};
+use gonio_scheduler::kinematics::Geometry;
+use gonio_scheduler::plan::{self, BuildContext, Plan, PlanError, PlanSpec};
+use gonio_scheduler::schedule::{self, Schedule};
+use gonio_scheduler::timing::TimeModel;
+
+/// The adaptive planner of one campaign, with what it needs to place and order a pass.
+#[derive(Debug, Clone)]
+pub struct AdaptivePlan {
+    adaptive: Adaptive,
+    /// `[plan]` without the grid and the adaptive table: bands, repeats, calibration cadence.
+    batch_spec: PlanSpec,
+    instrument: gonio_instrument::Instrument,
+    traits: gonio_scheduler::plan::SampleTraits,
+    sample_radius_mm: Option<f64>,
+    time: TimeModel,
+    /// Points (measure steps) per geometry: bands x repeats.
+    points_per_geometry: u64,
+    budget_points: u64,
+}
+
+/// What comes after a pass.
+#[derive(Debug, Clone)]
+pub enum NextPass {
+    /// Measure this schedule next.
+    Pass {
+        schedule: Schedule,
+        /// The planner's largest local error estimate before this pass (ln(1 + f) units).
+        error_estimate: f64,
+    },
+    /// The campaign is complete.
+    Done { reason: StopReason, error_estimate: f64 },
+}
+
+impl AdaptivePlan {
+    pub(crate) fn new(
+        spec: &AdaptiveSpec,
+        plan_spec: &PlanSpec,
+        ctx: &BuildContext,
+        time: TimeModel,
+    ) -> Result<AdaptivePlan, PlanError> {
+        let mut batch_spec = plan_spec.clone();
+        batch_spec.adaptive = None;
+        batch_spec.grid = None;
+        // The bands the plan measures (validated by the plan builder on the first pass).
+        let bands = plan_spec.bands_nm.as_ref().map_or(1, |b| b.len().max(1)) as u64;
+        let points_per_geometry = bands * u64::from(plan_spec.repeats.max(1));
+        let budget_points = u64::from(spec.budget_points);
+        let geometries = (budget_points / points_per_geometry).max(1);
+        let mut geometry_spec = spec.clone();
+        geometry_spec.budget_points = u32::try_from(geometries).unwrap_or(u32::MAX);
+        let adaptive = Adaptive::new(&geometry_spec, ctx)?;
+        Ok(AdaptivePlan {
+            adaptive,
+            batch_spec,
+            instrument: ctx.instrument.clone(),
+            traits: ctx.traits,
+            sample_radius_mm: ctx.sample_radius_mm,
+            time,
+            points_per_geometry,
+            budget_points: geometries * points_per_geometry,
+        })
+    }
+
+    /// The most points the campaign measures (the budget, rounded down to whole geometries).
+    pub fn budget_points(&self) -> u64 {
+        self.budget_points
+    }
+
+    /// Points (measure steps) per geometry: bands x repeats.
+    pub fn points_per_geometry(&self) -> u64 {
+        self.points_per_geometry
+    }
+
+    /// The planner itself (its interpolation, for reconstructing the BRDF from the points measured).
+    pub fn planner(&self) -> &Adaptive {
+        &self.adaptive
+    }
+
+    /// The first pass as a plan.
+    pub(crate) fn first_plan(&self, ctx: &BuildContext) -> Result<Plan, PlanError> {
+        plan::build_from_geometries(&self.batch_spec, ctx, &self.adaptive.first_pass(), true)
+    }
+
+    /// The pass after `previous` (the schedule just measured), from every geometry measured so far and the
+    /// predicted instrument time of all passes so far (`elapsed_s`). Deterministic (module doc).
+    pub fn next_pass(&self, measured: &[Measured], elapsed_s: f64, previous: &Schedule) -> NextPass {
+        let batch = self.adaptive.next_batch(measured, elapsed_s);
+        let error_estimate = batch.error_estimate;
+        if let Some(reason) = batch.done {
+            return NextPass::Done {
+                reason,
+                error_estimate,
+            };
+        }
+        let start = previous.steps.last().map(|s| s.pose);
+        let ctx = BuildContext {
+            instrument: &self.instrument,
+            traits: self.traits,
+            sample_radius_mm: self.sample_radius_mm,
+            start,
+        };
+        let schedule = plan::build_from_geometries(&self.batch_spec, &ctx, &batch.geometries, true)
+            .ok()
+            .map(|p| schedule::schedule_continuing(&p, &self.time, start.as_ref(), Some(previous.end)));
+        match schedule {
+            // Nothing of the batch can be measured: the planner would only propose it again.
+            Some(s) if s.measure_steps().next().is_some() => NextPass::Pass {
+                schedule: s,
+                error_estimate,
+            },
+            _ => NextPass::Done {
+                reason: StopReason::NoCandidates,
+                error_estimate,
+            },
+        }
+    }
+}
+
+/// One value per geometry for the planner, from points in measurement order: `(geometry, BRDF in 1/sr or None
+/// for a failed or saturated reading)`. A geometry's value is the mean of its valid values (over bands and
+/// repeats); geometries without one are left out. Order: each geometry's first appearance.
+pub fn measured_geometries(points: impl IntoIterator<Item = (Geometry, Option<f64>)>) -> Vec<Measured> {
+    let key = |g: &Geometry| {
+        [
+            g.theta_i_deg.to_bits(),
+            g.phi_i_deg.to_bits(),
+            g.theta_o_deg.to_bits(),
+            g.phi_o_deg.to_bits(),
+        ]
+    };
+    let mut order: Vec<(Geometry, f64, u32)> = Vec::new();
+    let mut index: std::collections::HashMap<[u64; 4], usize> = std::collections::HashMap::new();
+    for (g, value) in points {
+        let slot = *index.entry(key(&g)).or_insert_with(|| {
+            order.push((g, 0.0, 0));
+            order.len() - 1
+        });
+        if let Some(v) = value.filter(|v| v.is_finite())
+            && let Some(entry) = order.get_mut(slot)
+        {
+            entry.1 += v;
+            entry.2 += 1;
+        }
+    }
+    order
+        .into_iter()
+        .filter(|(_, _, n)| *n > 0)
+        .map(|(geometry, sum, n)| Measured {
+            geometry,
+            value: sum / f64::from(n),
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_value_per_geometry_the_mean_of_its_valid_bands_in_first_appearance_order() {
+        let a = Geometry::new(0.0, 0.0, 30.0, 180.0);
+        let b = Geometry::new(30.0, 0.0, 30.0, 180.0);
+        let c = Geometry::new(60.0, 0.0, 10.0, 180.0);
+        let m = measured_geometries([
+            (b, Some(2.0)),
+            (a, Some(1.0)),
+            (b, Some(4.0)),
+            (c, None),
+            (a, None),
+            (a, Some(f64::NAN)),
+            (a, Some(3.0)),
+        ]);
+        assert_eq!(m.len(), 2, "c has no valid value: {m:?}");
+        assert_eq!(m[0].geometry, b);
+        assert_eq!(m[0].value, 3.0);
+        assert_eq!(m[1].geometry, a);
+        assert_eq!(m[1].value, 2.0);
+    }
+}

@@ -1,0 +1,160 @@
+//! The one `prepare`: a validated [`Campaign`] to what runs it and what predicts it: the plan, its order
+//! (schedule) and the time model built from the campaign's own acquisition settings, and for an adaptive plan
+//! the first pass and the [`AdaptivePlan`] that places every later pass. `gonio plan`, `gonio run`, the daemon,
+//! the exports and the benchmarks all prepare campaigns here, so they plan and predict the same.
+
+use gonio_brdf::Brdf;
+use gonio_brdf::material::Material;
+use gonio_instrument::{Instrument, InstrumentFile};
+use gonio_scheduler::plan::{self, BuildContext, Plan, SampleTraits};
+use gonio_scheduler::schedule::{self, Schedule};
+use gonio_scheduler::timing::TimeModel;
+
+use crate::error::CampaignError;
+use crate::load::{Campaign, load};
+use crate::materials::check_reference;
+use crate::passes::AdaptivePlan;
+use crate::sources::Sources;
+
+/// A campaign ready to run: settings, plan, schedule and time model.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    pub campaign: Campaign,
+    /// The plan: the whole grid, or the first pass of an adaptive plan.
+    pub plan: Plan,
+    /// The plan in run order with its predicted times.
+    pub schedule: Schedule,
+    /// The time model, with the campaign's averaging and extra settling.
+    pub time: TimeModel,
+    /// An adaptive plan's later passes, placed at run time from the points measured.
+    pub adaptive: Option<AdaptivePlan>,
+}
+
+impl Prepared {
+    /// Points (measure steps) the campaign measures: the schedule's, or an adaptive plan's budget (its upper
+    /// bound: it may stop earlier at its target error).
+    pub fn total_points(&self) -> u64 {
+        match &self.adaptive {
+            Some(a) => a.budget_points(),
+            None => self.schedule.measure_steps().count() as u64,
+        }
+    }
+
+    /// Predicted instrument time (s): the schedule's; for an adaptive plan, its first pass plus the rest of the
+    /// budget at the first pass's time per point (the later passes are placed at run time).
+    pub fn predicted_s(&self) -> f64 {
+        let first = self.schedule.breakdown.total_s();
+        match &self.adaptive {
+            Some(a) => {
+                let n = self.schedule.measure_steps().count() as u64;
+                first + a.budget_points().saturating_sub(n) as f64 * first / n.max(1) as f64
+            }
+            None => first,
+        }
+    }
+
+    /// The bands measured (nm).
+    pub fn bands_nm(&self) -> &[f64] {
+        &self.plan.bands_nm
+    }
+
+    /// A dry-run measures a simulated sample: it needs one (`[material]`). Planning does not.
+    pub fn require_sample(&self, instrument: &Instrument) -> Result<(), CampaignError> {
+        let c = &self.campaign;
+        if c.dry_run && c.material.is_none() {
+            return Err(c.located().plain(format!(
+                "the instrument {:?} is simulated, so the campaign is a dry-run and needs a [material] table \
+                 (the simulated sample: a material table or `preset = \"gold\"`)",
+                instrument.name
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// What the scheduler needs to know of a sample: unknown materials are planned for as anisotropic and spectrally
+/// varying (nothing may be skipped on their account).
+pub fn sample_traits(material: Option<&Material>) -> SampleTraits {
+    match material {
+        Some(m) => SampleTraits {
+            isotropic: m.is_isotropic(),
+            spectrally_flat: m.is_spectrally_flat(),
+        },
+        None => SampleTraits {
+            isotropic: false,
+            spectrally_flat: false,
+        },
+    }
+}
+
+/// The time model a campaign runs to: the instrument's, with the campaign's averaging (not the instrument file's
+/// default) and its extra settling after every move, as the engine does.
+pub fn campaign_time_model(campaign: &Campaign, instrument: &Instrument) -> TimeModel {
+    let mut time = TimeModel::new(instrument);
+    time.reading_s = gonio_scheduler::timing::reading_time_s(campaign.acquisition.averaging);
+    for axis in time.axes.iter_mut().flatten() {
+        axis.settle_s += campaign.acquisition.extra_settle_s;
+    }
+    time
+}
+
+/// Plan, order and time a validated campaign (deterministic: the same campaign always gives the same points in
+/// the same order, which is what resuming relies on).
+pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, CampaignError> {
+    let at = campaign.located();
+    let traits = sample_traits(campaign.material.as_ref());
+    let ctx = BuildContext {
+        instrument,
+        traits,
+        sample_radius_mm: Some(campaign.sample_radius_mm),
+        start: None,
+    };
+    let time = campaign_time_model(&campaign, instrument);
+    let (plan, schedule, adaptive) = match &campaign.plan_spec.adaptive {
+        Some(spec) => {
+            let adaptive_plan =
+                AdaptivePlan::new(spec, &campaign.plan_spec, &ctx, time.clone()).map_err(|e| at.plan(&e))?;
+            let plan = adaptive_plan.first_plan(&ctx).map_err(|e| at.plan(&e))?;
+            let schedule = schedule::schedule_continuing(&plan, &time, None, None);
+            (plan, schedule, Some(adaptive_plan))
+        }
+        None => {
+            let plan = plan::build(&campaign.plan_spec, &ctx).map_err(|e| at.plan(&e))?;
+            let schedule = schedule::schedule(&plan, &time, None);
+            (plan, schedule, None)
+        }
+    };
+    if schedule.measure_steps().next().is_none() {
+        return Err(CampaignError(format!(
+            "{}: [plan]: no point of the plan can be measured on instrument {:?} (all were skipped: {:?})",
+            at.at("plan", None),
+            instrument.name,
+            plan.skipped
+        )));
+    }
+    if let Some(r) = &campaign.calibration.reference {
+        let mut bands = plan.bands_nm.clone();
+        if bands.is_empty() {
+            bands.extend(instrument.source.wavelength_nm);
+        }
+        check_reference(r, &bands, instrument, campaign.sample_radius_mm)
+            .map_err(|(key, e)| at.err("calibration", key, e))?;
+    }
+    Ok(Prepared {
+        campaign,
+        plan,
+        schedule,
+        time,
+        adaptive,
+    })
+}
+
+/// [`load`] then [`prepare`]: a campaign's text to a prepared campaign.
+pub fn load_and_prepare(
+    text: &str,
+    origin: &str,
+    sources: &Sources,
+    file: &InstrumentFile,
+) -> Result<Prepared, CampaignError> {
+    prepare(load(text, origin, sources, file)?, &file.instrument)
+}
