@@ -12,7 +12,10 @@
 //! campaign's sample; [`Rig::build_optics`] and [`Rig::show_optics`] let the engine swap in another sample (the
 //! relative method's reference) and back, as the operator would, each with its own optics on the same source.
 
+mod dry_run;
 pub mod sim_link;
+
+pub use dry_run::{Held, InstrumentClock, SampleHolder};
 
 use std::sync::{Arc, RwLock};
 

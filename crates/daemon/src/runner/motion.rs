@@ -1,0 +1,312 @@
+//! Multi-axis motion: collision-safe moves from where the axes really are (arm separation, legs commanded by the
+//! engine, stop-the-phase on failure, emergency stop).
+
+use super::*;
+
+impl<'a> Run<'a> {
+    /// Move to `target` (physical pose) along a safe, backlash-aware move planned from where the axes are.
+    pub(super) async fn move_to(&mut self, target: &Pose) -> Result<(), Interrupt> {
+        // A phase of several axes is collision-safe only as a whole: when one of its axes fails (a stall), the
+        // others are stopped and the move is planned again from where the axes really are, instead of retrying
+        // the failed axis alone while the others go on (issue #8: crates/soak/tests/safety_soak.rs).
+        // Each axis gets the retries a single operation gets (`acquisition.retries`); every round charges at
+        // least one axis, so the loop is bounded.
+        let attempts = self.c.campaign.acquisition.retries + 1;
+        let mut failures: BTreeMap<usize, u32> = BTreeMap::new();
+        loop {
+            let PhaseBroken { failed, reason } = match self.move_once(target).await {
+                Ok(r) => return r,
+                Err(broken) => broken,
+            };
+            for idx in &failed {
+                *failures.entry(*idx).or_default() += 1;
+            }
+            // (Every broken phase names the axis that failed first; without one, nothing bounds the loop.)
+            let worst = if failed.is_empty() {
+                attempts
+            } else {
+                failures.values().copied().max().unwrap_or(0)
+            };
+            self.fault(format!(
+                "{reason} (attempt {worst} of {attempts}); the other axes were stopped"
+            ));
+            if worst >= attempts {
+                return Err(Interrupt::Fatal(EngineError::Device(reason)));
+            }
+            for idx in failed {
+                if let Some(a) = self.rig.axes().get(idx) {
+                    self.recover(Dev::Axis(a)).await?;
+                }
+            }
+            // Plan again from where every axis really is.
+            self.read_positions().await?;
+        }
+    }
+
+    /// One planned move; `Err(PhaseBroken)` when an axis of a multi-axis phase failed (the phase is stopped).
+    pub(super) async fn move_once(&mut self, target: &Pose) -> Result<Result<(), Interrupt>, PhaseBroken> {
+        // An axis already within its arrival tolerance of the target does not move: the read-back differs from
+        // the nominal pose by up to that tolerance after every move, and re-commanding it would cost a move,
+        // a status poll and a settle at every reading of a pose (each band, each repeat at one geometry) that
+        // the schedule rightly predicts as free.
+        let mut from = self.current;
+        for a in self.rig.axes() {
+            let r = a.config.role;
+            if (from.get(r) - target.get(r)).abs() <= a.config.tolerance_deg {
+                from.set(r, target.get(r));
+            }
+        }
+        let movement = match self.c.time.plan_move(&from, target) {
+            Ok(m) => m,
+            Err(reason) => match self.separating_move(target) {
+                Some(m) => m,
+                None => {
+                    return Ok(Err(Interrupt::Fatal(EngineError::Device(format!(
+                        "no safe move from {:?} to {:?}: {}",
+                        self.current,
+                        target,
+                        reason.name()
+                    )))));
+                }
+            },
+        };
+        let axes = self.rig.axes();
+        // Where each axis finally goes in this move: its last leg in its last phase. Every other leg is a via
+        // point (a backlash overshoot, the parted pose of a separating move), verified within the wider via-point
+        // tolerance since the load lags the motor there.
+        let mut last_phase: BTreeMap<usize, usize> = BTreeMap::new();
+        for (p, phase) in movement.phases.iter().enumerate() {
+            for m in phase {
+                last_phase.insert(m.axis_index, p);
+            }
+        }
+        let last_phase = &last_phase;
+        let mut arrived = Vec::new();
+        for (phase_index, phase) in movement.phases.iter().enumerate() {
+            let this = &*self;
+            // Set by the first axis of the phase that fails; the others then fail because they were stopped.
+            let stopping = std::sync::atomic::AtomicBool::new(false);
+            let stopping = &stopping;
+            let moves = phase.iter().map(|m| async move {
+                let a = axes.get(m.axis_index).ok_or_else(|| {
+                    Interrupt::Fatal(EngineError::Instrument(format!(
+                        "the move plan names axis #{}",
+                        m.axis_index
+                    )))
+                })?;
+                let Some(last) = m.waypoints_deg.last() else {
+                    return Ok(Ok((m.axis_index, f64::NAN)));
+                };
+                let phys = a.config.physical_from_controller_deg(*last);
+                let what = format!("move {} to {phys:.4} deg", a.config.name);
+                let final_leg = last_phase.get(&m.axis_index) == Some(&phase_index);
+                let arrival = |to: f64, destination: bool| {
+                    if destination {
+                        a.driver.wait_arrived(to)
+                    } else {
+                        a.driver.wait_passed_via(to)
+                    }
+                };
+                if phase.len() < 2 {
+                    // Alone in its phase: with a backlash overshoot, the driver's own approach runs the same
+                    // waypoints.
+                    let op = || async {
+                        if m.waypoints_deg.len() > 1 {
+                            a.driver.move_to(phys).await
+                        } else {
+                            a.driver.start_move(phys).await?;
+                            arrival(phys, final_leg).await
+                        }
+                    };
+                    let pos = this.device(Dev::Axis(a), &what, op).await?;
+                    return Ok::<_, Interrupt>(Ok((m.axis_index, pos)));
+                }
+                // One attempt inside a multi-axis phase; on failure stop the phase's other axes at once. The
+                // legs (overshoot, approach) are commanded here one by one rather than by the driver's own
+                // approach, so that an axis told to stop never starts its next leg.
+                let stopped = || stopping.load(std::sync::atomic::Ordering::SeqCst);
+                let legs = async {
+                    let mut pos = f64::NAN;
+                    let n = m.waypoints_deg.len();
+                    for (i, waypoint) in m.waypoints_deg.iter().enumerate() {
+                        if stopped() || this.control.estop_requested() {
+                            return Err(None::<DriverError>);
+                        }
+                        let to = a.config.physical_from_controller_deg(*waypoint);
+                        a.driver.start_move(to).await.map_err(Some)?;
+                        if stopped() {
+                            // The phase's stop may have gone out just before this leg started: stop again.
+                            let _ = a.driver.stop().await;
+                            return Err(None);
+                        }
+                        pos = arrival(to, final_leg && i + 1 == n).await.map_err(Some)?;
+                    }
+                    Ok(pos)
+                };
+                let r = tokio::select! {
+                    biased;
+                    _ = this.estop_signal() => return Err(Interrupt::Estop),
+                    r = legs => r,
+                };
+                match r {
+                    Ok(pos) => Ok(Ok((m.axis_index, pos))),
+                    // Stopped short by us: not this axis's fault.
+                    Err(None) => Ok(Err((None, String::new()))),
+                    Err(Some(_)) if stopped() => Ok(Err((None, String::new()))),
+                    Err(Some(e)) => {
+                        stopping.store(true, std::sync::atomic::Ordering::SeqCst);
+                        for other in phase.iter().filter(|o| o.axis_index != m.axis_index) {
+                            if let Some(b) = axes.get(other.axis_index) {
+                                let _ = b.driver.stop().await;
+                            }
+                        }
+                        Ok(Err((Some(m.axis_index), format!("{what}: {e}"))))
+                    }
+                }
+            });
+            let results = futures_join_all(moves).await;
+            let mut broken = PhaseBroken {
+                failed: Vec::new(),
+                reason: String::new(),
+            };
+            let mut any_failed = false;
+            for r in results {
+                match r {
+                    Err(i) => return Ok(Err(i)),
+                    Ok(Ok(done)) => arrived.push(done),
+                    Ok(Err((idx, reason))) => {
+                        any_failed = true;
+                        broken.failed.extend(idx);
+                        if broken.reason.is_empty() {
+                            broken.reason = reason;
+                        }
+                    }
+                }
+            }
+            if any_failed {
+                // The others were stopped short of their targets too: their read-back is re-read by the caller.
+                return Err(broken);
+            }
+            for (idx, pos) in arrived.drain(..).filter(|(_, p)| p.is_finite()) {
+                if let (Some(a), Some(slot)) = (axes.get(idx), self.readback.get_mut(idx)) {
+                    *slot = pos;
+                    self.current.set(a.config.role, pos);
+                }
+            }
+        }
+        if !movement.phases.is_empty() {
+            // The campaign's extra settling is already part of each axis's settle time in `self.c.time`
+            // (see `campaign::parse`), hence of `movement.settle_s`.
+            self.clock.sleep_s(movement.settle_s).await;
+        }
+        // Physical targets the plan reached: nominal pose for axes that did not need to move.
+        for r in ROLES {
+            if self.rig.axes().iter().all(|a| a.config.role != r) {
+                self.current.set(r, target.get(r));
+            }
+        }
+        Ok(Ok(()))
+    }
+
+    /// The arms start closer than the safety separation (e.g. both at zero after power-up): the scheduler's
+    /// planner refuses any move from there. Moving both arms at once is safe when each moves away from the other
+    /// (or stays), so that their separation only grows. When the target has each arm on its side of the other,
+    /// that is the whole move (every axis at once, see `simultaneous_phases`). Otherwise the arms are first
+    /// parted about their midpoint into the target's order (each moving away from the other), and the planner
+    /// takes it from there. None when neither is possible (e.g. the parted pose is beyond a limit).
+    pub(super) fn separating_move(&self, target: &Pose) -> Option<gonio_scheduler::timing::Move> {
+        let min_sep = self.c.time.min_arm_separation_deg;
+        let (l0, d0) = (self.current.light_deg, self.current.detector_deg);
+        let (l1, d1) = (target.light_deg, target.detector_deg);
+        if (l0 - d0).abs() >= min_sep {
+            return None;
+        }
+        // Which side each arm ends on decides "away"; both must move apart (or not at all).
+        let side = (l1 - d1).signum();
+        if side == 0.0 || (l1 - d1).abs() < min_sep {
+            return None;
+        }
+        let away = |from: f64, to: f64, sign: f64| (to - from) * sign >= 0.0;
+        if away(l0, l1, side) && away(d0, d1, -side) {
+            let (phases, settle_s) = self.simultaneous_phases(&self.current, target);
+            tracing::info!(
+                "arms closer than the safety separation: separating them in one simultaneous move"
+            );
+            return Some(gonio_scheduler::timing::Move {
+                phases,
+                motion_s: 0.0,
+                settle_s,
+            });
+        }
+        // Part them: a quarter more than the separation (room for a backlash overshoot), about their midpoint.
+        let half = 0.5 * 1.25 * min_sep;
+        let mid = 0.5 * (l0 + d0);
+        let mut parted = self.current;
+        parted.light_deg = mid + side * half;
+        parted.detector_deg = mid - side * half;
+        let within = |role: AxisRole, v: f64| {
+            self.rig
+                .axes()
+                .iter()
+                .filter(|a| a.config.role == role)
+                .all(|a| (a.config.min_deg..=a.config.max_deg).contains(&v))
+        };
+        if !(within(AxisRole::LightArm, parted.light_deg)
+            && within(AxisRole::DetectorArm, parted.detector_deg))
+        {
+            return None;
+        }
+        let rest = self.c.time.plan_move(&parted, target).ok()?;
+        let (mut phases, settle_s) = self.simultaneous_phases(&self.current, &parted);
+        tracing::info!(
+            ?parted,
+            "arms closer than the safety separation: parting them into the target's order first"
+        );
+        phases.extend(rest.phases);
+        Some(gonio_scheduler::timing::Move {
+            phases,
+            motion_s: rest.motion_s,
+            settle_s: settle_s.max(rest.settle_s),
+        })
+    }
+
+    /// Every axis moved from `from` to `to` at once, as phases that each take every moving axis one leg further
+    /// (first every backlash overshoot point, then the approaches), and the longest settle time of the axes that
+    /// move. The overshoot point lies beyond the target in the direction of travel, so while the arms are parted
+    /// each only moves away from the other until both reach it: their separation only grows before they are
+    /// apart. (A single phase would let one arm come back from its overshoot while the other, stalled early, is
+    /// still close: caught by crates/soak/tests/safety_soak.rs.)
+    pub(super) fn simultaneous_phases(
+        &self,
+        from: &Pose,
+        to: &Pose,
+    ) -> (Vec<Vec<gonio_scheduler::timing::AxisMotion>>, f64) {
+        let mut phases: Vec<Vec<gonio_scheduler::timing::AxisMotion>> = Vec::new();
+        let mut settle = 0.0f64;
+        for (i, role) in ROLES.iter().enumerate() {
+            let Some(model) = self.c.time.axes.get(i).and_then(|m| m.as_ref()) else {
+                continue;
+            };
+            let mut at = model.controller_deg(from.get(*role));
+            let end = model.controller_deg(to.get(*role));
+            let waypoints = model.waypoints(at, end);
+            if waypoints.is_empty() {
+                continue;
+            }
+            settle = settle.max(model.settle_s);
+            for (leg, waypoint) in waypoints.into_iter().enumerate() {
+                if phases.len() <= leg {
+                    phases.push(Vec::new());
+                }
+                phases[leg].push(gonio_scheduler::timing::AxisMotion {
+                    role: *role,
+                    axis_index: model.axis_index,
+                    duration_s: model.travel_time_s(at, &[waypoint]),
+                    waypoints_deg: vec![waypoint],
+                });
+                at = waypoint;
+            }
+        }
+        (phases, settle)
+    }
+}

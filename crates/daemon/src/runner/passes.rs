@@ -1,0 +1,100 @@
+//! Adaptive plans at run time: which pass holds the next point (replayed from the committed points on a
+//! resume), the next pass from the planner, and the ETA that follows the pass being measured.
+
+use super::*;
+
+/// One pass of the schedule: a fixed plan's only one, or one of an adaptive plan's.
+pub(super) struct Pass {
+    pub(super) schedule: gonio_scheduler::schedule::Schedule,
+    /// Index of its first point.
+    pub(super) first_index: u64,
+    /// Predicted instrument time of this pass and every one before it (s).
+    pub(super) elapsed_s: f64,
+    pub(super) number: u32,
+}
+
+impl Pass {
+    pub(super) fn end_index(&self) -> u64 {
+        self.first_index + self.schedule.measure_steps().count() as u64
+    }
+}
+
+impl<'a> Run<'a> {
+    /// The pass that holds point `self.done`: the schedule of a fixed plan; for an adaptive one, the passes are
+    /// derived again from the committed points, exactly as the run that committed them derived them. None when
+    /// the adaptive planner stops before that point.
+    pub(super) fn locate_pass(&mut self) -> Result<Option<Pass>, Interrupt> {
+        let mut pass = Pass {
+            schedule: self.c.schedule.clone(),
+            first_index: 0,
+            elapsed_s: self.c.schedule.breakdown.total_s(),
+            number: 0,
+        };
+        while self.c.adaptive.is_some() && self.done >= pass.end_index() {
+            match self.next_pass(&pass)? {
+                Some(next) => pass = next,
+                None => return Ok(None),
+            }
+        }
+        Ok(Some(pass))
+    }
+
+    /// The pass after `pass` (an adaptive plan; a fixed one has one pass), from every point committed up to the
+    /// end of `pass`, read back from the store. When the planner stops, a total below the budget becomes the
+    /// campaign's total.
+    pub(super) fn next_pass(&mut self, pass: &Pass) -> Result<Option<Pass>, Interrupt> {
+        let Some(adaptive) = &self.c.adaptive else {
+            return Ok(None);
+        };
+        let end = pass.end_index();
+        let points = self.st(|s| s.points_from(self.id, 0))?;
+        let measured =
+            gonio_campaign::measured_geometries(points.iter().take_while(|p| p.index < end).map(|p| {
+                (
+                    Geometry::new(p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg),
+                    p.brdf_sr,
+                )
+            }));
+        match adaptive.next_pass(&measured, pass.elapsed_s, &pass.schedule) {
+            NextPass::Pass {
+                schedule,
+                error_estimate,
+            } => {
+                let points = schedule.measure_steps().count();
+                tracing::info!(
+                    campaign = %self.id,
+                    pass = pass.number + 1,
+                    first_point = end,
+                    points,
+                    error_estimate,
+                    "adaptive plan: next pass placed from the points measured"
+                );
+                Ok(Some(Pass {
+                    elapsed_s: pass.elapsed_s + schedule.breakdown.total_s(),
+                    schedule,
+                    first_index: end,
+                    number: pass.number + 1,
+                }))
+            }
+            NextPass::Done {
+                reason,
+                error_estimate,
+            } => {
+                tracing::info!(campaign = %self.id, points = end, ?reason, error_estimate, "adaptive plan complete");
+                if end < self.total {
+                    self.st(|s| s.set_total_points(self.id, end))?;
+                    self.total = end;
+                }
+                Ok(None)
+            }
+        }
+    }
+
+    /// Progress and ETA follow `pass`: the rest of its predicted time, plus, for an adaptive plan, the rest of
+    /// the budget at the predicted time per point of the passes placed so far.
+    pub(super) fn follow_pass(&mut self, pass: &Pass) {
+        self.pass_total_s = pass.schedule.breakdown.total_s();
+        self.pass_end = pass.end_index();
+        self.s_per_point = pass.elapsed_s / pass.end_index().max(1) as f64;
+    }
+}
