@@ -16,10 +16,13 @@
 //!   `sqrt(sum ((f - f_ref) cos theta_i)^2 / sum (f_ref cos theta_i)^2)` and the log error
 //!   `sqrt(mean (ln(1 + f cos theta_i) - ln(1 + f_ref cos theta_i))^2)`.
 //! - Strategies: a uniform full grid (anisotropic treatment: theta_i, phi_i, theta_o, phi_o, no reductions), an
-//!   isotropic grid with reciprocity (theta_i, theta_o, delta phi; the planner's reductions), and the adaptive
-//!   planner at several point budgets (batches run in turn, each scheduled from where the previous one ended).
-//! - Predicted time: the scheduler's time model on the ordered schedule (one band, no calibration steps), summed
-//!   over batches for adaptive plans.
+//!   isotropic grid with reciprocity (theta_i, theta_o, delta phi; the planner's reductions), and adaptive
+//!   campaigns at several point budgets, run by the product's engine as `gonio run` runs them (an in-process
+//!   dry-run: each pass placed from the simulator's readings); their geometries are then valued with the same
+//!   ground truth as the grids'.
+//! - Time: for grids, the scheduler's time model on the ordered schedule (one band, no calibration steps); for
+//!   adaptive campaigns, the simulated instrument time the engine's run took (its start-up darks and direct-beam
+//!   readings included; the time model agrees with dry-runs within 1 %).
 
 use gonio_brdf::{Brdf, Direction, Material, Wavelength};
 use gonio_instrument::Instrument;
@@ -27,7 +30,7 @@ use gonio_scheduler::adaptive::{Adaptive, AdaptiveSpec, Measured};
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
 use gonio_scheduler::plan::{self, BuildContext, Plan, PlanSpec, SampleTraits};
-use gonio_scheduler::schedule::{self, StepKind};
+use gonio_scheduler::schedule;
 use gonio_scheduler::timing::TimeModel;
 
 pub const SAMPLE_RADIUS_MM: f64 = 12.5;
@@ -213,64 +216,54 @@ pub fn grid_plan(setup: &Setup, full: bool, step: f64) -> Result<(usize, f64, Ve
     Ok((geometries.len(), sched.breakdown.total_s(), geometries))
 }
 
-/// An adaptive campaign to `budget` points: measured points, predicted s, dropped geometries.
+/// The campaign file of an adaptive campaign on `material` to `budget` points (one band, no calibration steps
+/// beyond the engine's own at start).
+pub fn adaptive_campaign_text(material: &str, budget: u32) -> String {
+    format!(
+        r#"[campaign]
+id = "bench-adaptive-{material}-{budget}"
+[sample]
+radius_mm = {SAMPLE_RADIUS_MM}
+[material]
+preset = "{material}"
+[plan]
+bands_nm = [{BAND_NM}]
+reciprocity = true
+[plan.adaptive]
+budget_points = {budget}
+batch_points = 40
+target_error = 0.0
+first_pass_step_deg = 10.0
+resolution_deg = 2.5
+[acquisition]
+averaging = 10
+"#
+    )
+}
+
+/// An adaptive campaign to `budget` points, run by the product's engine (`gonio run`'s in-process dry-run: the
+/// planner places each pass from the simulator's readings). Returns the measured geometries with their ground
+/// truth (the reconstruction compares strategies on noise-free values, module doc), the instrument time the run
+/// took (simulated, the engine's own start-up calibration included), and the budget points not measured.
 pub fn adaptive_run(
-    setup: &Setup,
     budget: u32,
+    material: &str,
     truth: &dyn Fn(&Geometry) -> f64,
-) -> Result<(Adaptive, Vec<Measured>, f64, usize), String> {
-    let spec = AdaptiveSpec {
-        budget_points: budget,
-        budget_s: None,
-        batch_points: 40,
-        target_error: 0.0,
-        first_pass_step_deg: 10.0,
-        first_pass_theta_i_deg: None,
-        resolution_deg: 2.5,
-    };
-    let context = ctx(setup.instrument, true);
-    let adaptive = Adaptive::new(&spec, &context).map_err(|e| e.to_string())?;
-    let batch_spec = PlanSpec {
-        bands_nm: Some(vec![BAND_NM]),
-        repeats: 1,
-        reciprocity: true,
-        rotation_deg: 0.0,
-        grid: None,
-        adaptive: None,
-        calibration: Default::default(),
-    };
-    let mut measured: Vec<Measured> = Vec::new();
-    let mut pose: Option<Pose> = None;
-    let mut elapsed_s = 0.0;
-    let mut dropped = 0usize;
-    loop {
-        let batch = adaptive.next_batch(&measured, elapsed_s);
-        if batch.done.is_some() || batch.geometries.is_empty() {
-            break;
-        }
-        let mut bctx = context;
-        bctx.start = pose;
-        let plan = plan::build_from_geometries(&batch_spec, &bctx, &batch.geometries, true)
-            .map_err(|e| e.to_string())?;
-        let sched = schedule::schedule(&plan, &setup.time, pose.as_ref());
-        elapsed_s += sched.breakdown.total_s();
-        let before = measured.len();
-        for step in sched.steps.iter().filter(|s| s.kind == StepKind::Measure) {
-            if let Some(g) = step.geometry {
-                measured.push(Measured {
-                    geometry: g,
-                    value: truth(&g),
-                });
+) -> Result<(Vec<Measured>, f64, usize), String> {
+    let points = crate::throughput::in_process_points(&adaptive_campaign_text(material, budget))?;
+    let instrument_s = points.iter().map(|p| p.t_s).fold(0.0f64, f64::max);
+    let measured: Vec<Measured> = points
+        .iter()
+        .map(|p| {
+            let g = Geometry::new(p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg);
+            Measured {
+                geometry: g,
+                value: truth(&g),
             }
-            pose = Some(step.pose);
-        }
-        dropped += batch.geometries.len() - (measured.len() - before);
-        if measured.len() == before {
-            // Nothing of this batch can be measured: the planner would propose it again.
-            break;
-        }
-    }
-    Ok((adaptive, measured, elapsed_s, dropped))
+        })
+        .collect();
+    let short = (budget as usize).saturating_sub(measured.len());
+    Ok((measured, instrument_s, short))
 }
 
 /// Every strategy at every size for one material.
@@ -319,9 +312,9 @@ pub fn run_material(
         }
     }
     for &budget in &sizes.budgets {
-        match adaptive_run(setup, budget, &truth) {
-            Ok((adaptive, measured, predicted_s, dropped)) => {
-                let rec = adaptive.reconstruct_all(&measured, &setup.validation);
+        match adaptive_run(budget, material, &truth) {
+            Ok((measured, predicted_s, dropped)) => {
+                let rec = reconstructor.reconstruct_all(&measured, &setup.validation);
                 let (rel, log) = errors(&setup.validation, &rec, &reference);
                 out.push(CampaignPoint {
                     material,

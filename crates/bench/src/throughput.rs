@@ -23,7 +23,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_prepared_campaign};
-use gonio_daemon::store::{CampaignState, Store};
+use gonio_daemon::store::{CampaignState, PointRecord, Store};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 
 /// Time scale of the pseudo-terminal runs (simulated seconds per real second).
@@ -103,7 +103,7 @@ async fn run_once(
     instrument_toml: &str,
     time_scale: f64,
     dir: &Path,
-) -> Result<(u64, f64, f64, f64), String> {
+) -> Result<(Vec<PointRecord>, f64, f64, f64), String> {
     let prepared = prepare_campaign(text, "bench.toml", dir, file).map_err(|e| format!("campaign: {e}"))?;
     let mut store = Store::open(dir).map_err(|e| e.to_string())?;
     let id = store
@@ -153,7 +153,7 @@ async fn run_once(
         (Some(a), Some(b)) => (b - a).as_secs_f64(),
         _ => f64::NAN,
     };
-    Ok((points.len() as u64, wall_s, instrument_s, steady_wall_s))
+    Ok((points, wall_s, instrument_s, steady_wall_s))
 }
 
 /// In process, paused clock, the store under the system temp dir.
@@ -175,11 +175,26 @@ pub fn in_process_in(text: &str, base: &Path) -> Result<Throughput, String> {
     let _ = std::fs::remove_dir_all(&dir);
     let (points, wall_s, instrument_s, steady_wall_s) = result?;
     Ok(Throughput {
-        points,
+        points: points.len() as u64,
         wall_s,
         instrument_s,
         steady_wall_s,
     })
+}
+
+/// A campaign run in process to completion (paused clock, the store under the system temp dir): its committed
+/// points.
+pub fn in_process_points(text: &str) -> Result<Vec<PointRecord>, String> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .start_paused(true)
+        .build()
+        .map_err(|e| e.to_string())?;
+    let dir = scratch_dir("points");
+    let file = InstrumentFile::simulated();
+    let result = rt.block_on(run_once(text, &file, SIMULATED_INSTRUMENT_TOML, 1.0, &dir));
+    let _ = std::fs::remove_dir_all(&dir);
+    result.map(|r| r.0)
 }
 
 /// Serial devices on pseudo-terminals, real clock at [`PTY_TIME_SCALE`].
@@ -211,7 +226,7 @@ pub fn over_ptys(text: &str) -> Result<Throughput, String> {
     let _ = std::fs::remove_dir_all(&dir);
     let (points, wall_s, instrument_s, steady_wall_s) = result?;
     Ok(Throughput {
-        points,
+        points: points.len() as u64,
         wall_s,
         instrument_s,
         steady_wall_s,
