@@ -503,10 +503,13 @@ impl<'a> Run<'a> {
     }
 
     fn progress(&self, next_start_s: Option<f64>) {
-        let eta_s = next_start_s.map(|s| {
-            let later = self.total.saturating_sub(self.pass_end) as f64 * self.s_per_point;
-            (self.pass_total_s - s).max(0.0) + later
-        });
+        let later = self.total.saturating_sub(self.pass_end) as f64 * self.s_per_point;
+        let eta_s = match next_start_s {
+            Some(s) => Some((self.pass_total_s - s).max(0.0) + later),
+            // The end of an adaptive plan's pass: the passes to come (none when it has stopped).
+            None if self.c.adaptive.is_some() && self.s_per_point > 0.0 => Some(later),
+            None => None,
+        };
         self.control.emit(Event::Progress {
             campaign: self.id,
             done: self.done,

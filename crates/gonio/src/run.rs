@@ -239,7 +239,11 @@ async fn drive(
         let mut last_done = done0;
         loop {
             match events.recv().await {
-                Ok(Event::Progress { done, eta_s, .. }) => {
+                Ok(Event::Progress {
+                    done, total, eta_s, ..
+                }) => {
+                    // An adaptive campaign that stops at its target error ends with fewer points than its budget.
+                    bar2.set_length(total);
                     bar2.set_position(done);
                     let rate = (done - done0.min(done)) as f64 / started.elapsed().as_secs_f64().max(1e-3);
                     let eta = eta_s

@@ -84,6 +84,8 @@ impl<'a> Run<'a> {
                 if end < self.total {
                     self.st(|s| s.set_total_points(self.id, end))?;
                     self.total = end;
+                    // Clients learn the final total now (the last point's report still named the budget).
+                    self.progress(None);
                 }
                 Ok(None)
             }
