@@ -12,6 +12,7 @@
 //! - [`plan`]: the `[plan]` schema, grids, and the reductions (isotropy, reciprocity, flat bands, constraints)
 //!   with skip counts by reason.
 //! - [`order`]: the visiting order (constructive heuristics + 2-opt/Or-opt) and a provable lower bound.
+//! - [`separation`]: parting arms that start closer than the safety separation (power-up).
 //! - [`schedule`]: the ordered steps (measure, dark, reference) with predicted times and the raster comparison.
 //! - [`adaptive`]: adaptive plans, batch by batch.
 //!
@@ -24,4 +25,5 @@ pub mod kinematics;
 pub mod order;
 pub mod plan;
 pub mod schedule;
+pub mod separation;
 pub mod timing;

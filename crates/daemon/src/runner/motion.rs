@@ -2,6 +2,7 @@
 //! engine, stop-the-phase on failure, emergency stop).
 
 use super::*;
+use gonio_scheduler::separation::{Parting, separating_move};
 
 impl<'a> Run<'a> {
     /// Move to `target` (physical pose) along a safe, backlash-aware move planned from where the axes are.
@@ -208,42 +209,9 @@ impl<'a> Run<'a> {
         Ok(Ok(()))
     }
 
-    /// The arms start closer than the safety separation (e.g. both at zero after power-up): the scheduler's
-    /// planner refuses any move from there. Moving both arms at once is safe when each moves away from the other
-    /// (or stays), so that their separation only grows. When the target has each arm on its side of the other,
-    /// that is the whole move (every axis at once, see `simultaneous_phases`). Otherwise the arms are first
-    /// parted about their midpoint into the target's order (each moving away from the other), and the planner
-    /// takes it from there. None when neither is possible (e.g. the parted pose is beyond a limit).
+    /// The arms start closer than the safety separation: the pure planning is the scheduler's
+    /// ([`gonio_scheduler::separation`]); the rig's axis limits bound the parted pose.
     pub(super) fn separating_move(&self, target: &Pose) -> Option<gonio_scheduler::timing::Move> {
-        let min_sep = self.c.time.min_arm_separation_deg;
-        let (l0, d0) = (self.current.light_deg, self.current.detector_deg);
-        let (l1, d1) = (target.light_deg, target.detector_deg);
-        if (l0 - d0).abs() >= min_sep {
-            return None;
-        }
-        // Which side each arm ends on decides "away"; both must move apart (or not at all).
-        let side = (l1 - d1).signum();
-        if side == 0.0 || (l1 - d1).abs() < min_sep {
-            return None;
-        }
-        let away = |from: f64, to: f64, sign: f64| (to - from) * sign >= 0.0;
-        if away(l0, l1, side) && away(d0, d1, -side) {
-            let (phases, settle_s) = self.simultaneous_phases(&self.current, target);
-            tracing::info!(
-                "arms closer than the safety separation: separating them in one simultaneous move"
-            );
-            return Some(gonio_scheduler::timing::Move {
-                phases,
-                motion_s: 0.0,
-                settle_s,
-            });
-        }
-        // Part them: a quarter more than the separation (room for a backlash overshoot), about their midpoint.
-        let half = 0.5 * 1.25 * min_sep;
-        let mid = 0.5 * (l0 + d0);
-        let mut parted = self.current;
-        parted.light_deg = mid + side * half;
-        parted.detector_deg = mid - side * half;
         let within = |role: AxisRole, v: f64| {
             self.rig
                 .axes()
@@ -251,62 +219,16 @@ impl<'a> Run<'a> {
                 .filter(|a| a.config.role == role)
                 .all(|a| (a.config.min_deg..=a.config.max_deg).contains(&v))
         };
-        if !(within(AxisRole::LightArm, parted.light_deg)
-            && within(AxisRole::DetectorArm, parted.detector_deg))
-        {
-            return None;
+        let (m, how) = separating_move(&self.c.time, &self.current, target, within)?;
+        match how {
+            Parting::Simultaneous => tracing::info!(
+                "arms closer than the safety separation: separating them in one simultaneous move"
+            ),
+            Parting::Via(parted) => tracing::info!(
+                ?parted,
+                "arms closer than the safety separation: parting them into the target's order first"
+            ),
         }
-        let rest = self.c.time.plan_move(&parted, target).ok()?;
-        let (mut phases, settle_s) = self.simultaneous_phases(&self.current, &parted);
-        tracing::info!(
-            ?parted,
-            "arms closer than the safety separation: parting them into the target's order first"
-        );
-        phases.extend(rest.phases);
-        Some(gonio_scheduler::timing::Move {
-            phases,
-            motion_s: rest.motion_s,
-            settle_s: settle_s.max(rest.settle_s),
-        })
-    }
-
-    /// Every axis moved from `from` to `to` at once, as phases that each take every moving axis one leg further
-    /// (first every backlash overshoot point, then the approaches), and the longest settle time of the axes that
-    /// move. The overshoot point lies beyond the target in the direction of travel, so while the arms are parted
-    /// each only moves away from the other until both reach it: their separation only grows before they are
-    /// apart. (A single phase would let one arm come back from its overshoot while the other, stalled early, is
-    /// still close: caught by crates/soak/tests/safety_soak.rs.)
-    pub(super) fn simultaneous_phases(
-        &self,
-        from: &Pose,
-        to: &Pose,
-    ) -> (Vec<Vec<gonio_scheduler::timing::AxisMotion>>, f64) {
-        let mut phases: Vec<Vec<gonio_scheduler::timing::AxisMotion>> = Vec::new();
-        let mut settle = 0.0f64;
-        for (i, role) in ROLES.iter().enumerate() {
-            let Some(model) = self.c.time.axes.get(i).and_then(|m| m.as_ref()) else {
-                continue;
-            };
-            let mut at = model.controller_deg(from.get(*role));
-            let end = model.controller_deg(to.get(*role));
-            let waypoints = model.waypoints(at, end);
-            if waypoints.is_empty() {
-                continue;
-            }
-            settle = settle.max(model.settle_s);
-            for (leg, waypoint) in waypoints.into_iter().enumerate() {
-                if phases.len() <= leg {
-                    phases.push(Vec::new());
-                }
-                phases[leg].push(gonio_scheduler::timing::AxisMotion {
-                    role: *role,
-                    axis_index: model.axis_index,
-                    duration_s: model.travel_time_s(at, &[waypoint]),
-                    waypoints_deg: vec![waypoint],
-                });
-                at = waypoint;
-            }
-        }
-        (phases, settle)
+        Some(m)
     }
 }
