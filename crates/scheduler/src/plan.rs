@@ -34,7 +34,7 @@
 //! `reciprocity`, `spectrally-flat`, and the constraint names of `crate::constraints`.
 
 //!
-//! Parts: [`spec`] holds the records (the schema as deserialised, the built plan); `grid` expands a
+//! Parts: `spec` holds the records (the schema as deserialised, the built plan); `grid` expands a
 //! `[plan.grid]` into requested geometries; `build` checks bands and calibration against the instrument and
 //! reduces and solves the requests into a [`Plan`].
 

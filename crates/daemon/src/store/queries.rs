@@ -243,7 +243,7 @@ impl Store {
         rows.collect::<Result<_, _>>().map_err(self.read_err())
     }
 
-    /// Commit one point in its own transaction, as durably as its campaign asks ([`Durability`]). A point
+    /// Commit one point in its own transaction, as durably as its campaign asks ([`Durability`](super::Durability)). A point
     /// already committed is refused, never overwritten.
     pub fn commit_point(&mut self, id: CampaignId, p: &PointRecord) -> Result<(), StoreError> {
         let readback = serde_json::to_string(&p.readback_deg)
