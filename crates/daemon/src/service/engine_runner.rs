@@ -1,0 +1,89 @@
+//! [`EngineRunner`]: the [`CampaignRunner`] the daemon uses, the campaign engine on one connected instrument.
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use gonio_instrument::InstrumentFile;
+
+use super::{CampaignRunner, RunFuture, Submission};
+use crate::control::Control;
+use crate::engine::{PreparedCampaign, prepare_submitted_campaign, run_prepared_campaign};
+use crate::rig::Rig;
+use crate::store::{CampaignId, CampaignRecord, Store};
+
+/// The real runner: the campaign engine on one connected instrument.
+#[derive(Debug)]
+pub struct EngineRunner {
+    instrument: InstrumentFile,
+    instrument_toml: String,
+    /// The daemon's data directory: submitted campaigns may name material presets or files inside it only, and
+    /// relative names resolve against it.
+    base_dir: PathBuf,
+    rig: Rig,
+}
+
+impl EngineRunner {
+    /// `instrument_toml` is the text of the instrument file in force, stored with every campaign.
+    pub fn new(
+        instrument: InstrumentFile,
+        instrument_toml: String,
+        base_dir: PathBuf,
+        rig: Rig,
+    ) -> EngineRunner {
+        EngineRunner {
+            instrument,
+            instrument_toml,
+            base_dir,
+            rig,
+        }
+    }
+
+    pub fn rig(&self) -> &Rig {
+        &self.rig
+    }
+}
+
+impl CampaignRunner for EngineRunner {
+    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, String> {
+        let p = prepare_submitted_campaign(campaign_toml, origin, &self.base_dir, &self.instrument)
+            .map_err(|e| e.to_string())?;
+        Ok(Submission {
+            campaign: p.new_campaign(campaign_toml, &self.instrument_toml),
+            prepared: Some(Arc::new(p)),
+        })
+    }
+
+    fn run(
+        &self,
+        store: Arc<Mutex<Store>>,
+        id: CampaignId,
+        control: Control,
+        prepared: Option<Arc<PreparedCampaign>>,
+    ) -> RunFuture {
+        let rig = self.rig.clone();
+        Box::pin(async move {
+            match &prepared {
+                Some(p) => run_prepared_campaign(store, id, &rig, control, p).await,
+                None => crate::engine::run_campaign(store, id, &rig, control).await,
+            }
+            .map_err(|e| e.to_string())
+        })
+    }
+
+    fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
+        // The axes of the instrument the campaign ran on (stored with it), so that an export after an instrument
+        // change still names the right columns.
+        let axes: Vec<String> = match InstrumentFile::parse(&record.instrument_toml, "stored instrument") {
+            Ok(file) => file.instrument.axes.iter().map(|a| a.name.clone()).collect(),
+            Err(_) => self
+                .instrument
+                .instrument
+                .axes
+                .iter()
+                .map(|a| a.name.clone())
+                .collect(),
+        };
+        let points = store.points(record.id).map_err(|e| e.to_string())?;
+        Ok(crate::export::points_csv(&points, &axes, record.dry_run))
+    }
+}

@@ -1,0 +1,435 @@
+//! Reading and writing campaigns, their states, devices, calibrations and points: one statement (or one
+//! transaction) per call, at the durability the campaign needs.
+
+use rusqlite::{OptionalExtension, params};
+
+use super::{
+    CalibrationRecord, CampaignId, CampaignRecord, CampaignState, NewCampaign, PointRecord, Store, StoreError,
+};
+
+impl Store {
+    /// Store a new campaign in the `queued` state.
+    pub fn create_campaign(&mut self, new: &NewCampaign) -> Result<CampaignId, StoreError> {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs_f64())
+            .unwrap_or(0.0);
+        self.durability_for_write(None)?;
+        self.conn
+            .execute(
+                "INSERT INTO campaigns (name, state, campaign_toml, instrument_toml, total_points, dry_run,
+                 software_version, created_unix_s) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![
+                    new.name,
+                    CampaignState::Queued.as_str(),
+                    new.campaign_toml,
+                    new.instrument_toml,
+                    to_i64(new.total_points),
+                    new.dry_run,
+                    new.software_version,
+                    now
+                ],
+            )
+            .map_err(self.write_err())?;
+        let id = CampaignId(self.conn.last_insert_rowid());
+        self.dry_runs.insert(id, new.dry_run);
+        Ok(id)
+    }
+
+    pub fn campaign(&self, id: CampaignId) -> Result<CampaignRecord, StoreError> {
+        let record = self
+            .conn
+            .query_row(
+                &format!("{CAMPAIGN_SELECT} WHERE c.id = ?1"),
+                [id.0],
+                campaign_from_row,
+            )
+            .optional()
+            .map_err(self.read_err())?
+            .ok_or(StoreError::NoSuchCampaign(id))??;
+        Ok(self.overlay(record))
+    }
+
+    /// A campaign's state (cheaper than [`Store::campaign`]: no configuration texts).
+    pub fn state(&self, id: CampaignId) -> Result<CampaignState, StoreError> {
+        if let Some((state, _)) = self.unrecorded.get(&id) {
+            return Ok(*state);
+        }
+        let state: String = self
+            .conn
+            .prepare_cached("SELECT state FROM campaigns WHERE id = ?1")
+            .and_then(|mut st| st.query_row([id.0], |r| r.get(0)).optional())
+            .map_err(self.read_err())?
+            .ok_or(StoreError::NoSuchCampaign(id))?;
+        state.parse()
+    }
+
+    /// A record with the state that could not be written, if any.
+    fn overlay(&self, mut record: CampaignRecord) -> CampaignRecord {
+        if let Some((state, message)) = self.unrecorded.get(&record.id) {
+            record.state = *state;
+            if *state == CampaignState::Completed {
+                record.last_error = None;
+            } else if message.is_some() {
+                record.last_error.clone_from(message);
+            }
+        }
+        record
+    }
+
+    /// All campaigns, oldest first.
+    pub fn campaigns(&self) -> Result<Vec<CampaignRecord>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare(&format!("{CAMPAIGN_SELECT} ORDER BY c.id"))
+            .map_err(self.read_err())?;
+        let rows = stmt.query_map([], campaign_from_row).map_err(self.read_err())?;
+        let mut out = Vec::new();
+        for row in rows {
+            out.push(self.overlay(row.map_err(self.read_err())??));
+        }
+        Ok(out)
+    }
+
+    pub fn set_state(
+        &mut self,
+        id: CampaignId,
+        state: CampaignState,
+        last_error: Option<&str>,
+    ) -> Result<(), StoreError> {
+        let result = self.durability_for_write(Some(id)).and_then(|()| {
+            self.conn
+                .prepare_cached(
+                    // A completed campaign has no error left to show: a pause's reason from before its
+                    // resume is cleared (it stays in the log and the events).
+                    "UPDATE campaigns SET state = ?2, last_error = CASE WHEN ?2 = 'completed' THEN NULL \
+                         ELSE COALESCE(?3, last_error) END WHERE id = ?1",
+                )
+                .and_then(|mut st| st.execute(params![id.0, state.as_str(), last_error]))
+                .map_err(self.write_err())
+        });
+        match result {
+            Ok(0) => Err(StoreError::NoSuchCampaign(id)),
+            Ok(_) => {
+                self.unrecorded.remove(&id);
+                Ok(())
+            }
+            Err(e) => {
+                if e.is_write_failure() {
+                    // Shown from memory until a later write succeeds (module doc).
+                    let message = last_error
+                        .map(str::to_string)
+                        .or_else(|| self.unrecorded.get(&id).and_then(|u| u.1.clone()));
+                    self.unrecorded.insert(id, (state, message));
+                }
+                Err(e)
+            }
+        }
+    }
+
+    /// Set the points a campaign measures in all: an adaptive campaign that reached its target error before its
+    /// budget ends with fewer points than it was submitted with.
+    pub fn set_total_points(&mut self, id: CampaignId, total: u64) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
+        let n = self
+            .conn
+            .execute(
+                "UPDATE campaigns SET total_points = ?2 WHERE id = ?1",
+                params![id.0, to_i64(total)],
+            )
+            .map_err(self.write_err())?;
+        if n == 0 {
+            return Err(StoreError::NoSuchCampaign(id));
+        }
+        Ok(())
+    }
+
+    /// Cap the store file at `pages` pages (None: SQLite's own maximum); returns the cap in force. Writes that
+    /// would grow the file beyond it fail as a full disk would (SQLITE_FULL). The cap lasts while this `Store`
+    /// is open.
+    pub fn set_max_pages(&mut self, pages: Option<u64>) -> Result<u64, StoreError> {
+        // SQLite's largest page count; asking for more keeps that.
+        let n = to_i64(pages.unwrap_or(u64::from(u32::MAX - 1)));
+        let cap: i64 = self
+            .conn
+            .query_row(&format!("PRAGMA max_page_count = {n}"), [], |r| r.get(0))
+            .map_err(self.write_err())?;
+        Ok(from_i64(cap))
+    }
+
+    /// Pages the store file holds now.
+    pub fn page_count(&self) -> Result<u64, StoreError> {
+        let n: i64 = self
+            .conn
+            .query_row("PRAGMA page_count", [], |r| r.get(0))
+            .map_err(self.read_err())?;
+        Ok(from_i64(n))
+    }
+
+    pub fn set_operator_message(&mut self, id: CampaignId, message: Option<&str>) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
+        self.conn
+            .execute(
+                "UPDATE campaigns SET operator_message = ?2 WHERE id = ?1",
+                params![id.0, message],
+            )
+            .map_err(self.write_err())?;
+        Ok(())
+    }
+
+    /// Record the identity string a device reported (e.g. `*IDN?`), replacing an earlier one.
+    pub fn record_device(&mut self, id: CampaignId, name: &str, identity: &str) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
+        self.conn
+            .execute(
+                "INSERT OR REPLACE INTO devices (campaign_id, name, identity) VALUES (?1, ?2, ?3)",
+                params![id.0, name, identity],
+            )
+            .map_err(self.write_err())?;
+        Ok(())
+    }
+
+    pub fn devices(&self, id: CampaignId) -> Result<Vec<(String, String)>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare("SELECT name, identity FROM devices WHERE campaign_id = ?1 ORDER BY name")
+            .map_err(self.read_err())?;
+        let rows = stmt
+            .query_map([id.0], |r| Ok((r.get(0)?, r.get(1)?)))
+            .map_err(self.read_err())?;
+        rows.collect::<Result<_, _>>().map_err(self.read_err())
+    }
+
+    pub fn record_calibration(&mut self, id: CampaignId, cal: &CalibrationRecord) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
+        self.conn
+            .prepare_cached(
+                "INSERT INTO calibrations (campaign_id, seq, kind, band_nm, t_s, value_w, u_w)
+                 VALUES (?1, (SELECT COALESCE(MAX(seq), 0) + 1 FROM calibrations WHERE campaign_id = ?1),
+                         ?2, ?3, ?4, ?5, ?6)",
+            )
+            .and_then(|mut st| {
+                st.execute(params![
+                    id.0,
+                    cal.kind,
+                    cal.band_nm,
+                    cal.t_s,
+                    cal.value_w,
+                    cal.u_w
+                ])
+            })
+            .map_err(self.write_err())?;
+        Ok(())
+    }
+
+    pub fn calibrations(&self, id: CampaignId) -> Result<Vec<CalibrationRecord>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT kind, band_nm, t_s, value_w, u_w FROM calibrations WHERE campaign_id = ?1 ORDER BY seq",
+            )
+            .map_err(self.read_err())?;
+        let rows = stmt
+            .query_map([id.0], |r| {
+                Ok(CalibrationRecord {
+                    kind: r.get(0)?,
+                    band_nm: r.get(1)?,
+                    t_s: r.get(2)?,
+                    value_w: r.get(3)?,
+                    u_w: r.get(4)?,
+                })
+            })
+            .map_err(self.read_err())?;
+        rows.collect::<Result<_, _>>().map_err(self.read_err())
+    }
+
+    /// Commit one point in its own transaction, as durably as its campaign asks ([`Durability`](super::Durability)). A point
+    /// already committed is refused, never overwritten.
+    pub fn commit_point(&mut self, id: CampaignId, p: &PointRecord) -> Result<(), StoreError> {
+        let readback = serde_json::to_string(&p.readback_deg)
+            .map_err(|e| StoreError::Corrupt(format!("cannot encode read-back positions: {e}")))?;
+        let flags = p.flags.join(";");
+        self.durability_for_write(Some(id))?;
+        // Prepared once per connection (SQLite's parse and plan cost as much as the insert itself).
+        let result = self.conn.prepare_cached(
+            "INSERT INTO points (campaign_id, idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg,
+             signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json, truth_point_sr,
+             truth_aperture_sr) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17)",
+        );
+        let result = result.and_then(|mut st| {
+            st.execute(params![
+                id.0,
+                to_i64(p.index),
+                p.band_nm,
+                p.theta_i_deg,
+                p.phi_i_deg,
+                p.theta_o_deg,
+                p.phi_o_deg,
+                p.signal_w,
+                p.dark_w,
+                p.incident_w,
+                p.brdf_sr,
+                p.brdf_u_sr,
+                flags,
+                p.t_s,
+                readback,
+                p.truth_point_sr,
+                p.truth_aperture_sr
+            ])
+        });
+        match result {
+            Ok(_) => Ok(()),
+            // Only the primary key means "already committed"; any other constraint is a bug, not a duplicate.
+            Err(rusqlite::Error::SqliteFailure(e, _))
+                if e.extended_code == rusqlite::ffi::SQLITE_CONSTRAINT_PRIMARYKEY =>
+            {
+                Err(StoreError::DuplicatePoint {
+                    campaign: id,
+                    index: p.index,
+                })
+            }
+            Err(source) => Err(StoreError::Write {
+                path: self.path.clone(),
+                source,
+            }),
+        }
+    }
+
+    /// The first point index not yet committed: where a resumed campaign continues.
+    pub fn next_index(&self, id: CampaignId) -> Result<u64, StoreError> {
+        // Points are committed in index order, so the count of rows is the next index; check that the rows
+        // really are 0..count so that a hole (which would mean a bug) is reported rather than skipped.
+        let (count, max): (i64, Option<i64>) = self
+            .conn
+            .prepare_cached("SELECT COUNT(*), MAX(idx) FROM points WHERE campaign_id = ?1")
+            .and_then(|mut st| st.query_row([id.0], |r| Ok((r.get(0)?, r.get(1)?))))
+            .map_err(self.read_err())?;
+        match max {
+            None => Ok(0),
+            Some(m) if m + 1 == count => Ok(from_i64(count)),
+            Some(m) => Err(StoreError::Corrupt(format!(
+                "campaign {id} has {count} points but the highest index is {m}: points are missing"
+            ))),
+        }
+    }
+
+    /// All committed points of a campaign in index order.
+    pub fn points(&self, id: CampaignId) -> Result<Vec<PointRecord>, StoreError> {
+        self.points_from(id, 0)
+    }
+
+    /// Committed points with index >= `from`, in index order.
+    pub fn points_from(&self, id: CampaignId, from: u64) -> Result<Vec<PointRecord>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg, signal_w, dark_w,
+                 incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json, truth_point_sr, truth_aperture_sr
+                 FROM points WHERE campaign_id = ?1 AND idx >= ?2 ORDER BY idx",
+            )
+            .map_err(self.read_err())?;
+        let rows = stmt
+            .query_map(params![id.0, to_i64(from)], point_from_row)
+            .map_err(self.read_err())?;
+        let mut out = Vec::new();
+        for row in rows {
+            out.push(row.map_err(self.read_err())??);
+        }
+        Ok(out)
+    }
+
+    /// Campaigns that were running when the daemon last stopped, oldest first.
+    pub fn interrupted_campaigns(&self) -> Result<Vec<CampaignId>, StoreError> {
+        Ok(self
+            .campaigns()?
+            .into_iter()
+            .filter(|c| c.state.was_interrupted())
+            .map(|c| c.id)
+            .collect())
+    }
+}
+
+const CAMPAIGN_SELECT: &str = "SELECT c.id, c.name, c.state, c.campaign_toml, c.instrument_toml, c.total_points,
+    (SELECT COUNT(*) FROM points p WHERE p.campaign_id = c.id), c.dry_run, c.software_version, c.created_unix_s,
+    c.last_error, c.operator_message FROM campaigns c";
+
+fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignRecord, StoreError>> {
+    let state: String = r.get(2)?;
+    let total: i64 = r.get(5)?;
+    let done: i64 = r.get(6)?;
+    let record = |state| CampaignRecord {
+        id: CampaignId(0),
+        name: String::new(),
+        state,
+        campaign_toml: String::new(),
+        instrument_toml: String::new(),
+        total_points: from_i64(total),
+        points_done: from_i64(done),
+        dry_run: false,
+        software_version: String::new(),
+        created_unix_s: 0.0,
+        last_error: None,
+        operator_message: None,
+    };
+    let state = match state.parse::<CampaignState>() {
+        Ok(s) => s,
+        Err(e) => return Ok(Err(e)),
+    };
+    Ok(Ok(CampaignRecord {
+        id: CampaignId(r.get(0)?),
+        name: r.get(1)?,
+        campaign_toml: r.get(3)?,
+        instrument_toml: r.get(4)?,
+        dry_run: r.get(7)?,
+        software_version: r.get(8)?,
+        created_unix_s: r.get(9)?,
+        last_error: r.get(10)?,
+        operator_message: r.get(11)?,
+        ..record(state)
+    }))
+}
+
+fn point_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<PointRecord, StoreError>> {
+    let flags: String = r.get(11)?;
+    let readback: String = r.get(13)?;
+    let readback_deg = match serde_json::from_str(&readback) {
+        Ok(v) => v,
+        Err(e) => {
+            return Ok(Err(StoreError::Corrupt(format!(
+                "read-back positions {readback:?}: {e}"
+            ))));
+        }
+    };
+    Ok(Ok(PointRecord {
+        index: from_i64(r.get(0)?),
+        band_nm: r.get(1)?,
+        theta_i_deg: r.get(2)?,
+        phi_i_deg: r.get(3)?,
+        theta_o_deg: r.get(4)?,
+        phi_o_deg: r.get(5)?,
+        // NULL: no reading (a failed point), stored from NaN.
+        signal_w: r.get::<_, Option<f64>>(6)?.unwrap_or(f64::NAN),
+        dark_w: r.get::<_, Option<f64>>(7)?.unwrap_or(f64::NAN),
+        incident_w: r.get::<_, Option<f64>>(8)?.unwrap_or(f64::NAN),
+        brdf_sr: r.get(9)?,
+        brdf_u_sr: r.get(10)?,
+        flags: if flags.is_empty() {
+            Vec::new()
+        } else {
+            flags.split(';').map(str::to_string).collect()
+        },
+        t_s: r.get(12)?,
+        readback_deg,
+        truth_point_sr: r.get(14)?,
+        truth_aperture_sr: r.get(15)?,
+    }))
+}
+
+/// Counts in the store are SQLite INTEGERs (i64); ours are u64 and far below 2^63.
+fn to_i64(v: u64) -> i64 {
+    i64::try_from(v).unwrap_or(i64::MAX)
+}
+
+fn from_i64(v: i64) -> u64 {
+    u64::try_from(v).unwrap_or(0)
+}

@@ -1,0 +1,241 @@
+//! Opening the store: the connection's settings, the schema and its migrations, the durability level each
+//! write needs, and the mapping of SQLite errors to [`StoreError`].
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use rusqlite::{Connection, OptionalExtension};
+
+use super::{CampaignId, Durability, SCHEMA_VERSION, STORE_FILE, Store, StoreError};
+
+impl Store {
+    /// Open (creating if needed) the store in a data directory.
+    pub fn open(dir: &Path) -> Result<Store, StoreError> {
+        std::fs::create_dir_all(dir).map_err(|source| StoreError::CreateDir {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let path = dir.join(STORE_FILE);
+        let conn = Connection::open(&path).map_err(|source| StoreError::Open {
+            path: path.clone(),
+            source,
+        })?;
+        let mut store = Store::with_connection(conn, path);
+        store.configure()?;
+        store.migrate()?;
+        Ok(store)
+    }
+
+    pub(super) fn with_connection(conn: Connection, path: PathBuf) -> Store {
+        Store {
+            conn,
+            path,
+            unrecorded: HashMap::new(),
+            durability: Durability::PowerLoss,
+            dry_runs: HashMap::new(),
+        }
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Call `hook` inside every commit, after the transaction's writes and before SQLite makes them durable
+    /// (SQLite's commit hook; `true` from it turns the commit into a rollback). For crash tests, which kill the
+    /// process there: a kill in the middle of a commit, placed exactly.
+    pub fn on_commit<F: FnMut() -> bool + Send + 'static>(&mut self, hook: F) -> Result<(), StoreError> {
+        self.conn
+            .commit_hook(Some(hook))
+            .map_err(|source| StoreError::Write {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    /// The durability the connection is set to now (the level of the last write).
+    pub fn durability(&self) -> Durability {
+        self.durability
+    }
+
+    /// Before a write: set the level the written campaign needs (`None`: no campaign, FULL).
+    pub(super) fn durability_for_write(&mut self, campaign: Option<CampaignId>) -> Result<(), StoreError> {
+        let wanted = match campaign {
+            None => Durability::PowerLoss,
+            Some(id) => match self.dry_runs.get(&id) {
+                Some(dry) => Durability::for_campaign(*dry),
+                None => {
+                    let dry: Option<bool> = self
+                        .conn
+                        .prepare_cached("SELECT dry_run FROM campaigns WHERE id = ?1")
+                        .and_then(|mut st| st.query_row([id.0], |r| r.get(0)).optional())
+                        .map_err(self.read_err())?;
+                    match dry {
+                        Some(d) => {
+                            self.dry_runs.insert(id, d);
+                            Durability::for_campaign(d)
+                        }
+                        // Not (yet) a campaign: the write fails on its own; keep the strict level meanwhile.
+                        None => Durability::PowerLoss,
+                    }
+                }
+            },
+        };
+        if wanted != self.durability {
+            self.conn
+                .execute_batch(wanted.pragma())
+                .map_err(self.write_err())?;
+            self.durability = wanted;
+        }
+        Ok(())
+    }
+
+    fn configure(&mut self) -> Result<(), StoreError> {
+        let open_err = |source| StoreError::Open {
+            path: self.path.clone(),
+            source,
+        };
+        // A busy timeout rather than immediate failure when a reader (e.g. an export) holds a lock.
+        self.conn.busy_timeout(Duration::from_secs(5)).map_err(open_err)?;
+        self.conn
+            .execute_batch("PRAGMA journal_mode = WAL; PRAGMA synchronous = FULL; PRAGMA foreign_keys = ON;")
+            .map_err(|source| StoreError::Open {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    /// Version 1 declared the readings NOT NULL, so a failed point (NaN reading) could not be committed.
+    /// SQLite cannot drop a NOT NULL constraint in place: rebuild the table, keeping every row.
+    fn migrate_v1_to_v2(&mut self) -> Result<(), StoreError> {
+        let sql = format!(
+            "BEGIN;
+            CREATE TABLE points_v2 (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                idx INTEGER NOT NULL,
+                band_nm REAL NOT NULL,
+                theta_i_deg REAL NOT NULL,
+                phi_i_deg REAL NOT NULL,
+                theta_o_deg REAL NOT NULL,
+                phi_o_deg REAL NOT NULL,
+                signal_w REAL,
+                dark_w REAL,
+                incident_w REAL,
+                brdf_sr REAL,
+                brdf_u_sr REAL,
+                flags TEXT NOT NULL,
+                t_s REAL NOT NULL,
+                readback_json TEXT NOT NULL,
+                truth_point_sr REAL,
+                truth_aperture_sr REAL,
+                PRIMARY KEY (campaign_id, idx)
+            );
+            INSERT INTO points_v2 SELECT * FROM points;
+            DROP TABLE points;
+            ALTER TABLE points_v2 RENAME TO points;
+            PRAGMA user_version = {SCHEMA_VERSION};
+            COMMIT;"
+        );
+        self.conn.execute_batch(&sql).map_err(|source| StoreError::Write {
+            path: self.path.clone(),
+            source,
+        })
+    }
+
+    fn migrate(&mut self) -> Result<(), StoreError> {
+        let version: i64 = self
+            .conn
+            .query_row("PRAGMA user_version", [], |r| r.get(0))
+            .map_err(|source| StoreError::Read {
+                path: self.path.clone(),
+                source,
+            })?;
+        if version == SCHEMA_VERSION {
+            return Ok(());
+        }
+        if version == 1 {
+            return self.migrate_v1_to_v2();
+        }
+        if version != 0 {
+            return Err(StoreError::SchemaVersion {
+                path: self.path.clone(),
+                found: version,
+                expected: SCHEMA_VERSION,
+            });
+        }
+        let schema = format!(
+            "BEGIN;
+            CREATE TABLE campaigns (
+                id INTEGER PRIMARY KEY AUTOINCREMENT,
+                name TEXT NOT NULL,
+                state TEXT NOT NULL,
+                campaign_toml TEXT NOT NULL,
+                instrument_toml TEXT NOT NULL,
+                total_points INTEGER NOT NULL,
+                dry_run INTEGER NOT NULL,
+                software_version TEXT NOT NULL,
+                created_unix_s REAL NOT NULL,
+                last_error TEXT,
+                operator_message TEXT
+            );
+            CREATE TABLE devices (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                name TEXT NOT NULL,
+                identity TEXT NOT NULL,
+                PRIMARY KEY (campaign_id, name)
+            );
+            CREATE TABLE calibrations (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                seq INTEGER NOT NULL,
+                kind TEXT NOT NULL,
+                band_nm REAL,
+                t_s REAL NOT NULL,
+                value_w REAL NOT NULL,
+                u_w REAL NOT NULL,
+                PRIMARY KEY (campaign_id, seq)
+            );
+            CREATE TABLE points (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                idx INTEGER NOT NULL,
+                band_nm REAL NOT NULL,
+                theta_i_deg REAL NOT NULL,
+                phi_i_deg REAL NOT NULL,
+                theta_o_deg REAL NOT NULL,
+                phi_o_deg REAL NOT NULL,
+                signal_w REAL,
+                dark_w REAL,
+                incident_w REAL,
+                brdf_sr REAL,
+                brdf_u_sr REAL,
+                flags TEXT NOT NULL,
+                t_s REAL NOT NULL,
+                readback_json TEXT NOT NULL,
+                truth_point_sr REAL,
+                truth_aperture_sr REAL,
+                PRIMARY KEY (campaign_id, idx)
+            );
+            PRAGMA user_version = {SCHEMA_VERSION};
+            COMMIT;"
+        );
+        self.conn
+            .execute_batch(&schema)
+            .map_err(|source| StoreError::Write {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    pub(super) fn write_err(&self) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
+        |source| StoreError::Write {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    pub(super) fn read_err(&self) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
+        |source| StoreError::Read {
+            path: self.path.clone(),
+            source,
+        }
+    }
+}

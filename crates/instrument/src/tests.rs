@@ -1,0 +1,30 @@
+//! Unit tests of the instrument description: the embedded file, parsing and every validation rule.
+
+use super::*;
+
+#[test]
+fn embedded_simulated_instrument_is_valid() {
+    let file = InstrumentFile::parse(SIMULATED_INSTRUMENT_TOML, "simulated.toml").expect("valid");
+    assert_eq!(file.instrument.geometry, GeometryKind::Reference);
+    assert_eq!(file.instrument.axes.len(), 4);
+    assert!(file.instrument.bands_nm().len() >= 3);
+}
+
+#[test]
+fn unknown_key_is_named_with_its_line() {
+    let text = SIMULATED_INSTRUMENT_TOML.replacen("[instrument.source]", "[instrument.source]\nbogus = 1", 1);
+    let err = InstrumentFile::parse(&text, "x.toml").expect_err("unknown key");
+    let msg = err.to_string();
+    assert!(msg.contains("bogus") && msg.contains("line"), "{msg}");
+}
+
+#[test]
+fn axis_calibration_round_trips() {
+    let file = InstrumentFile::simulated();
+    let mut axis = file.instrument.axes[0].clone();
+    axis.zero_offset_deg = 12.5;
+    axis.direction = -1;
+    let p = axis.controller_from_physical_deg(30.0);
+    assert_eq!(p, -17.5);
+    assert_eq!(axis.physical_from_controller_deg(p), 30.0);
+}

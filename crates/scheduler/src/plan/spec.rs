@@ -1,0 +1,184 @@
+//! The records: the `[plan]` schema as deserialised (specs) and the built plan it describes.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use super::PlanError;
+use crate::adaptive::AdaptiveSpec;
+use crate::constraints::Reason;
+use crate::kinematics::{Geometry, Pose};
+
+/// What the scheduler needs to know about the sample's material.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SampleTraits {
+    pub isotropic: bool,
+    pub spectrally_flat: bool,
+}
+
+/// `[plan]`.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PlanSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bands_nm: Option<Vec<f64>>,
+    #[serde(default = "one")]
+    pub repeats: u32,
+    #[serde(default = "yes")]
+    pub reciprocity: bool,
+    #[serde(default)]
+    pub rotation_deg: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid: Option<GridSpec>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adaptive: Option<AdaptiveSpec>,
+    #[serde(default)]
+    pub calibration: CalibrationSpec,
+}
+
+fn one() -> u32 {
+    1
+}
+fn yes() -> bool {
+    true
+}
+
+#[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum GridKind {
+    Full,
+    Isotropic,
+    InPlane,
+    Points,
+}
+
+/// `[plan.grid]`. Angle keys take a list or `{ from, to, step }`.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct GridSpec {
+    pub kind: GridKind,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub theta_i_deg: Option<toml::Value>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub phi_i_deg: Option<toml::Value>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub theta_o_deg: Option<toml::Value>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub phi_o_deg: Option<toml::Value>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub delta_phi_deg: Option<toml::Value>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plane_phi_deg: Option<toml::Value>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub points: Option<Vec<[f64; 4]>>,
+}
+
+/// `[plan.calibration]`.
+#[derive(Debug, Clone, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dark_every_points: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dark_every_s: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_every_points: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_every_s: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_pose_deg: Option<BTreeMap<String, f64>>,
+}
+
+/// Validated calibration settings.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Calibration {
+    pub dark_every_points: Option<u32>,
+    pub dark_every_s: Option<f64>,
+    pub reference_every_points: Option<u32>,
+    pub reference_every_s: Option<f64>,
+    /// Physical angles overriding the current pose for direct-beam readings, per role.
+    pub reference_overrides: Vec<(gonio_instrument::AxisRole, f64)>,
+}
+
+impl Calibration {
+    pub fn darks(&self) -> bool {
+        self.dark_every_points.is_some() || self.dark_every_s.is_some()
+    }
+    pub fn references(&self) -> bool {
+        self.reference_every_points.is_some() || self.reference_every_s.is_some()
+    }
+    /// The reference pose reached from `current`.
+    pub fn reference_pose(&self, current: &Pose) -> Pose {
+        let mut p = *current;
+        for (role, v) in &self.reference_overrides {
+            p.set(*role, *v);
+        }
+        p
+    }
+}
+
+impl PlanSpec {
+    /// The `[plan]` table of a TOML document, other tables ignored. Campaign files are read by
+    /// `gonio-campaign` (the one loader, which validates every table); this is for plans on their own (the
+    /// scheduler's tests, examples and benchmarks).
+    pub fn from_toml(text: &str, origin: &str) -> Result<PlanSpec, PlanError> {
+        #[derive(Deserialize)]
+        struct PlanOnly {
+            plan: PlanSpec,
+        }
+        toml::from_str::<PlanOnly>(text)
+            .map(|d| d.plan)
+            .map_err(|e| PlanError::Parse {
+                origin: origin.to_string(),
+                message: e.to_string(),
+            })
+    }
+}
+
+/// A kept geometry with its valid axis solutions.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedGeometry {
+    /// As requested (isotropic grids: canonical phi_i = 0).
+    pub requested: Geometry,
+    /// Valid poses, each with the geometry it measures (differs from `requested` only by a turn about the
+    /// normal, for isotropic samples).
+    pub candidates: Vec<(Pose, Geometry)>,
+}
+
+/// A requested geometry measured through another one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Served {
+    pub requested: Geometry,
+    /// Index into [`Plan::geometries`].
+    pub by: usize,
+    /// True when the result must be mirrored (source and detector exchanged).
+    pub reciprocal: bool,
+    pub reason: Reason,
+}
+
+/// A built plan, before ordering.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    /// Kept geometries in request (raster) order.
+    pub geometries: Vec<PlannedGeometry>,
+    pub bands_nm: Vec<f64>,
+    pub repeats: u32,
+    /// (geometry, band) pairs requested.
+    pub requested: usize,
+    /// (geometry, band) pairs skipped, by reason.
+    pub skipped: BTreeMap<Reason, usize>,
+    pub served: Vec<Served>,
+    pub calibration: Calibration,
+    /// Pose the candidates were made consistent with (arms on one side), if any.
+    pub anchor: Option<Pose>,
+}
+
+impl Plan {
+    /// (geometry, band) pairs kept.
+    pub fn kept(&self) -> usize {
+        self.geometries.len() * self.bands_nm.len()
+    }
+    pub fn skipped_total(&self) -> usize {
+        self.skipped.values().sum()
+    }
+}
