@@ -77,7 +77,17 @@ fn dry_run_matches_ground_truth_and_writes_csv_and_json() {
     ] {
         assert!(!json[key].is_null(), "run.json lacks {key}");
     }
-    assert!(json["timing"]["wall_s"].as_f64().is_some());
+    // Instrument time only: run.json holds what the store holds (the wall time is in the summary on stderr).
+    let actual = json["timing"]["actual_instrument_s"].as_f64().expect("actual");
+    let predicted = json["timing"]["predicted_instrument_s"]
+        .as_f64()
+        .expect("predicted");
+    assert!(
+        actual > 0.0 && (actual - predicted).abs() <= 0.1 * predicted,
+        "actual {actual} s, predicted {predicted} s"
+    );
+    assert!(json["timing"]["wall_s"].is_null());
+    assert!(stderr.contains("wall time"), "{stderr}");
     assert!(
         json["config"]["campaign_toml"]
             .as_str()

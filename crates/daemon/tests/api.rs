@@ -238,7 +238,10 @@ async fn submit_watch_events_complete_and_download_points_csv() {
     let csv = String::from_utf8(csv).expect("utf-8");
     let mut lines = csv.lines();
     let header = lines.next().expect("header");
-    assert!(header.starts_with(gonio_daemon::export::HEADER), "{header}");
+    assert!(
+        header.starts_with(&gonio_results::points::FIXED_COLUMNS.join(",")),
+        "{header}"
+    );
     assert!(
         header.ends_with(",brdf_true_sr,brdf_true_aperture_sr"),
         "dry-run columns: {header}"
