@@ -303,8 +303,9 @@ fn a_run_directory_and_its_store_export_byte_identical_provenance() {
         "the CSV exports differ beyond the line naming their source"
     );
     for part in [
-        "# run.timing.predicted_instrument_s = ",
-        "# run.truth.against_aperture_average.points = ",
+        "# run.timing = {\"actual_instrument_s\":",
+        "\"predicted_instrument_s\":",
+        "# run.truth.against_aperture_average = {\"cos_weighted_relative_rms\":",
         "# run.devices[0] = ",
         "# run.calibrations[0] = ",
         "# run.campaign.created_unix_s = ",
