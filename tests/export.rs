@@ -3,59 +3,20 @@
 //! read from a daemon's store exports the same points; bad input is refused with the file and what is wrong.
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::path::Path;
+use std::process::{Output, Stdio};
 
 use gonio_brdf::geometry::{Direction, IsotropicAngles};
-
-fn gonio() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_gonio"))
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
+use gonio_testkit::cli::dry_run;
+use gonio_testkit::{CampaignText, gonio, text};
 
 /// A dry-run campaign on an isotropic grid; `material` is the `[material]` table's body.
 fn campaign(id: &str, bands: &str, theta_i: &str, theta_o: &str, dphi: &str, material: &str) -> String {
-    format!(
-        r#"
-[campaign]
-id = "{id}"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = {bands}
-[plan.grid]
-kind = "isotropic"
-theta_i_deg = {theta_i}
-theta_o_deg = {theta_o}
-delta_phi_deg = {dphi}
-[plan.calibration]
-dark_every_points = 100
-[acquisition]
-averaging = 10
-[material]
-{material}
-"#
-    )
-}
-
-/// Runs a campaign to completion into `dir/<id>`; returns the run directory.
-fn dry_run(dir: &Path, id: &str, text_: &str) -> PathBuf {
-    let file = dir.join(format!("{id}.toml"));
-    std::fs::write(&file, text_).expect("write campaign");
-    let out = dir.join(id);
-    let o = gonio()
-        .arg("run")
-        .arg(&file)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .output()
-        .expect("gonio run");
-    assert!(o.status.success(), "gonio run {id} failed: {}", text(&o.stderr));
-    out
+    CampaignText::isotropic(id, theta_i, theta_o, dphi)
+        .bands(bands)
+        .plan_calibration("dark_every_points = 100")
+        .material(material)
+        .to_string()
 }
 
 fn eval(material: &Path, wavelength_nm: f64, geometries: &str) -> Vec<f64> {

@@ -2,15 +2,13 @@
 //! and run.json contracts, resuming after `kill -9` at random moments, and refused campaign files.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::Duration;
 
 use gonio_daemon::store::{PointRecord, Store};
+use gonio_testkit::cli::quiet_run;
+use gonio_testkit::gonio;
 use rand::{Rng, SeedableRng};
-
-fn gonio() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_gonio"))
-}
 
 /// A small dry-run campaign (about 60 points, 2 bands, darks and a mid-run direct-beam reading).
 const SMALL: &str = r#"
@@ -33,13 +31,6 @@ averaging = 10
 [material]
 preset = "coloured-plastic"
 "#;
-
-/// `gonio run CAMPAIGN --out OUT --quiet`.
-fn quiet_run(campaign: &Path, out: &Path) -> Command {
-    let mut c = gonio();
-    c.arg("run").arg(campaign).arg("--out").arg(out).arg("--quiet");
-    c
-}
 
 fn write_campaign(dir: &Path, text: &str) -> PathBuf {
     let p = dir.join("campaign.toml");

@@ -6,18 +6,15 @@
 //! Cases: `GONIO_FUZZ_CASES` (default: a fast tier), e.g. `GONIO_FUZZ_CASES=20000 cargo test --release
 //! -p gonio-daemon --test api_fuzz` for a large run.
 
-use std::sync::Arc;
+mod common;
+
 use std::time::Duration;
 
 use axum::Router;
 use axum::body::Body;
 use axum::http::{Request, StatusCode, header};
+use common::{App, Setup};
 use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::control::Control;
-use gonio_daemon::rig::Rig;
-use gonio_daemon::service::{EngineRunner, Service, ShutdownTrigger};
-use gonio_daemon::store::Store;
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use http_body_util::BodyExt;
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
@@ -128,28 +125,18 @@ fn request() -> impl Strategy<Value = Req> {
         })
 }
 
-async fn app() -> (Router, ShutdownTrigger, tempfile::TempDir) {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let instrument = InstrumentFile::simulated();
-    let rig = Rig::connect_with_time_scale(&instrument, None, 1.0)
-        .await
-        .expect("rig");
-    let runner = Arc::new(EngineRunner::new(
-        instrument,
-        SIMULATED_INSTRUMENT_TOML.to_string(),
-        dir.path().to_path_buf(),
-        rig,
-    ));
-    let service =
-        Service::new(Store::open(dir.path()).expect("store"), runner, Control::new()).expect("service");
-    let trigger = ShutdownTrigger::new();
-    let config = ApiConfig {
-        token: Some(TOKEN.into()),
-        body_limit_bytes: 4096,
-        ..ApiConfig::default()
+/// The daemon without its queue: submitted campaigns stay queued, which is all the routes need.
+async fn app() -> App {
+    let setup = Setup {
+        config: ApiConfig {
+            token: Some(TOKEN.into()),
+            body_limit_bytes: 4096,
+            ..ApiConfig::default()
+        },
+        queue: false,
+        files_dir: None,
     };
-    // No queue runs: submitted campaigns stay queued, which is all the routes need.
-    (api::router(service, &config, trigger.subscribe()), trigger, dir)
+    common::app_with(tempfile::tempdir().expect("tempdir"), setup).await
 }
 
 /// Statuses the API documents.
@@ -247,14 +234,14 @@ fn random_requests_get_documented_answers_and_never_a_500() {
         .start_paused(true)
         .build()
         .expect("runtime");
-    let (router, trigger, _dir) = rt.block_on(app());
+    let app = rt.block_on(app());
     let mut runner = TestRunner::new(Config {
         cases: cases(1500),
         failure_persistence: None,
         ..Config::default()
     });
-    let result = runner.run(&request(), |r| rt.block_on(check(&router, &r)));
-    trigger.trigger();
+    let result = runner.run(&request(), |r| rt.block_on(check(&app.router, &r)));
+    drop(app);
     if let Err(e) = result {
         panic!("{e}");
     }
