@@ -158,7 +158,7 @@ impl Report {
             "The daemon in process as `gonio daemon` runs it (store, simulated instrument at time scale {} on the \
              real clock, `Service` and `api::run_daemon` on a loopback port, on its own runtime), running a \
              {}-point campaign submitted over HTTP, while hostile clients on another runtime press on it over real \
-             TCP connections (`crates/soak/src/http_abuse.rs`). The daemon's limits: {} connections at most (the \
+             TCP connections (`crates/soak/src/http_abuse/`). The daemon's limits: {} connections at most (the \
              oldest idle one is closed to admit a newcomer), {} s to send request headers, {} s to send a body, \
              bodies of {} bytes at most. Each hostile client reconnects shortly after the daemon closes it. A status \
              client asks `GET /api/campaigns/{{id}}` on a new connection every 100 ms until the campaign is final; \
@@ -279,7 +279,7 @@ impl Report {
              grids; one or two bands, repeats, darks and direct-beam readings at random cadences; a third of them \
              with stalled moves and garbled or lost replies), each interrupted by up to five random requests (pause, \
              abort, emergency stop, at random instants, resumed after a random wait), run by the real engine on the \
-             simulated instrument on a paused clock (`crates/soak/src/safety_soak.rs`, also run by the tests in \
+             simulated instrument on a paused clock (`crates/soak/src/safety_soak/`, also run by the tests in \
              `crates/soak/tests/safety_soak.rs`). Every check reads the simulator's record of what reached each \
              device over the wire and of each axis's exact trajectory (quadratic pieces, motor and load with \
              backlash).\n",
