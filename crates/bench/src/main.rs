@@ -43,10 +43,13 @@ mod section_campaigns;
 mod section_micro;
 mod section_readings;
 
-use measure::*;
-use section_campaigns::*;
-use section_micro::*;
-use section_readings::*;
+use measure::{
+    EvalRate, ThroughputRuns, eval_ns_per_model, eval_throughput, load_average, ordering_time, rustc_version,
+    throughput_section,
+};
+use section_campaigns::campaign_section;
+use section_micro::{criterion_markdown, stress_markdown, throughput_markdown};
+use section_readings::readings_section;
 
 const COMMAND: &str = "cargo build --release -p gonio && cargo run --release -p gonio-bench";
 /// The criterion benches the report summarises (run them before the report to refresh the numbers).

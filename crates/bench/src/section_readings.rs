@@ -156,7 +156,7 @@ pub(super) fn readings_section(
 }
 
 /// One bullet of reading (b): which scenes meet >= 20x with the fixed order `n` (per scene: `pick`).
-pub(super) fn verdict_b(
+fn verdict_b(
     a: &readings::APriori,
     what: &str,
     n: Option<usize>,
@@ -205,7 +205,7 @@ pub(super) fn verdict_b(
 }
 
 /// Section (1)(b): the fixed rule sized a priori for every scene, against the adaptive reading.
-pub(super) fn apriori_markdown(a: &readings::APriori) -> String {
+fn apriori_markdown(a: &readings::APriori) -> String {
     use readings::{APRIORI_MAX_N, APRIORI_TOLERANCE};
     let mut s = String::new();
     let _ = writeln!(s, "#### (b) A priori: one fixed order for every scene\n");

@@ -105,9 +105,9 @@ pub struct APriori {
 }
 
 /// Fixed-rule errors, computed once per (scene, n).
-pub(super) struct Errors<'a> {
-    pub(super) cases: Vec<(&'a Material, Direction, Direction, f64, f64)>,
-    pub(super) cache: Vec<Vec<Option<f64>>>,
+struct Errors<'a> {
+    cases: Vec<(&'a Material, Direction, Direction, f64, f64)>,
+    cache: Vec<Vec<Option<f64>>>,
 }
 
 impl Errors<'_> {

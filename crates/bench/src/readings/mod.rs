@@ -13,7 +13,7 @@ use gonio_simulator::scene::{Band, Pose};
 
 mod apriori;
 
-pub use apriori::*;
+pub use apriori::{APRIORI_MAX_N, APRIORI_TOLERANCE, APriori, SceneResult, run_apriori};
 
 pub const MATERIALS: [&str; 5] = [
     "mirror",

@@ -7,7 +7,7 @@ use super::*;
 pub const LOBE_ADAPTED_BELOW_RAD: f64 = 0.3;
 
 /// Evaluation budget of [`directional_albedo`] per rule.
-pub(super) const ALBEDO_BUDGET: usize = 2_000_000;
+const ALBEDO_BUDGET: usize = 2_000_000;
 
 /// The directional albedo `a(wi) = integral of f(wi, wo) cos(theta_o) d wo` over the upper hemisphere, plus the
 /// reflectance of the model's delta lobe (added analytically, with no error).
@@ -109,7 +109,7 @@ pub fn directional_albedo(
 }
 
 /// Replicates of the randomised quasi-Monte Carlo estimate.
-pub(super) const QMC_REPLICATES: usize = 8;
+const QMC_REPLICATES: usize = 8;
 
 /// The directional albedo (delta lobe excluded) by randomised quasi-Monte Carlo through the model's importance
 /// sampling [`Brdf::sample`]: the estimator `f cos(theta_o) / pdf` averaged over an R2 low-discrepancy sequence
@@ -176,7 +176,7 @@ pub fn sampled_albedo(
 }
 
 /// A deterministic uniform number in [0, 1) from an integer (SplitMix64 finaliser).
-pub(super) fn unit_from_hash(seed: u64) -> f64 {
+fn unit_from_hash(seed: u64) -> f64 {
     let mut z = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);

@@ -41,7 +41,7 @@ pub(super) fn combine(fine: &Partial, coarse: &Partial) -> Estimate {
 
 /// Radial variable of a rule.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) enum Radial {
+enum Radial {
     /// u = 1 - cos(psi); d omega = du d chi.
     OneMinusCos,
     /// psi itself; d omega = sin(psi) d psi d chi.
@@ -49,20 +49,20 @@ pub(super) enum Radial {
 }
 
 #[derive(Debug, Clone, Copy)]
-pub(super) struct Panel {
-    pub(super) lo: f64,
-    pub(super) hi: f64,
-    pub(super) warp_lo: bool,
-    pub(super) warp_hi: bool,
+struct Panel {
+    lo: f64,
+    hi: f64,
+    warp_lo: bool,
+    warp_hi: bool,
 }
 
 /// The orthonormal frame (axis, e1, e2) of the polar coordinates; e1 points towards the normal.
-pub(super) struct Frame {
-    pub(super) a: [f64; 3],
-    pub(super) e1: [f64; 3],
-    pub(super) e2: [f64; 3],
-    pub(super) cos_axis: f64,
-    pub(super) sin_axis: f64,
+struct Frame {
+    a: [f64; 3],
+    e1: [f64; 3],
+    e2: [f64; 3],
+    cos_axis: f64,
+    sin_axis: f64,
 }
 
 impl Frame {
@@ -100,7 +100,7 @@ impl Frame {
 }
 
 /// Radial panels in psi (radians), with the ends where a ring is tangent to the horizon flagged for warping.
-pub(super) fn panels(region: &Region, frame: &Frame, rule: &Rule) -> Vec<Panel> {
+fn panels(region: &Region, frame: &Frame, rule: &Rule) -> Vec<Panel> {
     let beta = if region.half_angle_rad.is_nan() {
         0.0
     } else {
@@ -165,7 +165,7 @@ pub(super) fn panels(region: &Region, frame: &Frame, rule: &Rule) -> Vec<Panel> 
 }
 
 /// Maps a Gauss node t in [-1, 1] to [lo, hi] with a quadratic warp at flagged ends; returns (v, dv/dt).
-pub(super) fn warp(panel_lo: f64, panel_hi: f64, warp_lo: bool, warp_hi: bool, t: f64) -> (f64, f64) {
+fn warp(panel_lo: f64, panel_hi: f64, warp_lo: bool, warp_hi: bool, t: f64) -> (f64, f64) {
     let len = panel_hi - panel_lo;
     match (warp_lo, warp_hi) {
         (false, false) => (panel_lo + 0.5 * len * (t + 1.0), 0.5 * len),
@@ -252,7 +252,7 @@ where
 }
 
 /// 1 - cos(psi) without cancellation near psi = 0.
-pub(super) fn one_minus_cos(psi: f64) -> f64 {
+fn one_minus_cos(psi: f64) -> f64 {
     let s = (0.5 * psi).sin();
     2.0 * s * s
 }

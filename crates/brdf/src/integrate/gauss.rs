@@ -9,7 +9,7 @@ pub struct GaussNode {
     pub weight: f64,
 }
 
-pub(super) const CACHED_ORDERS: usize = 1024;
+const CACHED_ORDERS: usize = 1024;
 
 /// The `n`-point Gauss-Legendre rule on [-1, 1], nodes ascending. Orders up to 1024 are computed once and cached;
 /// larger ones are computed on each call. `n = 0` is treated as 1.
@@ -24,7 +24,7 @@ pub fn gauss_legendre(n: usize) -> Cow<'static, [GaussNode]> {
 }
 
 /// Legendre P_n(x) and P_{n-1}(x) by the three-term recurrence.
-pub(super) fn legendre_pair(n: usize, x: f64) -> (f64, f64) {
+fn legendre_pair(n: usize, x: f64) -> (f64, f64) {
     let (mut p_prev, mut p) = (1.0, x);
     for k in 2..=n {
         let kf = k as f64;
@@ -35,7 +35,7 @@ pub(super) fn legendre_pair(n: usize, x: f64) -> (f64, f64) {
     (p, p_prev)
 }
 
-pub(super) fn compute_gauss_legendre(n: usize) -> Vec<GaussNode> {
+fn compute_gauss_legendre(n: usize) -> Vec<GaussNode> {
     let nf = n as f64;
     let mut nodes = vec![GaussNode { x: 0.0, weight: 0.0 }; n];
     for i in 0..n.div_ceil(2) {

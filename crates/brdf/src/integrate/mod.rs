@@ -50,9 +50,10 @@ mod albedo;
 mod engine;
 mod gauss;
 
-pub use albedo::*;
-use engine::*;
-pub use gauss::*;
+pub use albedo::{LOBE_ADAPTED_BELOW_RAD, directional_albedo, sampled_albedo};
+use engine::{apply, combine};
+
+pub use gauss::{GaussNode, gauss_legendre};
 
 /// A numerical result with an estimate of its absolute error.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -46,8 +46,8 @@ use crate::spectrum::{Spectral, SpectrumError, Wavelength};
 mod build;
 mod parse;
 
-use build::*;
-use parse::*;
+use build::build;
+use parse::{line_of, not_applicable, parse_table};
 
 /// Which model a `[material]` table describes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -163,7 +163,7 @@ pub(super) fn not_applicable(key: &str, model: ModelKind, at: Location) -> Mater
     }
 }
 
-pub(super) fn parse_choice<T: Copy>(v: &DeValue<'_>, choices: &[(&str, T)]) -> Result<T, String> {
+fn parse_choice<T: Copy>(v: &DeValue<'_>, choices: &[(&str, T)]) -> Result<T, String> {
     let list = || {
         choices
             .iter()
@@ -185,7 +185,7 @@ pub(super) fn parse_choice<T: Copy>(v: &DeValue<'_>, choices: &[(&str, T)]) -> R
     }
 }
 
-pub(super) fn parse_number(v: &DeValue<'_>) -> Result<f64, String> {
+fn parse_number(v: &DeValue<'_>) -> Result<f64, String> {
     let x = match v {
         DeValue::Integer(i) => i64::from_str_radix(i.as_str(), i.radix())
             .map(|n| n as f64)
@@ -200,7 +200,7 @@ pub(super) fn parse_number(v: &DeValue<'_>) -> Result<f64, String> {
     }
 }
 
-pub(super) fn parse_spectral(
+fn parse_spectral(
     v: &DeValue<'_>,
     text: &str,
     origin: &str,

@@ -58,9 +58,9 @@ mod observations;
 mod params;
 mod report;
 
-use observations::*;
-use params::*;
-use report::*;
+use observations::{Obs, aperture_samples, median, predict, starts};
+use params::{ParamDef, Transform, band_model, final_material, param_defs, phong_split};
+use report::{fix_phong_params, residual_stats};
 
 /// The models that can be fitted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

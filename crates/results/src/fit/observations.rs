@@ -99,7 +99,7 @@ pub(super) fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-pub(super) fn quantile(mut v: Vec<f64>, q: f64) -> f64 {
+fn quantile(mut v: Vec<f64>, q: f64) -> f64 {
     v.retain(|x| x.is_finite());
     if v.is_empty() {
         return f64::NAN;

@@ -44,7 +44,7 @@ pub(super) struct ParamDef {
 }
 
 /// Smallest roughness fitted: below 1e-3 the models switch to a delta lobe, which has no pointwise value.
-pub(super) const ALPHA_MIN: f64 = 1.5e-3;
+const ALPHA_MIN: f64 = 1.5e-3;
 
 pub(super) fn param_defs(model: FitModel, bands: usize) -> Vec<ParamDef> {
     let shared = |key, transform, lo, hi| ParamDef {
@@ -96,7 +96,7 @@ pub(super) fn param_defs(model: FitModel, bands: usize) -> Vec<ParamDef> {
 }
 
 /// The natural value of parameter `key` for band `b` (or the shared one).
-pub(super) fn get(defs: &[ParamDef], natural: &[f64], key: &str, b: usize) -> f64 {
+fn get(defs: &[ParamDef], natural: &[f64], key: &str, b: usize) -> f64 {
     defs.iter()
         .zip(natural)
         .find(|(d, _)| d.key == key && d.band.is_none_or(|db| db == b))

@@ -39,8 +39,10 @@ use crate::setup::{SoakCampaign, build_campaign};
 mod loopback;
 mod wire;
 
-pub use loopback::*;
-pub use wire::*;
+use loopback::state_of;
+pub use loopback::{LoopbackDaemon, daemon_service};
+pub use wire::{Answer, exchange, read_answer, slow_body_bytes};
+use wire::{Kind, attacker, oversized};
 
 /// What to run.
 #[derive(Debug, Clone)]

@@ -42,8 +42,9 @@ pub use scenarios::Sabotage;
 mod checks;
 mod running;
 
-pub use checks::*;
-pub use running::*;
+pub use checks::{CaseResult, Rule, check, check_separation};
+pub use running::Outcome;
+use running::run_case;
 
 /// Longest time from an emergency-stop request to the stop command at every axis (simulated seconds).
 pub const ESTOP_DEADLINE_S: f64 = 0.050;
