@@ -1,7 +1,7 @@
 //! `gonio plan` end to end: the real binary on the demo campaign and on a small campaign written here.
 
+use gonio_testkit::gonio;
 use std::path::PathBuf;
-use std::process::Command;
 
 fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -23,7 +23,7 @@ fn number_after(text: &str, label: &str) -> usize {
 fn plan_demo_prints_a_summary_and_writes_the_csv() {
     let dir = tempfile::tempdir().expect("temp dir");
     let csv = dir.path().join("points.csv");
-    let out = Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let out = gonio()
         .arg("plan")
         .arg(repo_root().join("config/campaigns/plan-demo.toml"))
         .arg("--points")
@@ -85,11 +85,7 @@ fn plan_errors_name_the_key_and_exit_2() {
         "[campaign]\nid = \"bad\"\n[plan]\nbands_nm = [451.0]\n[plan.grid]\nkind = \"in-plane\"\ntheta_i_deg = [30.0]\ntheta_o_deg = [20.0]\n",
     )
     .expect("write");
-    let out = Command::new(env!("CARGO_BIN_EXE_gonio"))
-        .arg("plan")
-        .arg(&path)
-        .output()
-        .expect("run gonio");
+    let out = gonio().arg("plan").arg(&path).output().expect("run gonio");
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("bands_nm") && stderr.contains("451"), "{stderr}");
