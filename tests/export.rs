@@ -14,6 +14,7 @@ use gonio_testkit::{CampaignText, gonio, text};
 fn campaign(id: &str, bands: &str, theta_i: &str, theta_o: &str, dphi: &str, material: &str) -> String {
     CampaignText::isotropic(id, theta_i, theta_o, dphi)
         .bands(bands)
+        .acquisition("averaging = 10")
         .plan_calibration("dark_every_points = 100")
         .material(material)
         .to_string()

@@ -23,6 +23,7 @@ fn dry_run(dir: &Path, id: &str, bands: &str, material: &str) -> PathBuf {
         "{ from = 0.0, to = 180.0, step = 45.0 }",
     )
     .bands(bands)
+    .acquisition("averaging = 10")
     .plan_calibration("dark_every_points = 200")
     .material(material);
     cli::dry_run(dir, id, &campaign.to_string())

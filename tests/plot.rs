@@ -15,7 +15,8 @@ fn dry_run(dir: &Path) -> PathBuf {
         "{ from = 0.0, to = 75.0, step = 15.0 }",
         "[0.0, 90.0, 180.0]",
     )
-    .bands("[450.0, 650.0]");
+    .bands("[450.0, 650.0]")
+    .acquisition("averaging = 10");
     cli::dry_run(dir, "plotted", &campaign.to_string())
 }
 

@@ -15,6 +15,7 @@ use axum::body::Body;
 use axum::http::{Request, StatusCode, header};
 use common::{App, Setup};
 use gonio_daemon::api::{self, ApiConfig};
+use gonio_testkit::CampaignText;
 use http_body_util::BodyExt;
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
@@ -29,21 +30,13 @@ fn cases(default: u32) -> u32 {
         .unwrap_or(default)
 }
 
-const CAMPAIGN: &str = r#"[campaign]
-id = "fuzz"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = [550.0]
-[plan.grid]
-kind = "in-plane"
-theta_i_deg = [30.0]
-theta_o_deg = { from = 10.0, to = 60.0, step = 25.0 }
-[calibration]
-simulate_operator = true
-[material]
-preset = "spectralon"
-"#;
+/// The valid campaign the fuzzer mutates.
+fn campaign() -> String {
+    CampaignText::in_plane_grid("fuzz", "[30.0]", "{ from = 10.0, to = 60.0, step = 25.0 }")
+        .calibration("simulate_operator = true")
+        .material("preset = \"spectralon\"")
+        .to_string()
+}
 
 #[derive(Debug, Clone)]
 struct Req {
@@ -71,7 +64,7 @@ fn path() -> impl Strategy<Value = String> {
 fn body() -> impl Strategy<Value = Vec<u8>> {
     let mutated =
         (proptest::collection::vec((any::<prop::sample::Index>(), "[ -~\n]{0,8}"), 0..4)).prop_map(|edits| {
-            let mut lines: Vec<String> = CAMPAIGN.lines().map(str::to_string).collect();
+            let mut lines: Vec<String> = campaign().lines().map(str::to_string).collect();
             for (at, text) in edits {
                 let i = at.index(lines.len());
                 if text.is_empty() {

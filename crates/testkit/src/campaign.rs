@@ -1,6 +1,7 @@
 //! Campaign texts for dry-runs on the simulated instrument, built table by table. Values are TOML text
 //! (`"[450.0, 650.0]"`, `"{ from = 0.0, to = 60.0, step = 20.0 }"`), so a test states its plan as a campaign
-//! file would. Defaults: a 12.5 mm sample, one band at 550 nm, `averaging = 10`, the coloured-plastic preset.
+//! file would. Defaults: a 12.5 mm sample, one band at 550 nm, the coloured-plastic preset; a table without
+//! lines is left out (the campaign file's own defaults apply).
 
 use std::fmt;
 
@@ -26,7 +27,7 @@ impl CampaignText {
             grid,
             plan_calibration: Vec::new(),
             calibration: Vec::new(),
-            acquisition: vec!["averaging = 10".into()],
+            acquisition: Vec::new(),
             material: "preset = \"coloured-plastic\"".into(),
         }
     }
@@ -44,18 +45,27 @@ impl CampaignText {
         )
     }
 
+    /// A grid in the plane of incidence: incidence and outgoing polar angles.
+    pub fn in_plane_grid(id: &str, theta_i_deg: &str, theta_o_deg: &str) -> CampaignText {
+        CampaignText::with_grid(
+            id,
+            vec![
+                "kind = \"in-plane\"".into(),
+                format!("theta_i_deg = {theta_i_deg}"),
+                format!("theta_o_deg = {theta_o_deg}"),
+            ],
+        )
+    }
+
     /// `points` outgoing angles in the plane of incidence (10 degrees on, by 5), one incidence at 30 degrees,
     /// no repeats or reciprocal points, calibration readings that never fall due during the run (direct-beam
     /// readings at a pose clear of the sample), averaging 2: a quick campaign whose length the test chooses.
     pub fn in_plane(id: &str, points: usize) -> CampaignText {
         let to = 10.0 + 5.0 * (points.max(1) as f64 - 1.0);
-        CampaignText::with_grid(
+        CampaignText::in_plane_grid(
             id,
-            vec![
-                "kind = \"in-plane\"".into(),
-                "theta_i_deg = [30.0]".into(),
-                format!("theta_o_deg = {{ from = 10.0, to = {to:?}, step = 5.0 }}"),
-            ],
+            "[30.0]",
+            &format!("{{ from = 10.0, to = {to:?}, step = 5.0 }}"),
         )
         .plan("repeats = 1")
         .plan("reciprocity = false")
@@ -89,7 +99,7 @@ impl CampaignText {
         self
     }
 
-    /// An `[acquisition]` line; one setting `averaging` replaces the default.
+    /// An `[acquisition]` line; it replaces an earlier line setting the same key.
     pub fn acquisition(mut self, line: &str) -> CampaignText {
         let key = line.split('=').next().unwrap_or("").trim();
         self.acquisition
