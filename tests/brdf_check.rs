@@ -5,13 +5,9 @@
 //! so the violating material is a measured one: a MERL table whose constant value 3/pi 1/sr gives an albedo of 3.
 
 use std::f64::consts::PI;
-use std::process::Command;
 
 use gonio_brdf::merl::{CELLS, MerlData};
-
-fn gonio() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_gonio"))
-}
+use gonio_testkit::gonio;
 
 #[test]
 fn a_good_preset_passes() {

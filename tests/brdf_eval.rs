@@ -2,10 +2,12 @@
 
 use std::f64::consts::PI;
 use std::io::Write;
-use std::process::{Command, Output, Stdio};
+use std::process::{Output, Stdio};
+
+use gonio_testkit::gonio;
 
 fn eval(args: &[&str], stdin: &str) -> Output {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let mut child = gonio()
         .args(["brdf", "eval"])
         .args(args)
         .stdin(Stdio::piped())

@@ -4,40 +4,16 @@
 
 use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Output, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use gonio_testkit::{CampaignText, gonio, text};
 use rand::{Rng, SeedableRng};
 
-const GONIO: &str = env!("CARGO_BIN_EXE_gonio");
-
-/// A small dry-run campaign on the simulated instrument.
+/// A small dry-run campaign on the simulated instrument: `points` outgoing angles.
 fn campaign(id: &str, points: usize) -> String {
-    let to = 10.0 + 5.0 * (points as f64 - 1.0);
-    format!(
-        r#"[campaign]
-id = "{id}"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = [550.0]
-repeats = 1
-reciprocity = false
-[plan.grid]
-kind = "in-plane"
-theta_i_deg = [30.0]
-theta_o_deg = {{ from = 10.0, to = {to}, step = 5.0 }}
-[plan.calibration]
-dark_every_points = 1000
-reference_every_s = 100000.0
-reference_pose_deg = {{ light = -90.0, detector = 90.0 }}
-[acquisition]
-averaging = 2
-[material]
-preset = "coloured-plastic"
-"#
-    )
+    CampaignText::in_plane(id, points).to_string()
 }
 
 /// The daemon child: killed on drop.
@@ -61,7 +37,7 @@ fn start_daemon(data: &Path, time_scale: &str, env: &[(&str, &str)]) -> Daemon {
 
 /// [`start_daemon`] on the instrument file `instrument` (default: the embedded simulated one).
 fn start_daemon_on(data: &Path, time_scale: &str, env: &[(&str, &str)], instrument: Option<&Path>) -> Daemon {
-    let mut cmd = Command::new(GONIO);
+    let mut cmd = gonio();
     cmd.args(["daemon", "--listen", "127.0.0.1:0", "--data"])
         .arg(data);
     if let Some(file) = instrument {
@@ -104,7 +80,7 @@ fn start_daemon_on(data: &Path, time_scale: &str, env: &[(&str, &str)], instrume
 
 /// Run `gonio ctl` with a deadline.
 fn ctl(daemon: &Daemon, args: &[&str], env: &[(&str, &str)]) -> Output {
-    let mut cmd = Command::new(GONIO);
+    let mut cmd = gonio();
     cmd.args(["ctl", "--url", &daemon.url])
         .args(args)
         .env_remove("GONIO_TOKEN");
@@ -131,10 +107,6 @@ fn ctl(daemon: &Daemon, args: &[&str], env: &[(&str, &str)]) -> Output {
         }
         std::thread::sleep(Duration::from_millis(20));
     }
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
 }
 
 #[test]
@@ -215,7 +187,7 @@ fn ctl_submits_watches_and_downloads_a_campaign_from_a_running_daemon() {
 fn listening_beyond_loopback_without_a_token_is_refused() {
     let dir = tempfile::tempdir().expect("tempdir");
     // The refusal comes before any socket is opened.
-    let out = Command::new(GONIO)
+    let out = gonio()
         .args(["daemon", "--listen", "0.0.0.0:0", "--data"])
         .arg(dir.path())
         .env_remove("GONIO_TOKEN")

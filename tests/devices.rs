@@ -1,14 +1,11 @@
 //! `gonio devices` end to end: whatever this machine has, it exits 0 and says clearly what it found or why it
 //! could not look.
 
-use std::process::Command;
+use gonio_testkit::gonio;
 
 #[test]
 fn devices_lists_or_explains() {
-    let out = Command::new(env!("CARGO_BIN_EXE_gonio"))
-        .arg("devices")
-        .output()
-        .expect("run gonio devices");
+    let out = gonio().arg("devices").output().expect("run gonio devices");
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),

@@ -3,59 +3,21 @@
 //! read from a daemon's store exports the same points; bad input is refused with the file and what is wrong.
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::path::Path;
+use std::process::{Output, Stdio};
 
 use gonio_brdf::geometry::{Direction, IsotropicAngles};
-
-fn gonio() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_gonio"))
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
+use gonio_testkit::cli::dry_run;
+use gonio_testkit::{CampaignText, gonio, text};
 
 /// A dry-run campaign on an isotropic grid; `material` is the `[material]` table's body.
 fn campaign(id: &str, bands: &str, theta_i: &str, theta_o: &str, dphi: &str, material: &str) -> String {
-    format!(
-        r#"
-[campaign]
-id = "{id}"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = {bands}
-[plan.grid]
-kind = "isotropic"
-theta_i_deg = {theta_i}
-theta_o_deg = {theta_o}
-delta_phi_deg = {dphi}
-[plan.calibration]
-dark_every_points = 100
-[acquisition]
-averaging = 10
-[material]
-{material}
-"#
-    )
-}
-
-/// Runs a campaign to completion into `dir/<id>`; returns the run directory.
-fn dry_run(dir: &Path, id: &str, text_: &str) -> PathBuf {
-    let file = dir.join(format!("{id}.toml"));
-    std::fs::write(&file, text_).expect("write campaign");
-    let out = dir.join(id);
-    let o = gonio()
-        .arg("run")
-        .arg(&file)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .output()
-        .expect("gonio run");
-    assert!(o.status.success(), "gonio run {id} failed: {}", text(&o.stderr));
-    out
+    CampaignText::isotropic(id, theta_i, theta_o, dphi)
+        .bands(bands)
+        .acquisition("averaging = 10")
+        .plan_calibration("dark_every_points = 100")
+        .material(material)
+        .to_string()
 }
 
 fn eval(material: &Path, wavelength_nm: f64, geometries: &str) -> Vec<f64> {
@@ -252,6 +214,88 @@ fn csv_and_json_carry_every_value_units_and_provenance() {
     let table: Vec<&str> = from_store.lines().filter(|l| !l.starts_with('#')).collect();
     assert_eq!(table, original, "the store and points.csv hold the same points");
     assert!(from_store.contains("# run.config.campaign_toml:"));
+}
+
+/// One record of a run, whichever way it is read: `gonio run --out DIR` writes run.json and points.csv from the
+/// store it keeps in DIR, and `gonio export --data DIR --campaign NAME` reads that store as a daemon's; both
+/// exports of the campaign are the same bytes but for the line naming where they were read from (and the JSON's
+/// `source`). A dry-run fills every provenance part: devices, calibrations, timing with a prediction, truth errors.
+#[test]
+fn a_run_directory_and_its_store_export_byte_identical_provenance() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = dry_run(
+        dir.path(),
+        "same",
+        &campaign(
+            "same",
+            "[550.0]",
+            "[0.0, 30.0]",
+            "[20.0, 50.0]",
+            "[0.0, 90.0]",
+            "model = \"lambertian\"\nalbedo = 0.5",
+        ),
+    );
+    let export = |source: &[&std::ffi::OsStr], format: &str| -> String {
+        let o = gonio()
+            .arg("export")
+            .args(source)
+            .args(["--format", format])
+            .output()
+            .expect("export");
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        text(&o.stdout)
+    };
+    let from_dir = [run.as_os_str()];
+    let from_store = [
+        std::ffi::OsStr::new("--data"),
+        run.as_os_str(),
+        std::ffi::OsStr::new("--campaign"),
+        std::ffi::OsStr::new("same"),
+    ];
+
+    let (a, b) = (export(&from_dir, "csv"), export(&from_store, "csv"));
+    let (a_first, a_rest) = a.split_once('\n').expect("lines");
+    let (b_first, b_rest) = b.split_once('\n').expect("lines");
+    assert!(
+        a_first.contains("same") && b_first.contains("gonio.sqlite"),
+        "{a_first}\n{b_first}"
+    );
+    assert_eq!(
+        a_rest, b_rest,
+        "the CSV exports differ beyond the line naming their source"
+    );
+    for part in [
+        "# run.timing = {\"actual_instrument_s\":",
+        "\"predicted_instrument_s\":",
+        "# run.truth.against_aperture_average = {\"cos_weighted_relative_rms\":",
+        "# run.devices[0] = ",
+        "# run.calibrations[0] = ",
+        "# run.campaign.created_unix_s = ",
+        "#   albedo = 0.5",
+    ] {
+        assert!(a_rest.contains(part), "the provenance lacks {part:?}:\n{a_rest}");
+    }
+    assert!(
+        !a_rest.contains("wall_s"),
+        "wall time is not in the store, so not in run.json"
+    );
+
+    let (a, b) = (export(&from_dir, "json"), export(&from_store, "json"));
+    let mut a: serde_json::Value = serde_json::from_str(&a).expect("json");
+    let mut b: serde_json::Value = serde_json::from_str(&b).expect("json");
+    assert_ne!(a["source"], b["source"]);
+    a["source"] = serde_json::Value::Null;
+    b["source"] = serde_json::Value::Null;
+    assert_eq!(
+        serde_json::to_string_pretty(&a["provenance"]).expect("text"),
+        serde_json::to_string_pretty(&b["provenance"]).expect("text"),
+    );
+    assert_eq!(a, b, "the JSON exports differ beyond their source");
+    // run.json is the record as the store gives it: reading it and writing it again changes no byte.
+    let run_json = std::fs::read_to_string(run.join("run.json")).expect("run.json");
+    let mut again = serde_json::to_string_pretty(&b["provenance"]).expect("text");
+    again.push('\n');
+    assert_eq!(run_json, again);
 }
 
 /// The MERL export read back with `model = "measured"` reproduces the measurement.

@@ -10,54 +10,23 @@
 //! reported standard uncertainties plus 5e-4 relative for the common errors: the uncertainties must be honest.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
+use gonio_testkit::{CampaignText, cli, gonio, text};
 use serde_json::Value;
-
-fn gonio() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_gonio"))
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
 
 /// A dry-run on an isotropic grid (theta_i 0-60 by 20, theta_o 0-80 by 10, delta_phi 0-180 by 45).
 fn dry_run(dir: &Path, id: &str, bands: &str, material: &str) -> PathBuf {
-    let campaign = format!(
-        r#"
-[campaign]
-id = "{id}"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = {bands}
-[plan.grid]
-kind = "isotropic"
-theta_i_deg = {{ from = 0.0, to = 60.0, step = 20.0 }}
-theta_o_deg = {{ from = 0.0, to = 80.0, step = 10.0 }}
-delta_phi_deg = {{ from = 0.0, to = 180.0, step = 45.0 }}
-[plan.calibration]
-dark_every_points = 200
-[acquisition]
-averaging = 10
-[material]
-{material}
-"#
-    );
-    let file = dir.join(format!("{id}.toml"));
-    std::fs::write(&file, campaign).expect("write campaign");
-    let out = dir.join(id);
-    let o = gonio()
-        .arg("run")
-        .arg(&file)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .output()
-        .expect("gonio run");
-    assert!(o.status.success(), "gonio run {id}: {}", text(&o.stderr));
-    out
+    let campaign = CampaignText::isotropic(
+        id,
+        "{ from = 0.0, to = 60.0, step = 20.0 }",
+        "{ from = 0.0, to = 80.0, step = 10.0 }",
+        "{ from = 0.0, to = 180.0, step = 45.0 }",
+    )
+    .bands(bands)
+    .acquisition("averaging = 10")
+    .plan_calibration("dark_every_points = 200")
+    .material(material);
+    cli::dry_run(dir, id, &campaign.to_string())
 }
 
 /// Runs `gonio fit RUN --model M --json [extra]` and returns the JSON report.

@@ -1,8 +1,8 @@
 //! `gonio plan` end to end: the real binary on the demo campaign and on a small campaign written here, and
 //! against `gonio run` on every shipped campaign (the same campaigns accepted, the same predicted duration).
 
+use gonio_testkit::gonio;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -24,7 +24,7 @@ fn number_after(text: &str, label: &str) -> usize {
 fn plan_demo_prints_a_summary_and_writes_the_csv() {
     let dir = tempfile::tempdir().expect("temp dir");
     let csv = dir.path().join("points.csv");
-    let out = Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let out = gonio()
         .arg("plan")
         .arg(repo_root().join("config/campaigns/plan-demo.toml"))
         .arg("--points")
@@ -86,11 +86,7 @@ fn plan_errors_name_the_key_and_exit_2() {
         "[campaign]\nid = \"bad\"\n[plan]\nbands_nm = [451.0]\n[plan.grid]\nkind = \"in-plane\"\ntheta_i_deg = [30.0]\ntheta_o_deg = [20.0]\n",
     )
     .expect("write");
-    let out = Command::new(env!("CARGO_BIN_EXE_gonio"))
-        .arg("plan")
-        .arg(&path)
-        .output()
-        .expect("run gonio");
+    let out = gonio().arg("plan").arg(&path).output().expect("run gonio");
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("bands_nm") && stderr.contains("451"), "{stderr}");
@@ -98,7 +94,7 @@ fn plan_errors_name_the_key_and_exit_2() {
 
 /// `gonio plan CAMPAIGN`'s prediction for the whole campaign (s), or its error.
 fn plan_prediction(campaign: &Path) -> Result<f64, String> {
-    let out = Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let out = gonio()
         .arg("plan")
         .arg(campaign)
         .output()
@@ -117,7 +113,7 @@ fn plan_prediction(campaign: &Path) -> Result<f64, String> {
 
 /// `gonio run CAMPAIGN` to completion: its run.json's predicted instrument time (s), or its error.
 fn run_prediction(campaign: &Path, out: &Path) -> Result<f64, String> {
-    let run = Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let run = gonio()
         .arg("run")
         .arg(campaign)
         .arg("--out")

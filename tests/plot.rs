@@ -4,47 +4,20 @@
 //! pixels.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-fn gonio() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_gonio"))
-}
+use gonio_testkit::{CampaignText, cli, gonio, text};
 
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
+/// A dry-run of coloured plastic at two bands on an isotropic grid (3 incidences, 6 outgoing angles, 3 azimuths).
 fn dry_run(dir: &Path) -> PathBuf {
-    let campaign = r#"
-[campaign]
-id = "plotted"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = [450.0, 650.0]
-[plan.grid]
-kind = "isotropic"
-theta_i_deg = [0.0, 30.0, 60.0]
-theta_o_deg = { from = 0.0, to = 75.0, step = 15.0 }
-delta_phi_deg = [0.0, 90.0, 180.0]
-[acquisition]
-averaging = 10
-[material]
-preset = "coloured-plastic"
-"#;
-    let file = dir.join("plotted.toml");
-    std::fs::write(&file, campaign).expect("write");
-    let out = dir.join("plotted");
-    let o = gonio()
-        .arg("run")
-        .arg(&file)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .output()
-        .expect("run");
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    out
+    let campaign = CampaignText::isotropic(
+        "plotted",
+        "[0.0, 30.0, 60.0]",
+        "{ from = 0.0, to = 75.0, step = 15.0 }",
+        "[0.0, 90.0, 180.0]",
+    )
+    .bands("[450.0, 650.0]")
+    .acquisition("averaging = 10");
+    cli::dry_run(dir, "plotted", &campaign.to_string())
 }
 
 /// All text content of the SVG, one string per <text> element; panics unless it is well-formed SVG.

@@ -2,15 +2,13 @@
 //! and run.json contracts, resuming after `kill -9` at random moments, and refused campaign files.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::Duration;
 
 use gonio_daemon::store::{PointRecord, Store};
+use gonio_testkit::cli::quiet_run;
+use gonio_testkit::gonio;
 use rand::{Rng, SeedableRng};
-
-fn gonio() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_gonio"))
-}
 
 /// A small dry-run campaign (about 60 points, 2 bands, darks and a mid-run direct-beam reading).
 const SMALL: &str = r#"
@@ -33,13 +31,6 @@ averaging = 10
 [material]
 preset = "coloured-plastic"
 "#;
-
-/// `gonio run CAMPAIGN --out OUT --quiet`.
-fn quiet_run(campaign: &Path, out: &Path) -> Command {
-    let mut c = gonio();
-    c.arg("run").arg(campaign).arg("--out").arg(out).arg("--quiet");
-    c
-}
 
 fn write_campaign(dir: &Path, text: &str) -> PathBuf {
     let p = dir.join("campaign.toml");
@@ -77,7 +68,17 @@ fn dry_run_matches_ground_truth_and_writes_csv_and_json() {
     ] {
         assert!(!json[key].is_null(), "run.json lacks {key}");
     }
-    assert!(json["timing"]["wall_s"].as_f64().is_some());
+    // Instrument time only: run.json holds what the store holds (the wall time is in the summary on stderr).
+    let actual = json["timing"]["actual_instrument_s"].as_f64().expect("actual");
+    let predicted = json["timing"]["predicted_instrument_s"]
+        .as_f64()
+        .expect("predicted");
+    assert!(
+        actual > 0.0 && (actual - predicted).abs() <= 0.1 * predicted,
+        "actual {actual} s, predicted {predicted} s"
+    );
+    assert!(json["timing"]["wall_s"].is_null());
+    assert!(stderr.contains("wall time"), "{stderr}");
     assert!(
         json["config"]["campaign_toml"]
             .as_str()

@@ -2,8 +2,10 @@
 //! pseudo-terminal paths as a plain serial client would, then stop it with SIGTERM.
 
 use std::io::{BufRead, BufReader, Read, Write};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
+
+use gonio_testkit::gonio;
 
 /// Read from `port` until `end` appears or the deadline passes.
 fn read_until(port: &mut std::fs::File, end: &[u8], deadline: Duration) -> Vec<u8> {
@@ -40,7 +42,7 @@ fn open_port(path: &str) -> std::fs::File {
 
 #[test]
 fn gonio_sim_serves_devices_on_pseudo_terminals_and_exits_cleanly_on_sigterm() {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let mut child = gonio()
         .args(["sim", "--time-scale", "100"])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
@@ -142,7 +144,7 @@ fn with_link_dir_a_disconnected_port_vanishes_and_comes_back_at_the_same_path() 
     );
     std::fs::write(&instrument, text).expect("write instrument");
     let links = dir.path().join("ports");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let mut child = gonio()
         .args(["sim", "--time-scale", "100", "--instrument"])
         .arg(&instrument)
         .arg("--link-dir")
@@ -263,7 +265,7 @@ fn gonio_run_against_a_separate_gonio_sim_through_the_real_hardware_path_matches
 
     let dir = tempfile::tempdir().expect("tempdir");
     let links = dir.path().join("ports");
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let mut sim = gonio()
         .args([
             "sim",
             "--time-scale",
@@ -333,7 +335,7 @@ averaging = 4
     .expect("write campaign");
 
     let out = dir.path().join("out");
-    let mut run = Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let mut run = gonio()
         .arg("run")
         .arg(&campaign)
         .arg("--instrument")

@@ -40,6 +40,7 @@ use gonio_brdf::radiometry::{
     projected_solid_angle_sr, radiance_from_irradiance_w_per_m2_sr,
 };
 use gonio_brdf::{Brdf, Direction, Material, Spectral, Wavelength};
+use gonio_testkit::directions::hostile_directions;
 
 const WL: Wavelength = Wavelength::DEFAULT;
 
@@ -223,35 +224,6 @@ fn models(per_kind: usize, seed: u64) -> Vec<(String, Box<dyn Brdf>)> {
         }
     }
     out
-}
-
-/// Hostile polar angles (radians): the pole, the horizon and 1e-12 away from both, and ordinary values.
-const THETAS: [f64; 11] = [
-    0.0,
-    1e-12,
-    1e-9,
-    0.3,
-    FRAC_PI_2 / 2.0,
-    1.2,
-    FRAC_PI_2 - 1e-9,
-    FRAC_PI_2 - 1e-12,
-    FRAC_PI_2,
-    FRAC_PI_2 + 1e-12,
-    2.5,
-];
-const PHIS: [f64; 5] = [0.0, 1e-12, FRAC_PI_2, PI, -2.0];
-
-fn hostile_directions() -> Vec<Direction> {
-    let mut v = Vec::new();
-    for &t in &THETAS {
-        for &p in &PHIS {
-            v.push(Direction::from_spherical(t, p));
-        }
-    }
-    // Exactly on the horizon (z = 0 exactly) via the degree constructor.
-    v.push(Direction::from_spherical_deg(90.0, 33.0));
-    v.push(Direction::from_spherical_deg(90.0 - 1e-10, 0.0));
-    v
 }
 
 /// A random direction of one of the hostile classes.
@@ -461,7 +433,7 @@ fn alpha_clamp_and_delta_switch_are_continuous_in_reflected_power() {
                 // Beckmann's tail is exp(-(beta/2)^2/alpha^2): nothing; GGX's is a power law: at normal incidence
                 // the fraction of the lobe with tan(theta_h) > t is alpha^2 / (alpha^2 + t^2), t = tan(beta/2)
                 // (1.6e-3 for beta = 0.05 rad, 3.8% for the simulated instrument's 0.01 rad). That jump is real
-                // and documented in microfacet.rs; it is checked here to be exactly the tail, nothing more.
+                // and documented in microfacet/mod.rs; it is checked here to be exactly the tail, nothing more.
                 let mirror = wi.reflect_about_normal();
                 for beta in [0.01, 0.05] {
                     let cone = integrate_adaptive(

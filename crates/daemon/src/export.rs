@@ -1,121 +1,136 @@
-//! The points CSV: `index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,signal_w,dark_w,incident_w,
-//! brdf_sr,brdf_u_sr,flags,t_s`, one `<axis>_deg` read-back column per axis (instrument file order), then in
-//! dry-runs `brdf_true_sr,brdf_true_aperture_sr`. Numbers are written in shortest round-trip form (ryu via
-//! `Display`), so the CSV holds exactly what the store holds; a missing value is an empty field.
+//! The store's campaigns as results: its records turned into gonio-results' points and run record, so that the
+//! points CSV (`gonio run`'s points.csv, the API's `/api/campaigns/{id}/points.csv`) and the provenance
+//! (`gonio run`'s run.json, `gonio export --data DIR --campaign ID`) come from one place each. gonio-results
+//! owns the formats (the CSV's columns and writer, the typed run.json); this module only reads the store.
 
-use std::fmt::Write as _;
+use gonio_instrument::InstrumentFile;
+use gonio_results::points::{self, Point, PointsTable};
+use gonio_results::provenance::{CalibrationReading, DeviceIdentity, RunConfig, RunRecord, StoredCampaign};
 
-use crate::store::PointRecord;
+use crate::campaign::{self, Sources};
+use crate::store::{CampaignRecord, PointRecord, Store, StoreError};
 
-/// The fixed leading columns.
-pub const HEADER: &str = "index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,signal_w,dark_w,incident_w,brdf_sr,brdf_u_sr,flags,t_s";
-
-/// The header line (without newline) for these axes.
-pub fn header(axis_names: &[String], dry_run: bool) -> String {
-    let mut s = String::from(HEADER);
-    for a in axis_names {
-        let _ = write!(s, ",{a}_deg");
-    }
-    if dry_run {
-        s.push_str(",brdf_true_sr,brdf_true_aperture_sr");
-    }
-    s
-}
-
-fn num(s: &mut String, v: f64) {
-    // `+ 0.0` turns -0 into 0.
-    let _ = write!(s, ",{}", v + 0.0);
-}
-
-fn opt(s: &mut String, v: Option<f64>) {
-    match v {
-        Some(v) => num(s, v),
-        None => s.push(','),
+/// The read-back axes of a stored campaign, in the CSV's column order: the axes of the instrument file stored
+/// with it (so that an export after an instrument change still names the right columns); when that no longer
+/// parses, the axes its points name, in the order first seen.
+pub fn axis_names(record: &CampaignRecord, points: &[PointRecord]) -> Vec<String> {
+    match InstrumentFile::parse(&record.instrument_toml, "<stored instrument file>") {
+        Ok(file) => file.instrument.axes.iter().map(|a| a.name.clone()).collect(),
+        Err(_) => {
+            let mut names: Vec<String> = Vec::new();
+            for p in points {
+                for (n, _) in &p.readback_deg {
+                    if !names.contains(n) {
+                        names.push(n.clone());
+                    }
+                }
+            }
+            names
+        }
     }
 }
 
-/// The whole CSV text, header included.
-pub fn points_csv(points: &[PointRecord], axis_names: &[String], dry_run: bool) -> String {
-    let mut s = header(axis_names, dry_run);
-    s.push('\n');
-    for p in points {
-        let _ = write!(s, "{}", p.index);
-        for v in [
-            p.band_nm,
-            p.theta_i_deg,
-            p.phi_i_deg,
-            p.theta_o_deg,
-            p.phi_o_deg,
-            p.signal_w,
-            p.dark_w,
-            p.incident_w,
-        ] {
-            num(&mut s, v);
-        }
-        opt(&mut s, p.brdf_sr);
-        opt(&mut s, p.brdf_u_sr);
-        // Flags never contain commas or quotes (they are our own words), but make sure.
-        let flags = p.flags.join(";").replace([',', '"', '\n'], " ");
-        let _ = write!(s, ",{flags}");
-        num(&mut s, p.t_s);
-        for name in axis_names {
-            let v = p.readback_deg.iter().find(|(n, _)| n == name).map(|(_, v)| *v);
-            opt(&mut s, v);
-        }
-        if dry_run {
-            opt(&mut s, p.truth_point_sr);
-            opt(&mut s, p.truth_aperture_sr);
-        }
-        s.push('\n');
+/// One stored point as a result point: a value that is not finite (a failed reading) is missing, read-backs
+/// follow `axis_names`.
+pub fn point(p: &PointRecord, axis_names: &[String]) -> Point {
+    let finite = |v: f64| Some(v).filter(|v| v.is_finite());
+    Point {
+        index: p.index,
+        band_nm: p.band_nm,
+        theta_i_deg: p.theta_i_deg,
+        phi_i_deg: p.phi_i_deg,
+        theta_o_deg: p.theta_o_deg,
+        phi_o_deg: p.phi_o_deg,
+        signal_w: finite(p.signal_w),
+        dark_w: finite(p.dark_w),
+        incident_w: finite(p.incident_w),
+        brdf_sr: p.brdf_sr.and_then(finite),
+        brdf_u_sr: p.brdf_u_sr.and_then(finite),
+        flags: p.flags.clone(),
+        t_s: finite(p.t_s),
+        readback_deg: axis_names
+            .iter()
+            .map(|a| {
+                let v = p.readback_deg.iter().find(|(n, _)| n == a).map(|(_, v)| *v);
+                (a.clone(), v.and_then(finite))
+            })
+            .collect(),
+        truth_point_sr: p.truth_point_sr.and_then(finite),
+        truth_aperture_sr: p.truth_aperture_sr.and_then(finite),
     }
-    s
 }
 
-/// Error of a dry-run against the simulator's ground truth, over valid points (a BRDF value and a truth).
-/// Metrics of radiometry-and-materials.md "Error metrics": cosine-weighted relative RMS
-/// `sqrt(sum(((f - t) cos theta_i)^2) / sum((t cos theta_i)^2))`, RMS log error
-/// `sqrt(mean((ln(1 + f cos theta_i) - ln(1 + t cos theta_i))^2))`, and the largest relative error `|f - t| / t`.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct TruthErrors {
-    pub points: usize,
-    pub cos_weighted_relative_rms: f64,
-    pub log_rms: f64,
-    pub max_relative_error: f64,
-    /// Largest |f - t| / u (u: the point's standard uncertainty).
-    pub max_normalised_error: f64,
+/// A stored campaign's points as a table.
+pub fn points_table(record: &CampaignRecord, points: &[PointRecord]) -> PointsTable {
+    let axis_names = axis_names(record, points);
+    PointsTable {
+        points: points.iter().map(|p| point(p, &axis_names)).collect(),
+        axis_names,
+        dry_run: record.dry_run,
+    }
 }
 
-/// Errors against `truth` (a function picking the aperture-averaged or the point truth); None without points.
-pub fn truth_errors(
-    points: &[PointRecord],
-    truth: impl Fn(&PointRecord) -> Option<f64>,
-) -> Option<TruthErrors> {
-    let (mut n, mut num, mut den, mut log2, mut max_rel, mut max_norm) =
-        (0usize, 0.0, 0.0, 0.0, 0.0f64, 0.0f64);
-    for p in points {
-        let (Some(f), Some(t)) = (p.brdf_sr, truth(p)) else {
-            continue;
-        };
-        if !p.flags.is_empty() || !f.is_finite() || !t.is_finite() {
-            continue;
-        }
-        let c = p.theta_i_deg.to_radians().cos();
-        n += 1;
-        num += ((f - t) * c).powi(2);
-        den += (t * c).powi(2);
-        log2 += ((1.0 + f * c).max(1e-300).ln() - (1.0 + t * c).max(1e-300).ln()).powi(2);
-        if t > 0.0 {
-            max_rel = max_rel.max((f - t).abs() / t);
-        }
-        if let Some(u) = p.brdf_u_sr.filter(|u| *u > 0.0) {
-            max_norm = max_norm.max((f - t).abs() / u);
-        }
-    }
-    (n > 0).then(|| TruthErrors {
-        points: n,
-        cos_weighted_relative_rms: if den > 0.0 { (num / den).sqrt() } else { f64::NAN },
-        log_rms: (log2 / n as f64).sqrt(),
-        max_relative_error: max_rel,
-        max_normalised_error: max_norm,
-    })
+/// A stored campaign's points CSV (header included).
+pub fn points_csv(record: &CampaignRecord, points: &[PointRecord]) -> String {
+    points::write_points_csv(&points_table(record, points))
+}
+
+/// A stored campaign's points and run record, everything read from `store`: the one source of run.json for
+/// `gonio run` and of the provenance of a campaign exported from a daemon's store.
+pub fn run_record(store: &Store, record: &CampaignRecord) -> Result<(PointsTable, RunRecord), StoreError> {
+    let id = record.id;
+    let stored_points = store.points(id)?;
+    let table = points_table(record, &stored_points);
+    let calibrations = store
+        .calibrations(id)?
+        .into_iter()
+        .map(|c| CalibrationReading {
+            kind: c.kind,
+            band_nm: c.band_nm,
+            t_s: c.t_s,
+            value_w: c.value_w,
+            u_w: c.u_w,
+        })
+        .collect();
+    // The engine records the identity of every device it connected (ordered by name in the store).
+    let devices = store
+        .devices(id)?
+        .into_iter()
+        .map(|(name, identity)| DeviceIdentity { name, identity })
+        .collect();
+    let stored = StoredCampaign {
+        id: id.0,
+        name: record.name.clone(),
+        state: record.state.to_string(),
+        last_error: record.last_error.clone(),
+        dry_run: record.dry_run,
+        total_points: record.total_points,
+        points_done: record.points_done,
+        created_unix_s: record.created_unix_s,
+        software_version: record.software_version.clone(),
+        config: RunConfig {
+            campaign_toml: record.campaign_toml.clone(),
+            instrument_toml: record.instrument_toml.clone(),
+        },
+        devices,
+        calibrations,
+        predicted_instrument_s: predicted_s(record),
+    };
+    let run = RunRecord::assemble(stored, &table.points);
+    Ok((table, run))
+}
+
+/// The time model's prediction for the stored configuration (as a resume rebuilds it: from the stored texts
+/// and their `[resolved]` materials, no file read); `None` when those no longer parse.
+fn predicted_s(record: &CampaignRecord) -> Option<f64> {
+    let file = InstrumentFile::parse(&record.instrument_toml, "<stored instrument file>").ok()?;
+    let prepared = campaign::load_and_prepare(
+        &record.campaign_toml,
+        "<stored campaign file>",
+        &Sources::Stored,
+        &file,
+    )
+    .ok()?;
+    // The same prediction `gonio plan` prints and the run started with (an adaptive plan: its whole budget).
+    Some(prepared.predicted_s())
 }

@@ -2,102 +2,38 @@
 //! simulated instrument, on tokio's paused clock (simulated time passes only while every task waits, so runs
 //! take no wall time and no test depends on the machine's speed).
 
-use std::sync::Arc;
+mod common;
+
 use std::time::Duration;
 
-use axum::Router;
 use axum::body::Body;
 use axum::http::{Request, StatusCode, header};
-use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::control::Control;
-use gonio_daemon::rig::Rig;
-use gonio_daemon::service::{EngineRunner, Service, ShutdownTrigger};
-use gonio_daemon::store::Store;
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use common::{App, Setup};
+use gonio_daemon::api::ApiConfig;
+use gonio_testkit::CampaignText;
 use http_body_util::BodyExt;
 use serde_json::Value;
 use tower::ServiceExt;
 
 /// A small dry-run campaign: `points` outgoing angles at one band, one incidence.
 fn campaign(id: &str, points: usize, simulate_operator: bool) -> String {
-    let to = 10.0 + 5.0 * (points as f64 - 1.0);
-    format!(
-        r#"[campaign]
-id = "{id}"
-
-[sample]
-radius_mm = 12.5
-
-[plan]
-bands_nm = [550.0]
-repeats = 1
-reciprocity = false
-
-[plan.grid]
-kind = "in-plane"
-theta_i_deg = {{ from = 30.0, to = 30.0, step = 5.0 }}
-theta_o_deg = {{ from = 10.0, to = {to}, step = 5.0 }}
-
-[plan.calibration]
-dark_every_points = 1000
-reference_every_s = 100000.0
-reference_pose_deg = {{ light = -90.0, detector = 90.0 }}
-
-[calibration]
-method = "absolute"
-simulate_operator = {simulate_operator}
-
-[acquisition]
-averaging = 2
-
-[material]
-preset = "coloured-plastic"
-"#
-    )
+    CampaignText::in_plane(id, points)
+        .calibration("method = \"absolute\"")
+        .calibration(&format!("simulate_operator = {simulate_operator}"))
+        .to_string()
 }
 
-struct App {
-    router: Router,
-    trigger: ShutdownTrigger,
-    queue: Option<tokio::task::JoinHandle<()>>,
-    _dir: tempfile::TempDir,
-}
-
-impl Drop for App {
-    fn drop(&mut self) {
-        self.trigger.trigger();
-    }
-}
-
+/// A daemon running its queue.
 async fn app_with(config: ApiConfig) -> App {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let instrument = InstrumentFile::simulated();
-    // Scale 1 on the paused clock: the simulated instrument's own time, at no wall-time cost.
-    let rig = Rig::connect_with_time_scale(&instrument, None, 1.0)
-        .await
-        .expect("simulated rig");
-    let base_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let runner = Arc::new(EngineRunner::new(
-        instrument,
-        SIMULATED_INSTRUMENT_TOML.to_string(),
-        base_dir,
-        rig,
-    ));
-    let store = Store::open(dir.path()).expect("store");
-    let service = Service::new(store, runner, Control::new()).expect("service");
-    let trigger = ShutdownTrigger::new();
-    let (complete, _) = tokio::sync::mpsc::channel(1);
-    let queue = {
-        let (service, shutdown) = (service.clone(), trigger.subscribe());
-        tokio::spawn(async move { service.run_queue(shutdown, complete).await })
-    };
-    let router = api::router(service, &config, trigger.subscribe());
-    App {
-        router,
-        trigger,
-        queue: Some(queue),
-        _dir: dir,
-    }
+    let data = tempfile::tempdir().expect("tempdir");
+    common::app_with(
+        data,
+        Setup {
+            config,
+            ..Setup::default()
+        },
+    )
+    .await
 }
 
 async fn app() -> App {
@@ -127,17 +63,6 @@ impl App {
             .to_bytes()
             .to_vec();
         (status, body)
-    }
-
-    async fn json(&self, method: &str, path: &str, body: &str) -> (StatusCode, Value) {
-        let (status, bytes) = self.send(request(method, path, body.to_string(), None)).await;
-        let value = serde_json::from_slice(&bytes).unwrap_or_else(|e| {
-            panic!(
-                "{method} {path}: not JSON ({e}): {}",
-                String::from_utf8_lossy(&bytes)
-            )
-        });
-        (status, value)
     }
 
     async fn submit(&self, toml: &str) -> i64 {
@@ -238,7 +163,10 @@ async fn submit_watch_events_complete_and_download_points_csv() {
     let csv = String::from_utf8(csv).expect("utf-8");
     let mut lines = csv.lines();
     let header = lines.next().expect("header");
-    assert!(header.starts_with(gonio_daemon::export::HEADER), "{header}");
+    assert!(
+        header.starts_with(&gonio_results::points::FIXED_COLUMNS.join(",")),
+        "{header}"
+    );
     assert!(
         header.ends_with(",brdf_true_sr,brdf_true_aperture_sr"),
         "dry-run columns: {header}"

@@ -6,18 +6,16 @@
 //! Cases: `GONIO_FUZZ_CASES` (default: a fast tier), e.g. `GONIO_FUZZ_CASES=20000 cargo test --release
 //! -p gonio-daemon --test api_fuzz` for a large run.
 
-use std::sync::Arc;
+mod common;
+
 use std::time::Duration;
 
 use axum::Router;
 use axum::body::Body;
 use axum::http::{Request, StatusCode, header};
+use common::{App, Setup};
 use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::control::Control;
-use gonio_daemon::rig::Rig;
-use gonio_daemon::service::{EngineRunner, Service, ShutdownTrigger};
-use gonio_daemon::store::Store;
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_testkit::CampaignText;
 use http_body_util::BodyExt;
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
@@ -32,21 +30,13 @@ fn cases(default: u32) -> u32 {
         .unwrap_or(default)
 }
 
-const CAMPAIGN: &str = r#"[campaign]
-id = "fuzz"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = [550.0]
-[plan.grid]
-kind = "in-plane"
-theta_i_deg = [30.0]
-theta_o_deg = { from = 10.0, to = 60.0, step = 25.0 }
-[calibration]
-simulate_operator = true
-[material]
-preset = "spectralon"
-"#;
+/// The valid campaign the fuzzer mutates.
+fn campaign() -> String {
+    CampaignText::in_plane_grid("fuzz", "[30.0]", "{ from = 10.0, to = 60.0, step = 25.0 }")
+        .calibration("simulate_operator = true")
+        .material("preset = \"spectralon\"")
+        .to_string()
+}
 
 #[derive(Debug, Clone)]
 struct Req {
@@ -74,7 +64,7 @@ fn path() -> impl Strategy<Value = String> {
 fn body() -> impl Strategy<Value = Vec<u8>> {
     let mutated =
         (proptest::collection::vec((any::<prop::sample::Index>(), "[ -~\n]{0,8}"), 0..4)).prop_map(|edits| {
-            let mut lines: Vec<String> = CAMPAIGN.lines().map(str::to_string).collect();
+            let mut lines: Vec<String> = campaign().lines().map(str::to_string).collect();
             for (at, text) in edits {
                 let i = at.index(lines.len());
                 if text.is_empty() {
@@ -128,28 +118,18 @@ fn request() -> impl Strategy<Value = Req> {
         })
 }
 
-async fn app() -> (Router, ShutdownTrigger, tempfile::TempDir) {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let instrument = InstrumentFile::simulated();
-    let rig = Rig::connect_with_time_scale(&instrument, None, 1.0)
-        .await
-        .expect("rig");
-    let runner = Arc::new(EngineRunner::new(
-        instrument,
-        SIMULATED_INSTRUMENT_TOML.to_string(),
-        dir.path().to_path_buf(),
-        rig,
-    ));
-    let service =
-        Service::new(Store::open(dir.path()).expect("store"), runner, Control::new()).expect("service");
-    let trigger = ShutdownTrigger::new();
-    let config = ApiConfig {
-        token: Some(TOKEN.into()),
-        body_limit_bytes: 4096,
-        ..ApiConfig::default()
+/// The daemon without its queue: submitted campaigns stay queued, which is all the routes need.
+async fn app() -> App {
+    let setup = Setup {
+        config: ApiConfig {
+            token: Some(TOKEN.into()),
+            body_limit_bytes: 4096,
+            ..ApiConfig::default()
+        },
+        queue: false,
+        files_dir: None,
     };
-    // No queue runs: submitted campaigns stay queued, which is all the routes need.
-    (api::router(service, &config, trigger.subscribe()), trigger, dir)
+    common::app_with(tempfile::tempdir().expect("tempdir"), setup).await
 }
 
 /// Statuses the API documents.
@@ -247,14 +227,14 @@ fn random_requests_get_documented_answers_and_never_a_500() {
         .start_paused(true)
         .build()
         .expect("runtime");
-    let (router, trigger, _dir) = rt.block_on(app());
+    let app = rt.block_on(app());
     let mut runner = TestRunner::new(Config {
         cases: cases(1500),
         failure_persistence: None,
         ..Config::default()
     });
-    let result = runner.run(&request(), |r| rt.block_on(check(&router, &r)));
-    trigger.trigger();
+    let result = runner.run(&request(), |r| rt.block_on(check(&app.router, &r)));
+    drop(app);
     if let Err(e) = result {
         panic!("{e}");
     }

@@ -9,26 +9,18 @@ use std::time::Duration;
 
 use gonio_daemon::engine::{Control, run_campaign};
 use gonio_daemon::store::{CampaignState, Store};
+use gonio_testkit::CampaignText;
 
-const CAMPAIGN: &str = r#"[campaign]
-id = "last-error"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = [550.0]
-[plan.grid]
-kind = "in-plane"
-theta_i_deg = [30.0]
-theta_o_deg = { from = 10.0, to = 60.0, step = 10.0 }
-[calibration]
-simulate_operator = true
-[material]
-preset = "spectralon"
-"#;
+fn campaign() -> String {
+    CampaignText::in_plane_grid("last-error", "[30.0]", "{ from = 10.0, to = 60.0, step = 10.0 }")
+        .calibration("simulate_operator = true")
+        .material("preset = \"spectralon\"")
+        .to_string()
+}
 
 #[tokio::test(start_paused = true)]
 async fn a_completed_campaign_no_longer_shows_the_reason_of_an_earlier_pause() {
-    let campaign = common::stored_campaign(CAMPAIGN, "last-error.toml").await;
+    let campaign = common::stored_campaign(&campaign(), "last-error.toml").await;
     let (store, id, rig, dir) = (&campaign.store, campaign.id, &campaign.rig, &campaign.dir);
     let control = Control::new();
     let mut rx = control.subscribe();

@@ -11,30 +11,23 @@
 mod common;
 
 use std::net::SocketAddr;
+use std::sync::LazyLock;
 use std::time::Duration;
 
 use common::tcp::{Server, server};
 use gonio_daemon::api::ApiConfig;
+use gonio_testkit::CampaignText;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
 const ANSWER: Duration = Duration::from_secs(20);
 
-const CAMPAIGN: &str = r#"[campaign]
-id = "origin"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = [550.0]
-[plan.grid]
-kind = "in-plane"
-theta_i_deg = [30.0]
-theta_o_deg = { from = 10.0, to = 60.0, step = 25.0 }
-[calibration]
-simulate_operator = true
-[material]
-preset = "spectralon"
-"#;
+static CAMPAIGN: LazyLock<String> = LazyLock::new(|| {
+    CampaignText::in_plane_grid("origin", "[30.0]", "{ from = 10.0, to = 60.0, step = 25.0 }")
+        .calibration("simulate_operator = true")
+        .material("preset = \"spectralon\"")
+        .to_string()
+});
 
 /// Status and body of the answer to one raw request (`Connection: close`: the body runs to EOF).
 async fn exchange(addr: SocketAddr, raw: String) -> (u16, String) {
@@ -87,7 +80,7 @@ async fn a_rebound_host_name_is_refused_on_every_route() {
         ("GET", "/", None, ""),
         ("GET", "/api/events", None, ""),
         // The page's own origin under the rebound name: same-origin for the browser, foreign for the daemon.
-        ("POST", "/api/campaigns", Some(origin.as_str()), CAMPAIGN),
+        ("POST", "/api/campaigns", Some(origin.as_str()), CAMPAIGN.as_str()),
         ("POST", "/api/estop", Some(origin.as_str()), ""),
     ] {
         let (status, body) = exchange(s.addr, request(method, path, &rebound, origin, body)).await;
@@ -134,7 +127,7 @@ async fn a_post_from_another_origin_is_refused_and_changes_nothing() {
         format!("http://localhost:{port}"),
     ] {
         for (path, body) in [
-            ("/api/campaigns", CAMPAIGN),
+            ("/api/campaigns", CAMPAIGN.as_str()),
             ("/api/estop", ""),
             ("/api/campaigns/1/abort", ""),
         ] {
@@ -166,7 +159,7 @@ async fn the_status_page_and_clients_without_origin_are_served() {
     assert_eq!(status, 200, "{body}");
     let (status, body) = exchange(
         s.addr,
-        request("POST", "/api/campaigns", &host, Some(&own), CAMPAIGN),
+        request("POST", "/api/campaigns", &host, Some(&own), CAMPAIGN.as_str()),
     )
     .await;
     assert_eq!(status, 201, "{body}");
@@ -188,13 +181,17 @@ async fn the_status_page_and_clients_without_origin_are_served() {
             "/api/campaigns",
             &local,
             Some(&format!("http://{local}")),
-            CAMPAIGN,
+            CAMPAIGN.as_str(),
         ),
     )
     .await;
     assert_eq!(status, 201, "{body}");
     // curl and the CLI: no Origin.
-    let (status, body) = exchange(s.addr, request("POST", "/api/campaigns", &host, None, CAMPAIGN)).await;
+    let (status, body) = exchange(
+        s.addr,
+        request("POST", "/api/campaigns", &host, None, CAMPAIGN.as_str()),
+    )
+    .await;
     assert_eq!(status, 201, "{body}");
     let (status, body) = exchange(s.addr, request("GET", "/api/campaigns/3", "localhost", None, "")).await;
     assert_eq!(status, 200, "{body}");
@@ -216,7 +213,7 @@ async fn a_configured_host_name_is_served() {
             "/api/campaigns",
             &host,
             Some(&format!("http://{host}")),
-            CAMPAIGN,
+            CAMPAIGN.as_str(),
         ),
     )
     .await;

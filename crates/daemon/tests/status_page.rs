@@ -2,63 +2,31 @@
 //! types and security headers, without the token (they hold no data), while every API route the page uses keeps
 //! the token rule. The page itself is tested in a real browser by `tests/browser/run.sh`.
 
-use std::sync::Arc;
+mod common;
+
 use std::time::Duration;
 
-use axum::Router;
 use axum::body::Body;
 use axum::http::{Request, StatusCode, header};
-use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::control::Control;
-use gonio_daemon::rig::Rig;
-use gonio_daemon::service::{EngineRunner, Service, ShutdownTrigger};
+use common::{App, Setup};
+use gonio_daemon::api::ApiConfig;
 use gonio_daemon::status_page::{ASSETS, CONTENT_SECURITY_POLICY, INDEX_HTML};
-use gonio_daemon::store::Store;
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use http_body_util::BodyExt;
 use tower::ServiceExt;
 
 const TOKEN: &str = "s3cret-t0ken";
 
-struct App {
-    router: Router,
-    trigger: ShutdownTrigger,
-    _dir: tempfile::TempDir,
-}
-
-impl Drop for App {
-    fn drop(&mut self) {
-        self.trigger.trigger();
-    }
-}
-
 /// The daemon's router (no queue task: these tests run no campaign).
 async fn app(token: Option<&str>) -> App {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let instrument = InstrumentFile::simulated();
-    let rig = Rig::connect_with_time_scale(&instrument, None, 1.0)
-        .await
-        .expect("simulated rig");
-    let base_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let runner = Arc::new(EngineRunner::new(
-        instrument,
-        SIMULATED_INSTRUMENT_TOML.to_string(),
-        base_dir,
-        rig,
-    ));
-    let store = Store::open(dir.path()).expect("store");
-    let service = Service::new(store, runner, Control::new()).expect("service");
-    let trigger = ShutdownTrigger::new();
-    let config = ApiConfig {
-        token: token.map(str::to_string),
-        ..ApiConfig::default()
+    let setup = Setup {
+        config: ApiConfig {
+            token: token.map(str::to_string),
+            ..ApiConfig::default()
+        },
+        queue: false,
+        files_dir: None,
     };
-    let router = api::router(service, &config, trigger.subscribe());
-    App {
-        router,
-        trigger,
-        _dir: dir,
-    }
+    common::app_with(tempfile::tempdir().expect("tempdir"), setup).await
 }
 
 struct Answer {

@@ -15,7 +15,6 @@ use gonio_daemon::store::{CampaignRecord, STORE_FILE, Store};
 use gonio_instrument::InstrumentFile;
 use gonio_results::export::{self, ExportContext};
 use gonio_results::merl_export;
-use gonio_results::points::{Point, PointsTable};
 use gonio_results::run::Run;
 use serde_json::{Value, json};
 
@@ -67,7 +66,8 @@ fn store_err(origin: &str, e: impl std::fmt::Display) -> CliError {
     CliError::input(format!("{origin}: {e}"))
 }
 
-/// A campaign of a daemon's store as a run (the same points and provenance as `gonio run` writes).
+/// A campaign of a daemon's store as a run: the same points and provenance as `gonio run` writes (both come
+/// from `gonio_daemon::export::run_record`).
 fn load_from_store(dir: &Path, campaign: &str) -> Result<Run, CliError> {
     let db = dir.join(STORE_FILE);
     if !db.is_file() {
@@ -89,77 +89,8 @@ fn load_from_store(dir: &Path, campaign: &str) -> Result<Run, CliError> {
             "{origin}: no campaign {campaign:?} (give its id or its name; `gonio ctl status` lists them)"
         ))
     })?;
-    let id = record.id;
-    let points = store.points(id).map_err(|e| store_err(&origin, e))?;
-    let calibrations = store.calibrations(id).map_err(|e| store_err(&origin, e))?;
-    let devices = store.devices(id).map_err(|e| store_err(&origin, e))?;
-    // Axis names in instrument order (as the CSV has them); from the points when the stored file does not parse.
-    let axis_names: Vec<String> =
-        match InstrumentFile::parse(&record.instrument_toml, "<stored instrument file>") {
-            Ok(f) => f.instrument.axes.iter().map(|a| a.name.clone()).collect(),
-            Err(_) => {
-                let mut names: Vec<String> = Vec::new();
-                for p in &points {
-                    for (n, _) in &p.readback_deg {
-                        if !names.contains(n) {
-                            names.push(n.clone());
-                        }
-                    }
-                }
-                names
-            }
-        };
-    let finite = |v: f64| Some(v).filter(|v| v.is_finite());
-    let table = PointsTable {
-        points: points
-            .iter()
-            .map(|p| Point {
-                index: p.index,
-                band_nm: p.band_nm,
-                theta_i_deg: p.theta_i_deg,
-                phi_i_deg: p.phi_i_deg,
-                theta_o_deg: p.theta_o_deg,
-                phi_o_deg: p.phi_o_deg,
-                signal_w: finite(p.signal_w),
-                dark_w: finite(p.dark_w),
-                incident_w: finite(p.incident_w),
-                brdf_sr: p.brdf_sr.filter(|v| v.is_finite()),
-                brdf_u_sr: p.brdf_u_sr.filter(|v| v.is_finite()),
-                flags: p.flags.clone(),
-                t_s: finite(p.t_s),
-                readback_deg: axis_names
-                    .iter()
-                    .map(|a| {
-                        let v = p.readback_deg.iter().find(|(n, _)| n == a).map(|(_, v)| *v);
-                        (a.clone(), v.filter(|v| v.is_finite()))
-                    })
-                    .collect(),
-                truth_point_sr: p.truth_point_sr,
-                truth_aperture_sr: p.truth_aperture_sr,
-            })
-            .collect(),
-        axis_names,
-        dry_run: record.dry_run,
-    };
-    let provenance = json!({
-        "campaign": {
-            "id": record.id,
-            "name": record.name,
-            "state": record.state,
-            "last_error": record.last_error,
-            "dry_run": record.dry_run,
-            "total_points": record.total_points,
-            "points_done": record.points_done,
-            "created_unix_s": record.created_unix_s,
-        },
-        "software_version": record.software_version,
-        "config": {
-            "campaign_toml": record.campaign_toml,
-            "instrument_toml": record.instrument_toml,
-        },
-        "devices": devices.iter().map(|(n, i)| json!({"name": n, "identity": i})).collect::<Vec<_>>(),
-        "calibrations": calibrations,
-    });
+    let (table, provenance) =
+        gonio_daemon::export::run_record(&store, &record).map_err(|e| store_err(&origin, e))?;
     Ok(Run::from_parts(
         format!("{origin}, campaign {}", record.id),
         record.name.clone(),
@@ -172,8 +103,8 @@ fn load_from_store(dir: &Path, campaign: &str) -> Result<Run, CliError> {
 /// parameters), from the texts stored in its provenance. `None` without provenance; an `error` entry when the
 /// stored texts no longer parse (e.g. a material file named relative to a campaign file that moved).
 pub fn resolved_config(run: &Run, base_dir: &Path) -> Option<Value> {
-    let campaign_toml = run.provenance_str("/config/campaign_toml")?;
-    let instrument_toml = run.provenance_str("/config/instrument_toml")?;
+    let config = run.config()?;
+    let (campaign_toml, instrument_toml) = (config.campaign_toml.as_str(), config.instrument_toml.as_str());
     let file = match InstrumentFile::parse(instrument_toml, "<run's instrument file>") {
         Ok(f) => f,
         Err(e) => return Some(json!({ "error": e.to_string() })),

@@ -101,7 +101,7 @@ pub fn run(args: FitArgs) -> Result<(), CliError> {
 
 /// The detector aperture's half-angle seen from the sample, from the instrument file the run used.
 fn aperture_half_angle_rad(run: &gonio_results::Run) -> Option<f64> {
-    let text = run.provenance_str("/config/instrument_toml")?;
+    let text = &run.config()?.instrument_toml;
     let file = gonio_instrument::InstrumentFile::parse(text, "<run's instrument file>").ok()?;
     let d = &file.instrument.detector;
     (d.aperture_radius_mm > 0.0 && d.distance_mm > 0.0).then(|| d.aperture_radius_mm.atan2(d.distance_mm))

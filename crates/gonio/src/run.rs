@@ -19,6 +19,7 @@ use gonio_daemon::engine::{self, Control, Event, Rig};
 use gonio_daemon::export;
 use gonio_daemon::store::{CampaignId, CampaignState, Store};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_results::points;
 
 use crate::CliError;
 
@@ -142,7 +143,7 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
     .map_err(|e| CliError::io("cannot start the async runtime", e))?;
 
     let outcome = if record.state == CampaignState::Completed {
-        Ok((CampaignState::Completed, Vec::new(), false))
+        Ok((CampaignState::Completed, false))
     } else {
         runtime.block_on(drive(
             Arc::clone(&store),
@@ -154,10 +155,10 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
         ))
     };
     runtime.shutdown_timeout(std::time::Duration::from_millis(200));
-    let (state, identities, interrupted) = outcome?;
+    let (state, interrupted) = outcome?;
 
     let wall_s = wall.elapsed().as_secs_f64();
-    let summary = write_results(&store, id, &file, &out, &identities, wall_s, &prepared)?;
+    let summary = write_results(&store, id, &out, wall_s)?;
     eprintln!("{summary}");
     match state {
         CampaignState::Completed => {
@@ -192,8 +193,8 @@ fn lock(store: &Arc<Mutex<Store>>) -> std::sync::MutexGuard<'_, Store> {
     store.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// Connect, run with a progress bar, stop cleanly on SIGINT/SIGTERM. Returns the final state, the device
-/// identities and whether a signal interrupted the run.
+/// Connect, run with a progress bar, stop cleanly on SIGINT/SIGTERM. Returns the final state and whether a
+/// signal interrupted the run.
 async fn drive(
     store: Arc<Mutex<Store>>,
     id: CampaignId,
@@ -201,7 +202,7 @@ async fn drive(
     prepared: &engine::PreparedCampaign,
     paused_clock: bool,
     quiet: bool,
-) -> Result<(CampaignState, Vec<(String, String)>, bool), CliError> {
+) -> Result<(CampaignState, bool), CliError> {
     let rig = if paused_clock {
         // Paused clock: simulated time advances as fast as the run can go.
         Rig::connect_with_time_scale(file, None, 1.0).await
@@ -210,7 +211,6 @@ async fn drive(
         Rig::connect(file, None).await
     }
     .map_err(|e| CliError::input(e.to_string()))?;
-    let identities = rig.identities().await;
     let control = Control::new();
     control.attach_rig(&rig);
     let (done0, total) = {
@@ -297,7 +297,7 @@ async fn drive(
     bar.finish_and_clear();
     listener.abort();
     let state = result.map_err(|e| CliError::input(e.to_string()))?;
-    Ok((state, identities, interrupted))
+    Ok((state, interrupted))
 }
 
 /// Fires at the first SIGINT or SIGTERM. The handlers need tokio's I/O driver, which the paused-clock runtime of
@@ -336,112 +336,59 @@ async fn signal() {
     }
 }
 
-/// Write points.csv and run.json; returns the summary text.
+/// Write points.csv and run.json (both from the store, as `gonio export --data` reads it); returns the summary
+/// text, which adds this process's wall time (not part of run.json: it is not in the store, and a resumed run
+/// would only know its last part).
 fn write_results(
     store: &Arc<Mutex<Store>>,
     id: CampaignId,
-    file: &InstrumentFile,
     out: &Path,
-    identities: &[(String, String)],
     wall_s: f64,
-    prepared: &engine::PreparedCampaign,
 ) -> Result<String, CliError> {
-    let s = lock(store);
-    let rec = s.campaign(id).map_err(|e| CliError::input(e.to_string()))?;
-    let points = s.points(id).map_err(|e| CliError::input(e.to_string()))?;
-    let calibrations = s.calibrations(id).map_err(|e| CliError::input(e.to_string()))?;
-    let stored_devices = s.devices(id).map_err(|e| CliError::input(e.to_string()))?;
-    drop(s);
-    let axis_names: Vec<String> = file.instrument.axes.iter().map(|a| a.name.clone()).collect();
-    let csv = export::points_csv(&points, &axis_names, rec.dry_run);
-    let csv_path = out.join("points.csv");
-    std::fs::write(&csv_path, csv)
-        .map_err(|e| CliError::io(format!("cannot write {}", csv_path.display()), e))?;
-
-    let valid = points
-        .iter()
-        .filter(|p| p.flags.is_empty() && p.brdf_sr.is_some())
-        .count();
-    let failed = points
-        .iter()
-        .filter(|p| p.flags.iter().any(|f| f.starts_with("failed")))
-        .count();
-    let mut flag_counts = std::collections::BTreeMap::<String, usize>::new();
-    for p in &points {
-        for f in &p.flags {
-            let key = f.split(':').next().unwrap_or(f).to_string();
-            *flag_counts.entry(key).or_default() += 1;
-        }
-    }
-    // The run ends with the schedule's final calibration, after the last point: its last record, as the
-    // predicted duration counts it (both from the end of start-up; see the daemon's runner).
-    let actual_s = points
-        .iter()
-        .map(|p| p.t_s)
-        .chain(calibrations.iter().map(|c| c.t_s))
-        .fold(0.0f64, f64::max);
-    let errors_aperture = export::truth_errors(&points, |p| p.truth_aperture_sr);
-    let errors_point = export::truth_errors(&points, |p| p.truth_point_sr);
-    let devices = if identities.is_empty() {
-        stored_devices
-    } else {
-        identities.to_vec()
+    let (table, record) = {
+        let s = lock(store);
+        let rec = s.campaign(id).map_err(|e| CliError::input(e.to_string()))?;
+        export::run_record(&s, &rec).map_err(|e| CliError::input(e.to_string()))?
     };
-    let json = serde_json::json!({
-        "campaign": {
-            "id": rec.id,
-            "name": rec.name,
-            "state": rec.state,
-            "last_error": rec.last_error,
-            "dry_run": rec.dry_run,
-            "total_points": rec.total_points,
-            "points_done": rec.points_done,
-            "valid_points": valid,
-            "failed_points": failed,
-            "flags": flag_counts,
-        },
-        "software_version": rec.software_version,
-        "config": {
-            "campaign_toml": rec.campaign_toml,
-            "instrument_toml": rec.instrument_toml,
-        },
-        "devices": devices.iter().map(|(n, i)| serde_json::json!({"name": n, "identity": i})).collect::<Vec<_>>(),
-        "calibrations": calibrations,
-        "timing": {
-            "predicted_instrument_s": prepared.predicted_s,
-            "actual_instrument_s": actual_s,
-            "wall_s": wall_s,
-        },
-        "truth": {
-            "against_aperture_average": errors_aperture,
-            "against_point_value": errors_point,
-        },
-    });
+    let csv_path = out.join("points.csv");
+    std::fs::write(&csv_path, points::write_points_csv(&table))
+        .map_err(|e| CliError::io(format!("cannot write {}", csv_path.display()), e))?;
     let json_path = out.join("run.json");
-    let text = serde_json::to_string_pretty(&json).unwrap_or_default();
-    std::fs::write(&json_path, text)
+    std::fs::write(&json_path, record.to_json_text())
         .map_err(|e| CliError::io(format!("cannot write {}", json_path.display()), e))?;
 
+    let c = &record.campaign;
     let mut summary = format!(
-        "campaign {} {}: {} of {} points ({valid} valid, {failed} failed{})\n",
-        rec.name,
-        rec.state,
-        points.len(),
-        rec.total_points,
-        flag_counts
+        "campaign {} {}: {} of {} points ({} valid, {} failed{})\n",
+        c.name,
+        c.state,
+        table.points.len(),
+        c.total_points,
+        c.valid_points,
+        c.failed_points,
+        c.flags
             .iter()
             .filter(|(k, _)| k.as_str() != "failed")
             .map(|(k, n)| format!(", {n} {k}"))
             .collect::<String>()
     );
+    let predicted = record
+        .timing
+        .predicted_instrument_s
+        .map(|p| format!("predicted {p:.0} s"))
+        .unwrap_or_else(|| "no prediction".into());
     summary.push_str(&format!(
-        "instrument time {:.0} s (predicted {:.0} s), wall time {wall_s:.1} s\n",
-        actual_s, prepared.predicted_s
+        "instrument time {:.0} s ({predicted}), wall time {wall_s:.1} s\n",
+        record.timing.actual_instrument_s
     ));
-    if let Some(e) = errors_aperture {
+    if let Some(e) = record.truth.against_aperture_average {
+        let rms = e
+            .cos_weighted_relative_rms
+            .map(|r| format!("{r:.2e}"))
+            .unwrap_or_else(|| "undefined (zero truth)".into());
         summary.push_str(&format!(
-            "dry-run error vs aperture-averaged truth: cos-weighted relative RMS {:.2e}, log RMS {:.2e}, max relative {:.2e} ({} points)\n",
-            e.cos_weighted_relative_rms, e.log_rms, e.max_relative_error, e.points
+            "dry-run error vs aperture-averaged truth: cos-weighted relative RMS {rms}, log RMS {:.2e}, max relative {:.2e} ({} points)\n",
+            e.log_rms, e.max_relative_error, e.points
         ));
     }
     summary.push_str(&format!(

@@ -12,7 +12,7 @@ use std::fmt::Write as _;
 
 use serde_json::{Map, Value, json};
 
-use crate::points::{FIXED_COLUMNS, Point};
+use crate::points::{self, Point};
 use crate::run::Run;
 
 /// The `format` field of the JSON export.
@@ -30,12 +30,12 @@ pub struct ExportContext {
     pub resolved: Option<Value>,
 }
 
-/// Unit (or meaning) of every column.
+/// Unit (or meaning) of every column, in the column order of the points CSV.
 pub fn column_units(run: &Run) -> Vec<(String, &'static str)> {
-    let mut units: Vec<(String, &'static str)> = FIXED_COLUMNS
-        .iter()
+    points::columns(&run.axis_names, run.dry_run)
+        .into_iter()
         .map(|c| {
-            let unit = match *c {
+            let unit = match c.as_str() {
                 "index" => "point index in the plan (0-based)",
                 "band_nm" => "nm",
                 "theta_i_deg" | "phi_i_deg" | "theta_o_deg" | "phi_o_deg" => "degree",
@@ -43,19 +43,13 @@ pub fn column_units(run: &Run) -> Vec<(String, &'static str)> {
                 "brdf_sr" | "brdf_u_sr" => "1/sr",
                 "flags" => "';'-separated reasons, empty for a valid point",
                 "t_s" => "s",
-                _ => "",
+                c if points::TRUTH_COLUMNS.contains(&c) => "1/sr",
+                // The remaining columns are the `<axis>_deg` read-backs.
+                _ => "degree",
             };
-            (c.to_string(), unit)
+            (c, unit)
         })
-        .collect();
-    for a in &run.axis_names {
-        units.push((format!("{a}_deg"), "degree"));
-    }
-    if run.dry_run {
-        units.push(("brdf_true_sr".into(), "1/sr"));
-        units.push(("brdf_true_aperture_sr".into(), "1/sr"));
-    }
-    units
+        .collect()
 }
 
 /// The conventions a reader needs, one sentence each.
@@ -84,50 +78,6 @@ pub const CONVENTIONS: [(&str, &str); 6] = [
          over the detector aperture",
     ),
 ];
-
-fn num(s: &mut String, v: f64) {
-    // `+ 0.0` turns -0 into 0; Display is the shortest representation that round-trips.
-    let _ = write!(s, "{}", v + 0.0);
-}
-
-fn opt(s: &mut String, v: Option<f64>) {
-    if let Some(v) = v {
-        num(s, v);
-    }
-}
-
-/// One CSV row (no newline), columns as in points.csv.
-fn csv_row(s: &mut String, p: &Point, run: &Run) {
-    let _ = write!(s, "{}", p.index);
-    for v in [p.band_nm, p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg] {
-        s.push(',');
-        num(s, v);
-    }
-    for v in [p.signal_w, p.dark_w, p.incident_w, p.brdf_sr, p.brdf_u_sr] {
-        s.push(',');
-        opt(s, v);
-    }
-    s.push(',');
-    s.push_str(&p.flags.join(";").replace([',', '"', '\n', '\r'], " "));
-    s.push(',');
-    opt(s, p.t_s);
-    for axis in &run.axis_names {
-        s.push(',');
-        opt(
-            s,
-            p.readback_deg
-                .iter()
-                .find(|(a, _)| a == axis)
-                .and_then(|(_, v)| *v),
-        );
-    }
-    if run.dry_run {
-        s.push(',');
-        opt(s, p.truth_point_sr);
-        s.push(',');
-        opt(s, p.truth_aperture_sr);
-    }
-}
 
 /// Flattens a JSON value into `# path = value` lines; arrays of scalars and small objects stay on one line.
 fn flatten(out: &mut String, path: &str, v: &Value) {
@@ -190,9 +140,9 @@ pub fn to_csv(run: &Run, ctx: &ExportContext) -> String {
     for (k, v) in CONVENTIONS {
         let _ = writeln!(s, "# convention.{k}: {v}");
     }
-    match &run.provenance {
+    match run.provenance.as_ref().map(|p| p.to_value()) {
         Some(Value::Object(map)) => {
-            for (key, value) in map {
+            for (key, value) in &map {
                 if key == "config" {
                     continue;
                 }
@@ -207,7 +157,7 @@ pub fn to_csv(run: &Run, ctx: &ExportContext) -> String {
                 }
             }
         }
-        Some(other) => flatten(&mut s, "run", other),
+        Some(other) => flatten(&mut s, "run", &other),
         None => s.push_str("# run: no run.json: provenance unknown\n"),
     }
     if let Some(resolved) = &ctx.resolved {
@@ -222,7 +172,7 @@ pub fn to_csv(run: &Run, ctx: &ExportContext) -> String {
     );
     s.push('\n');
     for p in &run.points {
-        csv_row(&mut s, p, run);
+        points::write_row(&mut s, p, &run.axis_names, run.dry_run);
         s.push('\n');
     }
     s
@@ -286,7 +236,7 @@ pub fn to_json(run: &Run, ctx: &ExportContext) -> Value {
         "axes": run.axis_names,
         "units": units,
         "conventions": conventions,
-        "provenance": run.provenance.clone().unwrap_or(Value::Null),
+        "provenance": run.provenance.as_ref().map(|p| p.to_value()).unwrap_or(Value::Null),
         "resolved": ctx.resolved.clone().unwrap_or(Value::Null),
         "points": run.points.iter().map(|p| point_json(p, run)).collect::<Vec<_>>(),
     })
@@ -304,13 +254,12 @@ mod tests {
 
     fn run() -> Run {
         let table = parse_points_csv(CSV, "t/points.csv").expect("valid");
-        let provenance = json!({
-            "software_version": "gonio 0.1.0",
-            "config": {"campaign_toml": "[campaign]\nid = \"t\"\n", "instrument_toml": "[instrument]\n"},
-            "devices": [{"name": "meter", "identity": "PM100"}],
-            "calibrations": [{"kind": "direct-beam", "band_nm": 550.0, "t_s": 1.0, "value_w": 5e-4, "u_w": 1e-7}],
-        });
-        Run::from_parts("t".into(), "t".into(), table, Some(provenance))
+        Run::from_parts(
+            "t".into(),
+            "t".into(),
+            table,
+            Some(crate::provenance::tests::sample_record()),
+        )
     }
 
     #[test]

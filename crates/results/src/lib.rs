@@ -1,8 +1,11 @@
 //! gonio-results: measured runs made useful - exports for other tools, analytic model fits, plots.
 //!
 //! Module map:
-//! - [`points`]: the points CSV written by `gonio run` and the daemon, read by header with file/line/column
-//!   errors; [`run`]: a run (points and provenance) from a run directory or assembled by the caller.
+//! - [`points`]: the points CSV, one column definition with its writer (used by `gonio run`, the daemon's API
+//!   and the exports) and its reader (by header, with file/line/column errors).
+//! - [`provenance`]: the run record, the typed content of run.json, assembled from what the store keeps so
+//!   that a run directory and the same campaign in a daemon's store have the same provenance.
+//! - [`run`]: a run (points and provenance) from a run directory or assembled by the caller.
 //! - [`iso`]: the isotropic reduction (theta_i, theta_o, delta_phi) with reciprocity, and the piecewise-linear
 //!   interpolant on the measurement grid.
 //! - [`export`]: CSV and JSON with units and the run's provenance; [`merl_export`]: the MERL binary
@@ -12,7 +15,8 @@
 //! - [`plot`]: SVG plots (plotters): in-plane polar slices, (theta_o, phi_o) heat maps, measurement against model.
 //!
 //! Dependencies point one way: this crate knows gonio-brdf (geometry, models, materials, the MERL format) and
-//! nothing of the daemon; the `gonio` binary reads the daemon's store and hands a [`run::Run`] over.
+//! nothing of the daemon; the daemon turns its store's records into this crate's types (its `export` module)
+//! and the `gonio` binary hands a [`run::Run`] over.
 
 pub mod error;
 pub mod export;
@@ -21,6 +25,7 @@ pub mod iso;
 pub mod merl_export;
 pub mod plot;
 pub mod points;
+pub mod provenance;
 pub mod run;
 
 pub use error::ResultsError;

@@ -1,12 +1,19 @@
-//! The measured points of a run, and the reader of the points CSV that `gonio run` and the daemon write.
+//! The points CSV of a run: the one column definition, its writer (`gonio run`'s points.csv, the daemon's
+//! `/api/campaigns/{id}/points.csv`, the table of `gonio export --format csv`) and its reader.
 //!
-//! Columns (crates/daemon/src/export.rs): `index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,signal_w,
-//! dark_w,incident_w,brdf_sr,brdf_u_sr,flags,t_s`, then one `<axis>_deg` read-back column per axis, then in dry-runs
-//! `brdf_true_sr,brdf_true_aperture_sr`. The reader goes by the header, not by position: the geometry, `brdf_sr`,
-//! `brdf_u_sr` and `flags` columns are required, the others optional, unknown columns are ignored. An empty
-//! field is a missing value; `NaN` (a failed reading) is read as missing too. Quoted fields (RFC 4180, on one
-//! line) are accepted although gonio never writes them, so that a CSV that went through a spreadsheet still
-//! reads. Every error names the file, the line and the column.
+//! Columns: `index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,signal_w,dark_w,incident_w,brdf_sr,
+//! brdf_u_sr,flags,t_s` ([`FIXED_COLUMNS`]), then one `<axis>_deg` read-back column per axis (instrument file
+//! order), then in dry-runs `brdf_true_sr,brdf_true_aperture_sr` ([`TRUTH_COLUMNS`]). The writer puts numbers in
+//! shortest round-trip form (`Display`), so the CSV holds exactly what the store holds, and a missing value
+//! (including a failed reading) as an empty field.
+//!
+//! The reader goes by the header, not by position: the geometry, `brdf_sr`, `brdf_u_sr` and `flags` columns are
+//! required, the others optional, unknown columns are ignored. An empty field is a missing value; `NaN` (what
+//! older versions wrote for a failed reading) is read as missing too. Quoted fields (RFC 4180, on one line) are
+//! accepted although gonio never writes them, so that a CSV that went through a spreadsheet still reads. Every
+//! error names the file, the line and the column.
+
+use std::fmt::Write as _;
 
 use crate::error::ResultsError;
 
@@ -58,7 +65,7 @@ pub struct PointsTable {
     pub dry_run: bool,
 }
 
-/// The fixed leading columns, in the order `gonio run` writes them.
+/// The fixed leading columns, in the order they are written.
 pub const FIXED_COLUMNS: [&str; 13] = [
     "index",
     "band_nm",
@@ -87,7 +94,74 @@ const REQUIRED: [&str; 9] = [
     "flags",
 ];
 
-const TRUTH_COLUMNS: [&str; 2] = ["brdf_true_sr", "brdf_true_aperture_sr"];
+/// The dry-run columns, last: the simulator's point value and its aperture average.
+pub const TRUTH_COLUMNS: [&str; 2] = ["brdf_true_sr", "brdf_true_aperture_sr"];
+
+/// Every column name of a points CSV with these read-back axes, in order.
+pub fn columns(axis_names: &[String], dry_run: bool) -> Vec<String> {
+    let mut c: Vec<String> = FIXED_COLUMNS.iter().map(|c| c.to_string()).collect();
+    c.extend(axis_names.iter().map(|a| format!("{a}_deg")));
+    if dry_run {
+        c.extend(TRUTH_COLUMNS.iter().map(|c| c.to_string()));
+    }
+    c
+}
+
+fn num(s: &mut String, v: f64) {
+    // `+ 0.0` turns -0 into 0; Display is the shortest representation that round-trips.
+    let _ = write!(s, "{}", v + 0.0);
+}
+
+fn opt(s: &mut String, v: Option<f64>) {
+    if let Some(v) = v.filter(|v| v.is_finite()) {
+        num(s, v);
+    }
+}
+
+/// Appends one row (no newline) in the column order of [`columns`] for these axes.
+pub fn write_row(s: &mut String, p: &Point, axis_names: &[String], dry_run: bool) {
+    let _ = write!(s, "{}", p.index);
+    for v in [p.band_nm, p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg] {
+        s.push(',');
+        num(s, v);
+    }
+    for v in [p.signal_w, p.dark_w, p.incident_w, p.brdf_sr, p.brdf_u_sr] {
+        s.push(',');
+        opt(s, v);
+    }
+    s.push(',');
+    // Flags are our own words and never hold these, but a row must stay one unquoted CSV record.
+    s.push_str(&p.flags.join(";").replace([',', '"', '\n', '\r'], " "));
+    s.push(',');
+    opt(s, p.t_s);
+    for axis in axis_names {
+        s.push(',');
+        opt(
+            s,
+            p.readback_deg
+                .iter()
+                .find(|(a, _)| a == axis)
+                .and_then(|(_, v)| *v),
+        );
+    }
+    if dry_run {
+        s.push(',');
+        opt(s, p.truth_point_sr);
+        s.push(',');
+        opt(s, p.truth_aperture_sr);
+    }
+}
+
+/// The whole points CSV, header included: what [`parse_points_csv`] reads back to the same table.
+pub fn write_points_csv(table: &PointsTable) -> String {
+    let mut s = columns(&table.axis_names, table.dry_run).join(",");
+    s.push('\n');
+    for p in &table.points {
+        write_row(&mut s, p, &table.axis_names, table.dry_run);
+        s.push('\n');
+    }
+    s
+}
 
 /// Splits one CSV line into fields. Quoted fields may hold commas and doubled quotes; a quote must close on
 /// the same line.
@@ -400,6 +474,29 @@ mod tests {
         );
         let e = parse_points_csv("", "empty.csv").expect_err("empty").to_string();
         assert!(e.contains("empty.csv") && e.contains("empty"), "{e}");
+    }
+
+    #[test]
+    fn the_writer_writes_what_the_reader_reads() {
+        let text = format!(
+            "{HEADER}\n0,550,30,180,45,0,0.0000001,0.0000000001,0.0005,0.2500000000000001,0.001,,12.5,-30,45,0.2501,0.2502\n\
+             1,550,30,180,60,0,,,,,,failed: meter timeout;saturated,13,,,0.1,\n"
+        );
+        let table = parse_points_csv(&text, "x.csv").expect("parses");
+        assert_eq!(
+            write_points_csv(&table),
+            text,
+            "the canonical text comes back byte for byte"
+        );
+        // What older versions wrote for a failed reading (NaN) reads as missing and is written as such.
+        let old = text.replacen("1,550,30,180,60,0,,", "1,550,30,180,60,0,NaN,", 1);
+        assert_ne!(old, text);
+        let table = parse_points_csv(&old, "old.csv").expect("parses");
+        assert_eq!(write_points_csv(&table), text);
+        // -0 is written as 0.
+        let mut table = table;
+        table.points[0].phi_o_deg = -0.0;
+        assert!(write_points_csv(&table).contains("\n0,550,30,180,45,0,"));
     }
 
     #[test]

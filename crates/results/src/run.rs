@@ -3,10 +3,9 @@
 
 use std::path::Path;
 
-use serde_json::Value;
-
 use crate::error::ResultsError;
 use crate::points::{Point, PointsTable, parse_points_csv};
+use crate::provenance::RunRecord;
 
 /// Two bands closer than this (nm) are the same filter.
 pub const BAND_TOLERANCE_NM: f64 = 0.5;
@@ -23,15 +22,18 @@ pub struct Run {
     pub axis_names: Vec<String>,
     /// True for a dry-run against the simulator (the points carry the simulator's truth).
     pub dry_run: bool,
-    /// The run's provenance, the content of run.json: `campaign` (id, name, state, counts), `software_version`,
-    /// `config` (`campaign_toml`, `instrument_toml`: the configuration the run used), `devices`
-    /// (name, identity), `calibrations`, `timing`, `truth`. `None` when only the CSV is known.
-    pub provenance: Option<Value>,
+    /// The run's provenance, the content of run.json. `None` when only the CSV is known.
+    pub provenance: Option<RunRecord>,
 }
 
 impl Run {
     /// From parsed points and an optional provenance document.
-    pub fn from_parts(origin: String, name: String, table: PointsTable, provenance: Option<Value>) -> Run {
+    pub fn from_parts(
+        origin: String,
+        name: String,
+        table: PointsTable,
+        provenance: Option<RunRecord>,
+    ) -> Run {
         Run {
             origin,
             name,
@@ -70,7 +72,7 @@ impl Run {
         let table = parse_points_csv(&text, &csv_path.display().to_string())?;
         let json_path = dir.join("run.json");
         let provenance = if json_path.is_file() {
-            Some(parse_run_json(
+            Some(RunRecord::parse(
                 &read_text(&json_path)?,
                 &json_path.display().to_string(),
             )?)
@@ -79,9 +81,7 @@ impl Run {
         };
         let name = provenance
             .as_ref()
-            .and_then(|p| p.pointer("/campaign/name"))
-            .and_then(Value::as_str)
-            .map(str::to_string)
+            .map(|p| p.campaign.name.clone())
             .or_else(|| dir.file_name().map(|n| n.to_string_lossy().into_owned()))
             .unwrap_or_else(|| "run".to_string());
         let origin = if meta.is_dir() {
@@ -126,9 +126,9 @@ impl Run {
             })
     }
 
-    /// A string from the provenance at a JSON pointer (e.g. "/software_version").
-    pub fn provenance_str(&self, pointer: &str) -> Option<&str> {
-        self.provenance.as_ref()?.pointer(pointer)?.as_str()
+    /// The configuration texts the run used (campaign, instrument), when its provenance is known.
+    pub fn config(&self) -> Option<&crate::provenance::RunConfig> {
+        self.provenance.as_ref().map(|p| &p.config)
     }
 }
 
@@ -155,55 +155,9 @@ fn read_text(path: &Path) -> Result<String, ResultsError> {
     })
 }
 
-/// Parses a run.json: a JSON object. Its known parts are checked for their type so that a damaged file is
-/// reported here rather than half-used.
-pub fn parse_run_json(text: &str, origin: &str) -> Result<Value, ResultsError> {
-    let value: Value = serde_json::from_str(text).map_err(|e| ResultsError::Json {
-        origin: origin.to_string(),
-        message: format!("not valid JSON: {e}"),
-    })?;
-    let Some(object) = value.as_object() else {
-        return Err(ResultsError::Json {
-            origin: origin.to_string(),
-            message: "expected a JSON object (the run's provenance), found another value".into(),
-        });
-    };
-    let expect = |key: &str, ok: fn(&Value) -> bool, what: &str| -> Result<(), ResultsError> {
-        match object.get(key) {
-            Some(v) if !ok(v) && !v.is_null() => Err(ResultsError::Json {
-                origin: origin.to_string(),
-                message: format!("key `{key}` must be {what}"),
-            }),
-            _ => Ok(()),
-        }
-    };
-    expect("campaign", Value::is_object, "an object")?;
-    expect("software_version", Value::is_string, "a string")?;
-    expect("config", Value::is_object, "an object")?;
-    expect("devices", Value::is_array, "an array")?;
-    expect("calibrations", Value::is_array, "an array")?;
-    Ok(value)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use proptest::prelude::*;
-
-    #[test]
-    fn run_json_must_be_an_object_with_typed_parts() {
-        assert!(parse_run_json("{\"software_version\": \"gonio 0.1.0\"}", "r.json").is_ok());
-        let e = parse_run_json("[1, 2]", "r.json").expect_err("array").to_string();
-        assert!(e.starts_with("r.json: expected a JSON object"), "{e}");
-        let e = parse_run_json("{\"devices\": 3}", "r.json")
-            .expect_err("bad type")
-            .to_string();
-        assert!(e.contains("`devices` must be an array"), "{e}");
-        let e = parse_run_json("{\"campaign\": ", "dir/run.json")
-            .expect_err("truncated")
-            .to_string();
-        assert!(e.starts_with("dir/run.json: not valid JSON"), "{e}");
-    }
 
     #[test]
     fn missing_points_csv_is_named() {
@@ -214,17 +168,5 @@ mod tests {
             .expect_err("no such path")
             .to_string();
         assert!(e.contains("nope"), "{e}");
-    }
-
-    proptest! {
-        #[test]
-        fn run_json_reader_never_panics(text in any::<String>()) {
-            let _ = parse_run_json(&text, "fuzz.json");
-        }
-
-        #[test]
-        fn run_json_reader_never_panics_on_jsonish(text in "[{}\\[\\]\":,0-9a-z_ ]{0,200}") {
-            let _ = parse_run_json(&text, "fuzz.json");
-        }
     }
 }

@@ -8,38 +8,11 @@
 
 mod common;
 
-use std::f64::consts::{FRAC_PI_2, PI};
-
 use common::simulated;
 use gonio_brdf::geometry::Direction;
 use gonio_instrument::{AxisRole, GeometryKind};
 use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
-
-fn hostile_directions() -> Vec<Direction> {
-    let thetas = [
-        0.0,
-        1e-12,
-        1e-9,
-        0.4,
-        1.2,
-        FRAC_PI_2 - 1e-9,
-        FRAC_PI_2 - 1e-12,
-        FRAC_PI_2,
-        FRAC_PI_2 + 1e-12,
-        2.0,
-        PI,
-    ];
-    let phis = [0.0, 1e-12, FRAC_PI_2, PI, -2.5];
-    let mut v = Vec::new();
-    for &t in &thetas {
-        for &p in &phis {
-            v.push(Direction::from_spherical(t, p));
-        }
-    }
-    v.push(Direction::from_spherical_deg(90.0, 0.0));
-    v.push(Direction::from_spherical_deg(90.0 - 1e-12, 0.0));
-    v
-}
+use gonio_testkit::directions::hostile_directions;
 
 fn pairs() -> Vec<(Direction, Direction)> {
     let dirs = hostile_directions();

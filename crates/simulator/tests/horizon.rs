@@ -13,6 +13,7 @@ use gonio_instrument::{Instrument, InstrumentFile};
 use gonio_simulator::optics::aperture::{Cone, Features, Plan, integrate};
 use gonio_simulator::optics::{Optics, SampleSpec};
 use gonio_simulator::scene::{Band, Pose};
+use gonio_testkit::rng::XorShift;
 
 fn wl(nm: f64) -> Wavelength {
     Wavelength::from_nm(nm).expect("wavelength")
@@ -129,16 +130,6 @@ fn brute_clipped(
         }
     }
     total
-}
-
-fn xorshift(seed: u64) -> impl FnMut() -> f64 {
-    let mut state = seed;
-    move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    }
 }
 
 fn material(toml: &str) -> Material {
@@ -407,7 +398,7 @@ fn random_near_grazing_geometries_meet_the_tolerance() {
     let env = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<u64>().ok());
     let seed = env("GONIO_HORIZON_SEED").unwrap_or(0x2545_F491_4F6C_DD1D);
     let cases = env("GONIO_HORIZON_CASES").unwrap_or(4);
-    let mut uniform = xorshift(seed.max(1));
+    let mut uniform = XorShift::new(seed).into_uniform();
     let (mut checked, mut unconverged) = (0u64, 0u64);
     let mut most_evaluations: Vec<(u32, String)> = Vec::new();
     let mut materials: Vec<(String, Material)> = SEEDS

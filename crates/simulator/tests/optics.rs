@@ -9,6 +9,7 @@ use gonio_brdf::{Brdf, Direction, Material, Wavelength};
 use gonio_instrument::{Instrument, InstrumentFile};
 use gonio_simulator::optics::{Optics, SampleSpec};
 use gonio_simulator::scene::{Band, Pose, Scene};
+use gonio_testkit::rng::XorShift;
 
 const BAND_550: Band = Band {
     band_nm: Some(550.0),
@@ -363,17 +364,6 @@ fn detector_blocks_the_beam_near_retro_reflection() {
     assert!(free.power_w > 0.0);
 }
 
-/// Uniform draws in [0, 1) from a xorshift generator (seed nonzero).
-fn xorshift(seed: u64) -> impl FnMut() -> f64 {
-    let mut state = seed;
-    move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
 /// A random (wi, wo) above the horizon for a cone of half-angle beta: wi up to 80 deg; wo anywhere up to
 /// 85 deg - beta, or, `near_mirror`, within 3 beta of wi's mirror direction, where the lobes are.
 fn random_geometry(
@@ -397,7 +387,7 @@ fn random_geometry(
 /// aperture integral must agree with a brute-force rule to 1e-6 relative, and say so in its own error estimate.
 #[test]
 fn aperture_integral_meets_the_tolerance_over_all_presets_and_random_geometries() {
-    let mut uniform = xorshift(0x1234_5678_9ABC_DEF0);
+    let mut uniform = XorShift::new(0x1234_5678_9ABC_DEF0).into_uniform();
     for aperture_mm in [2.5, 12.5] {
         let mut inst = instrument();
         inst.detector.aperture_radius_mm = aperture_mm;
@@ -747,7 +737,7 @@ fn tight_reference(material: &Material, wi: &Direction, wo: &Direction, beta: f6
 fn error_estimates_cover_the_error_over_random_geometries() {
     let env = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<u64>().ok());
     let cases = env("GONIO_OPTICS_CASES").unwrap_or(8);
-    let mut uniform = xorshift(env("GONIO_OPTICS_SEED").unwrap_or(0x9E37_79B9_7F4A_7C15).max(1));
+    let mut uniform = XorShift::new(env("GONIO_OPTICS_SEED").unwrap_or(0x9E37_79B9_7F4A_7C15)).into_uniform();
     for aperture_mm in [2.5, 12.5] {
         let mut inst = instrument();
         inst.detector.aperture_radius_mm = aperture_mm;

@@ -197,7 +197,7 @@ impl<'a> Run<'a> {
         }
         if !movement.phases.is_empty() {
             // The campaign's extra settling is already part of each axis's settle time in `self.c.time`
-            // (see `campaign::parse`), hence of `movement.settle_s`.
+            // (see `gonio_campaign::campaign_time_model`), hence of `movement.settle_s`.
             self.clock.sleep_s(movement.settle_s).await;
         }
         // Physical targets the plan reached: nominal pose for axes that did not need to move.

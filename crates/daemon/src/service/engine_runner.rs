@@ -71,19 +71,7 @@ impl CampaignRunner for EngineRunner {
     }
 
     fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
-        // The axes of the instrument the campaign ran on (stored with it), so that an export after an instrument
-        // change still names the right columns.
-        let axes: Vec<String> = match InstrumentFile::parse(&record.instrument_toml, "stored instrument") {
-            Ok(file) => file.instrument.axes.iter().map(|a| a.name.clone()).collect(),
-            Err(_) => self
-                .instrument
-                .instrument
-                .axes
-                .iter()
-                .map(|a| a.name.clone())
-                .collect(),
-        };
         let points = store.points(record.id).map_err(|e| e.to_string())?;
-        Ok(crate::export::points_csv(&points, &axes, record.dry_run))
+        Ok(crate::export::points_csv(record, &points))
     }
 }

@@ -122,7 +122,7 @@ impl CampaignRunner for FakeRunner {
 
     fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
         let points = store.points(record.id).map_err(|e| e.to_string())?;
-        Ok(crate::export::points_csv(&points, &[], record.dry_run))
+        Ok(crate::export::points_csv(record, &points))
     }
 }
 

@@ -1,11 +1,13 @@
-//! Shared set-up of the daemon's tests: the HTTP API in process on the simulated instrument (tokio's paused
-//! clock; the data directory a temporary directory the test may fill), a campaign stored and run by the engine
-//! directly ([`stored_campaign`]), and a real TCP server ([`tcp`]).
+//! Shared set-up of the daemon's tests (one copy for all of them, so it is not a crate of its own: a test kit
+//! crate would depend on the daemon it tests): the HTTP API in process on the simulated instrument (tokio's
+//! paused clock; the data directory a temporary directory the test may fill; [`app`], [`app_with`]), a campaign
+//! stored and run by the engine directly ([`stored_campaign`]), and a real TCP server ([`tcp`]).
 
 #![allow(dead_code)]
 
 pub mod tcp;
 
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -27,7 +29,9 @@ pub struct App {
     pub router: Router,
     pub rig: Rig,
     pub data: tempfile::TempDir,
-    trigger: ShutdownTrigger,
+    /// The queue task (with [`Setup::queue`]): it returns once the daemon shuts down.
+    pub queue: Option<tokio::task::JoinHandle<()>>,
+    pub trigger: ShutdownTrigger,
 }
 
 impl Drop for App {
@@ -36,31 +40,62 @@ impl Drop for App {
     }
 }
 
-/// A daemon whose data directory (store and the files campaigns may name) is `data`.
-pub async fn app(data: tempfile::TempDir) -> App {
-    let instrument = InstrumentFile::simulated();
-    let rig = Rig::connect_with_time_scale(&instrument, None, 1.0)
-        .await
-        .expect("simulated rig");
+/// How a test daemon is set up beyond its data directory.
+pub struct Setup {
+    pub config: ApiConfig,
+    /// Run queued campaigns; without the queue task a submitted campaign stays queued.
+    pub queue: bool,
+    /// Where submitted campaigns' file names resolve; default the data directory.
+    pub files_dir: Option<PathBuf>,
+}
+
+impl Default for Setup {
+    fn default() -> Setup {
+        Setup {
+            config: ApiConfig::default(),
+            queue: true,
+            files_dir: None,
+        }
+    }
+}
+
+/// The daemon's service on the simulated instrument reached through `rig`: its store in `data`, submitted
+/// campaigns' file names resolving under `files_dir`.
+pub fn service(rig: &Rig, data: &Path, files_dir: PathBuf) -> Service {
     let runner = Arc::new(EngineRunner::new(
-        instrument,
+        InstrumentFile::simulated(),
         SIMULATED_INSTRUMENT_TOML.to_string(),
-        data.path().to_path_buf(),
+        files_dir,
         rig.clone(),
     ));
-    let store = Store::open(data.path()).expect("store");
-    let service = Service::new(store, runner, Control::new()).expect("service");
+    Service::new(Store::open(data).expect("store"), runner, Control::new()).expect("service")
+}
+
+/// A daemon whose data directory (store and the files campaigns may name) is `data`, running its queue.
+pub async fn app(data: tempfile::TempDir) -> App {
+    app_with(data, Setup::default()).await
+}
+
+/// A daemon on `data` set up as `setup` says.
+pub async fn app_with(data: tempfile::TempDir, setup: Setup) -> App {
+    // Scale 1 on the paused clock: the simulated instrument's own time, at no wall-time cost.
+    let rig = Rig::connect_with_time_scale(&InstrumentFile::simulated(), None, 1.0)
+        .await
+        .expect("simulated rig");
+    let files_dir = setup.files_dir.unwrap_or_else(|| data.path().to_path_buf());
+    let service = service(&rig, data.path(), files_dir);
     let trigger = ShutdownTrigger::new();
-    let (complete, _) = tokio::sync::mpsc::channel(1);
-    {
+    let queue = setup.queue.then(|| {
+        let (complete, _) = tokio::sync::mpsc::channel(1);
         let (service, shutdown) = (service.clone(), trigger.subscribe());
-        tokio::spawn(async move { service.run_queue(shutdown, complete).await });
-    }
-    let router = api::router(service, &ApiConfig::default(), trigger.subscribe());
+        tokio::spawn(async move { service.run_queue(shutdown, complete).await })
+    });
+    let router = api::router(service, &setup.config, trigger.subscribe());
     App {
         router,
         rig,
         data,
+        queue,
         trigger,
     }
 }

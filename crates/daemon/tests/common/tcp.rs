@@ -4,14 +4,11 @@
 
 use std::net::SocketAddr;
 use std::path::Path;
-use std::sync::Arc;
 
 use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::control::Control;
 use gonio_daemon::rig::Rig;
-use gonio_daemon::service::{EngineRunner, Service, ShutdownTrigger};
-use gonio_daemon::store::Store;
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_daemon::service::{Service, ShutdownTrigger};
+use gonio_instrument::InstrumentFile;
 
 pub struct Server {
     pub addr: SocketAddr,
@@ -25,17 +22,13 @@ impl Drop for Server {
     }
 }
 
-/// The daemon's service on the simulated instrument, its data directory `data`.
+/// The daemon's service on the simulated instrument (on the real clock: the server does real I/O), its data
+/// directory `data`.
 pub async fn service(data: &Path) -> Service {
-    let instrument = InstrumentFile::simulated();
-    let rig = Rig::connect(&instrument, None).await.expect("simulated rig");
-    let runner = Arc::new(EngineRunner::new(
-        instrument,
-        SIMULATED_INSTRUMENT_TOML.to_string(),
-        data.to_path_buf(),
-        rig,
-    ));
-    Service::new(Store::open(data).expect("store"), runner, Control::new()).expect("service")
+    let rig = Rig::connect(&InstrumentFile::simulated(), None)
+        .await
+        .expect("simulated rig");
+    super::service(&rig, data, data.to_path_buf())
 }
 
 /// Start the server with `config` (its `listen_addr` becomes the address actually bound).

@@ -1,0 +1,500 @@
+//! The safety soak: random campaigns with random interleavings of pause, abort and emergency stop, run by the
+//! real engine on the simulated instrument, and checked against what the simulator recorded of every motion
+//! command and every axis trajectory (`gonio_simulator::recording`). Through the public API, with seeded cases so
+//! that the report's numbers are reproducible, and the margins measured instead of only asserted:
+//!
+//! - the closest the arms came, at any instant, once they were first apart (motors and loads with backlash),
+//!   computed exactly on the quadratic pieces of both trajectories, against `safety.min_arm_separation_deg`; the
+//!   simulator powers up with both arms at zero, so before they are first apart their separation may only grow;
+//! - every commanded target and every trajectory against the axis limits (the smallest margin seen);
+//! - the time from each emergency-stop request to the stop command at every axis, on the simulated clock, against
+//!   50 ms; and no axis commanded to move again before the campaign is resumed (after the stop in the order of the
+//!   wire, which the record keeps: a move sent at the same simulated instant just before the stop is overridden);
+//! - every measured point's read-back pose against the scheduler's own constraint checks (`Constraints`,
+//!   `Pose::arm_separation_deg`): the independent reference for what is measured.
+//!
+//! Each case runs on its own current-thread runtime with tokio's paused clock, the simulator at time scale 1: the
+//! instrument takes its real time, the wall clock almost none.
+//!
+//! The same runs and checks serve the tests (`tests/safety_soak.rs`): a property over random seeds, and the fixed
+//! cases of [`scenarios`] (regressions, controllers reset behind the engine's back), checked by [`check`] and
+//! inspected through [`Outcome`].
+
+pub mod scenarios;
+
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use gonio_daemon::engine::{Control, Rig, prepare_campaign, run_campaign};
+use gonio_daemon::store::{CampaignState, PointRecord, Store};
+use gonio_instrument::{Axis, AxisRole, InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_scheduler::constraints::Constraints;
+use gonio_scheduler::kinematics::{Kinematics, Pose};
+use gonio_simulator::recording::{MotionCommand, MotionRecord, Piece, check_arm_separation, physical_pieces};
+use gonio_simulator::scene::Pose as SimPose;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::SoakError;
+pub use scenarios::Sabotage;
+
+mod checks;
+mod running;
+
+pub use checks::{CaseResult, Rule, check, check_separation};
+pub use running::Outcome;
+use running::run_case;
+
+/// Longest time from an emergency-stop request to the stop command at every axis (simulated seconds).
+pub const ESTOP_DEADLINE_S: f64 = 0.050;
+/// Slack on angle comparisons (floating-point rounding of degree arithmetic).
+const EPS_DEG: f64 = 1e-9;
+/// Sample radius of every case (mm).
+const SAMPLE_RADIUS_MM: f64 = 12.5;
+
+/// What to run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SafetySoakConfig {
+    /// Random cases (campaign, interruptions, fault level).
+    pub cases: u32,
+    pub seed: u64,
+}
+
+/// An operator's request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Act {
+    Pause,
+    Abort,
+    Estop,
+}
+
+/// A request made `after_s` simulated seconds after the previous one (or after the run started).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Interruption {
+    pub after_s: f64,
+    pub act: Act,
+    /// Simulated seconds before a paused campaign is resumed.
+    pub resume_after_s: f64,
+}
+
+/// Injected device faults (the simulator's): stalled moves, garbled and lost replies.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FaultLevel {
+    pub seed: u64,
+    pub stall_rate: f64,
+    pub garble_rate: f64,
+    pub drop_rate: f64,
+}
+
+impl FaultLevel {
+    pub fn any(&self) -> bool {
+        self.stall_rate > 0.0 || self.garble_rate > 0.0 || self.drop_rate > 0.0
+    }
+}
+
+/// One random case.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Case {
+    pub campaign: String,
+    pub interruptions: Vec<Interruption>,
+    pub faults: FaultLevel,
+}
+
+fn round1(x: f64) -> f64 {
+    (x * 10.0).round() / 10.0
+}
+
+/// A plan of one of three kinds: explicit geometries (tilt and rotation move), an in-plane sweep, or a small
+/// isotropic grid; always with one geometry that every constraint allows.
+fn plan_table(rng: &mut ChaCha8Rng) -> String {
+    match rng.random_range(0..3u32) {
+        0 => {
+            let n = rng.random_range(1..8usize);
+            let mut list = vec!["[30.0, 0.0, 30.0, 180.0]".to_string()];
+            for _ in 0..n {
+                let (ti, pi, to, po) = (
+                    rng.random_range(0.0..70.0f64),
+                    rng.random_range(0.0..360.0f64),
+                    rng.random_range(0.0..80.0f64),
+                    rng.random_range(0.0..360.0f64),
+                );
+                list.push(format!(
+                    "[{}, {}, {}, {}]",
+                    round1(ti),
+                    round1(pi),
+                    round1(to),
+                    round1(po)
+                ));
+            }
+            format!("kind = \"points\"\npoints = [{}]\n", list.join(", "))
+        }
+        1 => {
+            let (ti, step, from, plane) = (
+                rng.random_range(0.0..60.0f64),
+                rng.random_range(5.0..40.0f64),
+                rng.random_range(-70.0..0.0f64),
+                rng.random_range(0.0..180.0f64),
+            );
+            format!(
+                "kind = \"in-plane\"\ntheta_i_deg = [{}, 30.0]\ntheta_o_deg = {{ from = {}, to = 70.0, step = {} }}\n\
+                 plane_phi_deg = [{}]\n",
+                round1(ti),
+                round1(from),
+                round1(step),
+                round1(plane)
+            )
+        }
+        _ => {
+            let (step, dphi) = (rng.random_range(10.0..60.0f64), rng.random_range(20.0..90.0f64));
+            format!(
+                "kind = \"isotropic\"\ntheta_i_deg = {{ from = 0.0, to = 60.0, step = {} }}\n\
+                 theta_o_deg = [20.0, 50.0]\ndelta_phi_deg = {{ from = 0.0, to = 180.0, step = {} }}\n",
+                round1(step),
+                round1(dphi)
+            )
+        }
+    }
+}
+
+fn campaign_text(rng: &mut ChaCha8Rng) -> String {
+    let grid = plan_table(rng);
+    let all = [450.0, 550.0, 650.0];
+    let mut bands: Vec<String> = all
+        .iter()
+        .filter(|_| rng.random_bool(0.5))
+        .map(|b| format!("{b:.1}"))
+        .take(2)
+        .collect();
+    if bands.is_empty() {
+        bands.push(format!("{:.1}", all[rng.random_range(0..all.len())]));
+    }
+    let repeats = rng.random_range(1..=2u32);
+    let dark = rng.random_range(1..6u32);
+    let reference = rng.random_range(2..9u32);
+    let light = round1(rng.random_range(-99.0..-81.0f64));
+    let averaging = rng.random_range(1..4u32);
+    let settle = round1(rng.random_range(0.0..0.2f64));
+    let material = if rng.random_bool(0.5) {
+        "coloured-plastic"
+    } else {
+        "spectralon"
+    };
+    format!(
+        r#"[campaign]
+id = "safety"
+[sample]
+radius_mm = {SAMPLE_RADIUS_MM}
+[plan]
+bands_nm = [{bands}]
+repeats = {repeats}
+reciprocity = false
+[plan.grid]
+{grid}
+[plan.calibration]
+dark_every_points = {dark}
+reference_every_points = {reference}
+reference_pose_deg = {{ light = {light}, detector = {detector} }}
+[calibration]
+method = "absolute"
+simulate_operator = true
+[acquisition]
+averaging = {averaging}
+settle_s = {settle}
+[material]
+preset = "{material}"
+"#,
+        bands = bands.join(", "),
+        // The detector faces the source: the direct beam.
+        detector = light + 180.0,
+    )
+}
+
+fn interruption(rng: &mut ChaCha8Rng) -> Interruption {
+    // Weights 2 : 1 : 4 (pause, abort, emergency stop), as the property test.
+    let act = match rng.random_range(0..7u32) {
+        0 | 1 => Act::Pause,
+        2 => Act::Abort,
+        _ => Act::Estop,
+    };
+    // Mostly within the first tens of seconds of a run, sometimes at once (start-up, homing, calibration).
+    let after_s = if rng.random_range(0..5u32) == 0 {
+        rng.random_range(0.0..0.5)
+    } else {
+        rng.random_range(0.5..40.0)
+    };
+    Interruption {
+        after_s,
+        act,
+        resume_after_s: rng.random_range(0.0..5.0),
+    }
+}
+
+fn faults(rng: &mut ChaCha8Rng) -> FaultLevel {
+    if rng.random_range(0..3u32) < 2 {
+        return FaultLevel::NONE;
+    }
+    let seed = rng.random::<u64>();
+    let stall_rate = [0.0, 0.05, 0.2][rng.random_range(0..3usize)];
+    let garble_rate = [0.0, 0.01][rng.random_range(0..2usize)];
+    FaultLevel {
+        seed,
+        stall_rate,
+        garble_rate,
+        drop_rate: garble_rate / 2.0,
+    }
+}
+
+/// The `index`-th case of `seed`: each case has its own stream, so a case can be rerun alone.
+pub fn case(seed: u64, index: u32) -> Case {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ (u64::from(index) << 32) ^ 0x5afe_7e57);
+    let campaign = campaign_text(&mut rng);
+    let n = rng.random_range(0..6usize);
+    let interruptions = (0..n).map(|_| interruption(&mut rng)).collect();
+    let faults = faults(&mut rng);
+    Case {
+        campaign,
+        interruptions,
+        faults,
+    }
+}
+
+/// Longest simulated time a random case may take (under the paused clock a hang turns into it at once).
+const CASE_LIMIT: Duration = Duration::from_secs(7 * 24 * 3600);
+/// Longest simulated time a fixed scenario may take (a few points).
+const SCENARIO_LIMIT: Duration = Duration::from_secs(24 * 3600);
+
+/// Run `case` with `sabotage` on a runtime of its own with tokio's paused clock, within `limit` of simulated time.
+/// The outer `Err`: no runtime or directory; the inner one: the case could not run.
+fn run_paused(
+    case: &Case,
+    sabotage: &Sabotage,
+    limit: Duration,
+) -> Result<Result<Outcome, String>, SoakError> {
+    let dir = tempfile::tempdir().map_err(SoakError::io("temporary directory for a safety case"))?;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .start_paused(true)
+        .build()
+        .map_err(SoakError::io("cannot start the async runtime"))?;
+    Ok(rt.block_on(async {
+        tokio::time::timeout(limit, run_case(case, dir.path(), sabotage))
+            .await
+            .unwrap_or_else(|_| {
+                Err(format!(
+                    "no end within {} simulated hours",
+                    limit.as_secs() / 3600
+                ))
+            })
+    }))
+}
+
+/// Run one case and check it.
+pub fn run_and_check(index: u32, case: &Case) -> Result<CaseResult, SoakError> {
+    Ok(match run_paused(case, &Sabotage::default(), CASE_LIMIT)? {
+        Ok(o) => check(index, case, &o),
+        Err(e) => CaseResult {
+            index,
+            faults: case.faults.any(),
+            acts: [0; 3],
+            final_state: None,
+            planned_points: 0,
+            points: 0,
+            move_commands: 0,
+            closest_motor_deg: f64::NAN,
+            closest_load_deg: f64::NAN,
+            command_margin_deg: f64::NAN,
+            trajectory_margin_deg: f64::NAN,
+            extreme_command: None,
+            estop_latencies_s: Vec::new(),
+            violations: vec![format!("case did not run: {e}")],
+            broken: vec![Rule::Other],
+        },
+    })
+}
+
+/// Run a fixed case under `sabotage` (none: `Sabotage::default()`) and return what happened, for [`check`] and a
+/// test's own questions; a case that could not run is an error.
+pub fn run_scenario(case: &Case, sabotage: &Sabotage) -> Result<Outcome, SoakError> {
+    run_paused(case, sabotage, SCENARIO_LIMIT)?.map_err(SoakError::Setup)
+}
+
+/// Run case `index` of `seed` again and describe it for an investigation ([`describe`]).
+pub fn trace(seed: u64, index: u32, from_s: f64, to_s: f64) -> Result<String, SoakError> {
+    let case = case(seed, index);
+    let o = run_paused(&case, &Sabotage::default(), CASE_LIMIT)?.map_err(SoakError::Setup)?;
+    let result = check(index, &case, &o);
+    Ok(describe(&case, &o, &result, from_s, to_s))
+}
+
+/// A case for an investigation: the case, its verdict, what the soak did when, and every motion command and
+/// profile change of the arms (physical degrees; the segments of each profile in controller degrees) between
+/// `from_s` and `to_s` of simulated time.
+pub fn describe(case: &Case, o: &Outcome, result: &CaseResult, from_s: f64, to_s: f64) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::new();
+    let _ = writeln!(out, "{case:#?}\n{result:#?}");
+    for (t, what) in &o.timeline {
+        let _ = writeln!(out, "{t:10.4} s  {what}");
+    }
+    for (axis, record) in &o.records {
+        if !matches!(axis.role, AxisRole::LightArm | AxisRole::DetectorArm) {
+            continue;
+        }
+        let phys = |p: f64| f64::from(axis.direction) * (p - axis.zero_offset_deg);
+        for c in record
+            .commands
+            .iter()
+            .filter(|c| c.t_s >= from_s && c.t_s <= to_s)
+        {
+            let _ = writeln!(out, "{:>9} {:10.4} s  command {:?}", axis.name, c.t_s, c.command);
+        }
+        for c in record.changes.iter().filter(|c| c.t_s >= from_s && c.t_s <= to_s) {
+            let _ = writeln!(
+                out,
+                "{:>9} {:10.4} s  change {:?}: motor {:.4} deg, load {:.4} deg, rest {:.4} deg, end {:?}, \
+                 segments (t0, end, p0) {:?}",
+                axis.name,
+                c.t_s,
+                c.kind,
+                phys(c.motor_deg),
+                phys(c.load_deg),
+                phys(c.rest_deg),
+                c.end,
+                c.segments
+                    .iter()
+                    .map(|s| (s.t0_s, s.end_s(), s.p0_deg))
+                    .collect::<Vec<_>>()
+            );
+        }
+    }
+    out
+}
+
+/// Everything the safety soak measured.
+#[derive(Debug, Clone)]
+pub struct SafetySoakReport {
+    pub config: SafetySoakConfig,
+    pub min_separation_deg: f64,
+    pub cases: Vec<CaseResult>,
+    pub wall_s: f64,
+}
+
+impl SafetySoakReport {
+    /// Every broken invariant, in words; empty when the soak passed.
+    pub fn violations(&self) -> Vec<String> {
+        self.cases
+            .iter()
+            .flat_map(|c| c.violations.iter().map(move |v| format!("case {}: {v}", c.index)))
+            .collect()
+    }
+
+    /// Cases that broke `rule`.
+    pub fn broke(&self, rule: Rule) -> usize {
+        self.cases.iter().filter(|c| c.broken.contains(&rule)).count()
+    }
+
+    /// Pause, abort and emergency-stop requests, all cases together.
+    pub fn acts(&self) -> [u64; 3] {
+        let mut a = [0; 3];
+        for c in &self.cases {
+            for (total, n) in a.iter_mut().zip(c.acts) {
+                *total += n;
+            }
+        }
+        a
+    }
+
+    pub fn move_commands(&self) -> u64 {
+        self.cases.iter().map(|c| c.move_commands).sum()
+    }
+
+    /// Smallest finite value of a per-case measure.
+    fn min_of(&self, f: impl Fn(&CaseResult) -> f64) -> f64 {
+        self.cases
+            .iter()
+            .map(f)
+            .filter(|x| x.is_finite())
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    pub fn closest_motor_deg(&self) -> f64 {
+        self.min_of(|c| c.closest_motor_deg)
+    }
+    pub fn closest_load_deg(&self) -> f64 {
+        self.min_of(|c| c.closest_load_deg)
+    }
+    pub fn command_margin_deg(&self) -> f64 {
+        self.min_of(|c| c.command_margin_deg)
+    }
+    pub fn trajectory_margin_deg(&self) -> f64 {
+        self.min_of(|c| c.trajectory_margin_deg)
+    }
+
+    /// The case and axis of the commanded target closest to a limit.
+    pub fn extreme_command(&self) -> Option<(String, f64, f64)> {
+        self.cases
+            .iter()
+            .filter(|c| c.command_margin_deg.is_finite())
+            .min_by(|a, b| a.command_margin_deg.total_cmp(&b.command_margin_deg))
+            .and_then(|c| c.extreme_command.clone())
+    }
+
+    pub fn estop_latencies_s(&self) -> Vec<f64> {
+        let mut v: Vec<f64> = self
+            .cases
+            .iter()
+            .flat_map(|c| c.estop_latencies_s.iter().copied())
+            .collect();
+        v.sort_by(f64::total_cmp);
+        v
+    }
+
+    /// Final states: completed, aborted, paused (by faults), did not run.
+    pub fn final_states(&self) -> [u64; 4] {
+        let mut s = [0; 4];
+        for c in &self.cases {
+            let k = match c.final_state {
+                Some(CampaignState::Completed) => 0,
+                Some(CampaignState::Aborted) => 1,
+                Some(_) => 2,
+                None => 3,
+            };
+            s[k] += 1;
+        }
+        s
+    }
+}
+
+/// Run the safety soak: `cases` seeded random cases, each checked.
+pub fn run_safety_soak(cfg: &SafetySoakConfig) -> Result<SafetySoakReport, SoakError> {
+    let wall = Instant::now();
+    let file = InstrumentFile::simulated();
+    let mut cases = Vec::new();
+    for i in 0..cfg.cases {
+        cases.push(run_and_check(i, &case(cfg.seed, i))?);
+    }
+    Ok(SafetySoakReport {
+        config: cfg.clone(),
+        min_separation_deg: file.instrument.safety.min_arm_separation_deg,
+        cases,
+        wall_s: wall.elapsed().as_secs_f64(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cases_are_reproducible_and_valid() {
+        let file = InstrumentFile::simulated();
+        for i in 0..20 {
+            let a = case(3, i);
+            assert_eq!(a, case(3, i));
+            prepare_campaign(&a.campaign, "safety.toml", Path::new("."), &file)
+                .unwrap_or_else(|e| panic!("case {i}: {e}\n{}", a.campaign));
+        }
+        assert_ne!(case(3, 0), case(3, 1));
+    }
+}

@@ -1,0 +1,23 @@
+//! gonio-testkit: what gonio's tests share, one copy each. A dev-dependency only, never of a library's normal
+//! build.
+//!
+//! - [`cli`]: the `gonio` binary under test and dry-runs through it.
+//! - [`campaign`]: campaign texts for dry-runs on the simulated instrument.
+//! - [`rng`]: a small fixed-seed generator (reproducible random searches, no dependency).
+//! - [`directions`]: hostile directions for the numerical stress suites; [`nm`]: a wavelength in a test.
+//!
+//! The daemon's in-process API set-up is not here: it needs the daemon, whose own tests use it, so it lives in
+//! crates/daemon/tests/common (one copy for all the daemon's tests).
+
+pub mod campaign;
+pub mod cli;
+pub mod directions;
+pub mod rng;
+
+pub use campaign::CampaignText;
+pub use cli::{gonio, text};
+
+/// A wavelength the test knows to be valid, in nm.
+pub fn nm(v: f64) -> gonio_brdf::Wavelength {
+    gonio_brdf::Wavelength::from_nm(v).expect("valid wavelength")
+}
