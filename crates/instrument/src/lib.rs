@@ -27,6 +27,9 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+mod quirks;
+pub use quirks::{Pm100Overrange, Quirks};
+
 /// A whole instrument file: `[instrument]`, and for simulated instruments `[simulator]`.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -251,6 +254,14 @@ pub struct Detector {
     /// Enable the simulated noise terms (shot, Johnson, quantisation).
     #[serde(default)]
     pub noise: bool,
+    /// The sensor's wavelength limits (nm), which the meter reads from the sensor head and reports for
+    /// `SENS:CORR:WAV? MIN` / `MAX`; simulation. Default: 400 to 1100 nm (Thorlabs S120C photodiode sensor).
+    #[serde(default = "default_sensor_wavelength_nm")]
+    pub sensor_wavelength_nm: [f64; 2],
+}
+
+fn default_sensor_wavelength_nm() -> [f64; 2] {
+    [400.0, 1100.0]
 }
 
 fn default_averaging() -> u32 {
@@ -318,6 +329,9 @@ pub struct SimulatorSettings {
     pub seed: u64,
     #[serde(default)]
     pub faults: Faults,
+    /// Which of the devices' recorded variants the simulator shows (see [`Quirks`]).
+    #[serde(default)]
+    pub quirks: Quirks,
 }
 
 /// Fault injection; everything off by default.
@@ -650,6 +664,12 @@ impl Instrument {
         }
         if d.averaging == 0 {
             return Err("[instrument.detector]: averaging must be at least 1".into());
+        }
+        let [lo, hi] = d.sensor_wavelength_nm;
+        if !(lo.is_finite() && hi.is_finite() && lo > 0.0 && lo < hi) {
+            return Err(format!(
+                "[instrument.detector]: sensor_wavelength_nm must be [min, max] with 0 < min < max, got [{lo}, {hi}]"
+            ));
         }
         if let Some(w) = &self.filter_wheel {
             if !(w.seconds_per_position.is_finite() && w.seconds_per_position >= 0.0) {

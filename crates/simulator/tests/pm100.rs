@@ -280,7 +280,7 @@ async fn scpi_forms_error_queue_and_settings() {
     let (_, d) = query(&dev, 6, "SYST:ERR?;SYST:ERR?;SYST:ERR?\n", 256).await;
     assert_eq!(
         String::from_utf8_lossy(&d),
-        "-113,\"Undefined header\";-222,\"Data out of range\";0,\"No error\"\n"
+        "-113,\"Undefined header\";-222,\"Data out of range\";+0,\"No error\"\n"
     );
     let (_, d) = query(&dev, 8, "SYST:SENS:IDN?\n", 256).await;
     assert!(String::from_utf8_lossy(&d).starts_with("S120C,"));
@@ -290,16 +290,26 @@ async fn scpi_forms_error_queue_and_settings() {
 async fn overload_on_a_small_manual_range_and_when_saturate_is_forced() {
     let sim = quiet();
     let dev = sim.usb_device("meter").expect("open");
-    // 5e-5 W on the 5e-8 W range: overload.
+    // 5e-5 W on the 5e-8 W range: overload, answered as the PM100D2/PM101/PM103/PM400 references show.
     let (_, d) = query(&dev, 1, "SENS:CORR:WAV 450;:SENS:POW:RANG 5e-8;:MEAS:POW?\n", 256).await;
-    assert_eq!(value(&d), OVERLOAD_W);
+    assert_eq!(String::from_utf8_lossy(&d), "INFINITY\n");
+    let (_, d) = query(&dev, 3, "STAT:QUES:COND?\n", 256).await;
+    assert_eq!(String::from_utf8_lossy(&d), "8\n", "bit 3: power over range");
     let (_, d) = query(&dev, 3, "SENS:POW:RANG:AUTO ON;:MEAS:POW?\n", 256).await;
     assert!(value(&d) < 1e-3);
     let sat = sim_with(|f| f.simulator.faults.saturate = true);
     let dev = sat.usb_device("meter").expect("open");
     let (_, d) = query(&dev, 1, "MEAS:POW?\n", 256).await;
-    assert_eq!(value(&d), OVERLOAD_W);
+    assert_eq!(String::from_utf8_lossy(&d), "INFINITY\n");
     assert_eq!(sat.fault_counts().saturated_readings, 1);
+    // The older variant: SCPI's overflow value.
+    let old = sim_with(|f| {
+        f.instrument.detector.noise = false;
+        f.simulator.quirks.pm100_overrange = gonio_instrument::Pm100Overrange::ScpiOverflow;
+    });
+    let dev = old.usb_device("meter").expect("open");
+    let (_, d) = query(&dev, 1, "SENS:CORR:WAV 450;:SENS:POW:RANG 5e-8;:MEAS:POW?\n", 256).await;
+    assert_eq!(value(&d), OVERLOAD_W);
 }
 
 #[tokio::test(start_paused = true)]
