@@ -89,13 +89,18 @@ async fn documented_meas_pow_byte_vector_and_reply_framing() {
     // wavelength 633 nm: a wrong wavelength gives a realistically wrong reading.
     let r450 = 0.17;
     let r633 = 0.29 + (633.0 - 550.0) / 100.0 * (0.38 - 0.29);
-    let expected = (0.5e-4 * r450 + 5.0e-11) / r633;
+    // (Plus the stray light of the wheel's position sensors, on at power-up.)
+    let stray = gonio_simulator::fw102c::SENSOR_STRAY_A;
+    let expected = (0.5e-4 * r450 + 5.0e-11 + stray) / r633;
     let got = value(&reply[12..12 + n]);
     assert!((got / expected - 1.0).abs() < 1e-6, "{got} vs {expected}");
     // Set to the band: the reading is right (plus the dark current).
     let (_, data) = query(&dev, 3, "SENS:CORR:WAV 450\nMEAS:POW?\n", 1024).await;
     let got = value(&data);
-    assert!((got / (0.5e-4 + 5.0e-11 / r450) - 1.0).abs() < 1e-6, "{got}");
+    assert!(
+        (got / (0.5e-4 + (5.0e-11 + stray) / r450) - 1.0).abs() < 1e-6,
+        "{got}"
+    );
 }
 
 #[tokio::test(start_paused = true)]
@@ -317,8 +322,14 @@ async fn noise_is_seeded_and_shows_on_the_dark_reading_of_the_lowest_range() {
     let run = |seed: u64, cmd: &'static str| async move {
         let sim = sim_with(|f| f.simulator.seed = seed);
         let mut wheel = common::Port::open(&sim, "wheel");
-        wheel.send(b"pos=6\r").await;
-        assert!(wheel.read_until(b"> ", Duration::from_secs(5)).await.is_some());
+        // Position sensors off (they add stray light), then the blank.
+        wheel.send(b"sensors=0\rpos=6\r").await;
+        assert!(
+            wheel
+                .read_until(b"pos=6\r> ", Duration::from_secs(10))
+                .await
+                .is_some()
+        );
         let dev = sim.usb_device("meter").expect("open");
         let mut v = Vec::new();
         for k in 0..20u8 {
@@ -345,9 +356,29 @@ async fn blank_position_gives_the_dark_reading() {
     let sim = quiet();
     let mut wheel = common::Port::open(&sim, "wheel");
     wheel.send(b"pos=6\r").await;
-    assert!(wheel.read_until(b"> ", Duration::from_secs(5)).await.is_some());
+    assert!(
+        wheel
+            .read_until(b"pos=6\r> ", Duration::from_secs(10))
+            .await
+            .is_some()
+    );
     let dev = sim.usb_device("meter").expect("open");
+    // The wheel powers up with its position sensors on: their light reaches the detector.
     let (_, d) = query(&dev, 1, "SENS:CORR:WAV 450;:MEAS:POW?\n", 256).await;
+    let stray = gonio_simulator::fw102c::SENSOR_STRAY_A;
+    assert!(
+        (value(&d) - (5.0e-11 + stray) / 0.17).abs() < 1e-15,
+        "dark current and the sensors' stray light: {}",
+        value(&d)
+    );
+    wheel.send(b"sensors=0\r").await;
+    assert!(
+        wheel
+            .read_until(b"sensors=0\r> ", Duration::from_secs(1))
+            .await
+            .is_some()
+    );
+    let (_, d) = query(&dev, 3, "MEAS:POW?\n", 256).await;
     assert!(
         (value(&d) - 5.0e-11 / 0.17).abs() < 1e-15,
         "dark current only: {}",

@@ -10,7 +10,10 @@
 //! - `sim`: every driver against the simulator's emulators, in process and through pseudo-terminals.
 
 mod common;
+mod conformance_fw102c;
 mod conformance_pm100;
+mod conformance_smc100;
+mod conformance_zaber;
 mod fuzz;
 mod garbled;
 mod scripted;

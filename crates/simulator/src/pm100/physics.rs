@@ -116,10 +116,11 @@ impl Pm100 {
             let p = world.scene.detector_power_w(&pose, &band, t);
             (if p.is_finite() { p.max(0.0) } else { 0.0 }, band)
         };
-        // Current of each sample.
+        // Current of each sample: the light's, the dark current, and stray light (the wheel's lit sensors).
+        let stray_a = world.stray_a(t0);
         let current = |p: f64, band: &Band| {
             let r_band = band.band_nm.map(|nm| self.responsivity.at(nm)).unwrap_or(0.0);
-            p * r_band + d.dark_current_a
+            p * r_band + d.dark_current_a + stray_a
         };
         let currents: Vec<f64> = if steady && !d.noise {
             // At rest and without noise every sample is the same.
