@@ -158,13 +158,17 @@ async fn ve_and_tp_look_like_a_real_controller() {
 async fn commands_sent_in_a_burst_are_lost_and_paced_ones_are_taken() {
     let sim = sim_with(|f| f.simulator.quirks.smc100_drop_first_ts = false);
     let mut p = Port::open(&sim, "arms");
-    // Two queries in one write: the second arrives while the first's reply is still on the line.
-    p.send(b"1TS\r\n2TS\r\n").await;
+    // Two queries to one controller in one write: the second arrives while the first's reply is still on
+    // the line. To two controllers: each has its own processor, both answer.
+    p.send(b"1TS\r\n1TS\r\n").await;
     assert_eq!(p.line().await.as_deref(), Some("1TS00000A\r\n"));
     assert!(
         p.silent_for(Duration::from_millis(300)).await,
         "the second query was lost"
     );
+    p.send(b"1TS\r\n2TS\r\n").await;
+    assert_eq!(p.line().await.as_deref(), Some("1TS00000A\r\n"));
+    assert_eq!(p.line().await.as_deref(), Some("2TS00000A\r\n"));
     // A set command then TE at once: TE is lost; 60 ms later it is taken.
     p.send(b"1PA10\r\n1TE\r\n").await;
     assert!(p.silent_for(Duration::from_millis(300)).await);

@@ -24,6 +24,9 @@ pub struct Smc100Axis {
     motion: Mutex<(f64, f64)>,
     /// Controller position where the last move started.
     last_start: Mutex<Option<f64>>,
+    /// When the last `PA` went out: the wait that follows counts the move's predicted time from there (the
+    /// pause after the set command is already part of the move).
+    pa_sent: Mutex<Option<tokio::time::Instant>>,
     /// The last move was already over at its first status question (a move that was tiny, or a controller much
     /// faster than its configured motion, like the simulator at a large time scale): the first question of the
     /// next move then asks for the read-back at once, saving an exchange.
@@ -39,6 +42,7 @@ impl Smc100Axis {
             cfg,
             motion,
             last_start: Mutex::new(None),
+            pa_sent: Mutex::new(None),
             early_finish: AtomicBool::new(false),
         }
     }
@@ -240,6 +244,9 @@ impl Smc100Axis {
         if let Ok(mut g) = self.last_start.lock() {
             *g = None;
         }
+        if let Ok(mut g) = self.pa_sent.lock() {
+            *g = Some(tokio::time::Instant::now());
+        }
         tracing::info!(axis = %self.dev(), target_deg, controller, "move absolute");
         // The position the move starts from (read twice, see `verified_position`) goes out in the same exchange
         // as PA: the distance sets the deadline and when to ask whether the move is over. When the two reads do
@@ -334,7 +341,14 @@ impl Smc100Axis {
             Some(s) => (controller_target - s).abs(),
             None => self.cfg.max_deg - self.cfg.min_deg,
         };
-        let predicted = trapezoid_time_s(distance, v, a);
+        // Already under way since the PA went out (and the pause after it): what is left of the predicted time.
+        let under_way_s = self
+            .pa_sent
+            .lock()
+            .ok()
+            .and_then(|g| *g)
+            .map_or(0.0, |t| t.elapsed().as_secs_f64());
+        let predicted = trapezoid_time_s(distance, v, a) - under_way_s;
         let wait = Wait {
             timeout: move_deadline(distance, v, a),
             predicted: Duration::from_secs_f64(if predicted.is_finite() {

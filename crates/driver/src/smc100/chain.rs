@@ -11,10 +11,10 @@ use super::{ATTEMPTS, MAX_SET_GAP, REPLY_TIMEOUT, SET_GAP};
 use crate::error::DriverError;
 use crate::transport::{LinePort, TransportError, escape_bytes};
 
-/// When the next command may go out, and the pause a set command needs.
+/// When the next command to each controller may go out, and the pause a set command needs.
 #[derive(Debug)]
 struct Pacing {
-    next_send: Instant,
+    next_send: std::collections::BTreeMap<u8, Instant>,
     gap: Duration,
 }
 
@@ -39,7 +39,7 @@ impl Smc100Chain {
             name: name.into(),
             port,
             pacing: Mutex::new(Pacing {
-                next_send: Instant::now(),
+                next_send: Default::default(),
                 gap: gap.min(MAX_SET_GAP),
             }),
         })
@@ -54,13 +54,16 @@ impl Smc100Chain {
         self.pacing.lock().map(|p| p.gap).unwrap_or(SET_GAP)
     }
 
-    /// Reserve the next moment a command may go out: a set command pushes the following one back by the gap.
-    fn slot(&self, set: bool) -> Instant {
+    /// Reserve the next moment a command to controller `addr` may go out: a set command pushes the following
+    /// one to the same controller back by the gap. (Each controller on the chain has its own processor.)
+    fn slot(&self, addr: u8, set: bool) -> Instant {
         let now = Instant::now();
         match self.pacing.lock() {
             Ok(mut p) => {
-                let at = p.next_send.max(now);
-                p.next_send = if set { at + p.gap } else { at };
+                let gap = p.gap;
+                let next = p.next_send.entry(addr).or_insert(now);
+                let at = (*next).max(now);
+                *next = if set { at + gap } else { at };
                 at
             }
             Err(_) => now,
@@ -123,7 +126,15 @@ impl Smc100Chain {
                 .get(..2)
                 .unwrap_or_default();
             let query = expect.get(next).is_some_and(|e| *e == code);
-            tokio::time::sleep_until(self.slot(!query)).await;
+            let at = self.slot(addr, !query);
+            if at > Instant::now() {
+                // The controller is still busy with a set command: free the port meanwhile, so that the other
+                // controllers on the chain are not held up, and take it again for the rest of the exchange.
+                drop(s);
+                tokio::time::sleep_until(at).await;
+                s = self.port.session().await;
+                s.discard_stale().await?;
+            }
             let deadline = Instant::now() + REPLY_TIMEOUT;
             s.send(format!("{line}\r\n").as_bytes(), deadline).await?;
             if !query {
@@ -322,14 +333,16 @@ impl Smc100Chain {
             line.extend_from_slice(format!("{a}ST\r\n").as_bytes());
         }
         let first = addrs.first().copied().unwrap_or(0);
-        self.slot(true);
+        for a in addrs {
+            self.slot(*a, true);
+        }
         self.port
             .send_priority(&line, Instant::now() + REPLY_TIMEOUT)
             .await
             .map_err(|e| self.transport_error(first, "ST", e))?;
         tracing::info!(chain = %self.name, ?addrs, "stop sent");
         for a in addrs {
-            tokio::time::sleep_until(self.slot(true)).await;
+            tokio::time::sleep_until(self.slot(*a, true)).await;
             self.port
                 .send_priority(format!("{a}ST\r\n").as_bytes(), Instant::now() + REPLY_TIMEOUT)
                 .await

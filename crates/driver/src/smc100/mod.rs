@@ -19,10 +19,11 @@
 //! - Pacing: host drivers written against real controllers pace their commands (the widely copied Python SMC100
 //!   driver waits 60 ms after each set command, "arrived at by trial and error"; others up to 0.5 s) and report
 //!   that a reply can arrive late and land in the next query's read. So an exchange is never a burst: each
-//!   query goes out once the previous reply is in, each set command is followed by a pause ([`SET_GAP`], widened
-//!   up to [`MAX_SET_GAP`] when the line after a set command goes unanswered), and every reply is matched to its
-//!   query by address and command code (a late one is dropped as stale). The stop on the priority path is paced
-//!   the same way and sent twice.
+//!   query goes out once the previous reply is in, each set command is followed by a pause before the next
+//!   command to the same controller ([`SET_GAP`], widened up to [`MAX_SET_GAP`] when the line after a set
+//!   command goes unanswered; the port is free for the other controllers meanwhile), and every reply is matched
+//!   to its query by address and command code (a late one is dropped as stale). The stop on the priority path
+//!   goes out at once and again after the pause.
 //! - A `TS` may get no reply at all right after power-up or right after homing completes (a real-hardware
 //!   driver reports it as undocumented): every query is retried, so a lost TS costs one reply timeout.
 //! - `TP` prints up to 10 decimals and `VE` looks like `1VE SMC_CC - Controller-driver version  3. 1. 2`

@@ -65,7 +65,9 @@ async fn noise_at_open_is_skipped_and_speed_and_sensors_are_set_before_turning()
     let took = t0.elapsed().as_secs_f64();
     assert!((3.0..4.0).contains(&took), "{took} s");
     assert_eq!(wheel.position().await.expect("pos"), 4);
-    let sensors = wheel.exchange("sensors?", std::time::Duration::from_secs(1), true).await;
+    let sensors = wheel
+        .exchange("sensors?", std::time::Duration::from_secs(1), true)
+        .await;
     assert_eq!(sensors.expect("sensors?"), ["0"], "the position sensors are off");
     let log = seen.lock().unwrap().clone();
     let first_turn = log.iter().position(|l| l == "pos=4").expect("turned");
@@ -80,7 +82,11 @@ async fn noise_at_open_is_skipped_and_speed_and_sensors_are_set_before_turning()
         "{log:?}"
     );
     assert_eq!(log.last().map(String::as_str), Some("pos?"));
-    assert_eq!(log.iter().filter(|l| l.as_str() == "sensors=0").count(), 1, "{log:?}");
+    assert_eq!(
+        log.iter().filter(|l| l.as_str() == "sensors=0").count(),
+        1,
+        "{log:?}"
+    );
 }
 
 #[tokio::test(start_paused = true)]

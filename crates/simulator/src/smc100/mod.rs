@@ -27,8 +27,10 @@
 //! - Input pacing: host drivers written against real controllers pace their commands (the widely copied
 //!   Python SMC100 driver waits 60 ms after each set command, "arrived at by trial and error"; others up to
 //!   0.5 s) and report late replies landing in the next read. Emulated (`[simulator.quirks]
-//!   smc100_min_command_gap_ms`, default 60): a set command keeps the controller busy for that long, a query
-//!   until its reply has crossed the line; a command line arriving while the controller is busy is lost.
+//!   smc100_min_command_gap_ms`, default 60): a set command keeps its controller busy for that long, a query
+//!   until its reply has crossed the line; a command line arriving while the controller it addresses is busy
+//!   is lost. Each controller on the chain has its own processor: one busy controller does not make the others
+//!   lose input (unconfirmed: whether the first controller, which relays the RS-485 chain, does).
 //! - The first `TS` after power-up or reset, and the first right after a homing completes, may get no reply
 //!   at all (reported by a real-hardware driver as undocumented): `smc100_drop_first_ts`, default on.
 
@@ -69,8 +71,8 @@ pub struct Smc100Chain {
     /// A set command keeps the controller busy this long (s); 0 takes every line.
     set_busy_s: f64,
     drop_first_ts: bool,
-    /// Input arriving before this is lost (s).
-    busy_until_s: f64,
+    /// Input for a controller arriving before its time here is lost (s), by address.
+    busy_until_s: BTreeMap<u8, f64>,
     /// Command lines lost to pacing, for the tests and the soak reports.
     lost_to_pacing: u64,
 }
@@ -125,7 +127,7 @@ impl Smc100Chain {
             faults,
             set_busy_s: 0.0,
             drop_first_ts: false,
-            busy_until_s: 0.0,
+            busy_until_s: BTreeMap::new(),
             lost_to_pacing: 0,
         }
     }
@@ -145,18 +147,26 @@ impl Smc100Chain {
         self.lost_to_pacing
     }
 
-    /// Take one complete line at `now_s`: lost while busy, else executed; the reply, if any.
+    /// Take one complete line at `now_s`: lost while its controller is busy, else executed; the reply, if any.
     fn take_line(&mut self, line: &[u8], now_s: f64) -> Option<Output> {
         let paced = self.set_busy_s > 0.0;
-        if paced && now_s < self.busy_until_s - 1e-9 {
+        let digits = line.iter().take_while(|b| b.is_ascii_digit()).count();
+        let address: Option<u8> = std::str::from_utf8(&line[..digits])
+            .ok()
+            .and_then(|a| a.parse().ok());
+        let busy_until = address
+            .and_then(|a| self.busy_until_s.get(&a).copied())
+            .unwrap_or(0.0);
+        if paced && now_s < busy_until - 1e-9 {
             self.lost_to_pacing += 1;
-            tracing::debug!(chain = %self.name, cmd = %String::from_utf8_lossy(line).escape_debug(), busy_for_s = self.busy_until_s - now_s, "SMC100: command arrived while busy, lost");
+            tracing::debug!(chain = %self.name, cmd = %String::from_utf8_lossy(line).escape_debug(), busy_for_s = busy_until - now_s, "SMC100: command arrived while its controller was busy, lost");
             return None;
         }
         tracing::debug!(chain = %self.name, cmd = %String::from_utf8_lossy(line).escape_debug(), "SMC100 command");
-        let Some(reply) = self.execute(line, now_s) else {
-            if paced {
-                self.busy_until_s = now_s + self.set_busy_s;
+        let reply = self.execute(line, now_s);
+        let Some(reply) = reply else {
+            if paced && let Some(a) = address {
+                self.busy_until_s.insert(a, now_s + self.set_busy_s);
             }
             return None;
         };
@@ -167,8 +177,9 @@ impl Smc100Chain {
             .filter(|b| *b != 0x11 && *b != 0x13)
             .collect();
         bytes.extend_from_slice(b"\r\n");
-        if paced {
-            self.busy_until_s = now_s + bytes.len() as f64 / LINE_BYTES_PER_S;
+        if paced && let Some(a) = address {
+            self.busy_until_s
+                .insert(a, now_s + bytes.len() as f64 / LINE_BYTES_PER_S);
         }
         Some(Output { at_s: now_s, bytes })
     }
