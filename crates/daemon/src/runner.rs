@@ -7,12 +7,12 @@
 //! this file: start-up, the loop over the steps, pause requests and the final state.
 //!
 //! Order of work: rebuild the campaign (plan and schedule) from the text stored with it, materials included
-//! (its `[resolved]` table: no file is read), or take it as this process just prepared it when that is provably
-//! the same (`crate::engine::take_prepared`); connect the sample (dry-runs); home axes that lost their
+//! (its `[resolved]` table: no file is read), or take the prepared campaign it was handed when that is provably
+//! the same (`PreparedCampaign::reuse_for`); connect the sample (dry-runs); home axes that lost their
 //! reference; a calibration preamble (darks for every band, then the normalisation readings for every band:
 //! direct beam for the absolute method, reference sample for the relative one) on every start and resume; then
 //! the schedule's steps from the first uncommitted point, with the schedule's own dark and normalisation steps in
-//! between.
+//! between; for an adaptive plan, pass after pass (`passes`).
 //!
 //! Per point: plan the move from where the axes really are (read-back) to the step's pose with the scheduler's
 //! time model (arm-collision-safe phases, backlash approach waypoints), run each phase's axes concurrently
