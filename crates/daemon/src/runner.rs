@@ -1,10 +1,11 @@
 //! The run loop behind [`crate::engine::run_campaign`].
 //!
-//! Parts (each an `impl Run` block of its own): `devices` (bounded retries, reconnection, re-homing, read-back),
-//! `motion` (collision-safe multi-axis moves), `acquire` (wheel, detector, one point and its measurement
-//! equation), `calibrate` (darks, normalisation, the operator protocol), `passes` (an adaptive plan's passes),
-//! `rehome` (homing an arm without sweeping it through the other), `reference` (the relative method's transfer);
-//! this file: start-up, the loop over the steps, pause requests and the final state.
+//! The run drives the instrument through the engine's parts, which know nothing of campaigns or stores:
+//! [`crate::motion`] (device supervision, collision-safe moves, homing) and [`crate::acquisition`] (the meter's
+//! configuration, a reading, the measurement equation as a pure function). Its own parts (each an `impl Run`
+//! block): `acquire` (wheel, detector, one point committed), `calibrate` (darks, normalisation, the operator
+//! protocol), `passes` (an adaptive plan's passes), `reference` (the relative method's transfer); this file:
+//! start-up, the loop over the steps, pause requests and the final state.
 //!
 //! Order of work: rebuild the campaign (plan and schedule) from the text stored with it, materials included
 //! (its `[resolved]` table: no file is read), or take the prepared campaign it was handed when that is provably
@@ -44,41 +45,26 @@
 
 mod acquire;
 mod calibrate;
-mod devices;
-mod motion;
 mod passes;
 mod reference;
-mod rehome;
 
 use std::collections::BTreeMap;
-use std::future::Future;
 use std::sync::{Arc, Mutex};
 
-use gonio_brdf::measurement::{
-    AbsoluteReadings, Footprint, MeasurementError, MeasurementGeometry, Reading, RelativeReadings,
-    ValidityLimits, absolute_brdf, relative_brdf,
-};
-use gonio_brdf::{Direction, Wavelength};
-use gonio_driver::{DetectorConfig, DriverError, ErrorKind, PowerRange};
-use gonio_instrument::{AxisRole, InstrumentFile};
-use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose, ROLES};
+use gonio_brdf::measurement::Reading;
+use gonio_instrument::InstrumentFile;
 use gonio_scheduler::schedule::{Step, StepKind};
 
 use crate::control::{Control, Event};
 use crate::engine::{EngineError, PreparedCampaign};
-use crate::rig::{Held as Holder, InstrumentClock as Clock, Rig, RigAxis, SampleHolder, futures_join_all};
+use crate::motion::{Device, Motion, MotionError};
+use crate::rig::{Held as Holder, Rig, SampleHolder};
 use crate::store::{CalibrationRecord, CampaignId, CampaignState, PointRecord, Store, StoreError};
-use gonio_campaign::{Method, NextPass, Prepared, Range, Sources};
+use gonio_campaign::{Method, NextPass, Prepared, Sources};
 use reference::Transfer;
 
 /// Failed points in a row after which the campaign pauses instead of recording more failures.
 const MAX_FAILED_IN_ROW: u32 = 3;
-/// Relative standard uncertainty of one reading from the source's short-term noise and the meter's linearity.
-const READING_REL_STD: f64 = 2.0e-4;
-/// Standard uncertainty of one reading from the range (converter resolution, offset), relative to full scale.
-const READING_RANGE_STD: f64 = 2.0e-5;
-/// Relative standard uncertainty of the detector's solid angle (aperture radius and distance as calibrated).
-const SOLID_ANGLE_REL_STD: f64 = 1.0e-3;
 /// Direct-beam readings closer in time than this are not used to extrapolate drift (s).
 const MIN_DRIFT_BASE_S: f64 = 30.0;
 
@@ -94,18 +80,17 @@ enum Interrupt {
     Fatal(EngineError),
 }
 
-/// A multi-axis phase in which some axes failed (the rest were stopped): which, and the first reason.
-struct PhaseBroken {
-    failed: Vec<usize>,
-    reason: String,
-}
-
-/// Which device an operation talks to (for recovery).
-#[derive(Clone, Copy)]
-enum Dev<'a> {
-    Axis(&'a RigAxis),
-    Detector,
-    Wheel,
+impl From<MotionError> for Interrupt {
+    fn from(e: MotionError) -> Interrupt {
+        match e {
+            MotionError::Estop => Interrupt::Estop,
+            MotionError::NeedsOperator(reason) => Interrupt::Pause(reason),
+            // A device's reason becomes a failed point (or a pause, during calibration); no safe move pauses.
+            MotionError::Device(reason) | MotionError::Impossible(reason) => {
+                Interrupt::Fatal(EngineError::Device(reason))
+            }
+        }
+    }
 }
 
 fn band_key(nm: f64) -> u64 {
@@ -124,16 +109,14 @@ struct Run<'a> {
     id: CampaignId,
     rig: &'a Rig,
     control: Control,
+    /// The axes (where they are, safe moves) and the supervision of every device.
+    motion: Motion<'a>,
     c: Prepared,
     file: InstrumentFile,
     axis_names: Vec<String>,
-    clock: Clock,
     /// Instrument time of this session's start in campaign time (continues across resumes).
     t_base: f64,
     t_clock0: f64,
-    /// Where the axes are (physical degrees, read back).
-    current: Pose,
-    readback: Vec<f64>,
     configured_nm: Option<f64>,
     wheel_at: Option<u8>,
     darks: BTreeMap<u64, (f64, Reading)>,
@@ -151,6 +134,9 @@ struct Run<'a> {
     pass_total_s: f64,
     pass_end: u64,
     s_per_point: f64,
+    /// An adaptive plan's committed points read back so far (geometry, BRDF), and the index they reach.
+    measured: Vec<(gonio_scheduler::kinematics::Geometry, Option<f64>)>,
+    measured_to: u64,
 }
 
 pub(crate) async fn run(
@@ -214,7 +200,21 @@ pub(crate) async fn run(
         transfer: Transfer::new(r.material.clone(), &r.geometry),
         geometry: r.geometry,
     });
-    let clock = rig.clock();
+    let faults_to = control.clone();
+    let motion = Motion::new(
+        rig,
+        c.time.clone(),
+        c.campaign.acquisition.retries,
+        control.clone(),
+    )
+    .report_faults_to(Arc::new(move |message: &str| {
+        tracing::warn!(campaign = %id, "{message}");
+        faults_to.emit(Event::Fault {
+            campaign: id,
+            message: message.to_string(),
+        });
+    }));
+    let clock = motion.clock();
     let (done, t_last) = {
         let s = lock(&store);
         let done = s.next_index(id)?;
@@ -232,18 +232,16 @@ pub(crate) async fn run(
         id,
         rig,
         control,
+        motion,
         c,
         file,
         axis_names,
-        clock,
         t_base: if done > 0 || t_last > 0.0 {
             t_last + 1.0
         } else {
             0.0
         },
         t_clock0: clock.now_s(),
-        current: Pose::new(0.0, 0.0, 0.0, 0.0),
-        readback: Vec::new(),
         configured_nm: None,
         wheel_at: None,
         darks: BTreeMap::new(),
@@ -256,6 +254,8 @@ pub(crate) async fn run(
         pass_total_s: 0.0,
         pass_end: total,
         s_per_point: 0.0,
+        measured: Vec::new(),
+        measured_to: 0,
     };
     let outcome = {
         let watch = follow_pause_requests(Arc::clone(&run.store), id, run.control.clone());
@@ -313,21 +313,13 @@ fn lock(store: &Arc<Mutex<Store>>) -> std::sync::MutexGuard<'_, Store> {
 
 impl<'a> Run<'a> {
     fn t(&self) -> f64 {
-        self.t_base + (self.clock.now_s() - self.t_clock0)
+        self.t_base + (self.motion.clock().now_s() - self.t_clock0)
     }
 
     fn emit_state(&self, state: CampaignState, message: Option<String>) {
         self.control.emit(Event::State {
             campaign: self.id,
             state,
-            message,
-        });
-    }
-
-    fn fault(&self, message: String) {
-        tracing::warn!(campaign = %self.id, "{message}");
-        self.control.emit(Event::Fault {
-            campaign: self.id,
             message,
         });
     }
@@ -358,19 +350,6 @@ impl<'a> Run<'a> {
         Ok(())
     }
 
-    /// Resolves when an emergency stop is requested.
-    async fn estop_signal(&self) {
-        loop {
-            let n = self.control.notified();
-            tokio::pin!(n);
-            n.as_mut().enable();
-            if self.control.estop_requested() {
-                return;
-            }
-            n.await;
-        }
-    }
-
     async fn go(&mut self) -> Result<(), Interrupt> {
         self.st(|s| s.set_state(self.id, CampaignState::Running, None))?;
         self.emit_state(CampaignState::Running, None);
@@ -381,19 +360,7 @@ impl<'a> Run<'a> {
             self.st(|s| s.record_device(self.id, name, identity))?;
         }
         // Reference every axis (the arms in a collision-safe order) and learn where it is.
-        let mut unreferenced = Vec::new();
-        for a in self.rig.axes() {
-            let status = self
-                .device(Dev::Axis(a), &format!("status of {}", a.config.name), || {
-                    a.driver.status()
-                })
-                .await?;
-            if !status.referenced {
-                unreferenced.push(a);
-            }
-        }
-        self.home_at_start_up(&unreferenced).await?;
-        self.read_positions().await?;
+        self.motion.reference_all().await?;
 
         if self.done >= self.total {
             return Ok(());
@@ -491,12 +458,12 @@ impl<'a> Run<'a> {
     /// the plan (so that the schedule's predicted duration is comparable with the run's).
     async fn start_up(&mut self, steps: &[Step]) -> Result<(), Interrupt> {
         if let Some(first) = steps.first() {
-            self.move_to(&first.pose).await?;
+            self.motion.move_to(&first.pose).await?;
         }
         if let Some(p) = steps.iter().find_map(|s| s.wheel_position) {
             self.wheel_to(p).await?;
         }
-        let now = self.clock.now_s();
+        let now = self.motion.clock().now_s();
         tracing::info!(campaign = %self.id, start_up_s = now - self.t_clock0, "instrument referenced and at the schedule's start");
         self.t_clock0 = now;
         Ok(())

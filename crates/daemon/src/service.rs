@@ -15,16 +15,21 @@
 //!   transaction, so the store is consistent whatever moment the stop comes.
 
 //!
+//! - One owner at a time: a person may take the instrument from the queue between campaigns
+//!   ([`Service::take_instrument`], `ownership`); the queue starts nothing until it is handed back.
+//!
 //! Parts: this file holds the types, the shared state and construction; `requests` the API's requests;
-//! `queue` the queue loop and shutdown of the running campaign; `shutdown` the signal; `engine_runner` the
+//! `queue` the queue loop and shutdown of the running campaign; `ownership` the instrument's one owner; `shutdown` the signal; `engine_runner` the
 //! runner that drives the real engine.
 
 mod engine_runner;
+mod ownership;
 mod queue;
 mod requests;
 mod shutdown;
 
 pub use engine_runner::EngineRunner;
+pub use ownership::InstrumentLease;
 pub use shutdown::{Shutdown, ShutdownTrigger};
 
 use std::collections::{HashMap, VecDeque};
@@ -107,6 +112,12 @@ pub trait CampaignRunner: Send + Sync + 'static {
 
     /// The campaign's points as CSV (the columns of `gonio run`).
     fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String>;
+
+    /// The connected instrument, for a person who takes it ([`Service::take_instrument`]); None for a runner
+    /// without one (the queue tests' fake).
+    fn rig(&self) -> Option<crate::rig::Rig> {
+        None
+    }
 }
 
 /// A campaign as the API shows it: the stored record without the (long) configuration texts, plus the ETA.
@@ -141,6 +152,8 @@ struct RunState {
     user_paused: bool,
     /// Interrupted campaigns found at start-up, resumed before the queue.
     resume_first: VecDeque<CampaignId>,
+    /// A person holds the instrument (named as they asked for it): the queue starts nothing meanwhile.
+    held_by: Option<String>,
     /// Last predicted remaining time per campaign (s).
     eta_s: HashMap<CampaignId, f64>,
     /// Queued campaigns as the engine prepared them, for their first run (at most [`KEEP_PREPARED`]: the

@@ -41,6 +41,7 @@ mod schema;
 
 pub use records::{
     CalibrationRecord, CampaignId, CampaignRecord, CampaignState, Durability, NewCampaign, PointRecord,
+    PointValue,
 };
 
 use std::collections::HashMap;

@@ -1,6 +1,9 @@
 //! Calibration: darks, the normalisation readings (direct beam or reference sample), and the operator protocol
 //! (remove or swap the sample; the simulated operator in dry-runs).
 
+use gonio_brdf::Wavelength;
+use gonio_scheduler::kinematics::{Kinematics, Pose};
+
 use super::*;
 
 impl<'a> Run<'a> {
@@ -123,16 +126,16 @@ impl<'a> Run<'a> {
                 let kinematics = Kinematics::new(&self.file.instrument);
                 (
                     r.geometry,
-                    reference::pose_for(&kinematics, &self.c.time, &r.geometry, &self.current),
+                    reference::pose_for(&kinematics, &self.c.time, &r.geometry, self.motion.current()),
                 )
             };
             let pose = pose.ok_or_else(|| {
                 Interrupt::Pause(format!(
                     "no safe move from {:?} to the reference geometry {geometry:?}",
-                    self.current
+                    *self.motion.current()
                 ))
             })?;
-            self.move_to(&pose).await?;
+            self.motion.move_to(&pose).await?;
             let tol_deg = self.file.instrument.axes.iter().map(|a| a.tolerance_deg).fold(0.0f64, f64::max);
             let angle_std_rad = tol_deg.to_radians() / 3f64.sqrt();
             for b in bands {
@@ -176,7 +179,7 @@ impl<'a> Run<'a> {
         let pose = match pose {
             Some(p) => p,
             None if !self.c.plan.calibration.reference_overrides.is_empty() => {
-                self.c.plan.calibration.reference_pose(&self.current)
+                self.c.plan.calibration.reference_pose(self.motion.current())
             }
             // No reference pose in the plan: the detector arm facing the light arm at -90 deg, stage at zero.
             None => Pose::new(-90.0, 90.0, 0.0, 0.0),
@@ -191,7 +194,7 @@ impl<'a> Run<'a> {
         )
         .await?;
         let result = async {
-            self.move_to(&pose).await?;
+            self.motion.move_to(&pose).await?;
             for b in bands {
                 let pos = self.band_position(*b);
                 if let Some(p) = pos {

@@ -1,6 +1,8 @@
 //! Adaptive plans at run time: which pass holds the next point (replayed from the committed points on a
 //! resume), the next pass from the planner, and the ETA that follows the pass being measured.
 
+use gonio_scheduler::kinematics::Geometry;
+
 use super::*;
 
 /// One pass of the schedule: a fixed plan's only one, or one of an adaptive plan's.
@@ -43,18 +45,24 @@ impl<'a> Run<'a> {
     /// end of `pass`, read back from the store. When the planner stops, a total below the budget becomes the
     /// campaign's total.
     pub(super) fn next_pass(&mut self, pass: &Pass) -> Result<Option<Pass>, Interrupt> {
+        if self.c.adaptive.is_none() {
+            return Ok(None);
+        }
+        let end = pass.end_index();
+        // Only the points committed since the last pass are read; the earlier ones are kept from then.
+        let from = self.measured_to;
+        let new = self.st(|s| s.point_values(self.id, from, end))?;
+        self.measured.extend(new.iter().map(|p| {
+            (
+                Geometry::new(p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg),
+                p.brdf_sr,
+            )
+        }));
+        self.measured_to = self.measured_to.max(end);
+        let measured = gonio_campaign::measured_geometries(self.measured.iter().copied());
         let Some(adaptive) = &self.c.adaptive else {
             return Ok(None);
         };
-        let end = pass.end_index();
-        let points = self.st(|s| s.points_from(self.id, 0))?;
-        let measured =
-            gonio_campaign::measured_geometries(points.iter().take_while(|p| p.index < end).map(|p| {
-                (
-                    Geometry::new(p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg),
-                    p.brdf_sr,
-                )
-            }));
         match adaptive.next_pass(&measured, pass.elapsed_s, &pass.schedule) {
             NextPass::Pass {
                 schedule,

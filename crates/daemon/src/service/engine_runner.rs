@@ -70,6 +70,10 @@ impl CampaignRunner for EngineRunner {
         })
     }
 
+    fn rig(&self) -> Option<Rig> {
+        Some(self.rig.clone())
+    }
+
     fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
         let points = store.points(record.id).map_err(|e| e.to_string())?;
         Ok(crate::export::points_csv(record, &points))

@@ -14,6 +14,10 @@ impl Service {
     /// service (under the same lock the requests take).
     fn take_next(&self) -> Result<Option<CampaignId>, ServiceError> {
         let mut run = lock(&self.shared.run);
+        if run.held_by.is_some() {
+            // A person holds the instrument; handing it back wakes the loop.
+            return Ok(None);
+        }
         let store = lock(&self.shared.store);
         while let Some(id) = run.resume_first.pop_front() {
             match store.campaign(id) {

@@ -4,7 +4,8 @@
 use rusqlite::{OptionalExtension, params};
 
 use super::{
-    CalibrationRecord, CampaignId, CampaignRecord, CampaignState, NewCampaign, PointRecord, Store, StoreError,
+    CalibrationRecord, CampaignId, CampaignRecord, CampaignState, NewCampaign, PointRecord, PointValue,
+    Store, StoreError,
 };
 
 impl Store {
@@ -334,6 +335,35 @@ impl Store {
         let mut out = Vec::new();
         for row in rows {
             out.push(row.map_err(self.read_err())??);
+        }
+        Ok(out)
+    }
+
+    /// The geometry and BRDF of the committed points with `from <= index < to`, in index order: the columns an
+    /// adaptive planner needs and no more.
+    pub fn point_values(&self, id: CampaignId, from: u64, to: u64) -> Result<Vec<PointValue>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT idx, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg, brdf_sr
+                 FROM points WHERE campaign_id = ?1 AND idx >= ?2 AND idx < ?3 ORDER BY idx",
+            )
+            .map_err(self.read_err())?;
+        let rows = stmt
+            .query_map(params![id.0, to_i64(from), to_i64(to)], |r| {
+                Ok(PointValue {
+                    index: u64::try_from(r.get::<_, i64>(0)?).unwrap_or(u64::MAX),
+                    theta_i_deg: r.get(1)?,
+                    phi_i_deg: r.get(2)?,
+                    theta_o_deg: r.get(3)?,
+                    phi_o_deg: r.get(4)?,
+                    brdf_sr: r.get(5)?,
+                })
+            })
+            .map_err(self.read_err())?;
+        let mut out = Vec::new();
+        for row in rows {
+            out.push(row.map_err(self.read_err())?);
         }
         Ok(out)
     }

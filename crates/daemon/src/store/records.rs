@@ -156,6 +156,18 @@ pub struct PointRecord {
     pub truth_aperture_sr: Option<f64>,
 }
 
+/// A committed point's geometry and BRDF only: what an adaptive planner reads back (`Store::point_values`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointValue {
+    pub index: u64,
+    pub theta_i_deg: f64,
+    pub phi_i_deg: f64,
+    pub theta_o_deg: f64,
+    pub phi_o_deg: f64,
+    /// `None` for a failed or flagged point.
+    pub brdf_sr: Option<f64>,
+}
+
 /// A calibration reading (direct beam, reference sample, dark) taken during a campaign.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationRecord {

@@ -60,6 +60,29 @@ fn points_round_trip_bit_exactly_and_resume_index_follows() {
     );
 }
 
+#[test]
+fn point_values_are_the_committed_geometries_and_brdfs_of_a_range() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut store = Store::open(dir.path()).expect("open");
+    let id = store.create_campaign(&new_campaign(6)).expect("create");
+    for i in 0..4 {
+        store.commit_point(id, &point(i)).expect("commit");
+    }
+    store.commit_point(id, &failed_point(4)).expect("commit");
+    let values = store.point_values(id, 1, 5).expect("values");
+    let full = store.points_from(id, 1).expect("points");
+    assert_eq!(values.len(), 4);
+    for (v, p) in values.iter().zip(&full) {
+        assert_eq!(v.index, p.index);
+        assert_eq!(
+            (v.theta_i_deg, v.phi_i_deg, v.theta_o_deg, v.phi_o_deg, v.brdf_sr),
+            (p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg, p.brdf_sr)
+        );
+    }
+    assert_eq!(values.last().map(|v| v.brdf_sr), Some(None));
+    assert!(store.point_values(id, 5, 9).expect("none yet").is_empty());
+}
+
 fn failed_point(index: u64) -> PointRecord {
     PointRecord {
         signal_w: f64::NAN,

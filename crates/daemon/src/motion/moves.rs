@@ -1,18 +1,31 @@
 //! Multi-axis motion: collision-safe moves from where the axes really are (arm separation, legs commanded by the
 //! engine, stop-the-phase on failure, emergency stop).
 
-use super::*;
+use std::collections::BTreeMap;
+
+use gonio_driver::DriverError;
+use gonio_instrument::AxisRole;
+use gonio_scheduler::kinematics::{Pose, ROLES};
 use gonio_scheduler::separation::{Parting, separating_move};
 
-impl<'a> Run<'a> {
+use super::{Device, Motion, MotionError};
+use crate::rig::futures_join_all;
+
+/// A multi-axis phase in which some axes failed (the rest were stopped): which, and the first reason.
+struct PhaseBroken {
+    failed: Vec<usize>,
+    reason: String,
+}
+
+impl Motion<'_> {
     /// Move to `target` (physical pose) along a safe, backlash-aware move planned from where the axes are.
-    pub(super) async fn move_to(&mut self, target: &Pose) -> Result<(), Interrupt> {
+    pub async fn move_to(&mut self, target: &Pose) -> Result<(), MotionError> {
         // A phase of several axes is collision-safe only as a whole: when one of its axes fails (a stall), the
         // others are stopped and the move is planned again from where the axes really are, instead of retrying
         // the failed axis alone while the others go on (issue #8: crates/soak/tests/safety_soak.rs).
         // Each axis gets the retries a single operation gets (`acquisition.retries`); every round charges at
         // least one axis, so the loop is bounded.
-        let attempts = self.c.campaign.acquisition.retries + 1;
+        let attempts = self.attempts;
         let mut failures: BTreeMap<usize, u32> = BTreeMap::new();
         loop {
             let PhaseBroken { failed, reason } = match self.move_once(target).await {
@@ -32,11 +45,11 @@ impl<'a> Run<'a> {
                 "{reason} (attempt {worst} of {attempts}); the other axes were stopped"
             ));
             if worst >= attempts {
-                return Err(Interrupt::Fatal(EngineError::Device(reason)));
+                return Err(MotionError::Device(reason));
             }
             for idx in failed {
                 if let Some(a) = self.rig.axes().get(idx) {
-                    self.recover(Dev::Axis(a)).await?;
+                    self.recover(Device::Axis(a)).await?;
                 }
             }
             // Plan again from where every axis really is.
@@ -45,7 +58,7 @@ impl<'a> Run<'a> {
     }
 
     /// One planned move; `Err(PhaseBroken)` when an axis of a multi-axis phase failed (the phase is stopped).
-    pub(super) async fn move_once(&mut self, target: &Pose) -> Result<Result<(), Interrupt>, PhaseBroken> {
+    async fn move_once(&mut self, target: &Pose) -> Result<Result<(), MotionError>, PhaseBroken> {
         // An axis already within its arrival tolerance of the target does not move: the read-back differs from
         // the nominal pose by up to that tolerance after every move, and re-commanding it would cost a move,
         // a status poll and a settle at every reading of a pose (each band, each repeat at one geometry) that
@@ -57,17 +70,17 @@ impl<'a> Run<'a> {
                 from.set(r, target.get(r));
             }
         }
-        let movement = match self.c.time.plan_move(&from, target) {
+        let movement = match self.time.plan_move(&from, target) {
             Ok(m) => m,
             Err(reason) => match self.separating_move(target) {
                 Some(m) => m,
                 None => {
-                    return Ok(Err(Interrupt::Fatal(EngineError::Device(format!(
+                    return Ok(Err(MotionError::Impossible(format!(
                         "no safe move from {:?} to {:?}: {}",
                         self.current,
                         target,
                         reason.name()
-                    )))));
+                    ))));
                 }
             },
         };
@@ -90,10 +103,7 @@ impl<'a> Run<'a> {
             let stopping = &stopping;
             let moves = phase.iter().map(|m| async move {
                 let a = axes.get(m.axis_index).ok_or_else(|| {
-                    Interrupt::Fatal(EngineError::Instrument(format!(
-                        "the move plan names axis #{}",
-                        m.axis_index
-                    )))
+                    MotionError::Impossible(format!("the move plan names axis #{}", m.axis_index))
                 })?;
                 let Some(last) = m.waypoints_deg.last() else {
                     return Ok(Ok((m.axis_index, f64::NAN)));
@@ -119,8 +129,8 @@ impl<'a> Run<'a> {
                             arrival(phys, final_leg).await
                         }
                     };
-                    let pos = this.device(Dev::Axis(a), &what, op).await?;
-                    return Ok::<_, Interrupt>(Ok((m.axis_index, pos)));
+                    let pos = this.device(Device::Axis(a), &what, op).await?;
+                    return Ok::<_, MotionError>(Ok((m.axis_index, pos)));
                 }
                 // One attempt inside a multi-axis phase; on failure stop the phase's other axes at once. The
                 // legs (overshoot, approach) are commanded here one by one rather than by the driver's own
@@ -146,7 +156,7 @@ impl<'a> Run<'a> {
                 };
                 let r = tokio::select! {
                     biased;
-                    _ = this.estop_signal() => return Err(Interrupt::Estop),
+                    _ = this.estop_signal() => return Err(MotionError::Estop),
                     r = legs => r,
                 };
                 match r {
@@ -196,8 +206,8 @@ impl<'a> Run<'a> {
             }
         }
         if !movement.phases.is_empty() {
-            // The campaign's extra settling is already part of each axis's settle time in `self.c.time`
-            // (see `gonio_campaign::campaign_time_model`), hence of `movement.settle_s`.
+            // A campaign's extra settling is already part of each axis's settle time in its time model (see
+            // `gonio_campaign::campaign_time_model`), hence of `movement.settle_s`.
             self.clock.sleep_s(movement.settle_s).await;
         }
         // Physical targets the plan reached: nominal pose for axes that did not need to move.
@@ -211,7 +221,7 @@ impl<'a> Run<'a> {
 
     /// The arms start closer than the safety separation: the pure planning is the scheduler's
     /// ([`gonio_scheduler::separation`]); the rig's axis limits bound the parted pose.
-    pub(super) fn separating_move(&self, target: &Pose) -> Option<gonio_scheduler::timing::Move> {
+    fn separating_move(&self, target: &Pose) -> Option<gonio_scheduler::timing::Move> {
         let within = |role: AxisRole, v: f64| {
             self.rig
                 .axes()
@@ -219,7 +229,7 @@ impl<'a> Run<'a> {
                 .filter(|a| a.config.role == role)
                 .all(|a| (a.config.min_deg..=a.config.max_deg).contains(&v))
         };
-        let (m, how) = separating_move(&self.c.time, &self.current, target, within)?;
+        let (m, how) = separating_move(&self.time, &self.current, target, within)?;
         match how {
             Parting::Simultaneous => tracing::info!(
                 "arms closer than the safety separation: separating them in one simultaneous move"

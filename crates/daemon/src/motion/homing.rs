@@ -31,7 +31,7 @@
 use gonio_driver::{DriverError, ErrorKind};
 use gonio_instrument::AxisRole;
 
-use super::{Interrupt, Run};
+use super::{Motion, MotionError};
 use crate::rig::RigAxis;
 
 /// Extra room (fraction of the clearance) between a parked arm and the sweep of the arm being homed.
@@ -241,7 +241,7 @@ fn arm_name(a: &RigAxis) -> String {
     }
 }
 
-impl Run<'_> {
+impl Motion<'_> {
     /// Least distance kept between the arms while one is homed or parked: the separation, plus the backlash
     /// overshoot of a move's approach, plus both arms' arrival tolerances (a restored position is within them).
     fn homing_clearance_deg(&self) -> f64 {
@@ -252,31 +252,31 @@ impl Run<'_> {
             .filter(|a| other_role(a.config.role).is_some())
             .map(|a| a.config.tolerance_deg)
             .sum();
-        self.c.time.min_arm_separation_deg + self.c.time.arm_overshoot_margin_deg() + tolerance
+        self.time.min_arm_separation_deg + self.time.arm_overshoot_margin_deg() + tolerance
     }
 
     /// A device request that an emergency stop cancels.
     async fn ask<T>(
         &self,
         request: impl std::future::Future<Output = Result<T, DriverError>>,
-    ) -> Result<Result<T, DriverError>, Interrupt> {
+    ) -> Result<Result<T, DriverError>, MotionError> {
         tokio::select! {
             r = request => Ok(r),
-            _ = self.estop_signal() => Err(Interrupt::Estop),
+            _ = self.estop_signal() => Err(MotionError::Estop),
         }
     }
 
     /// Home one axis as it is: the controller's own homing, with no look at the other arm.
-    pub(super) async fn home_direct(&self, a: &RigAxis) -> Result<(), Interrupt> {
+    pub async fn home_direct(&self, a: &RigAxis) -> Result<(), MotionError> {
         tracing::info!(axis = %a.config.name, "homing");
         self.ask(a.driver.home())
             .await?
-            .map_err(|e| Interrupt::Pause(format!("homing {}: {e}", a.config.name)))
+            .map_err(|e| MotionError::NeedsOperator(format!("homing {}: {e}", a.config.name)))
     }
 
     /// Move an arm (referenced) to `target_deg` on a path this module checked; one more attempt after a
     /// reconnect when the move itself failed.
-    async fn drive(&self, a: &RigAxis, target_deg: f64, why: &str) -> Result<(), Interrupt> {
+    async fn drive(&self, a: &RigAxis, target_deg: f64, why: &str) -> Result<(), MotionError> {
         let mut last = None;
         for attempt in 1..=2 {
             match self.ask(a.driver.move_to(target_deg)).await? {
@@ -298,7 +298,7 @@ impl Run<'_> {
                 }
             }
         }
-        Err(Interrupt::Pause(format!(
+        Err(MotionError::NeedsOperator(format!(
             "{why}: the {} arm could not be moved to {target_deg:.3} deg: {}",
             arm_name(a),
             last.map(|e| e.to_string()).unwrap_or_default()
@@ -306,7 +306,7 @@ impl Run<'_> {
     }
 
     /// Where `a` may be: its last known position (when the run has read the axes) and its read-back now.
-    async fn may_be(&self, a: &RigAxis) -> Result<Option<Span>, Interrupt> {
+    async fn may_be(&self, a: &RigAxis) -> Result<Option<Span>, MotionError> {
         let last = (!self.readback.is_empty()).then(|| self.current.get(a.config.role));
         let read = self.ask(a.driver.position_deg()).await?.ok();
         Ok(match (last, read) {
@@ -317,7 +317,7 @@ impl Run<'_> {
     }
 
     /// The other arm as it is now; it is brought to rest first if it was moving (stopped mid-phase).
-    async fn other_arm(&self, b: &RigAxis) -> Result<Option<Other>, Interrupt> {
+    async fn other_arm(&self, b: &RigAxis) -> Result<Option<Other>, MotionError> {
         let mut status = self.ask(b.driver.status()).await?;
         if matches!(&status, Ok(s) if s.moving) {
             let _ = self.ask(b.driver.stop()).await?;
@@ -356,7 +356,7 @@ impl Run<'_> {
 
     /// Home `a` without sweeping it through the other arm (module doc). During a run (axes read), the arms are
     /// then put back where they were.
-    pub(super) async fn home_safely(&self, a: &RigAxis) -> Result<(), Interrupt> {
+    pub(super) async fn home_safely(&self, a: &RigAxis) -> Result<(), MotionError> {
         let Some(b) =
             other_role(a.config.role).and_then(|r| self.rig.axes().iter().find(|x| x.config.role == r))
         else {
@@ -365,7 +365,7 @@ impl Run<'_> {
         let restore = !self.readback.is_empty();
         let last_a = self.current.get(a.config.role);
         let refuse = |why: String| {
-            Interrupt::Pause(format!(
+            MotionError::NeedsOperator(format!(
                 "{} lost its reference and was not homed: {why}",
                 arm_name(a)
             ))
@@ -419,7 +419,7 @@ impl Run<'_> {
 
     /// Start-up: home the axes found without reference; the arms in an order that never sweeps one through the
     /// other ([`start_up_order`]).
-    pub(super) async fn home_at_start_up(&self, unreferenced: &[&RigAxis]) -> Result<(), Interrupt> {
+    pub(super) async fn home_at_start_up(&self, unreferenced: &[&RigAxis]) -> Result<(), MotionError> {
         let (arms, rest): (Vec<&RigAxis>, Vec<&RigAxis>) = unreferenced
             .iter()
             .copied()
@@ -434,7 +434,7 @@ impl Run<'_> {
                 for (a, b) in [(*x, *y), (*y, *x)] {
                     let (Some(may_be), Some(other)) = (self.may_be(a).await?, self.other_arm(b).await?)
                     else {
-                        return Err(Interrupt::Pause(format!(
+                        return Err(MotionError::NeedsOperator(format!(
                             "the {} and {} arms lost their reference and one of their positions is unknown: move \
                              them apart by hand, then resume",
                             arm_name(x),
@@ -458,7 +458,7 @@ impl Run<'_> {
                     Ok(0) => vec![*x, *y],
                     Ok(_) => vec![*y, *x],
                     Err(why) => {
-                        return Err(Interrupt::Pause(format!(
+                        return Err(MotionError::NeedsOperator(format!(
                             "both arms lost their reference and no homing order is safe: {why}"
                         )));
                     }

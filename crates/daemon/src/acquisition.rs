@@ -1,0 +1,210 @@
+//! Acquisition: the meter's configuration for a band (one builder), one reading of the detector with its
+//! standard uncertainty, and the measurement equation as a pure function. No campaign, no store: a campaign's
+//! run loop uses it, and so can a console or an alignment scan.
+//!
+//! The measurement equation ([`brdf_of_reading`]) takes everything it depends on as arguments (the instrument
+//! description, the sample's radius, the readings, the normalisation, the directions) and returns the BRDF
+//! with its standard uncertainty, or why the reading is not a valid measurement. Absolute:
+//! `f = (S - S_dark) / (P Omega cos theta_o)` with `P` the net direct beam; relative: the reference sample's
+//! transfer in place of `P Omega cos theta_o` (`gonio_brdf::measurement`).
+
+use gonio_brdf::measurement::{
+    AbsoluteReadings, BrdfValue, Footprint, MeasurementError, MeasurementGeometry, Reading, RelativeReadings,
+    ValidityLimits, absolute_brdf, relative_brdf,
+};
+use gonio_brdf::{Brdf, Direction, Wavelength};
+use gonio_campaign::{Acquisition, Range};
+use gonio_driver::{DetectorConfig, ErrorKind, PowerRange, PowerReading};
+use gonio_instrument::Instrument;
+
+use crate::motion::{Device, Motion, MotionError};
+
+/// Relative standard uncertainty of one reading from the source's short-term noise and the meter's linearity.
+pub const READING_REL_STD: f64 = 2.0e-4;
+/// Standard uncertainty of one reading from the range (converter resolution, offset), relative to full scale.
+pub const READING_RANGE_STD: f64 = 2.0e-5;
+/// Relative standard uncertainty of the detector's solid angle (aperture radius and distance as calibrated).
+pub const SOLID_ANGLE_REL_STD: f64 = 1.0e-3;
+
+/// The meter's configuration for a reading at `nm` with a campaign's acquisition settings.
+pub fn meter_config(nm: f64, acquisition: &Acquisition) -> DetectorConfig {
+    DetectorConfig {
+        wavelength_nm: nm,
+        averaging: acquisition.averaging,
+        range: match acquisition.range {
+            Range::Auto => PowerRange::Auto,
+            Range::FixedW(w) => PowerRange::Fixed { full_scale_w: w },
+        },
+    }
+}
+
+/// One reading of the detector: power, its standard uncertainty, and whether the meter was overloaded (W).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeterReading {
+    pub power_w: f64,
+    pub std_w: f64,
+    pub overload: bool,
+}
+
+/// The standard uncertainty of a meter's reading: a part relative to the reading plus a part relative to the
+/// range's full scale. Under auto-range the meter may report its largest range; the resolution is that of the
+/// smallest of `ranges_w` (the instrument's ranges, W) holding the reading, which is what auto-ranging settles
+/// on.
+pub fn meter_reading(r: &PowerReading, ranges_w: &[f64], range: Range) -> MeterReading {
+    let range_w = match range {
+        Range::Auto => ranges_w
+            .iter()
+            .copied()
+            .find(|fs| *fs > r.power_w.abs())
+            .unwrap_or(r.range_w)
+            .min(r.range_w),
+        Range::FixedW(_) => r.range_w,
+    };
+    let std_w = ((range_w * READING_RANGE_STD).powi(2) + (r.power_w * READING_REL_STD).powi(2)).sqrt();
+    MeterReading {
+        power_w: r.power_w,
+        std_w,
+        overload: r.overload,
+    }
+}
+
+/// One supervised reading at `nm` (the meter configured for it first unless `configured_nm` says it is; a meter
+/// that was reconnected is configured again, since it is back at its defaults). `configured_nm` is updated.
+pub async fn read(
+    motion: &Motion<'_>,
+    nm: f64,
+    acquisition: &Acquisition,
+    configured_nm: &mut Option<f64>,
+) -> Result<MeterReading, MotionError> {
+    let det = motion.rig().detector();
+    let config = meter_config(nm, acquisition);
+    if *configured_nm != Some(nm) {
+        motion
+            .device(Device::Detector, "configure the detector", || {
+                det.configure(config)
+            })
+            .await?;
+        *configured_nm = Some(nm);
+    }
+    let r = motion
+        .device(Device::Detector, "read the detector", || async {
+            let r = det.read_power().await;
+            if let Err(e) = &r
+                && matches!(e.kind(), ErrorKind::Disconnected | ErrorKind::Unavailable)
+            {
+                det.configure(config).await?;
+            }
+            r
+        })
+        .await?;
+    let ranges_w = &motion.rig().file().instrument.detector.ranges_w;
+    Ok(meter_reading(&r, ranges_w, acquisition.range))
+}
+
+/// What a sample reading is normalised by.
+#[derive(Debug, Clone, Copy)]
+pub enum Normalisation<'a> {
+    /// The direct beam (net of its dark), read with the sample out of the beam.
+    Absolute,
+    /// A reference sample read at a reference geometry: `transfer` carries that reading to the measured
+    /// geometry (`f_ref(g_r) cos(theta_o,r) / cos(theta_o)`), with the reference's calibration uncertainty.
+    Relative {
+        transfer: &'a dyn Brdf,
+        reference_brdf_rel_std: f64,
+    },
+}
+
+/// Everything the measurement equation depends on besides the readings.
+#[derive(Debug, Clone, Copy)]
+pub struct EquationInputs<'a> {
+    pub instrument: &'a Instrument,
+    pub sample_radius_mm: f64,
+    pub normalisation: Normalisation<'a>,
+    pub band_nm: f64,
+    pub wi: Direction,
+    pub wo: Direction,
+}
+
+/// The measurement equation: the BRDF (1/sr) and its standard uncertainty from a net-able signal, its dark and
+/// the normalisation reading (net direct beam, or net reference signal) at the time of the reading. Pure.
+pub fn brdf_of_reading(
+    inputs: &EquationInputs<'_>,
+    signal: Reading,
+    dark: Reading,
+    norm: Reading,
+) -> Result<BrdfValue, MeasurementError> {
+    let inst = inputs.instrument;
+    // Positioning: the arms' arrival tolerance as a uniform distribution.
+    let tol_deg = inst.axes.iter().map(|a| a.tolerance_deg).fold(0.0f64, f64::max);
+    let geometry = MeasurementGeometry {
+        wi: inputs.wi,
+        wo: inputs.wo,
+        angle_std_rad: tol_deg.to_radians() / 3f64.sqrt(),
+    };
+    let footprint = Footprint {
+        beam_radius_mm: inst.source.beam_radius_mm,
+        sample_radius_mm: inputs.sample_radius_mm,
+        detector_field_radius_mm: Some(inst.detector.field_radius_mm),
+    };
+    let limits = ValidityLimits {
+        min_cos_theta_o: inst.safety.grazing_limit_deg.to_radians().cos(),
+    };
+    match inputs.normalisation {
+        Normalisation::Relative {
+            transfer,
+            reference_brdf_rel_std,
+        } => {
+            let wavelength = Wavelength::from_nm(inputs.band_nm).map_err(MeasurementError::Reference)?;
+            relative_brdf(
+                &RelativeReadings {
+                    signal,
+                    signal_dark: dark,
+                    reference: norm,
+                    reference_dark: Reading::exact(0.0),
+                    reference_brdf_rel_std,
+                },
+                transfer,
+                wavelength,
+                &geometry,
+                &footprint,
+                &limits,
+            )
+        }
+        Normalisation::Absolute => {
+            let omega = gonio_brdf::radiometry::aperture_solid_angle_sr(
+                inst.detector.aperture_radius_mm,
+                inst.detector.distance_mm,
+            );
+            absolute_brdf(
+                &AbsoluteReadings {
+                    signal,
+                    signal_dark: dark,
+                    direct_beam: norm,
+                    direct_beam_dark: Reading::exact(0.0),
+                    detector_solid_angle_sr: omega,
+                    detector_solid_angle_std_sr: omega * SOLID_ANGLE_REL_STD,
+                },
+                &geometry,
+                &footprint,
+                &limits,
+            )
+        }
+    }
+}
+
+/// The point's flag for a refused measurement.
+pub fn flag_for(e: &MeasurementError) -> String {
+    match e {
+        MeasurementError::OverfillsSample { .. } | MeasurementError::OverfillsDetectorField { .. } => {
+            "overfilled".into()
+        }
+        MeasurementError::GrazingDetector { .. } => "grazing".into(),
+        MeasurementError::SourceBelowHorizon { .. } => "below-horizon".into(),
+        MeasurementError::NoDirectBeam { .. } => "no-direct-beam".into(),
+        MeasurementError::NoReferenceSignal { .. } => "no-reference-signal".into(),
+        other => format!("invalid: {other}"),
+    }
+}
+
+#[cfg(test)]
+mod tests;
