@@ -25,6 +25,7 @@
 //!   readings included; the time model agrees with dry-runs within 1 %).
 
 use gonio_brdf::{Brdf, Direction, Material, Wavelength};
+use gonio_campaign::{AcquisitionSection, CampaignFile};
 use gonio_instrument::Instrument;
 use gonio_scheduler::adaptive::{Adaptive, AdaptiveSpec, Measured};
 use gonio_scheduler::constraints::Constraints;
@@ -219,26 +220,31 @@ pub fn grid_plan(setup: &Setup, full: bool, step: f64) -> Result<(usize, f64, Ve
 /// The campaign file of an adaptive campaign on `material` to `budget` points (one band, no calibration steps
 /// beyond the engine's own at start).
 pub fn adaptive_campaign_text(material: &str, budget: u32) -> String {
-    format!(
-        r#"[campaign]
-id = "bench-adaptive-{material}-{budget}"
-[sample]
-radius_mm = {SAMPLE_RADIUS_MM}
-[material]
-preset = "{material}"
-[plan]
-bands_nm = [{BAND_NM}]
-reciprocity = true
-[plan.adaptive]
-budget_points = {budget}
-batch_points = 40
-target_error = 0.0
-first_pass_step_deg = 10.0
-resolution_deg = 2.5
-[acquisition]
-averaging = 10
-"#
+    let adaptive = AdaptiveSpec {
+        batch_points: 40,
+        target_error: 0.0,
+        first_pass_step_deg: 10.0,
+        resolution_deg: 2.5,
+        ..AdaptiveSpec::with_budget(budget)
+    };
+    let plan = PlanSpec {
+        bands_nm: Some(vec![BAND_NM]),
+        reciprocity: true,
+        adaptive: Some(adaptive),
+        ..PlanSpec::default()
+    };
+    CampaignFile::new(
+        &format!("bench-adaptive-{material}-{budget}"),
+        SAMPLE_RADIUS_MM,
+        plan,
     )
+    .with_material_preset(material)
+    .with_acquisition(AcquisitionSection {
+        averaging: Some(10),
+        ..AcquisitionSection::default()
+    })
+    .to_toml()
+    .expect("a campaign of numbers and names serialises")
 }
 
 /// An adaptive campaign to `budget` points, run by the product's engine (`gonio run`'s in-process dry-run: the

@@ -368,7 +368,7 @@ fn run_only(section: &str, quick: bool) {
                 .ok()
                 .and_then(|v| v.parse().ok())
                 .unwrap_or(5.0);
-            let text = throughput::campaign_text("bench-throughput", step, "550.0");
+            let text = throughput::campaign_text("bench-throughput", step, &[550.0]);
             let mut runs = vec![("in process", throughput::in_process(&text))];
             if std::env::var_os("BENCH_SKIP_PTY").is_none() {
                 runs.push(("ptys", throughput::over_ptys(&text)));

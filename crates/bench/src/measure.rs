@@ -16,21 +16,21 @@ pub(super) struct ThroughputRuns {
 
 pub(super) fn throughput_section(target: &Path, quick: bool) -> ThroughputRuns {
     let step = if quick { 10.0 } else { 5.0 };
-    let text = throughput::campaign_text("bench-throughput", step, "550.0");
+    let text = throughput::campaign_text("bench-throughput", step, &[550.0]);
     let in_process = throughput::in_process(&text);
     // The same run with the store on a RAM file system: what the store's disk writes still cost.
     let in_process_tmpfs = Path::new("/dev/shm")
         .is_dir()
         .then(|| throughput::in_process_in(&text, Path::new("/dev/shm")));
     let pty_step = if quick { 20.0 } else { 10.0 };
-    let ptys = throughput::over_ptys(&throughput::campaign_text("bench-pty", pty_step, "550.0"));
+    let ptys = throughput::over_ptys(&throughput::campaign_text("bench-pty", pty_step, &[550.0]));
     // At least 10,000 points: three bands on an isotropic grid (4.5 deg gives 9,267).
     let run_step = if quick { 10.0 } else { 4.25 };
     let binary = target.join("release/gonio");
     let gonio_run = if binary.exists() {
         throughput::gonio_run(
             &binary,
-            &throughput::campaign_text("bench-10k", run_step, "450.0, 550.0, 650.0"),
+            &throughput::campaign_text("bench-10k", run_step, &[450.0, 550.0, 650.0]),
         )
     } else {
         Err(format!(

@@ -20,7 +20,10 @@ pub(super) fn campaign_section(
         s,
         "Per seed material at 550 nm: plan strategies -> predicted instrument time (the scheduler's time model on \
          the ordered schedule, one band, no calibration steps) against the error of the BRDF reconstructed from the \
-         measured points, on a dense validation set. Ground truth and measured values are the material's pointwise \
+         measured points, on a dense validation set. The adaptive rows are campaigns run by the product's engine \
+         (`gonio run`'s in-process dry-run: each pass placed by the planner from the points measured so far), and \
+         their time is the run's own instrument time on the simulator, its start-up calibration (darks, direct \
+         beam) included. Ground truth and measured values are the material's pointwise \
          BRDF (noise-free); the reconstruction is the product's scattered-point interpolation, \
          `Adaptive::reconstruct_all` (inverse-distance weighting of ln(1 + f) over the 8 nearest points in the \
          (wi, wo) embedding), the same for every strategy. Validation geometries are uniform in solid angle for wi \

@@ -22,9 +22,11 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
+use gonio_campaign::{AcquisitionSection, CalibrationSection, CampaignFile};
 use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_prepared_campaign};
 use gonio_daemon::store::{CampaignState, PointRecord, Store};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec};
 
 /// Time scale of the pseudo-terminal runs (simulated seconds per real second).
 pub const PTY_TIME_SCALE: f64 = 1e6;
@@ -56,32 +58,28 @@ impl Throughput {
     }
 }
 
-/// An isotropic grid (theta 0-80 at `step_deg`, delta phi at twice that) on coloured plastic at `bands`, with
+/// An isotropic grid (theta 0-80 at `step_deg`, delta phi at twice that) on coloured plastic at `bands_nm`, with
 /// darks every 200 points and direct-beam references at start and end (simulated operator).
-pub fn campaign_text(id: &str, step_deg: f64, bands: &str) -> String {
-    format!(
-        r#"[campaign]
-id = "{id}"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = [{bands}]
-[plan.grid]
-kind = "isotropic"
-theta_i_deg = {{ from = 0.0, to = 80.0, step = {step_deg} }}
-theta_o_deg = {{ from = 0.0, to = 80.0, step = {step_deg} }}
-delta_phi_deg = {{ from = 0.0, to = 180.0, step = {} }}
-[plan.calibration]
-dark_every_points = 200
-[calibration]
-simulate_operator = true
-[acquisition]
-averaging = 10
-[material]
-preset = "coloured-plastic"
-"#,
-        2.0 * step_deg
-    )
+pub fn campaign_text(id: &str, step_deg: f64, bands_nm: &[f64]) -> String {
+    let mut grid = GridSpec::new(GridKind::Isotropic);
+    grid.theta_i_deg = Some(GridSpec::range_deg(0.0, 80.0, step_deg));
+    grid.theta_o_deg = Some(GridSpec::range_deg(0.0, 80.0, step_deg));
+    grid.delta_phi_deg = Some(GridSpec::range_deg(0.0, 180.0, 2.0 * step_deg));
+    let mut plan = PlanSpec {
+        bands_nm: Some(bands_nm.to_vec()),
+        grid: Some(grid),
+        ..PlanSpec::default()
+    };
+    plan.calibration.dark_every_points = Some(200);
+    CampaignFile::new(id, 12.5, plan)
+        .with_calibration(CalibrationSection::default())
+        .with_acquisition(AcquisitionSection {
+            averaging: Some(10),
+            ..AcquisitionSection::default()
+        })
+        .with_material_preset("coloured-plastic")
+        .to_toml()
+        .expect("a campaign of numbers and names serialises")
 }
 
 /// A fresh directory under `base` (removed by the caller).

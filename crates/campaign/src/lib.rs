@@ -23,7 +23,9 @@ pub use error::{CampaignError, line_of};
 pub use gonio_scheduler::adaptive::{Measured, StopReason};
 pub use load::{Acquisition, CalibrationSettings, Campaign, Range, Reference, load};
 pub use materials::DEFAULT_REFERENCE_GEOMETRY_DEG;
-pub use model::{CampaignFile, Method};
+pub use model::{
+    AcquisitionSection, CalibrationSection, CampaignFile, CampaignSection, Method, SampleSection,
+};
 pub use passes::{AdaptivePlan, NextPass, measured_geometries};
 pub use prepare::{Prepared, campaign_time_model, load_and_prepare, prepare, sample_traits};
 pub use sources::{Resolved, Sources};

@@ -1,5 +1,8 @@
 //! The campaign file as typed data: what people write, and what gonio writes back (`Serialize`): the store keeps
-//! the text as written, tests and tools build campaigns as values instead of formatting TOML by hand.
+//! the text as written; tools that generate campaigns (the benchmarks' and the soaks' generators) build them as
+//! values ([`CampaignFile::new`] and the `with_` methods, the scheduler's `PlanSpec`/`GridSpec`) and write them
+//! with [`CampaignFile::to_toml`] instead of formatting TOML by hand. Tests state campaigns as the text a person
+//! writes (gonio-testkit's `CampaignText`), which is what they test.
 //!
 //! Tables (see config/campaigns/demo.toml, relative.toml and template.toml for commented examples):
 //! - `[campaign]` `id` (the sample id; names the run), `description`.
@@ -56,6 +59,60 @@ pub struct CampaignFile {
 }
 
 impl CampaignFile {
+    /// A campaign on sample `id` (`radius_mm` in radius) with `plan`; the other tables at their defaults (set
+    /// them as values, or with the `with_` methods).
+    pub fn new(id: &str, radius_mm: f64, plan: PlanSpec) -> CampaignFile {
+        CampaignFile {
+            campaign: Some(CampaignSection {
+                id: id.to_string(),
+                description: None,
+            }),
+            sample: Some(SampleSection {
+                radius_mm: Some(radius_mm),
+            }),
+            calibration: None,
+            acquisition: None,
+            plan,
+            material: None,
+            resolved: None,
+        }
+    }
+
+    /// The file's text read as typed data; `Err` is TOML's message (the loader, [`crate::load`], says more).
+    pub fn parse(text: &str) -> Result<CampaignFile, toml::de::Error> {
+        toml::from_str(text)
+    }
+
+    /// `[campaign] id`, when given.
+    pub fn id(&self) -> Option<&str> {
+        self.campaign.as_ref().map(|c| c.id.as_str())
+    }
+
+    pub fn with_description(mut self, description: &str) -> CampaignFile {
+        if let Some(c) = &mut self.campaign {
+            c.description = Some(description.to_string());
+        }
+        self
+    }
+
+    /// `[material] preset = "<name>"`: a material preset as the simulated sample.
+    pub fn with_material_preset(mut self, preset: &str) -> CampaignFile {
+        let mut t = toml::Table::new();
+        t.insert("preset".into(), toml::Value::String(preset.to_string()));
+        self.material = Some(t);
+        self
+    }
+
+    pub fn with_calibration(mut self, calibration: CalibrationSection) -> CampaignFile {
+        self.calibration = Some(calibration);
+        self
+    }
+
+    pub fn with_acquisition(mut self, acquisition: AcquisitionSection) -> CampaignFile {
+        self.acquisition = Some(acquisition);
+        self
+    }
+
     /// The file as TOML text (what [`crate::load`] reads back to the same value).
     pub fn to_toml(&self) -> Result<String, toml::ser::Error> {
         toml::to_string(self)

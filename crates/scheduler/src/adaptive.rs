@@ -72,6 +72,21 @@ pub struct AdaptiveSpec {
     pub resolution_deg: f64,
 }
 
+impl AdaptiveSpec {
+    /// A budget of `budget_points` points with every other setting at its default.
+    pub fn with_budget(budget_points: u32) -> AdaptiveSpec {
+        AdaptiveSpec {
+            budget_points,
+            budget_s: None,
+            batch_points: default_batch(),
+            target_error: default_target(),
+            first_pass_step_deg: default_first_step(),
+            first_pass_theta_i_deg: None,
+            resolution_deg: default_resolution(),
+        }
+    }
+}
+
 fn default_batch() -> u32 {
     40
 }

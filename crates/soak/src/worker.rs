@@ -25,6 +25,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use gonio_daemon::api::{self, ApiConfig};
+use gonio_daemon::campaign::CampaignFile;
 use gonio_daemon::control::{Control, Event};
 use gonio_daemon::engine::PreparedCampaign;
 use gonio_daemon::rig::Rig;
@@ -226,11 +227,8 @@ fn run(args: &WorkerArgs) -> Result<CampaignState, SoakError> {
 
 /// `[campaign] id` of a campaign file.
 fn campaign_name(text: &str) -> Result<String, SoakError> {
-    let doc: toml::Table =
-        toml::from_str(text).map_err(|e| SoakError::Setup(format!("campaign file: {e}")))?;
-    doc.get("campaign")
-        .and_then(|c| c.get("id"))
-        .and_then(|v| v.as_str())
+    let file = CampaignFile::parse(text).map_err(|e| SoakError::Setup(format!("campaign file: {e}")))?;
+    file.id()
         .map(str::to_string)
         .ok_or_else(|| SoakError::Setup("campaign file: no [campaign] id".into()))
 }

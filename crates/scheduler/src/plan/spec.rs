@@ -36,6 +36,21 @@ pub struct PlanSpec {
     pub calibration: CalibrationSpec,
 }
 
+impl Default for PlanSpec {
+    /// What an empty `[plan]` table reads as (a plan still needs a grid or an adaptive table to validate).
+    fn default() -> PlanSpec {
+        PlanSpec {
+            bands_nm: None,
+            repeats: one(),
+            reciprocity: yes(),
+            rotation_deg: 0.0,
+            grid: None,
+            adaptive: None,
+            calibration: CalibrationSpec::default(),
+        }
+    }
+}
+
 fn one() -> u32 {
     1
 }
@@ -71,6 +86,36 @@ pub struct GridSpec {
     pub plane_phi_deg: Option<toml::Value>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub points: Option<Vec<[f64; 4]>>,
+}
+
+impl GridSpec {
+    /// A grid of `kind` with no angle given yet (set the keys the kind needs).
+    pub fn new(kind: GridKind) -> GridSpec {
+        GridSpec {
+            kind,
+            theta_i_deg: None,
+            phi_i_deg: None,
+            theta_o_deg: None,
+            phi_o_deg: None,
+            delta_phi_deg: None,
+            plane_phi_deg: None,
+            points: None,
+        }
+    }
+
+    /// An angle key's `{ from, to, step }` form (degrees).
+    pub fn range_deg(from: f64, to: f64, step: f64) -> toml::Value {
+        let mut t = toml::Table::new();
+        t.insert("from".into(), toml::Value::Float(from));
+        t.insert("to".into(), toml::Value::Float(to));
+        t.insert("step".into(), toml::Value::Float(step));
+        toml::Value::Table(t)
+    }
+
+    /// An angle key's list form (degrees).
+    pub fn list_deg(values: &[f64]) -> toml::Value {
+        toml::Value::Array(values.iter().map(|v| toml::Value::Float(*v)).collect())
+    }
 }
 
 /// `[plan.calibration]`.

@@ -26,11 +26,13 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use gonio_daemon::campaign::{AcquisitionSection, CalibrationSection, CampaignFile};
 use gonio_daemon::engine::{Control, Rig, prepare_campaign, run_campaign};
 use gonio_daemon::store::{CampaignState, PointRecord, Store};
 use gonio_instrument::{Axis, AxisRole, InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::{Kinematics, Pose};
+use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec};
 use gonio_simulator::recording::{MotionCommand, MotionRecord, Piece, check_arm_separation, physical_pieces};
 use gonio_simulator::scene::Pose as SimPose;
 use rand::{Rng, SeedableRng};
@@ -105,13 +107,13 @@ fn round1(x: f64) -> f64 {
     (x * 10.0).round() / 10.0
 }
 
-/// A plan of one of three kinds: explicit geometries (tilt and rotation move), an in-plane sweep, or a small
+/// A grid of one of three kinds: explicit geometries (tilt and rotation move), an in-plane sweep, or a small
 /// isotropic grid; always with one geometry that every constraint allows.
-fn plan_table(rng: &mut ChaCha8Rng) -> String {
+fn random_grid(rng: &mut ChaCha8Rng) -> GridSpec {
     match rng.random_range(0..3u32) {
         0 => {
             let n = rng.random_range(1..8usize);
-            let mut list = vec!["[30.0, 0.0, 30.0, 180.0]".to_string()];
+            let mut points = vec![[30.0, 0.0, 30.0, 180.0]];
             for _ in 0..n {
                 let (ti, pi, to, po) = (
                     rng.random_range(0.0..70.0f64),
@@ -119,15 +121,11 @@ fn plan_table(rng: &mut ChaCha8Rng) -> String {
                     rng.random_range(0.0..80.0f64),
                     rng.random_range(0.0..360.0f64),
                 );
-                list.push(format!(
-                    "[{}, {}, {}, {}]",
-                    round1(ti),
-                    round1(pi),
-                    round1(to),
-                    round1(po)
-                ));
+                points.push([round1(ti), round1(pi), round1(to), round1(po)]);
             }
-            format!("kind = \"points\"\npoints = [{}]\n", list.join(", "))
+            let mut grid = GridSpec::new(GridKind::Points);
+            grid.points = Some(points);
+            grid
         }
         1 => {
             let (ti, step, from, plane) = (
@@ -136,38 +134,34 @@ fn plan_table(rng: &mut ChaCha8Rng) -> String {
                 rng.random_range(-70.0..0.0f64),
                 rng.random_range(0.0..180.0f64),
             );
-            format!(
-                "kind = \"in-plane\"\ntheta_i_deg = [{}, 30.0]\ntheta_o_deg = {{ from = {}, to = 70.0, step = {} }}\n\
-                 plane_phi_deg = [{}]\n",
-                round1(ti),
-                round1(from),
-                round1(step),
-                round1(plane)
-            )
+            let mut grid = GridSpec::new(GridKind::InPlane);
+            grid.theta_i_deg = Some(GridSpec::list_deg(&[round1(ti), 30.0]));
+            grid.theta_o_deg = Some(GridSpec::range_deg(round1(from), 70.0, round1(step)));
+            grid.plane_phi_deg = Some(GridSpec::list_deg(&[round1(plane)]));
+            grid
         }
         _ => {
             let (step, dphi) = (rng.random_range(10.0..60.0f64), rng.random_range(20.0..90.0f64));
-            format!(
-                "kind = \"isotropic\"\ntheta_i_deg = {{ from = 0.0, to = 60.0, step = {} }}\n\
-                 theta_o_deg = [20.0, 50.0]\ndelta_phi_deg = {{ from = 0.0, to = 180.0, step = {} }}\n",
-                round1(step),
-                round1(dphi)
-            )
+            let mut grid = GridSpec::new(GridKind::Isotropic);
+            grid.theta_i_deg = Some(GridSpec::range_deg(0.0, 60.0, round1(step)));
+            grid.theta_o_deg = Some(GridSpec::list_deg(&[20.0, 50.0]));
+            grid.delta_phi_deg = Some(GridSpec::range_deg(0.0, 180.0, round1(dphi)));
+            grid
         }
     }
 }
 
 fn campaign_text(rng: &mut ChaCha8Rng) -> String {
-    let grid = plan_table(rng);
+    let grid = random_grid(rng);
     let all = [450.0, 550.0, 650.0];
-    let mut bands: Vec<String> = all
+    let mut bands: Vec<f64> = all
         .iter()
+        .copied()
         .filter(|_| rng.random_bool(0.5))
-        .map(|b| format!("{b:.1}"))
         .take(2)
         .collect();
     if bands.is_empty() {
-        bands.push(format!("{:.1}", all[rng.random_range(0..all.len())]));
+        bands.push(all[rng.random_range(0..all.len())]);
     }
     let repeats = rng.random_range(1..=2u32);
     let dark = rng.random_range(1..6u32);
@@ -180,34 +174,34 @@ fn campaign_text(rng: &mut ChaCha8Rng) -> String {
     } else {
         "spectralon"
     };
-    format!(
-        r#"[campaign]
-id = "safety"
-[sample]
-radius_mm = {SAMPLE_RADIUS_MM}
-[plan]
-bands_nm = [{bands}]
-repeats = {repeats}
-reciprocity = false
-[plan.grid]
-{grid}
-[plan.calibration]
-dark_every_points = {dark}
-reference_every_points = {reference}
-reference_pose_deg = {{ light = {light}, detector = {detector} }}
-[calibration]
-method = "absolute"
-simulate_operator = true
-[acquisition]
-averaging = {averaging}
-settle_s = {settle}
-[material]
-preset = "{material}"
-"#,
-        bands = bands.join(", "),
-        // The detector faces the source: the direct beam.
-        detector = light + 180.0,
-    )
+    let mut plan = PlanSpec {
+        bands_nm: Some(bands),
+        repeats,
+        reciprocity: false,
+        grid: Some(grid),
+        ..PlanSpec::default()
+    };
+    plan.calibration.dark_every_points = Some(dark);
+    plan.calibration.reference_every_points = Some(reference);
+    // The detector faces the source: the direct beam.
+    plan.calibration.reference_pose_deg = Some(
+        [
+            ("light".to_string(), light),
+            ("detector".to_string(), light + 180.0),
+        ]
+        .into_iter()
+        .collect(),
+    );
+    CampaignFile::new("safety", SAMPLE_RADIUS_MM, plan)
+        .with_calibration(CalibrationSection::default())
+        .with_acquisition(AcquisitionSection {
+            averaging: Some(averaging),
+            settle_s: Some(settle),
+            ..AcquisitionSection::default()
+        })
+        .with_material_preset(material)
+        .to_toml()
+        .expect("a campaign of numbers and names serialises")
 }
 
 fn interruption(rng: &mut ChaCha8Rng) -> Interruption {
