@@ -1,5 +1,5 @@
 //! The large tier of the numerical stress suite (10,000,000 random model/geometry pairs and the rest, see
-//! crates/brdf/tests/stress.rs): `--stress-large` (before the report) or `--only stress-large` (alone) runs it
+//! crates/brdf/tests/stress/): `--stress-large` (before the report) or `--only stress-large` (alone) runs it
 //! through cargo and records its output and duration in `docs/bench/stress-large.txt`; every run of the report
 //! quotes the last record.
 

@@ -230,9 +230,10 @@ impl Brdf for MeasuredBrdf {
             return Ok(0.0);
         }
         // Reciprocity bit for bit: `HalfDiff` takes theta_d and phi_d from its first argument, and the two orders
-        // can round to opposite sides of a bin edge (tests/stress.rs found wi at the pole, wo on the horizon:
-        // theta_d = pi/4 -+ 1 ulp, cells 44 and 45, one valid and one not: f = 0.0092 one way and 0 the other).
-        // Evaluating the pair in a canonical order makes f(wi, wo) and f(wo, wi) the same computation.
+        // can round to opposite sides of a bin edge (tests/stress/pointwise.rs found wi at the pole, wo on
+        // the horizon: theta_d = pi/4 -+ 1 ulp, cells 44 and 45, one valid and one not: f = 0.0092 one way
+        // and 0 the other). Evaluating the pair in a canonical order makes f(wi, wo) and f(wo, wi) the same
+        // computation.
         let (a, b) = if (wi.z(), wi.x(), wi.y()) <= (wo.z(), wo.x(), wo.y()) {
             (wi, wo)
         } else {

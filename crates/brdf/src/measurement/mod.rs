@@ -233,8 +233,8 @@ fn check_geometry(
     non_negative("angle_std_rad", geometry.angle_std_rad)?;
     let min_cos = finite("min_cos_theta_o", limits.min_cos_theta_o)?;
     // A direction built from a NaN angle (e.g. "nan" in a plan file) has NaN components, and NaN passes every
-    // `<`/`<=` test below: refuse it by name here (found by tests/stress.rs; it used to surface only as a
-    // non-finite "result").
+    // `<`/`<=` test below: refuse it by name here (found by tests/stress/measurement.rs; it used to surface
+    // only as a non-finite "result").
     let cos_i = finite("wi.cos_theta", geometry.wi.cos_theta())?;
     let cos_o = finite("wo.cos_theta", geometry.wo.cos_theta())?;
     finite("wi.sin_theta", geometry.wi.sin_theta())?;

@@ -17,7 +17,7 @@
 //!   `integral f cos(theta_o) d wo` as the lobe narrows (D concentrates at the normal, where the half vector is
 //!   the normal and `wi . h = cos theta_i`), so the total reflected power is continuous across the switch: it
 //!   changes by O(alpha^2) ~ 1e-6 relative (tests `delta_switch_preserves_reflected_power` and, in
-//!   tests/stress.rs, `alpha_clamp_and_delta_switch_are_continuous_in_reflected_power`).
+//!   tests/stress/energy.rs, `alpha_clamp_and_delta_switch_are_continuous_in_reflected_power`).
 //!   The power inside a finite aperture of half-angle beta around the mirror direction is continuous to the
 //!   same order for Beckmann (Gaussian tail) but NOT for GGX, whose power-law tail puts a fraction
 //!   `alpha^2 / (alpha^2 + tan^2(beta/2))` of the lobe outside the aperture (at normal incidence): at alpha = 1e-3
@@ -30,11 +30,12 @@
 //!   aperture integral of the lobe just above the switch to 4e-6 (test
 //!   `delta_cone_fraction_matches_the_lobe_just_above_the_switch`). A consumer that multiplies the delta's
 //!   reflectance by it sees an aperture power continuous across the switch on the mirror direction. The
-//!   simulator's optics (crates/simulator/src/optics.rs, `aperture_truth`) does NOT do so yet: it puts the whole delta
-//!   inside (spread only by the source's divergence), so its reading at the mirror direction still jumps by the
-//!   GGX tail fraction above (3.8% at alpha 1e-3 for its 0.01 rad aperture; 4e-4 at the 1e-4 clamp). Off the
-//!   mirror direction the two sides also differ in how the source's divergence enters (the lobe side ignores
-//!   it), so a fully continuous switch would need the same divergence treatment on both sides.
+//!   simulator's optics (crates/simulator/src/optics/truth.rs, `aperture_truth`) does NOT do so yet: it puts
+//!   the whole delta inside (spread only by the source's divergence), so its reading at the mirror direction
+//!   still jumps by the GGX tail fraction above (3.8% at alpha 1e-3 for its 0.01 rad aperture; 4e-4 at the
+//!   1e-4 clamp). Off the mirror direction the two sides also differ in how the source's divergence enters
+//!   (the lobe side ignores it), so a fully continuous switch would need the same divergence treatment on
+//!   both sides.
 //! - The switch needs both alphas below the threshold: a lobe that is narrow in one direction only stays a lobe.
 
 use std::f64::consts::PI;
