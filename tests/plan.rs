@@ -198,6 +198,15 @@ fn plan_accepts_every_campaign_run_accepts_and_predicts_the_same_duration() {
         compared += 1;
     }
     assert!(compared >= 6, "only {compared} campaigns ran: {results:?}");
+    // The shipped adaptive campaign (target error 0) places its whole budget in `gonio run`: 300 points, one band.
+    let adaptive_out = dir.path().join("out-adaptive-0");
+    let adaptive_out = if adaptive_out.exists() {
+        adaptive_out
+    } else {
+        dir.path().join("out-adaptive-1")
+    };
+    let csv = std::fs::read_to_string(adaptive_out.join("points.csv")).expect("adaptive points.csv");
+    assert_eq!(csv.lines().count() - 1, 300, "rows of {}", adaptive_out.display());
     // The slow settings are in the prediction (the demo has 213 points: 1000 samples and 2 s more settling
     // each are minutes).
     let prediction = |p: &Path| {
