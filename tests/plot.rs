@@ -75,12 +75,51 @@ fn svg_is_well_formed_and_holds_every_series() {
         );
     }
     assert!(has("phi_o - phi_i (deg)") && has("theta_o (deg)"));
+    // Every heat map has its colour scale: a labelled bar whose ticks are BRDF values within the map's range.
+    assert_eq!(
+        texts.iter().filter(|t| *t == "BRDF (1/sr)").count(),
+        incidences.len(),
+        "{texts:?}"
+    );
+    for ti in incidences {
+        let caption = texts
+            .iter()
+            .find(|t| t.starts_with(&format!("theta_i = {ti} deg, 450 nm: BRDF ")))
+            .expect("caption");
+        // "... BRDF 1.23e-2..4.56e1 1/sr (log colour)"
+        let range = caption
+            .split("BRDF ")
+            .nth(1)
+            .and_then(|r| r.split(' ').next())
+            .expect("range");
+        let (lo, hi) = range.split_once("..").expect("lo..hi");
+        let (lo, hi): (f64, f64) = (lo.parse().expect("lo"), hi.parse().expect("hi"));
+        assert!(lo > 0.0 && hi >= lo, "{caption}");
+    }
+    let ticks: Vec<f64> = texts
+        .iter()
+        .filter(|t| t.contains('e') && t.parse::<f64>().is_ok())
+        .filter_map(|t| t.parse().ok())
+        .collect();
+    assert!(ticks.len() >= 2 * incidences.len(), "colour-bar ticks: {texts:?}");
+    assert!(ticks.iter().all(|v| *v > 0.0 && v.is_finite()), "{ticks:?}");
     // Each curve is a polyline (plus the rings and spokes of the polar grids); each measured node a circle.
     assert!(polylines >= 2 * incidences.len(), "{polylines} polylines");
     assert!(circles >= 2 * 20, "{circles} circles");
     assert!(!texts.iter().any(|t| t.contains("model")), "no model requested");
 
-    // With a model: its curves, one legend entry for them per band, and the comparison panel.
+    // With a model: its curves, one legend entry for them per band, and the comparison panel; compared with the
+    // same plot without the model (the heat maps' colour bars have ticks, so the band must be the same).
+    let base = dir.path().join("band-650.svg");
+    let o = gonio()
+        .arg("plot")
+        .arg(&run)
+        .args(["--band", "650", "--out"])
+        .arg(&base)
+        .output()
+        .expect("plot at 650 nm");
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let (_, polylines, _) = svg_texts(&std::fs::read_to_string(&base).expect("svg"));
     let out = dir.path().join("with-model.svg");
     let o = gonio()
         .arg("plot")

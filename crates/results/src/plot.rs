@@ -7,7 +7,8 @@
 //!   the source's direction is marked on the rim by a dot of the curve's colour;
 //! - per incidence angle, a heat map of the BRDF over (delta_phi = phi_o - phi_i, theta_o) for one band
 //!   (default: the band nearest 550 nm), log colour scale, each measured node a cell reaching halfway to its
-//!   neighbours;
+//!   neighbours, and beside it the colour scale: a bar from the panel's smallest to its largest value with
+//!   labelled ticks (BRDF in 1/sr), so that a colour reads as a value;
 //! - with a model (a fitted material file), its curves in the polar plots (lines over each slice's measured
 //!   range, the measurements then as dots) and a panel of measured against model values (log-log, with the 1:1 line).
 //!
@@ -49,7 +50,14 @@ pub struct PlotOptions {
 pub struct PlotSummary {
     pub panels: Vec<String>,
     pub series: Vec<String>,
+    /// Each heat map's colour scale: the BRDF (1/sr) at its bottom and top colour.
+    pub colour_scales: Vec<(f64, f64)>,
 }
+
+/// Width of a heat map's colour bar, its ticks and label included (pixels).
+const COLOUR_BAR_W: u32 = 92;
+/// Colour steps drawn in a colour bar.
+const COLOUR_BAR_STEPS: usize = 64;
 
 fn perr(e: impl std::fmt::Display) -> ResultsError {
     ResultsError::Plot {
@@ -411,7 +419,9 @@ fn heat_panel(
         if lo.is_finite() { lo } else { 0.0 },
         hi
     );
-    let mut chart = ChartBuilder::on(area)
+    let (width, _) = area.dim_in_pixel();
+    let (map_area, bar_area) = area.split_horizontally(width.saturating_sub(COLOUR_BAR_W));
+    let mut chart = ChartBuilder::on(&map_area)
         .caption(&caption, ("sans-serif", 13))
         .margin(12)
         .x_label_area_size(32)
@@ -431,7 +441,48 @@ fn heat_panel(
             Rectangle::new([(*x0, *y0), (*x1, *y1)], viridis(t).filled())
         }))
         .map_err(perr)?;
+    if hi > 0.0 {
+        colour_bar(&bar_area, llo, lhi)?;
+        summary.colour_scales.push((10f64.powf(llo), 10f64.powf(lhi)));
+    }
     summary.panels.push(caption);
+    Ok(())
+}
+
+/// The colour scale of a heat map: viridis from `10^llo` (bottom) to `10^lhi` (top) 1/sr. The axis is linear in
+/// log10 of the BRDF, its ticks labelled with the BRDF itself, so that every bar has several labels whatever
+/// its span (plotters' log axis labels only whole decades).
+fn colour_bar(area: &DrawingArea<SVGBackend<'_>, Shift>, llo: f64, lhi: f64) -> Result<(), ResultsError> {
+    // A panel of one value still gets a readable bar: a little room either side of it.
+    let (l0, l1) = if lhi - llo > 1e-9 {
+        (llo, lhi)
+    } else {
+        (llo - 0.1, lhi + 0.1)
+    };
+    let mut bar = ChartBuilder::on(area)
+        .margin_top(40)
+        .margin_bottom(44)
+        .margin_left(4)
+        .right_y_label_area_size(62)
+        .build_cartesian_2d(0.0f64..1.0f64, l0..l1)
+        .map_err(perr)?;
+    bar.configure_mesh()
+        .disable_mesh()
+        .disable_x_axis()
+        .y_desc("BRDF (1/sr)")
+        .y_labels(6)
+        .y_label_style(("sans-serif", 11))
+        .axis_desc_style(("sans-serif", 11))
+        .y_label_formatter(&|v: &f64| format!("{:.1e}", 10f64.powf(*v)))
+        .draw()
+        .map_err(perr)?;
+    let step = (l1 - l0) / COLOUR_BAR_STEPS as f64;
+    bar.draw_series((0..COLOUR_BAR_STEPS).map(|j| {
+        let (a, b) = (l0 + j as f64 * step, l0 + (j + 1) as f64 * step);
+        let t = (0.5 * (a + b) - llo) / (lhi - llo).max(1e-12);
+        Rectangle::new([(0.0, a), (1.0, b)], viridis(t).filled())
+    }))
+    .map_err(perr)?;
     Ok(())
 }
 
@@ -519,6 +570,29 @@ mod tests {
         assert_eq!(viridis(1.0), RGBColor(253, 231, 37));
         assert_eq!(viridis(0.5), RGBColor(33, 145, 140));
         assert_eq!(viridis(f64::NAN), RGBColor(68, 1, 84));
+    }
+
+    #[test]
+    fn a_colour_bar_labels_values_within_its_range() {
+        let mut svg = String::new();
+        {
+            let root = SVGBackend::with_string(&mut svg, (COLOUR_BAR_W, PANEL_H)).into_drawing_area();
+            colour_bar(&root, (2.0e-3f64).log10(), (40.0f64).log10()).expect("drawn");
+            root.present().expect("present");
+        }
+        assert!(svg.contains("BRDF (1/sr)"), "{svg}");
+        let ticks: Vec<f64> = svg
+            .split("</text>")
+            .filter_map(|chunk| chunk.rsplit('>').next())
+            .filter_map(|t| t.trim().parse::<f64>().ok())
+            .collect();
+        assert!(ticks.len() >= 3, "ticks {ticks:?}");
+        assert!(
+            ticks.iter().all(|v| (2.0e-3 * 0.999..=40.0 * 1.001).contains(v)),
+            "{ticks:?}"
+        );
+        // The gradient: every colour step drawn.
+        assert!(svg.matches("<rect").count() >= COLOUR_BAR_STEPS, "{svg}");
     }
 
     #[test]
