@@ -10,6 +10,7 @@ use crate::kinematics::{self, PoseGeometry};
 use crate::scene::{Band, Pose, Scene};
 
 use super::footprint::{self, Footprint};
+use super::imperfect::Geometry;
 use super::{OpticalReading, Optics, OpticsError, cap};
 
 /// A reading without its instant: [`Optics::at_rest`].
@@ -46,7 +47,11 @@ impl Optics {
     /// Everything of a reading that does not depend on time: with the axes and the wheel at rest, the averaged
     /// samples of one meter reading differ only by the source (drift, noise), not by this.
     fn at_rest(&self, pose: &Pose, band: &Band) -> Result<AtRest, OpticsError> {
-        let geometry = kinematics::forward(pose);
+        let Geometry {
+            pose: geometry,
+            detector_arm_lab,
+            spot_mm,
+        } = self.geometry_of(pose);
         let blocked = geometry.arm_separation_rad() < self.retro_block_rad;
         let mirror = geometry.wi.reflect_about_normal();
         let specular_in_aperture =
@@ -66,6 +71,7 @@ impl Optics {
             truth_aperture_sr: 0.0,
             wi: geometry.wi,
             wo: geometry.wo,
+            spot_mm,
             overfilled_sample: false,
             overfilled_field: false,
             beam_blocked_by_detector: blocked,
@@ -81,7 +87,7 @@ impl Optics {
         };
         if !self.sample_mounted() {
             // No sample: the detector sees the beam itself when it faces the source, nothing otherwise.
-            let off_axis = kinematics::angle_between(&geometry.detector_lab, &neg(&geometry.source_lab));
+            let off_axis = kinematics::angle_between(&detector_arm_lab, &neg(&geometry.source_lab));
             let fraction = cap::fraction_inside(self.divergence_half_rad, self.aperture_half_rad, off_axis);
             out.intercepted_fraction = fraction;
             return Ok(AtRest {
