@@ -5,7 +5,8 @@
 //! - `P_i(t)` is the source power with its slow drift and (when enabled) its relative noise ([`source`]);
 //! - `T` is the filter's transmission; the blank gives 0;
 //! - `eta_footprint` is the fraction of the beam that lands on the sample inside the detector's field of view
-//!   ([`footprint`], exact closed form: the footprint grows as 1/cos(theta_i) and spills past the sample's edge);
+//!   ([`footprint`], exact closed form: the footprint grows as 1/cos(theta_i) and spills past the sample's edge;
+//!   [`footprint_offset`] when the spot is off-centre on an imperfect instrument);
 //! - the integral runs over the detector's circular aperture seen from the sample centre: a cone about `wo` of
 //!   half-angle `atan(r/d)` ([`aperture`], computed as cheaply as the tolerance allows, with an error estimate);
 //! - an ideal specular (delta) lobe of reflectance `F` is added analytically: `eta_delta` is the fraction of the
@@ -48,6 +49,7 @@
 pub mod aperture;
 pub mod cap;
 pub mod footprint;
+pub mod footprint_offset;
 mod imperfect;
 mod reading;
 mod resolved;
@@ -124,8 +126,8 @@ pub struct OpticalReading {
     /// Outgoing direction in the sample frame (from the beam's spot towards the detector centre), nominal or true
     /// as `wi`.
     pub wo: Direction,
-    /// The beam's centre on the sample (sample x, y; mm): 0, 0 unless the arms' axis misses the sample centre.
-    /// (The footprint's clipping is still computed about the sample centre: issue 16's beam group.)
+    /// The beam's centre on the sample (sample x, y; mm): 0, 0 unless the arms' axis misses the sample centre
+    /// (then the footprint is clipped about it: [`footprint_offset`]).
     pub spot_mm: [f64; 2],
     /// The footprint spills past the sample's edge.
     pub overfilled_sample: bool,

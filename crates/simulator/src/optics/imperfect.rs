@@ -21,6 +21,8 @@ pub(super) struct Geometry {
     pub detector_arm_lab: LabVector,
     /// The beam's centre on the sample (sample x, y; mm).
     pub spot_mm: [f64; 2],
+    /// The centre of the detector's field of view on the sample (sample x, y; mm).
+    pub field_centre_mm: [f64; 2],
 }
 
 /// The sample's current mounting: its index (0 the first) and its tilt.
@@ -92,6 +94,7 @@ impl Optics {
                 },
                 detector_arm_lab: t.detector_arm_lab,
                 spot_mm: t.spot_mm,
+                field_centre_mm: t.field_centre_mm,
             },
             None => {
                 let pose = kinematics::forward(pose);
@@ -99,9 +102,37 @@ impl Optics {
                     detector_arm_lab: pose.detector_lab,
                     pose,
                     spot_mm: [0.0, 0.0],
+                    field_centre_mm: [0.0, 0.0],
                 }
             }
         }
+    }
+
+    /// The beam's footprint: the closed form when the spot and the field are centred (always on the ideal
+    /// instrument), the off-centre integration otherwise.
+    pub(super) fn footprint_of(&self, g: &Geometry) -> super::footprint::Footprint {
+        if g.spot_mm == [0.0, 0.0] && g.field_centre_mm == [0.0, 0.0] {
+            return super::footprint::footprint(
+                self.beam_radius_mm,
+                self.sample_radius_mm,
+                self.field_radius_mm,
+                &g.pose.wi,
+                &g.pose.wo,
+            );
+        }
+        // The field is a cylinder about the detector arm's own axis (through the arms' axis), not about the
+        // direction from the spot to the aperture.
+        let a = g.pose.frame.to_sample(&g.detector_arm_lab);
+        let view = gonio_brdf::Direction::new(a[0], a[1], a[2]).unwrap_or(gonio_brdf::Direction::NORMAL);
+        super::footprint_offset::footprint_offset(
+            self.beam_radius_mm,
+            self.sample_radius_mm,
+            self.field_radius_mm,
+            &g.pose.wi,
+            &view,
+            g.spot_mm,
+            g.field_centre_mm,
+        )
     }
 
     /// Whether the sample is in the holder (kept with the seating so both change together).

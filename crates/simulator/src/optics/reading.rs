@@ -6,10 +6,9 @@
 
 use gonio_brdf::Brdf;
 
-use crate::kinematics::{self, PoseGeometry};
+use crate::kinematics;
 use crate::scene::{Band, Pose, Scene};
 
-use super::footprint::{self, Footprint};
 use super::imperfect::Geometry;
 use super::{OpticalReading, Optics, OpticsError, cap};
 
@@ -47,11 +46,13 @@ impl Optics {
     /// Everything of a reading that does not depend on time: with the axes and the wheel at rest, the averaged
     /// samples of one meter reading differ only by the source (drift, noise), not by this.
     fn at_rest(&self, pose: &Pose, band: &Band) -> Result<AtRest, OpticsError> {
+        let g = self.geometry_of(pose);
         let Geometry {
             pose: geometry,
             detector_arm_lab,
             spot_mm,
-        } = self.geometry_of(pose);
+            ..
+        } = g;
         let blocked = geometry.arm_separation_rad() < self.retro_block_rad;
         let mirror = geometry.wi.reflect_about_normal();
         let specular_in_aperture =
@@ -97,7 +98,7 @@ impl Optics {
             });
         }
         let r = self.resolved(nm)?;
-        let fp = self.footprint(&geometry);
+        let fp = self.footprint_of(&g);
         out.intercepted_fraction = fp.intercepted_fraction;
         out.overfilled_sample = fp.overfilled_sample;
         out.overfilled_field = fp.overfilled_field;
@@ -151,16 +152,6 @@ impl Optics {
             }
         }
         out
-    }
-
-    fn footprint(&self, g: &PoseGeometry) -> Footprint {
-        footprint::footprint(
-            self.beam_radius_mm,
-            self.sample_radius_mm,
-            self.field_radius_mm,
-            &g.wi,
-            &g.wo,
-        )
     }
 }
 

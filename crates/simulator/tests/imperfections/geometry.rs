@@ -8,7 +8,7 @@
 use gonio_brdf::Direction;
 use gonio_instrument::{AxisRole, GeometryImperfections};
 
-use super::{BAND_550, file_with, geometry_truth, optics, pose};
+use super::{BAND_550, file_with, geometry_truth, optics, optics_of_radius, pose};
 
 type V = [f64; 3];
 
@@ -280,4 +280,86 @@ fn eccentricity_alone_moves_the_spot_and_the_viewing_direction() {
         o.reading(&p, &BAND_550, 0.0).expect("reading").power_w,
         ideal.reading(&p, &BAND_550, 0.0).expect("reading").power_w
     );
+}
+
+/// Fraction of a beam (radius rb along unit lab `s`, through the spot P) landing on a sample disc of radius `rs`
+/// inside the field (radius rf along the detector arm `od` through Q), by counting cells of a fine grid on the
+/// sample plane (sample x, y): the footprint of a uniform beam, from the model's definition.
+#[allow(clippy::too_many_arguments)]
+fn counted_fraction(rb: f64, rs: f64, rf: f64, s: V, od: V, p: [f64; 2], q: [f64; 2], n: usize) -> f64 {
+    let extent = rb / s[2];
+    let h = 2.0 * extent / n as f64;
+    let (mut beam, mut kept) = (0u64, 0u64);
+    for i in 0..n {
+        let x = p[0] - extent + (i as f64 + 0.5) * h;
+        for j in 0..n {
+            let y = p[1] - extent + (j as f64 + 0.5) * h;
+            // Distance from the beam's axis: |d|^2 - (d . s)^2 with d in the plane.
+            let (dx, dy) = (x - p[0], y - p[1]);
+            let along = dx * s[0] + dy * s[1];
+            if dx * dx + dy * dy - along * along > rb * rb {
+                continue;
+            }
+            beam += 1;
+            let (fx, fy) = (x - q[0], y - q[1]);
+            let along_f = fx * od[0] + fy * od[1];
+            if x * x + y * y <= rs * rs && fx * fx + fy * fy - along_f * along_f <= rf * rf {
+                kept += 1;
+            }
+        }
+    }
+    kept as f64 / beam as f64
+}
+
+#[test]
+fn eccentricity_alone_moves_the_footprint_across_the_sample_edge() {
+    let file = file_with(
+        GeometryImperfections {
+            eccentricity_sd_mm: 1.0,
+            ..Default::default()
+        },
+        15,
+    );
+    let c_xy = geometry_truth(&file).eccentricity_mm;
+    let c = [c_xy[0], c_xy[1], 0.0];
+    let (rb, rf, rs) = (
+        file.instrument.source.beam_radius_mm,
+        file.instrument.detector.field_radius_mm,
+        6.0,
+    );
+    let o = optics_of_radius(&file, rs);
+    let ideal = optics_of_radius(&file_with(GeometryImperfections::default(), 1), rs);
+    // Grazing incidence: the 1.5 mm beam's footprint is 1.5 / cos 80 = 8.6 mm long, past the 6 mm sample's edge.
+    for (l, d, t, r) in [(80.0, -30.0, 0.0, 0.0), (75.0, -20.0, 10.0, 40.0)] {
+        let f = stage(t, r);
+        let n = f[2];
+        let (s, od) = (arm(l), arm(d));
+        let spot = [0, 1, 2].map(|i| c[i] - dot(&c, &n) / dot(&s, &n) * s[i]);
+        let field = [0, 1, 2].map(|i| c[i] - dot(&c, &n) / dot(&od, &n) * od[i]);
+        let (ps, qs) = (comps(&spot, &f), comps(&field, &f));
+        let expect = counted_fraction(
+            rb,
+            rs,
+            rf,
+            comps(&s, &f),
+            comps(&od, &f),
+            [ps[0], ps[1]],
+            [qs[0], qs[1]],
+            2000,
+        );
+        let got = o.reading(&pose(l, d, t, r), &BAND_550, 0.0).expect("reading");
+        let centred = ideal.reading(&pose(l, d, t, r), &BAND_550, 0.0).expect("reading");
+        assert!(got.overfilled_sample && got.intercepted_fraction < 1.0);
+        assert!(
+            (got.intercepted_fraction - expect).abs() < 3e-4,
+            "{} vs counted {expect}",
+            got.intercepted_fraction
+        );
+        assert!(
+            (got.intercepted_fraction - centred.intercepted_fraction).abs() > 1e-3,
+            "the offset spot spills differently: {} vs {}",
+            got.intercepted_fraction,
+            centred.intercepted_fraction
+        );
+    }
 }

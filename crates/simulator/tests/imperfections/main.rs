@@ -42,11 +42,15 @@ fn lambertian() -> Material {
 
 /// Optics of a Lambertian sample with drift and noise off, on `file`'s hidden truth.
 fn optics(file: &InstrumentFile) -> Optics {
+    optics_of_radius(file, 25.0)
+}
+
+fn optics_of_radius(file: &InstrumentFile, radius_mm: f64) -> Optics {
     Optics::new(
         &file.instrument,
         SampleSpec {
             material: lambertian(),
-            radius_mm: 25.0,
+            radius_mm,
             orientation_deg: 0.0,
         },
         file.simulator.seed,
