@@ -54,3 +54,34 @@ fn record(hidden: &HiddenTruth, mountings: usize) -> SimulatorTruth {
         }),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const REALISTIC: &str = include_str!("../../../../config/instruments/realistic.toml");
+
+    #[test]
+    fn only_an_imperfect_dry_run_has_a_hidden_truth() {
+        let t = simulator_truth(REALISTIC, true, 3).expect("realistic dry-run");
+        let g = t.geometry.expect("geometry");
+        assert_eq!(g.axes.len(), 4);
+        assert_eq!(g.axes[0].role, "light-arm");
+        assert_eq!(g.seatings.len(), 4, "mountings 0..=3");
+        assert_eq!(
+            simulator_truth(REALISTIC, false, 3),
+            None,
+            "hardware: nothing to tell"
+        );
+        assert_eq!(
+            simulator_truth(gonio_instrument::SIMULATED_INSTRUMENT_TOML, true, 3),
+            None
+        );
+        assert_eq!(simulator_truth("not toml [", true, 3), None);
+        // The same stored text gives the same values: run.json is a function of the store.
+        assert_eq!(
+            simulator_truth(REALISTIC, true, 3).and_then(|t| t.geometry),
+            Some(g)
+        );
+    }
+}
