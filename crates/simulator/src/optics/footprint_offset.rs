@@ -32,7 +32,8 @@ fn interval(d0: [f64; 2], e: [f64; 2], w: [f64; 2], r: f64) -> Option<(f64, f64)
     let b = 2.0 * (de - dw * ew);
     let c = d0[0] * d0[0] + d0[1] * d0[1] - dw * dw - r * r;
     let disc = b * b - 4.0 * a * c;
-    if !(a > 0.0) || disc < 0.0 {
+    // a is 1 - cos^2 of an angle: > 0 unless the ray runs along a grazing cylinder (or a value is NaN).
+    if a.is_nan() || a <= 0.0 || disc.is_nan() || disc < 0.0 {
         return None;
     }
     let s = disc.sqrt();
