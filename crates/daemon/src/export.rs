@@ -81,7 +81,7 @@ pub fn run_record(store: &Store, record: &CampaignRecord) -> Result<(PointsTable
     let id = record.id;
     let stored_points = store.points(id)?;
     let table = points_table(record, &stored_points);
-    let calibrations = store
+    let calibrations: Vec<CalibrationReading> = store
         .calibrations(id)?
         .into_iter()
         .map(|c| CalibrationReading {
@@ -113,8 +113,14 @@ pub fn run_record(store: &Store, record: &CampaignRecord) -> Result<(PointsTable
             instrument_toml: record.instrument_toml.clone(),
         },
         devices,
-        calibrations,
         predicted_instrument_s: predicted_s(record),
+        // A function of the stored instrument file, like everything else here; absent on the ideal instrument.
+        simulator_truth: crate::rig::simulator_truth(
+            &record.instrument_toml,
+            record.dry_run,
+            calibrations.len(),
+        ),
+        calibrations,
     };
     let run = RunRecord::assemble(stored, &table.points);
     Ok((table, run))

@@ -13,9 +13,11 @@
 //! relative method's reference) and back, as the operator would, each with its own optics on the same source.
 
 mod dry_run;
+mod hidden;
 pub mod sim_link;
 
 pub use dry_run::{Held, InstrumentClock, SampleHolder};
+pub use hidden::simulator_truth;
 
 use std::sync::{Arc, RwLock};
 
@@ -375,9 +377,12 @@ impl Rig {
                 "a simulated sample needs the simulated instrument (no device is simulated)".into(),
             ));
         }
+        let hidden = self.inner.sim.as_ref().and_then(|s| s.hidden_truth());
         Ok(Arc::new(
             Optics::new(&self.inner.file.instrument, sample, seed)
-                .map_err(|e| EngineError::Instrument(format!("simulated optics: {e}")))?,
+                .map_err(|e| EngineError::Instrument(format!("simulated optics: {e}")))?
+                // The instrument's hidden imperfections stay inside the simulator's optics.
+                .with_hidden_truth(hidden),
         ))
     }
 

@@ -86,7 +86,9 @@ fn build_optics(file: &InstrumentFile, material: &str) -> Result<Arc<Optics>, Cl
         orientation_deg: 0.0,
     };
     let optics = Optics::new(&file.instrument, sample, file.simulator.seed)
-        .map_err(|e| CliError::input(format!("simulated optics: {e}")))?;
+        .map_err(|e| CliError::input(format!("simulated optics: {e}")))?
+        // The same hidden imperfections the in-process simulator draws from this file and seed.
+        .with_hidden_truth(gonio_simulator::imperfections::HiddenTruth::draw(file).as_ref());
     Ok(Arc::new(optics))
 }
 

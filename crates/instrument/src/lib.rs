@@ -25,9 +25,12 @@
 //!
 //! The records and loading are here; [`Instrument::validate`]'s rules in `validate`.
 
+pub mod imperfections;
 mod validate;
 
 use std::path::Path;
+
+pub use imperfections::{GeometryImperfections, Imperfections, ImperfectionsError};
 
 use serde::{Deserialize, Serialize};
 
@@ -322,6 +325,10 @@ pub struct SimulatorSettings {
     pub seed: u64,
     #[serde(default)]
     pub faults: Faults,
+    /// The instrument's imperfections (magnitudes; the actual values are drawn from `seed`). All off by default:
+    /// the ideal instrument. See [`imperfections`].
+    #[serde(default)]
+    pub imperfections: Imperfections,
 }
 
 /// Fault injection; everything off by default.
@@ -402,6 +409,13 @@ impl InstrumentFile {
             .map_err(|message| InstrumentError::Invalid {
                 path: origin.to_string(),
                 message,
+            })?;
+        file.simulator
+            .imperfections
+            .validate()
+            .map_err(|e| InstrumentError::Invalid {
+                path: origin.to_string(),
+                message: e.to_string(),
             })?;
         Ok(file)
     }

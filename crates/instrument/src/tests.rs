@@ -28,3 +28,28 @@ fn axis_calibration_round_trips() {
     assert_eq!(p, -17.5);
     assert_eq!(axis.physical_from_controller_deg(p), 30.0);
 }
+
+#[test]
+fn the_realistic_instrument_loads_and_has_geometry_imperfections() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/instruments/realistic.toml");
+    let file = InstrumentFile::load(&path).expect("realistic.toml is valid");
+    assert!(!file.simulator.imperfections.is_ideal());
+    assert!(file.simulator.imperfections.geometry.zero_offset_sd_deg > 0.0);
+    // The ideal instrument states none.
+    assert!(InstrumentFile::simulated().simulator.imperfections.is_ideal());
+}
+
+#[test]
+fn a_bad_imperfection_is_refused_with_the_file_and_the_key() {
+    let text = format!(
+        "{SIMULATED_INSTRUMENT_TOML}\n[simulator.imperfections.geometry]\nreseat_tilt_sd_deg = -0.01\n"
+    );
+    let msg = InstrumentFile::parse(&text, "x.toml")
+        .expect_err("negative")
+        .to_string();
+    assert!(
+        msg.contains("x.toml") && msg.contains("reseat_tilt_sd_deg"),
+        "{msg}"
+    );
+}

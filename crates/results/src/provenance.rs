@@ -9,7 +9,13 @@
 //! Layout (keys of the JSON object): `campaign` (id, name, state, last error, counts, flag counts, creation
 //! time), `software_version`, `config` (`campaign_toml`, `instrument_toml`: the texts the run used),
 //! `devices` (name, identity), `calibrations`, `timing` (predicted and actual instrument time), `truth`
-//! (dry-runs: errors against the simulator's ground truth).
+//! (dry-runs: errors against the simulator's ground truth), and on an imperfect simulated instrument
+//! `simulator_truth` (its hidden imperfections, [`SimulatorTruth`]; absent otherwise, so the ideal instrument's
+//! run.json is unchanged).
+
+mod simulator_truth;
+
+pub use simulator_truth::{AxisTruthRecord, GeometryTruthRecord, SeatingRecord, SimulatorTruth};
 
 use std::collections::BTreeMap;
 
@@ -31,6 +37,9 @@ pub struct RunRecord {
     pub calibrations: Vec<CalibrationReading>,
     pub timing: Timing,
     pub truth: TruthSummary,
+    /// An imperfect simulated instrument's hidden values; absent on the ideal one and on hardware.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simulator_truth: Option<SimulatorTruth>,
 }
 
 /// The campaign's identity, state and counts.
@@ -162,6 +171,8 @@ pub struct StoredCampaign {
     pub devices: Vec<DeviceIdentity>,
     pub calibrations: Vec<CalibrationReading>,
     pub predicted_instrument_s: Option<f64>,
+    /// The simulated instrument's hidden imperfections (a function of the stored instrument file).
+    pub simulator_truth: Option<SimulatorTruth>,
 }
 
 impl RunRecord {
@@ -211,6 +222,7 @@ impl RunRecord {
                 against_aperture_average: truth_errors(points, |p| p.truth_aperture_sr),
                 against_point_value: truth_errors(points, |p| p.truth_point_sr),
             },
+            simulator_truth: stored.simulator_truth,
         }
     }
 
@@ -259,6 +271,10 @@ impl RunRecord {
             calibrations: part(object, "calibrations", &err)?,
             timing: part(object, "timing", &err)?,
             truth: part(object, "truth", &err)?,
+            simulator_truth: match object.get("simulator_truth") {
+                None => None,
+                Some(_) => Some(part(object, "simulator_truth", &err)?),
+            },
         })
     }
 }
@@ -295,6 +311,7 @@ pub(crate) mod tests {
                 u_w: 1e-7,
             }],
             predicted_instrument_s: Some(20.5),
+            simulator_truth: None,
         }
     }
 
@@ -366,6 +383,37 @@ pub(crate) mod tests {
             text,
             "writing what was read gives the same bytes"
         );
+    }
+
+    #[test]
+    fn simulator_truth_is_absent_when_none_and_round_trips_when_present() {
+        let ideal = sample_record();
+        assert!(!ideal.to_json_text().contains("simulator_truth"));
+        let mut r = sample_record();
+        r.simulator_truth = Some(SimulatorTruth {
+            seed: 9,
+            geometry: Some(GeometryTruthRecord {
+                axes: vec![AxisTruthRecord {
+                    role: "light-arm".into(),
+                    zero_offset_deg: 0.013,
+                    encoder_amplitude_deg: 0.002,
+                    encoder_harmonic: 1,
+                    encoder_phase_deg: 123.0,
+                }],
+                sample_tilt_x_deg: 0.05,
+                sample_tilt_y_deg: -0.02,
+                eccentricity_x_mm: 0.1,
+                eccentricity_y_mm: -0.2,
+                seatings: vec![SeatingRecord {
+                    index: 0,
+                    tilt_x_deg: 0.01,
+                    tilt_y_deg: 0.0,
+                }],
+            }),
+        });
+        let text = r.to_json_text();
+        assert!(text.contains("\"simulator_truth\""));
+        assert_eq!(RunRecord::parse(&text, "run.json").expect("reads"), r);
     }
 
     #[test]

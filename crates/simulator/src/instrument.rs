@@ -27,6 +27,8 @@ use crate::zaber::ZaberChain;
 pub enum SimError {
     #[error("simulated instrument: {0}")]
     Invalid(String),
+    #[error("simulated instrument: {0}")]
+    Imperfections(#[from] gonio_instrument::ImperfectionsError),
     #[error("simulated instrument has no device named {device:?}")]
     UnknownDevice { device: String },
     #[error("device {device:?} speaks {protocol}, which is not a {wanted} device")]
@@ -56,6 +58,8 @@ struct Inner {
     faults: Arc<FaultInjector>,
     serial: BTreeMap<String, (Protocol, SharedEmulator)>,
     meters: BTreeMap<String, Arc<Pm100>>,
+    /// The hidden imperfections drawn from the file's magnitudes and seed; `None` on the ideal instrument.
+    hidden: Option<crate::imperfections::HiddenTruth>,
 }
 
 /// The physical state every device shares: the clock, the axes, what is in the beam, and the optics.
@@ -107,6 +111,8 @@ impl SimInstrument {
         }
         file.instrument.validate().map_err(SimError::Invalid)?;
         FaultInjector::validate(&file.simulator.faults).map_err(SimError::Invalid)?;
+        file.simulator.imperfections.validate()?;
+        let hidden = crate::imperfections::HiddenTruth::draw(file);
         let inst = &file.instrument;
         let clock = SimClock::new(time_scale);
         let faults = Arc::new(FaultInjector::new(file.simulator.faults.clone()));
@@ -190,6 +196,7 @@ impl SimInstrument {
                 faults,
                 serial,
                 meters,
+                hidden,
             }),
         })
     }
@@ -197,6 +204,13 @@ impl SimInstrument {
     /// The instrument file this simulation was built from.
     pub fn file(&self) -> &InstrumentFile {
         &self.inner.file
+    }
+
+    /// The instrument's hidden imperfections (`None`: the ideal instrument). The simulator's optics compute with
+    /// them; the devices report what the controllers believe. For tests and a dry-run's run.json only: the rig
+    /// passes them to the optics it builds and never to the engine.
+    pub fn hidden_truth(&self) -> Option<&crate::imperfections::HiddenTruth> {
+        self.inner.hidden.as_ref()
     }
 
     /// Open the named serial device: returns the host end of a byte stream to its emulator (whose task is
@@ -287,7 +301,9 @@ impl SimInstrument {
         self.inner.meters.keys().cloned().collect()
     }
 
-    /// Where the axes physically are now (degrees, after zero offset and direction): what the optics see.
+    /// Where the controllers' positions put the axes by the instrument file's calibration (degrees, after zero
+    /// offset and direction): the pose the optics are given. On an imperfect instrument the optics turn it into
+    /// the true geometry (`Optics::true_geometry`).
     pub fn pose(&self) -> Pose {
         self.inner.world.pose(self.now_s())
     }

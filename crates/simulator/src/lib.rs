@@ -5,6 +5,8 @@
 //! - [`kinematics`]: forward kinematics of the reference geometry (axis angles -> wi, wo in the sample frame).
 //! - [`optics`]: the faithful scene: power on the photodiode for a pose, band and sample, with ground truth and
 //!   an integration error estimate (footprint, aperture integral, delta lobes, retro-blocking, source drift/noise).
+//! - [`imperfections`]: the instrument's hidden imperfections (`[simulator.imperfections]` magnitudes, actual
+//!   values drawn from the seed) and the true geometry they make; never visible to the engine.
 //! - [`instrument`]: [`SimInstrument`], the whole simulated instrument and its in-process API (serial streams,
 //!   the USB power meter, pose/band/clock/faults for tests and the daemon).
 //! - [`clock`]: the simulated clock (tokio time x time scale).
@@ -19,6 +21,7 @@
 pub mod clock;
 pub mod faults;
 pub mod fw102c;
+pub mod imperfections;
 pub mod instrument;
 pub mod kinematics;
 pub mod motion;

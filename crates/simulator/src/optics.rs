@@ -5,7 +5,8 @@
 //! - `P_i(t)` is the source power with its slow drift and (when enabled) its relative noise ([`source`]);
 //! - `T` is the filter's transmission; the blank gives 0;
 //! - `eta_footprint` is the fraction of the beam that lands on the sample inside the detector's field of view
-//!   ([`footprint`], exact closed form: the footprint grows as 1/cos(theta_i) and spills past the sample's edge);
+//!   ([`footprint`], exact closed form: the footprint grows as 1/cos(theta_i) and spills past the sample's edge;
+//!   [`footprint_offset`] when the spot is off-centre on an imperfect instrument);
 //! - the integral runs over the detector's circular aperture seen from the sample centre: a cone about `wo` of
 //!   half-angle `atan(r/d)` ([`aperture`], computed as cheaply as the tolerance allows, with an error estimate);
 //! - an ideal specular (delta) lobe of reflectance `F` is added analytically: `eta_delta` is the fraction of the
@@ -48,6 +49,8 @@
 pub mod aperture;
 pub mod cap;
 pub mod footprint;
+pub mod footprint_offset;
+mod imperfect;
 mod reading;
 mod resolved;
 pub mod source;
@@ -62,7 +65,9 @@ use gonio_brdf::radiometry::{aperture_half_angle_rad, aperture_solid_angle_sr};
 use gonio_brdf::{Brdf, Direction, SpectrumError};
 use gonio_instrument::Instrument;
 
+use crate::imperfections::HiddenTruth;
 use crate::scene::{Band, Pose};
+use imperfect::Seating;
 use resolved::Resolved;
 use source::SourceModel;
 
@@ -114,10 +119,16 @@ pub struct OpticalReading {
     /// `<f> = f (1 + cos beta) / 2`, because the cone's projected solid angle is `pi sin^2(beta) cos(theta_o)`,
     /// not `Omega_d cos(theta_o)`. 0 when the detector looks from below the horizon.
     pub truth_aperture_sr: f64,
-    /// Nominal incident direction in the sample frame (towards the source).
+    /// Incident direction in the sample frame (towards the source) as the sample really sees it: the nominal one
+    /// on the ideal instrument, the true one (crate::imperfections) on an imperfect one. The truth fields are
+    /// computed here.
     pub wi: Direction,
-    /// Nominal outgoing direction in the sample frame (towards the detector centre).
+    /// Outgoing direction in the sample frame (from the beam's spot towards the detector centre), nominal or true
+    /// as `wi`.
     pub wo: Direction,
+    /// The beam's centre on the sample (sample x, y; mm): 0, 0 unless the arms' axis misses the sample centre
+    /// (then the footprint is clipped about it: [`footprint_offset`]).
+    pub spot_mm: [f64; 2],
     /// The footprint spills past the sample's edge.
     pub overfilled_sample: bool,
     /// The footprint spills outside the detector's field of view.
@@ -164,6 +175,12 @@ pub struct Optics {
     tolerance: f64,
     source: SourceModel,
     sample_mounted: AtomicBool,
+    /// The instrument's hidden imperfections; `None` on the ideal instrument ([`Optics::with_hidden_truth`]).
+    hidden: Option<std::sync::Arc<HiddenTruth>>,
+    /// The sample's current mounting (re-seating draws a new tilt each time it goes back).
+    seating: RwLock<Seating>,
+    /// Distance from the arms' axis to the detector's aperture (mm): eccentricity moves the viewing direction.
+    detector_distance_mm: f64,
     material: Material,
     bands: RwLock<Vec<std::sync::Arc<Resolved>>>,
 }
@@ -205,6 +222,9 @@ impl Optics {
             tolerance: Optics::DEFAULT_TOLERANCE,
             source: SourceModel::new(src.power_w, src.drift_per_hour, src.relative_noise, seed),
             sample_mounted: AtomicBool::new(true),
+            hidden: None,
+            seating: RwLock::new(Seating::default()),
+            detector_distance_mm: det.distance_mm,
             material: sample.material,
             bands: RwLock::new(Vec::new()),
         };
@@ -249,9 +269,11 @@ impl Optics {
         self.aperture_sr
     }
 
-    /// Mount or unmount the sample (unmounted: the detector sees only the direct beam, for calibration).
+    /// Mount or unmount the sample (unmounted: the detector sees only the direct beam, for calibration). Putting
+    /// it back starts a new mounting, with its own re-seating tilt on an imperfect instrument.
     pub fn set_sample_mounted(&self, mounted: bool) {
-        self.sample_mounted.store(mounted, Ordering::Relaxed);
+        let was = self.swap_mounted(mounted);
+        self.note_mounted(was, mounted);
     }
 
     pub fn sample_mounted(&self) -> bool {

@@ -46,14 +46,20 @@ struct SimulatedHolder {
 
 impl SampleHolder for SimulatedHolder {
     fn hold(&self, held: Held) {
+        // Whatever leaves the holder is unmounted, so that putting it back is a new mounting (with its own
+        // re-seating tilt on an imperfect instrument).
         match (held, &self.reference) {
             (Held::Reference, Some(r)) => {
+                self.sample.set_sample_mounted(false);
                 r.set_sample_mounted(true);
                 self.rig.show_optics(Arc::clone(r));
             }
             // No reference optics: nothing to swap in (the relative method always builds them).
             (Held::Reference, None) => {}
             (Held::Empty | Held::Sample, _) => {
+                if let Some(r) = &self.reference {
+                    r.set_sample_mounted(false);
+                }
                 self.rig.show_optics(Arc::clone(&self.sample));
                 self.sample.set_sample_mounted(held == Held::Sample);
             }

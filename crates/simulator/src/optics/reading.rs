@@ -6,10 +6,10 @@
 
 use gonio_brdf::Brdf;
 
-use crate::kinematics::{self, PoseGeometry};
+use crate::kinematics;
 use crate::scene::{Band, Pose, Scene};
 
-use super::footprint::{self, Footprint};
+use super::imperfect::Geometry;
 use super::{OpticalReading, Optics, OpticsError, cap};
 
 /// A reading without its instant: [`Optics::at_rest`].
@@ -46,7 +46,13 @@ impl Optics {
     /// Everything of a reading that does not depend on time: with the axes and the wheel at rest, the averaged
     /// samples of one meter reading differ only by the source (drift, noise), not by this.
     fn at_rest(&self, pose: &Pose, band: &Band) -> Result<AtRest, OpticsError> {
-        let geometry = kinematics::forward(pose);
+        let g = self.geometry_of(pose);
+        let Geometry {
+            pose: geometry,
+            detector_arm_lab,
+            spot_mm,
+            ..
+        } = g;
         let blocked = geometry.arm_separation_rad() < self.retro_block_rad;
         let mirror = geometry.wi.reflect_about_normal();
         let specular_in_aperture =
@@ -66,6 +72,7 @@ impl Optics {
             truth_aperture_sr: 0.0,
             wi: geometry.wi,
             wo: geometry.wo,
+            spot_mm,
             overfilled_sample: false,
             overfilled_field: false,
             beam_blocked_by_detector: blocked,
@@ -81,7 +88,7 @@ impl Optics {
         };
         if !self.sample_mounted() {
             // No sample: the detector sees the beam itself when it faces the source, nothing otherwise.
-            let off_axis = kinematics::angle_between(&geometry.detector_lab, &neg(&geometry.source_lab));
+            let off_axis = kinematics::angle_between(&detector_arm_lab, &neg(&geometry.source_lab));
             let fraction = cap::fraction_inside(self.divergence_half_rad, self.aperture_half_rad, off_axis);
             out.intercepted_fraction = fraction;
             return Ok(AtRest {
@@ -91,7 +98,7 @@ impl Optics {
             });
         }
         let r = self.resolved(nm)?;
-        let fp = self.footprint(&geometry);
+        let fp = self.footprint_of(&g);
         out.intercepted_fraction = fp.intercepted_fraction;
         out.overfilled_sample = fp.overfilled_sample;
         out.overfilled_field = fp.overfilled_field;
@@ -145,16 +152,6 @@ impl Optics {
             }
         }
         out
-    }
-
-    fn footprint(&self, g: &PoseGeometry) -> Footprint {
-        footprint::footprint(
-            self.beam_radius_mm,
-            self.sample_radius_mm,
-            self.field_radius_mm,
-            &g.wi,
-            &g.wo,
-        )
     }
 }
 

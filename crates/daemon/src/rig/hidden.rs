@@ -1,0 +1,87 @@
+//! A dry-run's hidden truth for run.json: the simulated instrument's imperfections as the simulator drew them
+//! from the stored instrument file and its seed. It goes to the run record and nowhere else: the engine, the
+//! drivers and the calibration never see it (crates/daemon/tests/layering.rs keeps the simulator inside the rig).
+
+use gonio_instrument::InstrumentFile;
+use gonio_results::provenance::{AxisTruthRecord, GeometryTruthRecord, SeatingRecord, SimulatorTruth};
+use gonio_simulator::imperfections::HiddenTruth;
+
+/// The hidden imperfections of the simulated instrument described by `instrument_toml`, for a dry-run's
+/// run.json; `None` for a run on hardware, an ideal instrument, or a text that no longer parses. `mountings` is
+/// how many of the sample's mountings to list (0 is the first; the run made at most one per calibration reading).
+pub fn simulator_truth(instrument_toml: &str, dry_run: bool, mountings: usize) -> Option<SimulatorTruth> {
+    if !dry_run {
+        return None;
+    }
+    let file = InstrumentFile::parse(instrument_toml, "<stored instrument file>").ok()?;
+    let hidden = HiddenTruth::draw(&file)?;
+    Some(record(&hidden, mountings))
+}
+
+fn record(hidden: &HiddenTruth, mountings: usize) -> SimulatorTruth {
+    SimulatorTruth {
+        seed: hidden.seed,
+        geometry: hidden.geometry.as_ref().map(|g| GeometryTruthRecord {
+            axes: g
+                .axes
+                .iter()
+                .map(|a| AxisTruthRecord {
+                    // The role's name as the instrument file spells it (kebab-case).
+                    role: serde_json::to_value(a.role)
+                        .ok()
+                        .and_then(|v| v.as_str().map(str::to_string))
+                        .unwrap_or_default(),
+                    zero_offset_deg: a.zero_offset_deg,
+                    encoder_amplitude_deg: a.encoder_amplitude_deg,
+                    encoder_harmonic: a.encoder_harmonic,
+                    encoder_phase_deg: a.encoder_phase_deg,
+                })
+                .collect(),
+            sample_tilt_x_deg: g.sample_tilt.x_deg,
+            sample_tilt_y_deg: g.sample_tilt.y_deg,
+            eccentricity_x_mm: g.eccentricity_mm[0],
+            eccentricity_y_mm: g.eccentricity_mm[1],
+            seatings: (0..=mountings as u64)
+                .map(|index| {
+                    let t = g.seating_tilt(index);
+                    SeatingRecord {
+                        index,
+                        tilt_x_deg: t.x_deg,
+                        tilt_y_deg: t.y_deg,
+                    }
+                })
+                .collect(),
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const REALISTIC: &str = include_str!("../../../../config/instruments/realistic.toml");
+
+    #[test]
+    fn only_an_imperfect_dry_run_has_a_hidden_truth() {
+        let t = simulator_truth(REALISTIC, true, 3).expect("realistic dry-run");
+        let g = t.geometry.expect("geometry");
+        assert_eq!(g.axes.len(), 4);
+        assert_eq!(g.axes[0].role, "light-arm");
+        assert_eq!(g.seatings.len(), 4, "mountings 0..=3");
+        assert_eq!(
+            simulator_truth(REALISTIC, false, 3),
+            None,
+            "hardware: nothing to tell"
+        );
+        assert_eq!(
+            simulator_truth(gonio_instrument::SIMULATED_INSTRUMENT_TOML, true, 3),
+            None
+        );
+        assert_eq!(simulator_truth("not toml [", true, 3), None);
+        // The same stored text gives the same values: run.json is a function of the store.
+        assert_eq!(
+            simulator_truth(REALISTIC, true, 3).and_then(|t| t.geometry),
+            Some(g)
+        );
+    }
+}

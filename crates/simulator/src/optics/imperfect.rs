@@ -1,0 +1,142 @@
+//! The optics on an imperfect instrument: the hidden truth they were given, the sample's current mounting, and
+//! the true geometry of a pose (crate::imperfections::geometry). On the ideal instrument none of this runs: the
+//! pose goes through crate::kinematics exactly as before, so the readings are bit for bit those of an instrument
+//! without `[simulator.imperfections]`.
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+
+use crate::imperfections::{HiddenTruth, Tilt};
+use crate::kinematics::{self, LabVector, PoseGeometry};
+use crate::scene::Pose;
+
+use super::Optics;
+
+/// One pose as the optics compute with it.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Geometry {
+    /// Directions from the spot, in the (true) sample frame.
+    pub pose: PoseGeometry,
+    /// The detector arm's own direction (for the direct beam, with no sample), lab.
+    pub detector_arm_lab: LabVector,
+    /// The beam's centre on the sample (sample x, y; mm).
+    pub spot_mm: [f64; 2],
+    /// The centre of the detector's field of view on the sample (sample x, y; mm).
+    pub field_centre_mm: [f64; 2],
+}
+
+/// The sample's current mounting: its index (0 the first) and its tilt.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(super) struct Seating {
+    pub index: u64,
+    pub tilt: Tilt,
+}
+
+impl Optics {
+    /// Give the optics the instrument's hidden truth (`None`: the ideal instrument, the default). The sample
+    /// starts in its first mounting.
+    pub fn with_hidden_truth(mut self, truth: Option<&HiddenTruth>) -> Optics {
+        self.hidden = truth.cloned().map(Arc::new);
+        let tilt = self.seating_tilt(0);
+        *self.seating.get_mut().unwrap_or_else(|e| e.into_inner()) = Seating { index: 0, tilt };
+        self
+    }
+
+    /// The hidden truth these optics compute with (for tests and run.json; never for a measurement).
+    pub fn hidden_truth(&self) -> Option<&HiddenTruth> {
+        self.hidden.as_deref()
+    }
+
+    /// Which mounting the sample is in (0: the first) and its tilt (hidden truth, for tests).
+    pub fn seating(&self) -> (u64, Tilt) {
+        let s = *self.seating.read().unwrap_or_else(|e| e.into_inner());
+        (s.index, s.tilt)
+    }
+
+    /// The true geometry of the pose the controllers believe (hidden truth, for tests); the nominal geometry
+    /// on the ideal instrument.
+    pub fn true_geometry(&self, pose: &Pose) -> Option<crate::imperfections::TrueGeometry> {
+        let g = self.hidden.as_ref()?.geometry.as_ref()?;
+        Some(g.true_geometry(pose, &self.seating().1, self.detector_distance_mm))
+    }
+
+    pub(super) fn seating_tilt(&self, index: u64) -> Tilt {
+        self.hidden
+            .as_ref()
+            .and_then(|h| h.geometry.as_ref())
+            .map(|g| g.seating_tilt(index))
+            .unwrap_or_default()
+    }
+
+    /// Record a mounting change: putting the sample back (unmounted -> mounted) starts a new seating.
+    pub(super) fn note_mounted(&self, was_mounted: bool, mounted: bool) {
+        if mounted && !was_mounted {
+            let mut s = self.seating.write().unwrap_or_else(|e| e.into_inner());
+            let index = s.index + 1;
+            *s = Seating {
+                index,
+                tilt: self.seating_tilt(index),
+            };
+        }
+    }
+
+    /// The geometry a reading computes with: the true one on an imperfect instrument, the nominal kinematics on
+    /// the ideal one (the same code path as without imperfections).
+    pub(super) fn geometry_of(&self, pose: &Pose) -> Geometry {
+        match self.true_geometry(pose) {
+            Some(t) => Geometry {
+                pose: PoseGeometry {
+                    wi: t.wi,
+                    wo: t.wo,
+                    source_lab: t.source_lab,
+                    detector_lab: t.detector_lab,
+                    frame: t.frame,
+                },
+                detector_arm_lab: t.detector_arm_lab,
+                spot_mm: t.spot_mm,
+                field_centre_mm: t.field_centre_mm,
+            },
+            None => {
+                let pose = kinematics::forward(pose);
+                Geometry {
+                    detector_arm_lab: pose.detector_lab,
+                    pose,
+                    spot_mm: [0.0, 0.0],
+                    field_centre_mm: [0.0, 0.0],
+                }
+            }
+        }
+    }
+
+    /// The beam's footprint: the closed form when the spot and the field are centred (always on the ideal
+    /// instrument), the off-centre integration otherwise.
+    pub(super) fn footprint_of(&self, g: &Geometry) -> super::footprint::Footprint {
+        if g.spot_mm == [0.0, 0.0] && g.field_centre_mm == [0.0, 0.0] {
+            return super::footprint::footprint(
+                self.beam_radius_mm,
+                self.sample_radius_mm,
+                self.field_radius_mm,
+                &g.pose.wi,
+                &g.pose.wo,
+            );
+        }
+        // The field is a cylinder about the detector arm's own axis (through the arms' axis), not about the
+        // direction from the spot to the aperture.
+        let a = g.pose.frame.to_sample(&g.detector_arm_lab);
+        let view = gonio_brdf::Direction::new(a[0], a[1], a[2]).unwrap_or(gonio_brdf::Direction::NORMAL);
+        super::footprint_offset::footprint_offset(
+            self.beam_radius_mm,
+            self.sample_radius_mm,
+            self.field_radius_mm,
+            &g.pose.wi,
+            &view,
+            g.spot_mm,
+            g.field_centre_mm,
+        )
+    }
+
+    /// Whether the sample is in the holder (kept with the seating so both change together).
+    pub(super) fn swap_mounted(&self, mounted: bool) -> bool {
+        self.sample_mounted.swap(mounted, Ordering::Relaxed)
+    }
+}
