@@ -91,6 +91,15 @@ impl World {
             None => self.fixed_band,
         }
     }
+
+    /// Stray photocurrent at the detector at `t_s` that no optics explain (A): the filter wheel's lit position
+    /// sensors.
+    pub fn stray_a(&self, t_s: f64) -> f64 {
+        match &self.wheel {
+            Some(w) => w.lock().unwrap_or_else(|e| e.into_inner()).stray_a(t_s),
+            None => 0.0,
+        }
+    }
 }
 
 impl SimInstrument {
@@ -137,19 +146,24 @@ impl SimInstrument {
             let dev_faults = faults.for_device(&dev.name);
             match dev.protocol {
                 Protocol::Smc100 => {
-                    let emu: SharedEmulator =
-                        Arc::new(Mutex::new(Smc100Chain::new(&dev.name, dev_axes, dev_faults)));
+                    let emu: SharedEmulator = Arc::new(Mutex::new(
+                        Smc100Chain::new(&dev.name, dev_axes, dev_faults).with_quirks(&file.simulator.quirks),
+                    ));
                     serial.insert(dev.name.clone(), (dev.protocol, emu));
                 }
                 Protocol::ZaberAscii => {
-                    let emu: SharedEmulator = Arc::new(Mutex::new(ZaberChain::new(
-                        &dev.name, dev_axes, dev_faults, clock,
-                    )));
+                    let emu: SharedEmulator = Arc::new(Mutex::new(
+                        ZaberChain::new(&dev.name, dev_axes, dev_faults, clock)
+                            .with_bad_checksum(file.simulator.quirks.zaber_bad_checksum),
+                    ));
                     serial.insert(dev.name.clone(), (dev.protocol, emu));
                 }
                 Protocol::Fw102c => {
                     let config = inst.filter_wheel.as_ref().filter(|w| w.device == dev.name);
-                    let w = Arc::new(Mutex::new(Fw102c::new(&dev.name, config)));
+                    let w = Arc::new(Mutex::new(
+                        Fw102c::new(&dev.name, config)
+                            .with_noise_at_open(file.simulator.quirks.fw102c_noise_at_open),
+                    ));
                     if config.is_some() {
                         wheel = Some(Arc::clone(&w));
                     }

@@ -366,7 +366,7 @@ mod tests {
             f.write_all(b"pos?\r").expect("write");
             let mut got = Vec::new();
             let mut b = [0u8; 64];
-            while !got.ends_with(b"> ") {
+            while !got.ends_with(b"pos?\r1\r> ") {
                 let n = f.read(&mut b).expect("read");
                 got.extend_from_slice(&b[..n]);
             }
@@ -377,8 +377,9 @@ mod tests {
             .expect("the wheel answered in time")
             .expect("client");
         let text = String::from_utf8_lossy(&reply);
-        // Echo and CR, the answer (position 1 at power-up) and CR, then the prompt (FW102C manual).
-        assert_eq!(text, "pos?\r1\r> ");
+        // The noise of a freshly opened port (a recorded real-wheel quirk, on by default), then echo and CR, the
+        // answer (position 1 at power-up) and CR, then the prompt (FW102C manual).
+        assert_eq!(text, "\0\0\0Command error CMD_NOT_DEFINED\r> pos?\r1\r> ");
         assert_eq!(
             PtyDevice::serve(&sim, "meter")
                 .expect_err("USB device")
