@@ -6,7 +6,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{Port, sim_with};
+use common::{Port, sim_scaled, sim_with};
 
 /// The manual's controller (no pacing, every TS answered), for the command-list checks.
 fn manual() -> gonio_simulator::SimInstrument {
@@ -184,6 +184,30 @@ async fn commands_sent_in_a_burst_are_lost_and_paced_ones_are_taken() {
     for _ in 0..5 {
         assert_eq!(p.query("1TS\r\n").await.as_deref(), Some("1TS00000A\r\n"));
     }
+}
+
+/// At a large time scale a short reply's wire time is microseconds of real time, which tokio's timer cannot
+/// wait: the session writes it at once. A host answering the moment it has the reply is not too early (it
+/// cannot be: it has the whole reply), so no query of a host that waits for each reply is ever lost, and a set
+/// command still keeps its controller busy for its 60 ms.
+#[tokio::test(start_paused = true)]
+async fn at_a_large_time_scale_a_host_waiting_for_each_reply_loses_nothing() {
+    let sim = sim_scaled(|f| f.simulator.quirks.smc100_drop_first_ts = false, 1000.0);
+    let mut p = Port::open(&sim, "arms");
+    for _ in 0..20 {
+        assert_eq!(p.query("1TS\r\n").await.as_deref(), Some("1TS00000A\r\n"));
+        assert_eq!(p.query("1TP\r\n").await.as_deref(), Some("1TP0\r\n"));
+        assert_eq!(p.query("2TS\r\n").await.as_deref(), Some("2TS00000A\r\n"));
+    }
+    assert_eq!(sim.lost_input_lines(), 0);
+    // A set command: 60 simulated ms, 60 us of tokio time here.
+    p.send(b"1PA10\r\n").await;
+    tokio::time::advance(Duration::from_micros(30)).await;
+    p.send(b"1TE\r\n").await;
+    assert!(p.silent_for(Duration::from_millis(1)).await, "30 ms after: lost");
+    assert_eq!(sim.lost_input_lines(), 1);
+    sim.clock().sleep_s(0.061).await;
+    assert_eq!(p.query("1TE\r\n").await.as_deref(), Some("1TEH\r\n"));
 }
 
 #[tokio::test(start_paused = true)]

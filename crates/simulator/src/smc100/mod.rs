@@ -27,9 +27,11 @@
 //! - Input pacing: host drivers written against real controllers pace their commands (the widely copied
 //!   Python SMC100 driver waits 60 ms after each set command, "arrived at by trial and error"; others up to
 //!   0.5 s) and report late replies landing in the next read. Emulated (`[simulator.quirks]
-//!   smc100_min_command_gap_ms`, default 60): a set command keeps its controller busy for that long, a query
-//!   until its reply has crossed the line; a command line arriving while the controller it addresses is busy
-//!   is lost. Each controller on the chain has its own processor: one busy controller does not make the others
+//!   smc100_min_command_gap_ms`, default 60): a set command keeps its controller busy for that long from when
+//!   the host sent it, a query until its reply has crossed the line (never after the host has the reply); a
+//!   command line sent while the controller it addresses is busy is lost. Both are judged on the host's
+//!   timeline (the session stamps each write), so scheduling delays of the simulator's own task, which a large
+//!   time scale multiplies, cannot make a paced host lose a line. Each controller on the chain has its own processor: one busy controller does not make the others
 //!   lose input (unconfirmed: whether the first controller, which relays the RS-485 chain, does).
 //! - The first `TS` after power-up or reset, and the first right after a homing completes, may get no reply
 //!   at all (reported by a real-hardware driver as undocumented): `smc100_drop_first_ts`, default on.
@@ -71,10 +73,24 @@ pub struct Smc100Chain {
     /// A set command keeps the controller busy this long (s); 0 takes every line.
     set_busy_s: f64,
     drop_first_ts: bool,
-    /// Input for a controller arriving before its time here is lost (s), by address.
-    busy_until_s: BTreeMap<u8, f64>,
-    /// Command lines lost to pacing, for the tests and the soak reports.
-    lost_to_pacing: u64,
+    /// Until when input for a controller is lost, by address.
+    busy: BTreeMap<u8, Busy>,
+    /// Command lines lost to pacing, by command code, for the tests and the soak reports.
+    lost_to_pacing: BTreeMap<String, u64>,
+}
+
+/// A controller that cannot take input yet: until `until_s` (simulated s), or until its reply has reached the
+/// host when `replying` (a reply the host has can no longer be keeping the controller busy).
+#[derive(Debug, Clone, Copy)]
+struct Busy {
+    until_s: f64,
+    replying: bool,
+}
+
+/// The address a line (command or reply) starts with.
+fn address_of(line: &[u8]) -> Option<u8> {
+    let digits = line.iter().take_while(|b| b.is_ascii_digit()).count();
+    std::str::from_utf8(line.get(..digits)?).ok()?.parse().ok()
 }
 
 /// Format a number as the controller does: plain decimal, no exponent, at most 6 decimals.
@@ -127,8 +143,8 @@ impl Smc100Chain {
             faults,
             set_busy_s: 0.0,
             drop_first_ts: false,
-            busy_until_s: BTreeMap::new(),
-            lost_to_pacing: 0,
+            busy: BTreeMap::new(),
+            lost_to_pacing: BTreeMap::new(),
         }
     }
 
@@ -142,31 +158,38 @@ impl Smc100Chain {
         self
     }
 
-    /// Command lines lost because they arrived while the controller was busy.
-    pub fn lost_to_pacing(&self) -> u64 {
-        self.lost_to_pacing
-    }
-
-    /// Take one complete line at `now_s`: lost while its controller is busy, else executed; the reply, if any.
-    fn take_line(&mut self, line: &[u8], now_s: f64) -> Option<Output> {
+    /// Take one complete line, sent by the host at `sent_s` and read at `now_s`: lost when it was sent while its
+    /// controller was busy, else executed at `now_s`; the reply, if any.
+    ///
+    /// Pacing is judged on the host's own timeline, so that it holds at any time scale and under any load: a set
+    /// command keeps its controller busy for the gap from when it was sent, and a query until its reply has
+    /// crossed the line or reached the host ([`SerialEmulator::delivered`]), whichever is first: the host cannot
+    /// answer a reply before it has it, so a host waiting for each reply never loses a line to one.
+    fn take_line(&mut self, line: &[u8], sent_s: f64, now_s: f64) -> Option<Output> {
         let paced = self.set_busy_s > 0.0;
-        let digits = line.iter().take_while(|b| b.is_ascii_digit()).count();
-        let address: Option<u8> = std::str::from_utf8(&line[..digits])
-            .ok()
-            .and_then(|a| a.parse().ok());
-        let busy_until = address
-            .and_then(|a| self.busy_until_s.get(&a).copied())
-            .unwrap_or(0.0);
-        if paced && now_s < busy_until - 1e-9 {
-            self.lost_to_pacing += 1;
-            tracing::debug!(chain = %self.name, cmd = %String::from_utf8_lossy(line).escape_debug(), busy_for_s = busy_until - now_s, "SMC100: command arrived while its controller was busy, lost");
+        let address = address_of(line);
+        let busy_until = address.and_then(|a| self.busy.get(&a)).map_or(0.0, |b| b.until_s);
+        if paced && sent_s < busy_until - 1e-9 {
+            let code = line
+                .get(line.iter().take_while(|b| b.is_ascii_digit()).count()..)
+                .and_then(|rest| rest.get(..2))
+                .map_or_else(
+                    || "?".to_string(),
+                    |c| String::from_utf8_lossy(c).to_ascii_uppercase(),
+                );
+            *self.lost_to_pacing.entry(code).or_default() += 1;
+            tracing::debug!(chain = %self.name, cmd = %String::from_utf8_lossy(line).escape_debug(), sent_s, busy_for_s = busy_until - sent_s, "SMC100: command arrived while its controller was busy, lost");
             return None;
         }
-        tracing::debug!(chain = %self.name, cmd = %String::from_utf8_lossy(line).escape_debug(), "SMC100 command");
+        tracing::debug!(chain = %self.name, cmd = %String::from_utf8_lossy(line).escape_debug(), sent_s, now_s, "SMC100 command");
         let reply = self.execute(line, now_s);
         let Some(reply) = reply else {
             if paced && let Some(a) = address {
-                self.busy_until_s.insert(a, now_s + self.set_busy_s);
+                let busy = Busy {
+                    until_s: sent_s + self.set_busy_s,
+                    replying: false,
+                };
+                self.busy.insert(a, busy);
             }
             return None;
         };
@@ -178,8 +201,12 @@ impl Smc100Chain {
             .collect();
         bytes.extend_from_slice(b"\r\n");
         if paced && let Some(a) = address {
-            self.busy_until_s
-                .insert(a, now_s + bytes.len() as f64 / LINE_BYTES_PER_S);
+            // Until the reply has crossed the line, or reached the host if the session delivers it sooner.
+            let busy = Busy {
+                until_s: now_s + bytes.len() as f64 / LINE_BYTES_PER_S,
+                replying: true,
+            };
+            self.busy.insert(a, busy);
         }
         Some(Output { at_s: now_s, bytes })
     }
@@ -192,6 +219,10 @@ impl SerialEmulator for Smc100Chain {
     }
 
     fn receive(&mut self, data: &[u8], now_s: f64) -> Vec<Output> {
+        self.receive_sent(data, now_s, now_s)
+    }
+
+    fn receive_sent(&mut self, data: &[u8], sent_s: f64, now_s: f64) -> Vec<Output> {
         let mut out = Vec::new();
         for &b in data {
             if b == b'\n' {
@@ -202,7 +233,7 @@ impl SerialEmulator for Smc100Chain {
                 if std::mem::replace(&mut self.discarding, false) || line.is_empty() {
                     continue;
                 }
-                if let Some(reply) = self.take_line(&line, now_s) {
+                if let Some(reply) = self.take_line(&line, sent_s, now_s) {
                     out.push(reply);
                 }
             } else if self.input.len() >= MAX_LINE {
@@ -223,11 +254,82 @@ impl SerialEmulator for Smc100Chain {
         Vec::new()
     }
 
+    fn delivered(&mut self, out: &Output, now_s: f64) {
+        if let Some(b) = address_of(&out.bytes).and_then(|a| self.busy.get_mut(&a))
+            && b.replying
+        {
+            b.until_s = b.until_s.min(now_s);
+            b.replying = false;
+        }
+    }
+
+    fn lost_input(&self) -> BTreeMap<String, u64> {
+        self.lost_to_pacing.clone()
+    }
+
     fn estop(&mut self, now_s: f64) {
         for c in &mut self.controllers {
             c.update(now_s, self.drop_first_ts);
             c.motion().halt(now_s);
             c.update(now_s, self.drop_first_ts);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use crate::SimInstrument;
+    use crate::scene::UniformScene;
+    use crate::session::{Output, SharedEmulator};
+
+    fn arms() -> SharedEmulator {
+        let mut file = gonio_instrument::InstrumentFile::simulated();
+        file.simulator.quirks.smc100_drop_first_ts = false;
+        let sim = SimInstrument::new(&file, Arc::new(UniformScene { power_w: 1e-4 }), 1.0).expect("sim");
+        sim.serial_emulator("arms").expect("arms").1
+    }
+
+    fn text(out: &[Output]) -> String {
+        out.iter()
+            .map(|o| String::from_utf8_lossy(&o.bytes).into_owned())
+            .collect()
+    }
+
+    /// The set command's busy while runs from when the host sent it: a line the host sent 61 ms after a set
+    /// command is taken even when the emulator read the set command late (its task was held up), and one sent
+    /// 59 ms after it is lost even when read late.
+    #[test]
+    fn pacing_is_judged_on_the_hosts_timeline() {
+        let emu = arms();
+        let mut c = emu.lock().expect("lock");
+        assert_eq!(c.receive_sent(b"1PA5\r\n", 1.000, 1.050), vec![]);
+        assert_eq!(
+            c.receive_sent(b"1TE\r\n", 1.059, 1.200),
+            vec![],
+            "sent within the 60 ms: lost"
+        );
+        assert_eq!(c.lost_input(), [("TE".to_string(), 1)].into());
+        assert_eq!(c.receive_sent(b"1PA5\r\n", 2.000, 2.050), vec![]);
+        assert_eq!(text(&c.receive_sent(b"1TE\r\n", 2.061, 2.061)), "1TEH\r\n");
+        assert_eq!(c.lost_input(), [("TE".to_string(), 1)].into());
+    }
+
+    /// A query's reply keeps its controller busy until it has crossed the line, not after the host has it.
+    #[test]
+    fn a_delivered_reply_frees_its_controller() {
+        let emu = arms();
+        let mut c = emu.lock().expect("lock");
+        let out = c.receive_sent(b"2TS\r\n", 5.0, 5.0);
+        assert_eq!(text(&out), "2TS00000A\r\n");
+        // Sent before the reply was over the line (57600 baud: 1.9 ms): lost, as in a burst.
+        assert_eq!(c.receive_sent(b"2TS\r\n", 5.001, 5.001), vec![]);
+        let out = c.receive_sent(b"2TS\r\n", 6.0, 6.0);
+        // The session wrote the reply early (at a large time scale it does not wait microseconds): the host may
+        // answer at once.
+        c.delivered(&out[0], 6.0001);
+        assert_eq!(text(&c.receive_sent(b"2TS\r\n", 6.0001, 6.0001)), "2TS00000A\r\n");
+        assert_eq!(c.lost_input(), [("TS".to_string(), 1)].into());
     }
 }
