@@ -16,6 +16,9 @@ use crate::transport::{LinePort, TransportError, escape_bytes};
 struct Pacing {
     next_send: std::collections::BTreeMap<u8, Instant>,
     gap: Duration,
+    /// The pause configured: widening starts from it and stops at the same multiple of it as [`MAX_SET_GAP`] is
+    /// of [`SET_GAP`] (so a chain pausing in a faster clock widens in that clock too).
+    base: Duration,
 }
 
 /// One SMC100 daisy chain: the port owner.
@@ -31,16 +34,18 @@ impl Smc100Chain {
         Smc100Chain::with_set_gap(name, port, SET_GAP)
     }
 
-    /// A chain pausing `gap` after each set command (widened on its own up to [`MAX_SET_GAP`] when that is not
-    /// enough). For a simulated controller running `k` times faster than real time, `SET_GAP / k` is the same
-    /// pause in the controller's time.
+    /// A chain pausing `gap` after each set command (widened on its own, up to `gap` x [`MAX_SET_GAP`] /
+    /// [`SET_GAP`], when that is not enough). For a simulated controller running `k` times faster than real time,
+    /// `SET_GAP / k` is the same pause in the controller's time, and so is its widening.
     pub fn with_set_gap(name: impl Into<String>, port: Arc<LinePort>, gap: Duration) -> Arc<Smc100Chain> {
+        let gap = gap.min(MAX_SET_GAP);
         Arc::new(Smc100Chain {
             name: name.into(),
             port,
             pacing: Mutex::new(Pacing {
                 next_send: Default::default(),
-                gap: gap.min(MAX_SET_GAP),
+                gap,
+                base: gap,
             }),
         })
     }
@@ -54,26 +59,32 @@ impl Smc100Chain {
         self.pacing.lock().map(|p| p.gap).unwrap_or(SET_GAP)
     }
 
-    /// Reserve the next moment a command to controller `addr` may go out: a set command pushes the following
-    /// one to the same controller back by the gap. (Each controller on the chain has its own processor.)
-    fn slot(&self, addr: u8, set: bool) -> Instant {
-        let now = Instant::now();
-        match self.pacing.lock() {
-            Ok(mut p) => {
-                let gap = p.gap;
-                let next = p.next_send.entry(addr).or_insert(now);
-                let at = (*next).max(now);
-                *next = if set { at + gap } else { at };
-                at
-            }
-            Err(_) => now,
+    /// When controller `addr` can take a command again by our pacing (`None`: no set command went to it yet).
+    fn ready_at(&self, addr: u8) -> Option<Instant> {
+        self.pacing
+            .lock()
+            .ok()
+            .and_then(|p| p.next_send.get(&addr).copied())
+    }
+
+    /// A set command to `addr` has just been written: the controller is busy from now, whatever delayed the
+    /// write (waiting for the port, the scheduler), so the next command waits the whole gap from now.
+    fn sent_set(&self, addr: u8) {
+        if let Ok(mut p) = self.pacing.lock() {
+            let after = Instant::now() + p.gap;
+            let next = p.next_send.entry(addr).or_insert(after);
+            *next = (*next).max(after);
         }
     }
 
     /// The line after a set command went unanswered: perhaps the controller was still busy. Pause longer.
     fn widen_gap(&self) {
         if let Ok(mut p) = self.pacing.lock() {
-            let wider = (p.gap * 2).clamp(SET_GAP.min(MAX_SET_GAP), MAX_SET_GAP);
+            let widest = p
+                .base
+                .mul_f64(MAX_SET_GAP.as_secs_f64() / SET_GAP.as_secs_f64())
+                .min(MAX_SET_GAP);
+            let wider = (p.gap * 2).clamp(p.base, widest.max(p.base));
             if wider > p.gap {
                 tracing::warn!(chain = %self.name, from_ms = p.gap.as_millis() as u64, to_ms = wider.as_millis() as u64, "no reply after a set command: pausing longer after set commands");
                 p.gap = wider;
@@ -126,10 +137,11 @@ impl Smc100Chain {
                 .get(..2)
                 .unwrap_or_default();
             let query = expect.get(next).is_some_and(|e| *e == code);
-            let at = self.slot(addr, !query);
-            if at > Instant::now() {
-                // The controller is still busy with a set command: free the port meanwhile, so that the other
-                // controllers on the chain are not held up, and take it again for the rest of the exchange.
+            // While the controller is still in its pause after a set command, free the port, so that the other
+            // controllers on the chain are not held up, and take it again for the rest of the exchange. Looked at
+            // again once the port is ours: a stop on the priority path may have started a new pause meanwhile.
+            // (Each controller on the chain has its own processor: only its own set commands make it wait.)
+            while let Some(at) = self.ready_at(addr).filter(|at| *at > Instant::now()) {
                 drop(s);
                 tokio::time::sleep_until(at).await;
                 s = self.port.session().await;
@@ -138,6 +150,7 @@ impl Smc100Chain {
             let deadline = Instant::now() + REPLY_TIMEOUT;
             s.send(format!("{line}\r\n").as_bytes(), deadline).await?;
             if !query {
+                self.sent_set(addr);
                 after_set = true;
                 continue;
             }
@@ -325,28 +338,44 @@ impl Smc100Chain {
     }
 
     /// Stop the given controllers now, on the priority path (does not wait for exchanges in flight): every `ST`
-    /// at once, then each once more, paced, in case the first arrived while a controller was busy (a second `ST`
-    /// is harmless: it stops nothing more).
+    /// at once, then each once more. A controller still in its pause after a set command may lose the first
+    /// `ST`: it gets the second the moment that pause is over, so a stop waits at most one pause ([`SET_GAP`])
+    /// for it; the others get theirs one pause after the first, in case a controller needed longer than our
+    /// pause (a second `ST` is harmless: it stops nothing more).
     pub async fn stop_all(&self, addrs: &[u8]) -> Result<(), DriverError> {
         let mut line = Vec::new();
         for a in addrs {
             line.extend_from_slice(format!("{a}ST\r\n").as_bytes());
         }
         let first = addrs.first().copied().unwrap_or(0);
-        for a in addrs {
-            self.slot(*a, true);
-        }
+        let now = Instant::now();
+        let ready: Vec<Option<Instant>> = addrs.iter().map(|a| self.ready_at(*a)).collect();
         self.port
             .send_priority(&line, Instant::now() + REPLY_TIMEOUT)
             .await
             .map_err(|e| self.transport_error(first, "ST", e))?;
-        tracing::info!(chain = %self.name, ?addrs, "stop sent");
+        let sent = Instant::now();
         for a in addrs {
-            tokio::time::sleep_until(self.slot(*a, true)).await;
+            self.sent_set(*a);
+        }
+        tracing::info!(chain = %self.name, ?addrs, "stop sent");
+        let gap = self.set_gap();
+        let mut again: Vec<(Instant, u8)> = addrs
+            .iter()
+            .zip(ready)
+            .map(|(a, ready)| match ready {
+                Some(r) if r > now => (r, *a),
+                _ => (sent + gap, *a),
+            })
+            .collect();
+        again.sort_unstable();
+        for (at, a) in again {
+            tokio::time::sleep_until(at).await;
             self.port
                 .send_priority(format!("{a}ST\r\n").as_bytes(), Instant::now() + REPLY_TIMEOUT)
                 .await
-                .map_err(|e| self.transport_error(*a, "ST", e))?;
+                .map_err(|e| self.transport_error(a, "ST", e))?;
+            self.sent_set(a);
         }
         Ok(())
     }

@@ -5,7 +5,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use gonio_driver::Axis;
-use gonio_driver::smc100::{SET_GAP, Smc100Axis, Smc100Chain, parse_number, parse_reply};
+use gonio_driver::smc100::{MAX_SET_GAP, SET_GAP, Smc100Axis, Smc100Chain, parse_number, parse_reply};
 use gonio_driver::transport::LinePort;
 use tokio::time::Instant;
 
@@ -84,8 +84,17 @@ async fn commands_go_out_one_at_a_time_and_paced_after_set_commands() {
 
 /// Home and move both arms, then read their status: under the variant `f` sets.
 async fn both_arms_work(f: impl FnOnce(&mut gonio_instrument::InstrumentFile)) -> Arc<Smc100Chain> {
-    let sim = sim_file(f, 1.0);
-    let chain = Smc100Chain::new("arms", sim_port(&sim, "arms"));
+    both_arms_work_at(f, 1.0).await
+}
+
+/// [`both_arms_work`] with the simulated controllers `scale` times faster than tokio's clock, and the pause
+/// after a set command scaled as the daemon's rig scales it.
+async fn both_arms_work_at(
+    f: impl FnOnce(&mut gonio_instrument::InstrumentFile),
+    scale: f64,
+) -> Arc<Smc100Chain> {
+    let sim = sim_file(f, scale);
+    let chain = Smc100Chain::with_set_gap("arms", sim_port(&sim, "arms"), SET_GAP.div_f64(scale));
     let light = Smc100Axis::new(Arc::clone(&chain), sim_axis("light"));
     let detector = Smc100Axis::new(Arc::clone(&chain), sim_axis("detector"));
     light.home().await.expect("home light");
@@ -116,6 +125,14 @@ async fn correct_under_every_simulator_variant() {
         "the pause widened to what the controller needs: {:?}",
         chain.set_gap()
     );
+    // The same controller 40 times faster: the pause widens in the controller's time, not to real
+    // milliseconds (which would be 40 times what it needs).
+    let chain = both_arms_work_at(|f| f.simulator.quirks.smc100_min_command_gap_ms = 200.0, 40.0).await;
+    assert!(
+        chain.set_gap() >= Duration::from_millis(5) && chain.set_gap() <= MAX_SET_GAP.div_f64(40.0),
+        "widened within the scaled bounds: {:?}",
+        chain.set_gap()
+    );
 }
 
 #[test]
@@ -128,4 +145,60 @@ fn real_reply_formats_parse() {
     assert_eq!(&cc, b"TP");
     assert_eq!(parse_number(value), Some(12.3456789012));
     assert_eq!(parse_number("-0.0000000001"), Some(-1e-10));
+}
+
+/// The daemon's dry-run set-up at a large time scale (the driver's pause scaled as the rig scales it), on a
+/// real clock with every core busy: the paced driver loses no line to the controller's input pacing, and
+/// every status read and move succeeds at the first attempt.
+#[test]
+fn paced_exchanges_hold_at_large_time_scales_under_load() {
+    trace();
+    let _load = gonio_testkit::CpuLoad::start();
+    for scale in [40.0, 200.0] {
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .expect("runtime");
+        rt.block_on(async {
+            let sim = sim_file(|_| {}, scale);
+            let chain = Smc100Chain::with_set_gap("arms", sim_port(&sim, "arms"), SET_GAP.div_f64(scale));
+            let light = Smc100Axis::new(Arc::clone(&chain), sim_axis("light"));
+            let detector = Smc100Axis::new(Arc::clone(&chain), sim_axis("detector"));
+            light.home().await.expect("home light");
+            detector.home().await.expect("home detector");
+            let lost_after_homing = sim.lost_input_lines();
+            for i in 0..40 {
+                let at = f64::from(i % 7) * 5.0 - 15.0;
+                light
+                    .move_to(at)
+                    .await
+                    .unwrap_or_else(|e| panic!("x{scale}: light to {at}: {e}"));
+                detector
+                    .move_to(at + 60.0)
+                    .await
+                    .unwrap_or_else(|e| panic!("x{scale}: detector: {e}"));
+                for axis in [&light, &detector] {
+                    let st = axis
+                        .status()
+                        .await
+                        .unwrap_or_else(|e| panic!("x{scale}: status: {e}"));
+                    assert!(
+                        st.referenced && !st.moving && st.fault.is_none(),
+                        "x{scale}: {st:?}"
+                    );
+                }
+            }
+            assert_eq!(
+                sim.lost_input_lines(),
+                lost_after_homing,
+                "x{scale}: lines lost to pacing"
+            );
+            assert_eq!(
+                chain.set_gap(),
+                SET_GAP.div_f64(scale),
+                "x{scale}: the pause never had to widen"
+            );
+        });
+    }
 }
