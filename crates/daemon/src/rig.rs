@@ -196,7 +196,19 @@ impl Rig {
                 Protocol::Smc100 => {
                     let chain = smc
                         .entry(axis.device.clone())
-                        .or_insert_with(|| Smc100Chain::new(axis.device.as_str(), Arc::clone(port)))
+                        .or_insert_with(|| {
+                            // A simulated controller keeps its pause after a set command in simulated time.
+                            let simulated = inst
+                                .devices
+                                .iter()
+                                .any(|d| d.name == axis.device && d.is_simulated());
+                            let gap = if simulated {
+                                gonio_driver::smc100::SET_GAP.div_f64(time_scale.max(1.0))
+                            } else {
+                                gonio_driver::smc100::SET_GAP
+                            };
+                            Smc100Chain::with_set_gap(axis.device.as_str(), Arc::clone(port), gap)
+                        })
                         .clone();
                     Arc::new(Smc100Axis::new(chain, axis.clone()))
                 }
@@ -248,11 +260,10 @@ impl Rig {
                         w.device
                     )));
                 };
-                let fw = Arc::new(Fw102c::new(
-                    w.device.as_str(),
-                    Arc::clone(port),
-                    w.seconds_per_position,
-                ));
+                let fw = Arc::new(
+                    Fw102c::new(w.device.as_str(), Arc::clone(port), w.seconds_per_position)
+                        .with_speed(w.speed),
+                );
                 (Some(fw.clone() as Arc<dyn FilterWheel>), Some(fw))
             }
             None => (None, None),

@@ -4,8 +4,22 @@
 //! lines end in `\r`. A position command returns its prompt when the wheel has turned, so the host waits for the
 //! prompt with a deadline that follows from the distance. A bad keyword or argument answers an error string
 //! (the manual does not fix its text; known firmware says `Command error ...`), reported verbatim.
+//!
+//! Protocol notes, and where each comes from:
+//! - Timing: users of real wheels report about 1 s per position at speed 1 and about 2 s at speed 0. The
+//!   instrument file gives the time per position at its `speed`, and the driver sets that speed before the
+//!   first turn (a wheel may have been saved in the other mode), so the turn deadline (twice the predicted
+//!   time plus 2 s) follows from the speed in use.
+//! - Before the first turn the driver also sets `sensors=0`: with the sensors on, the wheel's position sensors
+//!   stay lit while it is idle and add stray light (real-hardware drivers do the same).
+//! - Right after the port opens, NUL bytes and a `Command error CMD_NOT_DEFINED` can arrive (users of real
+//!   wheels report it): NUL bytes are dropped, and an error with no echo before it is the port's noise, not
+//!   an answer: the driver reads on to its own echo.
+//!
+//! Both settings are applied again after every reconnect (a power cycle restores the saved modes).
 
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use tokio::time::Instant;
@@ -51,6 +65,14 @@ pub fn parse_answer(command: &str, before_prompt: &[u8]) -> Option<Answer> {
     Some(Answer::Lines(rest))
 }
 
+/// What a freshly opened port may say before any command: an error line with no echo before it (NUL bytes
+/// already dropped).
+pub fn is_open_noise(before_prompt: &[u8]) -> bool {
+    let text = String::from_utf8_lossy(before_prompt);
+    let text = text.trim();
+    text.is_empty() || (text.starts_with("Command error") && !text.contains(['\r', '\n']))
+}
+
 /// Parse a single integer answer line.
 pub fn parse_int(lines: &[String]) -> Option<u32> {
     match lines {
@@ -67,10 +89,14 @@ pub struct Fw102c {
     name: String,
     port: Arc<LinePort>,
     seconds_per_position: f64,
+    speed: u8,
+    /// `speed` and `sensors=0` were set since the port (re)opened.
+    prepared: AtomicBool,
 }
 
 impl Fw102c {
-    /// `seconds_per_position`: time to turn by one position (from the instrument file), for deadlines.
+    /// `seconds_per_position`: time to turn by one position (from the instrument file) at speed 1, the speed set
+    /// unless [`Fw102c::with_speed`] says otherwise; for deadlines.
     pub fn new(name: impl Into<String>, port: Arc<LinePort>, seconds_per_position: f64) -> Fw102c {
         let s = if seconds_per_position.is_finite() && seconds_per_position > 0.0 {
             seconds_per_position
@@ -81,7 +107,29 @@ impl Fw102c {
             name: name.into(),
             port,
             seconds_per_position: s,
+            speed: 1,
+            prepared: AtomicBool::new(false),
         }
+    }
+
+    /// The speed mode to set (0 slow, 1 fast; anything else is taken as 1); `seconds_per_position` is the time
+    /// per position at this speed.
+    pub fn with_speed(mut self, speed: u8) -> Fw102c {
+        self.speed = if speed == 0 { 0 } else { 1 };
+        self
+    }
+
+    /// Set the speed and turn the position sensors off, once per opening of the port.
+    async fn prepare(&self) -> Result<(), DriverError> {
+        if self.prepared.load(Ordering::SeqCst) {
+            return Ok(());
+        }
+        self.exchange(&format!("speed={}", self.speed), REPLY_TIMEOUT, true)
+            .await?;
+        self.exchange("sensors=0", REPLY_TIMEOUT, true).await?;
+        self.prepared.store(true, Ordering::SeqCst);
+        tracing::info!(wheel = %self.name, speed = self.speed, "speed set, position sensors off");
+        Ok(())
     }
 
     fn error(&self, request: &str, e: TransportError, timeout: Duration) -> DriverError {
@@ -118,13 +166,22 @@ impl Fw102c {
                 s.discard_stale().await?;
                 let deadline = Instant::now() + timeout;
                 s.send(format!("{command}\r").as_bytes(), deadline).await?;
-                let raw = s.read_until(PROMPT, deadline).await?;
-                parse_answer(command, &raw).ok_or_else(|| {
-                    TransportError::Garbled(format!(
+                loop {
+                    let mut raw = s.read_until(PROMPT, deadline).await?;
+                    // NUL bytes come with the noise of a freshly opened port; they are never part of an answer.
+                    raw.retain(|b| *b != 0);
+                    if let Some(answer) = parse_answer(command, &raw) {
+                        return Ok(answer);
+                    }
+                    if is_open_noise(&raw) {
+                        tracing::debug!(wheel = %self.name, noise = %crate::transport::escape_bytes(&raw), "noise of a freshly opened port skipped");
+                        continue;
+                    }
+                    return Err(TransportError::Garbled(format!(
                         "echo does not match {command:?}: {}",
                         crate::transport::escape_bytes(&raw)
-                    ))
-                })
+                    )));
+                }
             }
             .await;
             match r {
@@ -216,6 +273,7 @@ impl Fw102c {
     }
 
     pub async fn do_go_to(&self, position: u8) -> Result<(), DriverError> {
+        self.prepare().await?;
         let count = self.do_position_count().await?;
         if !(1..=count).contains(&position) {
             return Err(DriverError::OutOfRange {
@@ -227,7 +285,8 @@ impl Fw102c {
             });
         }
         let current = self.do_position().await?;
-        // The wheel may turn either way; at worst half a turn. Margin: twice that plus two seconds.
+        // The wheel may turn either way; at worst half a turn. Margin: twice that plus two seconds, at the speed
+        // set by `prepare` (the time per position is the configured speed's).
         // (Saturating: a garbled `pos?` can report a position beyond a 6-position wheel's count.)
         let apart = current.abs_diff(position);
         let steps = f64::from(apart.min(count.saturating_sub(apart)));
@@ -274,6 +333,9 @@ impl FilterWheel for Fw102c {
                     device: self.name.clone(),
                     detail: e.to_string(),
                 })?;
+            // A power cycle restores the saved speed and sensor modes: set them again.
+            self.prepared.store(false, Ordering::SeqCst);
+            self.prepare().await?;
             self.do_position().await.map(|_| ())
         })
     }
@@ -299,5 +361,13 @@ mod tests {
         assert_eq!(parse_int(&["12".into()]), Some(12));
         assert_eq!(parse_int(&["1".into(), "2".into()]), None);
         assert_eq!(parse_int(&["-1".into()]), None);
+    }
+
+    #[test]
+    fn noise_of_a_fresh_port_is_told_from_answers() {
+        assert!(is_open_noise(b"Command error CMD_NOT_DEFINED\r"));
+        assert!(is_open_noise(b""));
+        assert!(!is_open_noise(b"pos?\rCommand error CMD_NOT_DEFINED\r"));
+        assert!(!is_open_noise(b"pos?\r3\r"));
     }
 }

@@ -1,9 +1,21 @@
 //! Thorlabs PM100-family optical power meters (PM100USB, PM100D, PM100A, PM400, ...) over USBTMC with SCPI,
 //! written from the Thorlabs PM100 SCPI command reference and the USBTMC 1.0 specification.
 //!
-//! Configuration is followed by `SYST:ERR?` until the queue reads `0,"No error"`; any error there is a
-//! rejection. Readings are `MEAS:POW?` (W) with the range from `SENS:POW:RANG?`. A reading at or beyond the
-//! range's full scale (or the SCPI overflow value 9.9E37) is flagged as overload, never passed off as a value.
+//! Configuration is followed by `SYST:ERR?` until the queue reads code 0 (`0,"No error"` or, as real meters
+//! write it, `+0,"No error"`); any error there is a rejection. The wavelength is checked against the sensor's
+//! limits (`SENS:CORR:WAV? MIN` / `MAX`) first. Readings are `MEAS:POW?` (W) with the range from
+//! `SENS:POW:RANG?`. A reading at or beyond the range's full scale is flagged as overload, never passed off as
+//! a value; so are the over-range answers, which differ between models and firmware versions.
+//!
+//! Protocol notes, and where each comes from:
+//! - Over range, `MEAS:POW?` answers `INFINITY` or `-INFINITY` (Thorlabs' SCPI command references for the
+//!   PM100D2, PM101, PM103 and PM400), or SCPI 1999's overflow value `9.9E37`; `+INF`, `-INF` and `NAN` are
+//!   taken as overload too ([`classify_reading`]).
+//! - `SYST:ERR?` answers `+0,"No error"` on real devices (published transcripts); the sign is optional.
+//! - `SENS:CORR:WAV? MIN` / `MAX` answer the sensor head's limits: PM100 SCPI reference.
+//! - The USB product ids of the family: Thorlabs' TLPMX examples ([`PRODUCTS`]). Unconfirmed: which model
+//!   each of 0x8070, 0x8071, 0x8075, 0x8076, 0x8077, 0x807A, 0x807B and 0x8099 is (named "Thorlabs power
+//!   meter" here).
 
 use std::sync::Arc;
 use std::time::{Duration, SystemTime};
@@ -19,11 +31,19 @@ use crate::usbtmc::{Usbtmc, UsbtmcError};
 
 /// Thorlabs' USB vendor id and the power meters' product ids (normal mode).
 pub const THORLABS_VID: u16 = 0x1313;
-pub const PRODUCTS: [(u16, &str); 6] = [
+pub const PRODUCTS: [(u16, &str); 14] = [
+    (0x8070, "Thorlabs power meter"),
+    (0x8071, "Thorlabs power meter"),
     (0x8072, "PM100USB"),
+    (0x8075, "Thorlabs power meter"),
+    (0x8076, "Thorlabs power meter"),
+    (0x8077, "Thorlabs power meter"),
     (0x8078, "PM100D"),
     (0x8079, "PM100A"),
+    (0x807A, "Thorlabs power meter"),
+    (0x807B, "Thorlabs power meter"),
     (0x807D, "PM400"),
+    (0x8099, "Thorlabs power meter"),
     (0x80B0, "PM200"),
     (0x80BB, "PM5020"),
 ];
@@ -47,6 +67,25 @@ pub fn parse_scpi_number(text: &str) -> Option<f64> {
         return None;
     }
     t.parse::<f64>().ok().filter(|x| x.is_finite())
+}
+
+/// What a `MEAS:POW?` answer says, given the range's full scale (W): `Some((power_w, overload))`, with
+/// `power_w` NaN when the meter gave no value (over range); `None` when the text is not a reading at all.
+/// Never panics.
+pub fn classify_reading(text: &str, range_w: f64) -> Option<(f64, bool)> {
+    let t = text.trim();
+    if let Some(p) = parse_scpi_number(t) {
+        return Some(if p.abs() >= SCPI_OVERFLOW {
+            (f64::NAN, true)
+        } else {
+            (p, p >= range_w)
+        });
+    }
+    let word = t.strip_prefix(['+', '-']).unwrap_or(t);
+    ["INF", "INFINITY", "NAN", "NAN(IND)"]
+        .iter()
+        .any(|w| word.eq_ignore_ascii_case(w))
+        .then_some((f64::NAN, true))
 }
 
 /// Parse a `SYST:ERR?` answer: `code,"text"`.
@@ -252,6 +291,18 @@ impl Pm100 {
         if !stale.is_empty() {
             tracing::warn!(meter = %self.name, ?stale, "errors queued before configuration");
         }
+        // The sensor head's wavelength limits: a wavelength outside them is refused before anything is set.
+        let min_nm = self.number("SENS:CORR:WAV? MIN", QUERY_TIMEOUT).await?;
+        let max_nm = self.number("SENS:CORR:WAV? MAX", QUERY_TIMEOUT).await?;
+        if !(min_nm..=max_nm).contains(&config.wavelength_nm) {
+            return Err(DriverError::OutOfRange {
+                device: self.name.clone(),
+                what: "wavelength (nm) for the sensor".into(),
+                value: config.wavelength_nm,
+                min: min_nm,
+                max: max_nm,
+            });
+        }
         let mut commands = vec![
             "SENS:POW:UNIT W".to_string(),
             format!("SENS:CORR:WAV {}", config.wavelength_nm),
@@ -341,23 +392,11 @@ impl Pm100 {
         let timestamp = SystemTime::now();
         let range_w = self.number("SENS:POW:RANG?", QUERY_TIMEOUT).await?;
         let t = a.trim();
-        let (power_w, overload) = match parse_scpi_number(t) {
-            Some(p) if p.abs() >= SCPI_OVERFLOW => (f64::NAN, true),
-            Some(p) => (p, p >= range_w),
-            None if t.eq_ignore_ascii_case("inf")
-                || t.eq_ignore_ascii_case("+inf")
-                || t.eq_ignore_ascii_case("nan") =>
-            {
-                (f64::NAN, true)
-            }
-            None => {
-                return Err(DriverError::Protocol {
-                    device: self.name.clone(),
-                    request: "MEAS:POW?".into(),
-                    detail: format!("not a number: {a:?}"),
-                });
-            }
-        };
+        let (power_w, overload) = classify_reading(t, range_w).ok_or_else(|| DriverError::Protocol {
+            device: self.name.clone(),
+            request: "MEAS:POW?".into(),
+            detail: format!("not a number: {a:?}"),
+        })?;
         if overload {
             tracing::warn!(meter = %self.name, reply = %t, range_w, "reading at or beyond full scale (overload)");
         }
@@ -443,5 +482,43 @@ mod tests {
             Some((-113, "Undefined header".into()))
         );
         assert_eq!(parse_scpi_error("No error"), None);
+        // Real meters sign the code.
+        assert_eq!(
+            parse_scpi_error("+0,\"No error\"\n"),
+            Some((0, "No error".into()))
+        );
+    }
+
+    #[test]
+    fn over_range_answers_of_every_model_are_overload() {
+        for t in [
+            "INFINITY",
+            "-INFINITY",
+            "+INF",
+            "inf",
+            "-inf",
+            "infinity",
+            "NAN",
+            "9.9E37",
+            "-9.9E37\n",
+        ] {
+            let (p, overload) = classify_reading(t, 5e-3).unwrap_or_else(|| panic!("{t:?} refused"));
+            assert!(overload && p.is_nan(), "{t:?}");
+        }
+        assert_eq!(classify_reading("+1.000000E-03", 5e-3), Some((1e-3, false)));
+        assert_eq!(classify_reading("5.000000E-03", 5e-3), Some((5e-3, true)));
+        assert_eq!(classify_reading("INFINITE", 5e-3), None);
+        assert_eq!(classify_reading("", 5e-3), None);
+        assert_eq!(classify_reading("-", 5e-3), None);
+    }
+
+    #[test]
+    fn every_product_id_of_the_family_is_known() {
+        for pid in [
+            0x8070u16, 0x8071, 0x8072, 0x8075, 0x8076, 0x8077, 0x8078, 0x8079, 0x807A, 0x807B, 0x807D,
+            0x8099, 0x80B0, 0x80BB,
+        ] {
+            assert!(PRODUCTS.iter().any(|(p, _)| *p == pid), "{pid:#06x}");
+        }
     }
 }

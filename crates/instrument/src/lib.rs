@@ -34,6 +34,9 @@ pub use imperfections::{GeometryImperfections, Imperfections, ImperfectionsError
 
 use serde::{Deserialize, Serialize};
 
+mod quirks;
+pub use quirks::{Pm100Overrange, Quirks, ZaberBadChecksum};
+
 /// A whole instrument file: `[instrument]`, and for simulated instruments `[simulator]`.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -258,6 +261,14 @@ pub struct Detector {
     /// Enable the simulated noise terms (shot, Johnson, quantisation).
     #[serde(default)]
     pub noise: bool,
+    /// The sensor's wavelength limits (nm), which the meter reads from the sensor head and reports for
+    /// `SENS:CORR:WAV? MIN` / `MAX`; simulation. Default: 400 to 1100 nm (Thorlabs S120C photodiode sensor).
+    #[serde(default = "default_sensor_wavelength_nm")]
+    pub sensor_wavelength_nm: [f64; 2],
+}
+
+fn default_sensor_wavelength_nm() -> [f64; 2] {
+    [400.0, 1100.0]
 }
 
 fn default_averaging() -> u32 {
@@ -269,9 +280,18 @@ fn default_averaging() -> u32 {
 #[serde(deny_unknown_fields)]
 pub struct FilterWheel {
     pub device: String,
-    /// Time to turn by one position (s).
+    /// Time to turn by one position (s) at `speed`. Users of real FW102C wheels report about 1 s per position at
+    /// speed 1 and about 2 s at speed 0.
     pub seconds_per_position: f64,
+    /// The wheel's speed mode, which the driver sets at start-up: 1 fast (the default), 0 slow (twice the time
+    /// per position).
+    #[serde(default = "default_wheel_speed")]
+    pub speed: u8,
     pub positions: Vec<FilterPosition>,
+}
+
+fn default_wheel_speed() -> u8 {
+    1
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -329,6 +349,9 @@ pub struct SimulatorSettings {
     /// the ideal instrument. See [`imperfections`].
     #[serde(default)]
     pub imperfections: Imperfections,
+    /// Which of the devices' recorded variants the simulator shows (see [`Quirks`]).
+    #[serde(default)]
+    pub quirks: Quirks,
 }
 
 /// Fault injection; everything off by default.

@@ -233,7 +233,19 @@ impl Instrument {
         if d.averaging == 0 {
             return Err("[instrument.detector]: averaging must be at least 1".into());
         }
+        let [lo, hi] = d.sensor_wavelength_nm;
+        if !(lo.is_finite() && hi.is_finite() && lo > 0.0 && lo < hi) {
+            return Err(format!(
+                "[instrument.detector]: sensor_wavelength_nm must be [min, max] with 0 < min < max, got [{lo}, {hi}]"
+            ));
+        }
         if let Some(w) = &self.filter_wheel {
+            if w.speed > 1 {
+                return Err(format!(
+                    "[instrument.filter_wheel]: speed must be 0 (slow) or 1 (fast), got {}",
+                    w.speed
+                ));
+            }
             if !(w.seconds_per_position.is_finite() && w.seconds_per_position >= 0.0) {
                 return Err(format!(
                     "[instrument.filter_wheel]: seconds_per_position must be >= 0, got {}",

@@ -11,7 +11,7 @@ use gonio_scheduler::constraints::{Constraints, Reason};
 use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
 use gonio_scheduler::order;
 use gonio_scheduler::plan::{self, BuildContext, Plan, PlanSpec, SampleTraits};
-use gonio_scheduler::schedule::{self, Schedule, StepKind};
+use gonio_scheduler::schedule::{self, BandMode, Schedule, StepKind};
 use gonio_scheduler::timing::TimeModel;
 use proptest::prelude::*;
 
@@ -341,17 +341,28 @@ fn realistic_grid_orders_well_below_raster() {
     let plan = build(&text, &inst, ISO).expect("plan");
     let sched = schedule::schedule(&plan, &TimeModel::new(&inst), None);
     let (o, r) = (&sched.breakdown, &sched.raster);
-    let motion_ratio = (o.motion_s + o.settle_s) / (r.motion_s + r.settle_s);
+    // With the vendor's wheel timing (1 s a position) one tour per band is quicker than changing the wheel at
+    // every geometry: the arms then walk the ordered tour once per band, where raster visits each geometry
+    // once. The ordering is judged per tour.
+    let tours = match sched.mode {
+        BandMode::PerBand => plan.bands_nm.len() as f64,
+        _ => 1.0,
+    };
+    let motion_ratio = (o.motion_s + o.settle_s) / tours / (r.motion_s + r.settle_s);
     let total_ratio = o.total_s() / r.total_s();
     println!(
-        "{} points: ordered {:.0} s, raster {:.0} s, lower bound {:.0} s; motion+settle ratio {motion_ratio:.3}, total ratio {total_ratio:.3}, mode {:?}",
+        "{} points: ordered {:.0} s, raster {:.0} s, lower bound {:.0} s; motion+settle ratio per tour {motion_ratio:.3}, total ratio {total_ratio:.3}, mode {:?}",
         plan.kept(),
         o.total_s(),
         r.total_s(),
         sched.lower_bound_s,
         sched.mode
     );
-    assert!(motion_ratio <= 0.6, "ordered/raster motion {motion_ratio}");
+    assert!(
+        motion_ratio <= 0.6,
+        "ordered/raster motion per tour {motion_ratio}"
+    );
+    assert!(total_ratio <= 0.6, "ordered/raster total {total_ratio}");
     assert!(sched.lower_bound_s <= o.total_s());
     check_schedule(&inst, &plan, &sched).expect("valid schedule");
 }

@@ -5,6 +5,19 @@
 //! per step (twice that in slow mode, `speed=0`); the prompt comes when the wheel has arrived, and the wheel reads
 //! no further command meanwhile. An unknown command answers `Command error CMD_NOT_DEFINED`, a bad argument
 //! `Command error CMD_ARG_INVALID`. While the wheel turns the beam is blocked; the blank position is dark.
+//!
+//! Protocol notes, and where each comes from:
+//! - Timing: users of real wheels report about 1 s per position at speed 1 and about 2 s at speed 0 (3 s for
+//!   180 degrees). `[instrument.filter_wheel] seconds_per_position` is the time at the configured `speed`; the
+//!   emulated wheel runs twice as long per position at speed 0 as at speed 1.
+//! - Power-up: speed 0 and sensors 1 (modes a wheel keeps after `save`; the manual's power-up values are
+//!   unconfirmed, these demand the most of a host). With `sensors=1` the position sensors stay lit while the
+//!   wheel is idle and add stray light to the detector; real-hardware drivers set `sensors=0` at start-up for
+//!   that reason. The stray photocurrent here ([`SENSOR_STRAY_A`]) is an unconfirmed magnitude.
+//! - Right after the port opens, NUL bytes and a `Command error CMD_NOT_DEFINED` (then the prompt) can arrive
+//!   (reported by users of real wheels): `[simulator.quirks] fw102c_noise_at_open`, default on; here they come
+//!   just ahead of the first answer on each connection. Unconfirmed: how many NUL bytes (here three) and
+//!   whether the prompt follows.
 
 use gonio_instrument::FilterWheel;
 
@@ -14,6 +27,10 @@ use crate::session::{Output, SerialEmulator};
 pub const IDN: &str = "THORLABS FW102C/FW212C Filter Wheel version 1.07";
 const PROMPT: &[u8] = b"> ";
 const MAX_LINE: usize = 64;
+/// Photocurrent the lit position sensors add at the detector while `sensors=1` (A). Unconfirmed magnitude.
+pub const SENSOR_STRAY_A: f64 = 1.0e-10;
+/// What arrives right after the port opens (see the module notes).
+const OPEN_NOISE: &[u8] = b"\0\0\0Command error CMD_NOT_DEFINED\r> ";
 
 #[derive(Debug)]
 pub struct Fw102c {
@@ -22,7 +39,8 @@ pub struct Fw102c {
     bands: Vec<Band>,
     pcount: u8,
     position: u8,
-    seconds_per_position: f64,
+    /// Time per position at speed 1 (s).
+    fast_s: f64,
     speed: u8,
     sensors: u8,
     trig: u8,
@@ -33,9 +51,13 @@ pub struct Fw102c {
     busy_until_s: f64,
     input: Vec<u8>,
     overflow: bool,
+    noise_at_open: bool,
+    /// The open noise is still to be sent on this connection.
+    noise_pending: bool,
 }
 
 impl Fw102c {
+    /// A wheel with the quirks off; see [`Fw102c::with_noise_at_open`].
     pub fn new(name: &str, config: Option<&FilterWheel>) -> Fw102c {
         let top = config
             .and_then(|w| w.positions.iter().map(|p| p.position).max())
@@ -58,16 +80,38 @@ impl Fw102c {
             bands,
             pcount,
             position: 1,
-            seconds_per_position: config.map(|w| w.seconds_per_position).unwrap_or(0.5),
-            speed: 1,
-            sensors: 0,
+            // The configured time is at the configured speed; speed 0 takes twice as long as speed 1.
+            fast_s: config
+                .map(|w| {
+                    if w.speed == 0 {
+                        w.seconds_per_position / 2.0
+                    } else {
+                        w.seconds_per_position
+                    }
+                })
+                .unwrap_or(1.0),
+            speed: 0,
+            sensors: 1,
             trig: 0,
             baud: 1,
             moving: None,
             busy_until_s: 0.0,
             input: Vec::new(),
             overflow: false,
+            noise_at_open: false,
+            noise_pending: false,
         }
+    }
+
+    /// NUL bytes and `CMD_NOT_DEFINED` right after each port open (see the module notes).
+    pub fn with_noise_at_open(mut self, on: bool) -> Fw102c {
+        self.noise_at_open = on;
+        self
+    }
+
+    /// Stray photocurrent the wheel adds at the detector at `t_s` (A): the lit position sensors.
+    pub fn stray_a(&self, _t_s: f64) -> f64 {
+        if self.sensors == 1 { SENSOR_STRAY_A } else { 0.0 }
     }
 
     /// What is in the beam at `t_s`: the blank while the wheel is between positions.
@@ -112,9 +156,9 @@ impl Fw102c {
                     let d = (i32::from(n) - i32::from(self.position)).rem_euclid(count);
                     let steps = d.min(count - d);
                     let per = if self.speed == 1 {
-                        self.seconds_per_position
+                        self.fast_s
                     } else {
-                        2.0 * self.seconds_per_position
+                        2.0 * self.fast_s
                     };
                     let end = now + f64::from(steps) * per;
                     tracing::debug!(wheel = %self.name, from = self.position, to = n, steps, end_s = end, "FW102C move");
@@ -157,10 +201,20 @@ impl SerialEmulator for Fw102c {
     fn reset_input(&mut self) {
         self.input.clear();
         self.overflow = false;
+        self.noise_pending = self.noise_at_open;
     }
 
     fn receive(&mut self, data: &[u8], now_s: f64) -> Vec<Output> {
         let mut out = Vec::new();
+        // The noise of a freshly opened port reaches the host ahead of the first answer. (Sent with the first
+        // answer rather than at the open itself: a terminal that echoed it back would feed it to the wheel.)
+        if std::mem::take(&mut self.noise_pending) {
+            tracing::debug!(wheel = %self.name, "FW102C: noise right after the port opened");
+            out.push(Output {
+                at_s: now_s,
+                bytes: OPEN_NOISE.to_vec(),
+            });
+        }
         for &b in data {
             match b {
                 b'\r' => {
@@ -213,9 +267,12 @@ impl SerialEmulator for Fw102c {
 mod tests {
     use super::*;
 
+    /// The default wheel, set to speed 1 as the driver sets it.
     fn wheel() -> Fw102c {
         let file = gonio_instrument::InstrumentFile::simulated();
-        Fw102c::new("wheel", file.instrument.filter_wheel.as_ref())
+        let mut w = Fw102c::new("wheel", file.instrument.filter_wheel.as_ref());
+        assert_eq!(text(&w.receive(b"speed=1\r", 0.0)), "speed=1\r> ");
+        w
     }
 
     fn text(out: &[Output]) -> String {
@@ -239,13 +296,43 @@ mod tests {
         let out = w.receive(b"pos=6\r", 10.0);
         assert_eq!(text(&out), "pos=6\r> ");
         let prompt = out.last().expect("prompt");
-        assert!((prompt.at_s - 10.4).abs() < 1e-12);
-        assert_eq!(w.band_at(10.2), Band::BLANK);
+        assert!((prompt.at_s - 11.0).abs() < 1e-12, "1 s per position at speed 1");
+        assert_eq!(w.band_at(10.5), Band::BLANK);
         // Position 6 is the blank in the default instrument.
         assert_eq!(w.band_at(11.0), Band::BLANK);
         let out = w.receive(b"pos=3\r", 11.0);
-        assert!((out.last().expect("prompt").at_s - 11.0 - 3.0 * 0.4).abs() < 1e-12);
-        assert_eq!(w.band_at(13.0).band_nm, Some(650.0));
+        assert!((out.last().expect("prompt").at_s - 11.0 - 3.0).abs() < 1e-12);
+        assert_eq!(w.band_at(14.0).band_nm, Some(650.0));
+        // Slow mode: twice as long.
+        w.receive(b"speed=0\r", 20.0);
+        let out = w.receive(b"pos=4\r", 20.0);
+        assert!((out.last().expect("prompt").at_s - 22.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn powers_up_slow_with_sensors_lit_and_noise_on_open() {
+        let file = gonio_instrument::InstrumentFile::simulated();
+        let mut w = Fw102c::new("wheel", file.instrument.filter_wheel.as_ref()).with_noise_at_open(true);
+        assert_eq!(text(&w.receive(b"speed?\r", 0.0)), "speed?\r0\r> ");
+        assert_eq!(text(&w.receive(b"sensors?\r", 0.0)), "sensors?\r1\r> ");
+        assert_eq!(w.stray_a(0.0), SENSOR_STRAY_A);
+        w.receive(b"sensors=0\r", 0.0);
+        assert_eq!(w.stray_a(0.0), 0.0);
+        assert_eq!(
+            text(&w.receive(b"pos?\r", 0.0)),
+            "pos?\r1\r> ",
+            "no noise before a connection"
+        );
+        w.reset_input();
+        assert_eq!(
+            text(&w.receive(b"pos?\r", 1.0)),
+            "\0\0\0Command error CMD_NOT_DEFINED\r> pos?\r1\r> "
+        );
+        assert_eq!(
+            text(&w.receive(b"pos?\r", 1.0)),
+            "pos?\r1\r> ",
+            "once per connection"
+        );
     }
 
     #[test]
@@ -270,6 +357,6 @@ mod tests {
         let mut w = wheel();
         let out = w.receive(b"pos=2\rpos?\r", 0.0);
         assert_eq!(text(&out), "pos=2\r> pos?\r2\r> ");
-        assert!(out.iter().skip(2).all(|o| (o.at_s - 0.4).abs() < 1e-12));
+        assert!(out.iter().skip(2).all(|o| (o.at_s - 1.0).abs() < 1e-12));
     }
 }

@@ -9,7 +9,6 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
 use gonio_instrument::{Axis, AxisRole, InstrumentFile, Protocol};
-use tokio::io::DuplexStream;
 
 use crate::clock::SimClock;
 use crate::faults::{FaultCounts, FaultInjector};
@@ -18,7 +17,7 @@ use crate::motion::{AxisMotion, AxisParams};
 use crate::pm100::{Pm100, SimUsbDevice};
 use crate::recording::MotionRecord;
 use crate::scene::{Band, Pose, Scene};
-use crate::session::{self, SharedEmulator};
+use crate::session::{self, SerialStream, SharedEmulator};
 use crate::smc100::Smc100Chain;
 use crate::zaber::ZaberChain;
 
@@ -95,6 +94,15 @@ impl World {
             None => self.fixed_band,
         }
     }
+
+    /// Stray photocurrent at the detector at `t_s` that no optics explain (A): the filter wheel's lit position
+    /// sensors.
+    pub fn stray_a(&self, t_s: f64) -> f64 {
+        match &self.wheel {
+            Some(w) => w.lock().unwrap_or_else(|e| e.into_inner()).stray_a(t_s),
+            None => 0.0,
+        }
+    }
 }
 
 impl SimInstrument {
@@ -143,19 +151,24 @@ impl SimInstrument {
             let dev_faults = faults.for_device(&dev.name);
             match dev.protocol {
                 Protocol::Smc100 => {
-                    let emu: SharedEmulator =
-                        Arc::new(Mutex::new(Smc100Chain::new(&dev.name, dev_axes, dev_faults)));
+                    let emu: SharedEmulator = Arc::new(Mutex::new(
+                        Smc100Chain::new(&dev.name, dev_axes, dev_faults).with_quirks(&file.simulator.quirks),
+                    ));
                     serial.insert(dev.name.clone(), (dev.protocol, emu));
                 }
                 Protocol::ZaberAscii => {
-                    let emu: SharedEmulator = Arc::new(Mutex::new(ZaberChain::new(
-                        &dev.name, dev_axes, dev_faults, clock,
-                    )));
+                    let emu: SharedEmulator = Arc::new(Mutex::new(
+                        ZaberChain::new(&dev.name, dev_axes, dev_faults, clock)
+                            .with_bad_checksum(file.simulator.quirks.zaber_bad_checksum),
+                    ));
                     serial.insert(dev.name.clone(), (dev.protocol, emu));
                 }
                 Protocol::Fw102c => {
                     let config = inst.filter_wheel.as_ref().filter(|w| w.device == dev.name);
-                    let w = Arc::new(Mutex::new(Fw102c::new(&dev.name, config)));
+                    let w = Arc::new(Mutex::new(
+                        Fw102c::new(&dev.name, config)
+                            .with_noise_at_open(file.simulator.quirks.fw102c_noise_at_open),
+                    ));
                     if config.is_some() {
                         wheel = Some(Arc::clone(&w));
                     }
@@ -215,7 +228,7 @@ impl SimInstrument {
 
     /// Open the named serial device: returns the host end of a byte stream to its emulator (whose task is
     /// spawned on the current tokio runtime). Fails while the device is disconnected by a fault.
-    pub fn serial_port(&self, device: &str) -> Result<DuplexStream, SimError> {
+    pub fn serial_port(&self, device: &str) -> Result<SerialStream, SimError> {
         let (protocol, emu) = self.serial_emulator(device)?;
         let handle = tokio::runtime::Handle::try_current().map_err(|_| SimError::NoRuntime {
             device: device.to_string(),
@@ -227,7 +240,7 @@ impl SimInstrument {
                 device: device.to_string(),
             });
         }
-        let (host, dev) = tokio::io::duplex(64 * 1024);
+        let (host, dev) = session::link(self.inner.world.clock, 64 * 1024);
         tracing::debug!(device, protocol = protocol.name(), "simulated serial port opened");
         let baud = self
             .inner
@@ -247,7 +260,7 @@ impl SimInstrument {
         Ok(host)
     }
 
-    fn serial_emulator(&self, device: &str) -> Result<(Protocol, SharedEmulator), SimError> {
+    pub(crate) fn serial_emulator(&self, device: &str) -> Result<(Protocol, SharedEmulator), SimError> {
         if let Some((p, emu)) = self.inner.serial.get(device) {
             return Ok((*p, Arc::clone(emu)));
         }
@@ -335,6 +348,23 @@ impl SimInstrument {
     /// How many faults of each kind were injected so far.
     pub fn fault_counts(&self) -> FaultCounts {
         self.inner.faults.counts()
+    }
+
+    /// Command lines the serial devices lost so far because they came while the device could not take them
+    /// (`[simulator.quirks] smc100_min_command_gap_ms`): zero for a host that paces its commands as it should.
+    pub fn lost_input_lines(&self) -> u64 {
+        self.lost_input_by_command().values().sum()
+    }
+
+    /// [`SimInstrument::lost_input_lines`] by command code (`ST`, `TE`, ...), over every serial device.
+    pub fn lost_input_by_command(&self) -> BTreeMap<String, u64> {
+        let mut all = BTreeMap::new();
+        for (_, emu) in self.inner.serial.values() {
+            for (code, n) in emu.lock().unwrap_or_else(|e| e.into_inner()).lost_input() {
+                *all.entry(code).or_default() += n;
+            }
+        }
+        all
     }
 
     /// Start recording, on every axis, the motion commands the emulators receive and every change of the

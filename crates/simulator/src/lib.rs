@@ -15,7 +15,8 @@
 //! - [`smc100`], [`zaber`], [`fw102c`], [`pm100`]: the device emulators, speaking the real wire protocols.
 //! - [`pty`]: a serial device served on a real pseudo-terminal ([`pty::PtyDevice`]).
 //! - [`usb_socket`]: the USB power meter served on a Unix socket, for hosts in another process.
-//! - [`session`]: the byte-stream session between a host and a serial emulator.
+//! - [`session`]: the byte-stream session between a host and a serial emulator ([`SerialStream`], the host's end,
+//!   stamps each write with when it was sent).
 //! - [`faults`]: seeded fault injection and its counters.
 
 pub mod clock;
@@ -38,3 +39,4 @@ pub mod zaber;
 pub use faults::FaultCounts;
 pub use instrument::{SimError, SimInstrument};
 pub use pm100::{SimUsbDevice, UsbSimError};
+pub use session::SerialStream;

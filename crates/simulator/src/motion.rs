@@ -302,6 +302,14 @@ impl AxisMotion {
         if r > 0.0 { (load / r).round() * r } else { load }
     }
 
+    /// A motor-side encoder's read-back: the motor quantised to the encoder resolution (the load may differ by
+    /// the backlash). What a servo controller holds on its set-point.
+    pub fn motor_encoder_deg(&mut self, t_s: f64) -> f64 {
+        let motor = self.motor_deg(t_s);
+        let r = self.params.encoder_resolution_deg;
+        if r > 0.0 { (motor / r).round() * r } else { motor }
+    }
+
     pub fn velocity_deg_s(&mut self, t_s: f64) -> f64 {
         self.advance(t_s);
         self.segments.first().map(|s| s.vel_at(t_s)).unwrap_or(0.0)

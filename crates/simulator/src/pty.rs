@@ -21,10 +21,11 @@ use std::time::Duration;
 use nix::fcntl::{FcntlArg, OFlag, fcntl};
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 use tokio::io::unix::AsyncFd;
-use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::task::JoinHandle;
 
 use crate::instrument::{SimError, SimInstrument};
+use crate::session::SerialStream;
 
 /// How often (real time) a bridge looks whether a disconnected device is back.
 const RECONNECT_POLL: Duration = Duration::from_millis(50);
@@ -191,7 +192,7 @@ enum BridgeEnd {
 }
 
 /// Copy bytes both ways between the terminal and one session of the device, until either side ends.
-async fn pump(name: &str, master: &AsyncFd<OwnedFd>, stream: &mut DuplexStream) -> BridgeEnd {
+async fn pump(name: &str, master: &AsyncFd<OwnedFd>, stream: &mut SerialStream) -> BridgeEnd {
     let mut buf = [0u8; 1024];
     let mut from_dev = [0u8; 1024];
     loop {
@@ -255,7 +256,7 @@ async fn bridge_linked(
     sim: SimInstrument,
     name: String,
     link: PathBuf,
-    mut current: Option<(Terminal, DuplexStream)>,
+    mut current: Option<(Terminal, SerialStream)>,
 ) {
     loop {
         let (terminal, mut stream) = match current.take() {
@@ -292,7 +293,7 @@ async fn bridge_linked(
 }
 
 /// Poll until the device accepts a session again; None if it never can (not a disconnect).
-async fn wait_for_device(sim: &SimInstrument, name: &str) -> Option<DuplexStream> {
+async fn wait_for_device(sim: &SimInstrument, name: &str) -> Option<SerialStream> {
     loop {
         match sim.serial_port(name) {
             Ok(stream) => return Some(stream),
@@ -366,7 +367,7 @@ mod tests {
             f.write_all(b"pos?\r").expect("write");
             let mut got = Vec::new();
             let mut b = [0u8; 64];
-            while !got.ends_with(b"> ") {
+            while !got.ends_with(b"pos?\r1\r> ") {
                 let n = f.read(&mut b).expect("read");
                 got.extend_from_slice(&b[..n]);
             }
@@ -377,8 +378,9 @@ mod tests {
             .expect("the wheel answered in time")
             .expect("client");
         let text = String::from_utf8_lossy(&reply);
-        // Echo and CR, the answer (position 1 at power-up) and CR, then the prompt (FW102C manual).
-        assert_eq!(text, "pos?\r1\r> ");
+        // The noise of a freshly opened port (a recorded real-wheel quirk, on by default), then echo and CR, the
+        // answer (position 1 at power-up) and CR, then the prompt (FW102C manual).
+        assert_eq!(text, "\0\0\0Command error CMD_NOT_DEFINED\r> pos?\r1\r> ");
         assert_eq!(
             PtyDevice::serve(&sim, "meter")
                 .expect_err("USB device")

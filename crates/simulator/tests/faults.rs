@@ -4,8 +4,18 @@ mod common;
 
 use std::time::Duration;
 
-use common::{Port, sim_with};
+use common::Port;
 use gonio_simulator::{SimError, UsbSimError};
+
+/// The devices as their manuals describe them (no recorded quirks: those have their own tests), with `f` applied.
+fn sim_with(f: impl FnOnce(&mut gonio_instrument::InstrumentFile)) -> gonio_simulator::SimInstrument {
+    common::sim_with(|file| {
+        file.simulator.quirks.smc100_min_command_gap_ms = 0.0;
+        file.simulator.quirks.smc100_drop_first_ts = false;
+        file.simulator.quirks.fw102c_noise_at_open = false;
+        f(file);
+    })
+}
 
 #[tokio::test(start_paused = true)]
 async fn garbled_replies_differ_in_one_byte_and_are_reproducible() {

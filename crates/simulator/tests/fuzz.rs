@@ -124,10 +124,14 @@ fn crlf_lines(out: &[Output]) -> (Vec<String>, Vec<u8>) {
 
 const SMC_WORDS: &[&str] = &[
     "1", "2", "3", "0", "99", "TS", "TE", "TP", "TH", "ID", "VE", "PW", "PA", "PR", "OR", "RS", "PT", "ST",
-    "MM", "VA", "AC", "SL", "SR", "?", "0", "1", "-", ".", " ", "\r\n", "\r\n", "\n", "1e308", "-1e12",
+    "MM", "VA", "AC", "SL", "SR", "?", "0", "1", "-", ".", " ", "\r\n", "\r\n", "\n", "1e308", "-1e12", "TB",
+    "ZT", "ZX", "SE", "KP", "HT", "BA", "SB", "RA", "RB", "DV", "##",
 ];
+/// Codes a reply line may carry: the queries, and the parameters `ZT` lists.
 const SMC_QUERIES: &[&str] = &[
-    "TS", "TE", "TP", "TH", "ID", "VE", "PW", "PA", "PR", "PT", "MM", "VA", "AC", "SL", "SR",
+    "TS", "TE", "TP", "TH", "ID", "VE", "PW", "PA", "PR", "PT", "MM", "VA", "AC", "SL", "SR", "TB", "RA",
+    "RB", "ZX", "SE", "BA", "BH", "FD", "FE", "FF", "HT", "JM", "JR", "KD", "KI", "KP", "KV", "OH", "OT",
+    "QI", "SA", "SB", "SC", "SU",
 ];
 
 const ZABER_WORDS: &[&str] = &[

@@ -89,13 +89,18 @@ async fn documented_meas_pow_byte_vector_and_reply_framing() {
     // wavelength 633 nm: a wrong wavelength gives a realistically wrong reading.
     let r450 = 0.17;
     let r633 = 0.29 + (633.0 - 550.0) / 100.0 * (0.38 - 0.29);
-    let expected = (0.5e-4 * r450 + 5.0e-11) / r633;
+    // (Plus the stray light of the wheel's position sensors, on at power-up.)
+    let stray = gonio_simulator::fw102c::SENSOR_STRAY_A;
+    let expected = (0.5e-4 * r450 + 5.0e-11 + stray) / r633;
     let got = value(&reply[12..12 + n]);
     assert!((got / expected - 1.0).abs() < 1e-6, "{got} vs {expected}");
     // Set to the band: the reading is right (plus the dark current).
     let (_, data) = query(&dev, 3, "SENS:CORR:WAV 450\nMEAS:POW?\n", 1024).await;
     let got = value(&data);
-    assert!((got / (0.5e-4 + 5.0e-11 / r450) - 1.0).abs() < 1e-6, "{got}");
+    assert!(
+        (got / (0.5e-4 + (5.0e-11 + stray) / r450) - 1.0).abs() < 1e-6,
+        "{got}"
+    );
 }
 
 #[tokio::test(start_paused = true)]
@@ -280,7 +285,7 @@ async fn scpi_forms_error_queue_and_settings() {
     let (_, d) = query(&dev, 6, "SYST:ERR?;SYST:ERR?;SYST:ERR?\n", 256).await;
     assert_eq!(
         String::from_utf8_lossy(&d),
-        "-113,\"Undefined header\";-222,\"Data out of range\";0,\"No error\"\n"
+        "-113,\"Undefined header\";-222,\"Data out of range\";+0,\"No error\"\n"
     );
     let (_, d) = query(&dev, 8, "SYST:SENS:IDN?\n", 256).await;
     assert!(String::from_utf8_lossy(&d).starts_with("S120C,"));
@@ -290,16 +295,26 @@ async fn scpi_forms_error_queue_and_settings() {
 async fn overload_on_a_small_manual_range_and_when_saturate_is_forced() {
     let sim = quiet();
     let dev = sim.usb_device("meter").expect("open");
-    // 5e-5 W on the 5e-8 W range: overload.
+    // 5e-5 W on the 5e-8 W range: overload, answered as the PM100D2/PM101/PM103/PM400 references show.
     let (_, d) = query(&dev, 1, "SENS:CORR:WAV 450;:SENS:POW:RANG 5e-8;:MEAS:POW?\n", 256).await;
-    assert_eq!(value(&d), OVERLOAD_W);
+    assert_eq!(String::from_utf8_lossy(&d), "INFINITY\n");
+    let (_, d) = query(&dev, 3, "STAT:QUES:COND?\n", 256).await;
+    assert_eq!(String::from_utf8_lossy(&d), "8\n", "bit 3: power over range");
     let (_, d) = query(&dev, 3, "SENS:POW:RANG:AUTO ON;:MEAS:POW?\n", 256).await;
     assert!(value(&d) < 1e-3);
     let sat = sim_with(|f| f.simulator.faults.saturate = true);
     let dev = sat.usb_device("meter").expect("open");
     let (_, d) = query(&dev, 1, "MEAS:POW?\n", 256).await;
-    assert_eq!(value(&d), OVERLOAD_W);
+    assert_eq!(String::from_utf8_lossy(&d), "INFINITY\n");
     assert_eq!(sat.fault_counts().saturated_readings, 1);
+    // The older variant: SCPI's overflow value.
+    let old = sim_with(|f| {
+        f.instrument.detector.noise = false;
+        f.simulator.quirks.pm100_overrange = gonio_instrument::Pm100Overrange::ScpiOverflow;
+    });
+    let dev = old.usb_device("meter").expect("open");
+    let (_, d) = query(&dev, 1, "SENS:CORR:WAV 450;:SENS:POW:RANG 5e-8;:MEAS:POW?\n", 256).await;
+    assert_eq!(value(&d), OVERLOAD_W);
 }
 
 #[tokio::test(start_paused = true)]
@@ -307,8 +322,14 @@ async fn noise_is_seeded_and_shows_on_the_dark_reading_of_the_lowest_range() {
     let run = |seed: u64, cmd: &'static str| async move {
         let sim = sim_with(|f| f.simulator.seed = seed);
         let mut wheel = common::Port::open(&sim, "wheel");
-        wheel.send(b"pos=6\r").await;
-        assert!(wheel.read_until(b"> ", Duration::from_secs(5)).await.is_some());
+        // Position sensors off (they add stray light), then the blank.
+        wheel.send(b"sensors=0\rpos=6\r").await;
+        assert!(
+            wheel
+                .read_until(b"pos=6\r> ", Duration::from_secs(10))
+                .await
+                .is_some()
+        );
         let dev = sim.usb_device("meter").expect("open");
         let mut v = Vec::new();
         for k in 0..20u8 {
@@ -335,9 +356,29 @@ async fn blank_position_gives_the_dark_reading() {
     let sim = quiet();
     let mut wheel = common::Port::open(&sim, "wheel");
     wheel.send(b"pos=6\r").await;
-    assert!(wheel.read_until(b"> ", Duration::from_secs(5)).await.is_some());
+    assert!(
+        wheel
+            .read_until(b"pos=6\r> ", Duration::from_secs(10))
+            .await
+            .is_some()
+    );
     let dev = sim.usb_device("meter").expect("open");
+    // The wheel powers up with its position sensors on: their light reaches the detector.
     let (_, d) = query(&dev, 1, "SENS:CORR:WAV 450;:MEAS:POW?\n", 256).await;
+    let stray = gonio_simulator::fw102c::SENSOR_STRAY_A;
+    assert!(
+        (value(&d) - (5.0e-11 + stray) / 0.17).abs() < 1e-15,
+        "dark current and the sensors' stray light: {}",
+        value(&d)
+    );
+    wheel.send(b"sensors=0\r").await;
+    assert!(
+        wheel
+            .read_until(b"sensors=0\r> ", Duration::from_secs(1))
+            .await
+            .is_some()
+    );
+    let (_, d) = query(&dev, 3, "MEAS:POW?\n", 256).await;
     assert!(
         (value(&d) - 5.0e-11 / 0.17).abs() < 1e-15,
         "dark current only: {}",

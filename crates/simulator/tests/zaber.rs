@@ -91,10 +91,33 @@ async fn rejections_carry_the_documented_reasons() {
         p.query("/1 1 move abs x\n").await.as_deref(),
         Some("@01 1 RJ IDLE WR BADDATA\r\n")
     );
-    // No reference position yet: absolute moves are refused.
+    // No reference position yet: every movement to a position is refused, relative ones too (the firmware-6
+    // manual: `/move rel 10000` answered `@01 0 RJ IDLE WR BADDATA`).
     assert_eq!(
         p.query("/1 1 move abs 1000\n").await.as_deref(),
-        Some("@01 1 RJ IDLE WR BADCOMMAND\r\n")
+        Some("@01 1 RJ IDLE WR BADDATA\r\n")
+    );
+    assert_eq!(
+        p.query("/1 move rel 10000\n").await.as_deref(),
+        Some("@01 0 RJ IDLE WR BADDATA\r\n")
+    );
+    // Numbers may be written in hexadecimal.
+    assert_eq!(
+        p.query("/1 1 set maxspeed 0x2710\n").await.as_deref(),
+        Some("@01 1 OK IDLE WR 0\r\n")
+    );
+    assert_eq!(
+        p.query("/1 1 get maxspeed\n").await.as_deref(),
+        Some("@01 1 OK IDLE WR 10000\r\n")
+    );
+    // The firmware-6 manual's identity values.
+    assert_eq!(
+        p.query("/1 get deviceid\n").await.as_deref(),
+        Some("@01 0 OK IDLE WR 20022\r\n")
+    );
+    assert_eq!(
+        p.query("/1 get version\n").await.as_deref(),
+        Some("@01 0 OK IDLE WR 6.06\r\n")
     );
     assert_eq!(
         p.query("/1 get nonsense.setting\n").await.as_deref(),
@@ -114,9 +137,22 @@ async fn checksums_are_verified_and_produced_on_request() {
         p.query("/1 tools echo:BF\n").await.as_deref(),
         Some("@01 0 OK IDLE WR \r\n")
     );
-    // A wrong checksum: the command is ignored.
+    // A wrong checksum (the default variant): every device on the chain rejects it, with the message id.
     p.send(b"/1 tools echo:BE\n").await;
+    assert_eq!(p.line().await.as_deref(), Some("@01 0 RJ IDLE -- BADDATA\r\n"));
+    assert_eq!(p.line().await.as_deref(), Some("@02 0 RJ IDLE -- BADDATA\r\n"));
     assert!(p.silent_for(Duration::from_millis(200)).await);
+    let mut bad = with_checksum("1 1 42 get pos");
+    bad.replace_range(bad.len() - 3..bad.len() - 1, "00");
+    p.send(bad.as_bytes()).await;
+    assert_eq!(p.line().await.as_deref(), Some("@01 0 42 RJ IDLE -- BADDATA\r\n"));
+    assert_eq!(p.line().await.as_deref(), Some("@02 0 42 RJ IDLE -- BADDATA\r\n"));
+    // The other variant: the message is ignored.
+    let quiet =
+        sim_with(|f| f.simulator.quirks.zaber_bad_checksum = gonio_instrument::ZaberBadChecksum::Ignore);
+    let mut q = Port::open(&quiet, "stage");
+    q.send(b"/1 tools echo:BE\n").await;
+    assert!(q.silent_for(Duration::from_millis(200)).await);
     let r = p
         .query(&with_checksum("2 0 5 get maxspeed"))
         .await

@@ -6,13 +6,14 @@
 //! bisection on what the engine's own validation counts.
 //!
 //! The instrument is `config/instruments/simulated.toml` (embedded) with keys appended to its
-//! `[simulator.faults]` table, so that the stored instrument text keeps the file's comments and units.
+//! `[simulator.faults]` table, so that the stored instrument text keeps the file's comments and units, and its
+//! `[simulator.quirks]` (the recorded real-device variants, each the most demanding for a host).
 
 use std::path::Path;
 
 use gonio_daemon::campaign::{AcquisitionSection, CalibrationSection, CampaignFile};
 use gonio_daemon::engine::prepare_campaign;
-use gonio_instrument::{Faults, InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_instrument::{Faults, InstrumentFile, Quirks, SIMULATED_INSTRUMENT_TOML};
 use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -143,8 +144,8 @@ pub fn build_campaign(
     })
 }
 
-/// The embedded simulated instrument with `faults` written into its `[simulator.faults]` table: (the parsed
-/// file, its text).
+/// The embedded simulated instrument with `faults` written into its `[simulator.faults]` table, everything else
+/// as in the file (its `[simulator.quirks]`: the recorded real-device variants): (the parsed file, its text).
 pub fn instrument_with_faults(faults: &Faults) -> Result<(InstrumentFile, String), SoakError> {
     let header = "[simulator.faults]";
     let Some(at) = SIMULATED_INSTRUMENT_TOML.find(header) else {
@@ -152,9 +153,16 @@ pub fn instrument_with_faults(faults: &Faults) -> Result<(InstrumentFile, String
             "config/instruments/simulated.toml has no [simulator.faults] table".into(),
         ));
     };
-    let mut text = SIMULATED_INSTRUMENT_TOML[..at + header.len()].to_string();
+    let body = at + header.len();
+    // The faults table ends where the next table starts (or with the file).
+    let end = SIMULATED_INSTRUMENT_TOML[body..]
+        .find("\n[")
+        .map_or(SIMULATED_INSTRUMENT_TOML.len(), |i| body + i + 1);
+    let mut text = SIMULATED_INSTRUMENT_TOML[..body].to_string();
     text.push_str("\n# Written by gonio-soak (crates/soak/src/setup.rs).\n");
     text.push_str(&faults_toml(faults));
+    text.push('\n');
+    text.push_str(&SIMULATED_INSTRUMENT_TOML[end..]);
     let file =
         InstrumentFile::parse(&text, "<soak instrument>").map_err(|e| SoakError::Setup(e.to_string()))?;
     if file.simulator.faults != *faults {
@@ -163,7 +171,22 @@ pub fn instrument_with_faults(faults: &Faults) -> Result<(InstrumentFile, String
             faults, file.simulator.faults
         )));
     }
+    if file.simulator.quirks != InstrumentFile::simulated().simulator.quirks {
+        return Err(SoakError::Setup(format!(
+            "the simulated instrument's quirks did not survive: {:?}",
+            file.simulator.quirks
+        )));
+    }
     Ok((file, text))
+}
+
+/// The `[simulator.quirks]` table in force, one `key = value` line each, as TOML writes them.
+pub fn quirks_toml(q: &Quirks) -> String {
+    let value = toml::Value::try_from(q).map_err(|e| e.to_string());
+    match value {
+        Ok(toml::Value::Table(t)) => t.iter().map(|(k, v)| format!("{k} = {v}\n")).collect(),
+        other => format!("# unprintable: {other:?}\n"),
+    }
 }
 
 /// The keys of a `[simulator.faults]` table (only those that differ from the default).

@@ -5,6 +5,7 @@
 //! - [`campaign`]: campaign texts for dry-runs on the simulated instrument.
 //! - [`rng`]: a small fixed-seed generator (reproducible random searches, no dependency).
 //! - [`directions`]: hostile directions for the numerical stress suites; [`nm`]: a wavelength in a test.
+//! - [`load`]: every core kept busy ([`CpuLoad`]), for timing that must hold on a loaded machine.
 //!
 //! The daemon's in-process API set-up is not here: it needs the daemon, whose own tests use it, so it lives in
 //! crates/daemon/tests/common (one copy for all the daemon's tests).
@@ -12,10 +13,12 @@
 pub mod campaign;
 pub mod cli;
 pub mod directions;
+pub mod load;
 pub mod rng;
 
 pub use campaign::CampaignText;
 pub use cli::{gonio, text};
+pub use load::CpuLoad;
 
 /// A wavelength the test knows to be valid, in nm.
 pub fn nm(v: f64) -> gonio_brdf::Wavelength {

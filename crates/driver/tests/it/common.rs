@@ -44,6 +44,14 @@ pub fn sim_with(faults: impl FnOnce(&mut gonio_instrument::Faults), time_scale: 
     SimInstrument::new(&file, scene, time_scale).expect("simulated instrument")
 }
 
+/// The simulated instrument file modified by `f` (quirks, detector, wheel...), with the scene of [`sim_with`].
+pub fn sim_file(f: impl FnOnce(&mut gonio_instrument::InstrumentFile), time_scale: f64) -> SimInstrument {
+    let mut file = gonio_instrument::InstrumentFile::simulated();
+    f(&mut file);
+    let scene = Arc::new(gonio_simulator::scene::UniformScene { power_w: 2.0e-6 });
+    SimInstrument::new(&file, scene, time_scale).expect("simulated instrument")
+}
+
 /// A port on the simulator's in-process stream for `device`; reconnecting asks the simulator again.
 pub fn sim_port(sim: &SimInstrument, device: &str) -> Arc<LinePort> {
     let sim = sim.clone();

@@ -263,6 +263,8 @@ async fn fw102c_a_garbled_position_cannot_confirm_a_turn_that_did_not_happen() {
                 vec![(0, echo), (0, format!("{answer}\r> "))]
             }
             l if l.starts_with("pos=") => vec![(0, echo), (0, "> ".into())],
+            // Set once per opening of the port: speed and the position sensors off.
+            "speed=1" | "sensors=0" => vec![(0, echo), (0, "> ".into())],
             _ => vec![(0, echo), (0, "Command error CMD_NOT_DEFINED\r> ".into())],
         }
     });

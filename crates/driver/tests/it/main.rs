@@ -5,9 +5,15 @@
 //!   disconnect and reconnect).
 //! - `fuzz`: every reply parser fed random bytes.
 //! - `garbled`: a digit garbled inside a well-formed number never becomes a wrong position (issue 8).
+//! - `conformance_*`: each device's recorded real-device behaviour (issue 17), byte-level with the exchanges
+//!   quoted from vendor references and real-device reports, and against every simulator variant.
 //! - `sim`: every driver against the simulator's emulators, in process and through pseudo-terminals.
 
 mod common;
+mod conformance_fw102c;
+mod conformance_pm100;
+mod conformance_smc100;
+mod conformance_zaber;
 mod fuzz;
 mod garbled;
 mod scripted;

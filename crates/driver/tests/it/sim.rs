@@ -269,7 +269,7 @@ async fn fw102c_turns_and_reads_back_against_the_emulator() {
     assert_eq!(err.kind(), ErrorKind::Rejected, "{err}");
 }
 
-fn meter(sim: &gonio_simulator::SimInstrument) -> Pm100 {
+pub(crate) fn meter(sim: &gonio_simulator::SimInstrument) -> Pm100 {
     let s = sim.clone();
     let opener: gonio_driver::pm100::PipeOpener = Arc::new(move || {
         s.usb_device("meter")
@@ -307,7 +307,8 @@ async fn pm100_configures_and_reads_the_scene_power() {
         truth
     );
     assert!(r.range_w >= r.power_w);
-    // A bad setting is caught through SYST:ERR? (or the read-back), not silently accepted.
+    // A bad setting is caught (here by the sensor's limits, asked before anything is set), not silently
+    // accepted.
     let err = m
         .configure(DetectorConfig {
             wavelength_nm: 1.0e7,
@@ -316,6 +317,16 @@ async fn pm100_configures_and_reads_the_scene_power() {
         })
         .await
         .expect_err("absurd wavelength");
+    assert_eq!(err.kind(), ErrorKind::OutOfRange, "{err}");
+    // One the meter itself refuses (averaging beyond its limit) through SYST:ERR?.
+    let err = m
+        .configure(DetectorConfig {
+            wavelength_nm: 550.0,
+            averaging: 2_000_000,
+            range: PowerRange::Auto,
+        })
+        .await
+        .expect_err("absurd averaging");
     assert_eq!(err.kind(), ErrorKind::Rejected, "{err}");
 }
 

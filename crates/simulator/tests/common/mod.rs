@@ -5,9 +5,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use gonio_instrument::InstrumentFile;
+use gonio_simulator::SerialStream;
 use gonio_simulator::SimInstrument;
 use gonio_simulator::scene::UniformScene;
-use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 /// The default simulated instrument, modified by `f`, with a uniform scene of 1e-4 W.
 pub fn sim_with(f: impl FnOnce(&mut InstrumentFile)) -> SimInstrument {
@@ -17,13 +18,21 @@ pub fn sim_with(f: impl FnOnce(&mut InstrumentFile)) -> SimInstrument {
         .expect("valid simulated instrument")
 }
 
+/// Like [`sim_with`], with the simulated clock running `time_scale` times faster than tokio's.
+pub fn sim_scaled(f: impl FnOnce(&mut InstrumentFile), time_scale: f64) -> SimInstrument {
+    let mut file = InstrumentFile::simulated();
+    f(&mut file);
+    SimInstrument::new(&file, Arc::new(UniformScene { power_w: 1e-4 }), time_scale)
+        .expect("valid simulated instrument")
+}
+
 pub fn sim() -> SimInstrument {
     sim_with(|_| {})
 }
 
 /// A host's view of a serial port.
 pub struct Port {
-    pub io: DuplexStream,
+    pub io: SerialStream,
     pub pending: Vec<u8>,
     /// Every byte ever received, for checks over a whole exchange.
     pub all: Vec<u8>,

@@ -252,6 +252,11 @@ pub struct FaultSoakReport {
     pub campaign: SoakCampaign,
     /// The `[simulator.faults]` keys in force.
     pub faults_toml: String,
+    /// The `[simulator.quirks]` in force (the recorded real-device variants).
+    pub quirks_toml: String,
+    /// Command lines the simulated devices lost to their input pacing (the SMC100 after a set command), by
+    /// command code: the stops the drivers send at once on purpose, and lines caught by one.
+    pub lost_to_pacing: std::collections::BTreeMap<String, u64>,
     pub final_state: CampaignState,
     pub last_error: Option<String>,
     /// Why the campaign paused each time the soak resumed it.
@@ -443,6 +448,8 @@ pub fn run_fault_soak(cfg: &FaultSoakConfig) -> Result<FaultSoakReport, SoakErro
     Ok(FaultSoakReport {
         config: cfg.clone(),
         faults_toml: crate::setup::faults_toml(&faults),
+        quirks_toml: crate::setup::quirks_toml(&file.simulator.quirks),
+        lost_to_pacing: driven.lost_to_pacing,
         campaign,
         committed,
         final_state: record.state,
@@ -459,6 +466,7 @@ pub fn run_fault_soak(cfg: &FaultSoakConfig) -> Result<FaultSoakReport, SoakErro
 }
 
 struct Driven {
+    lost_to_pacing: std::collections::BTreeMap<String, u64>,
     pauses: Vec<String>,
     hung: bool,
     injected: FaultCounts,
@@ -516,11 +524,13 @@ async fn drive(
     }
     let injected = rig.sim().map(|s| s.fault_counts()).unwrap_or_default();
     let sim_clock_s = rig.sim().map(|s| s.now_s()).unwrap_or(f64::NAN);
+    let lost_to_pacing = rig.sim().map(|s| s.lost_input_by_command()).unwrap_or_default();
     // The listener ends when the last sender (the control) is gone; the queued events are delivered first.
     drop(control);
     let _ = tokio::time::timeout(Duration::from_secs(3600), listener).await;
     let events = tally.lock().unwrap_or_else(|e| e.into_inner()).clone();
     Ok(Driven {
+        lost_to_pacing,
         pauses,
         hung,
         injected,

@@ -186,6 +186,36 @@ impl Report {
         );
         let _ = writeln!(
             m,
+            "and the file's recorded real-device variants (each the most demanding one for a host; every soak runs \
+             with them):\n\n```toml\n[simulator.quirks]\n{}```\n",
+            f.quirks_toml
+        );
+        let lost: u64 = f.lost_to_pacing.values().sum();
+        let stops = f.lost_to_pacing.get("ST").copied().unwrap_or(0);
+        let others = f
+            .lost_to_pacing
+            .iter()
+            .filter(|(code, _)| code.as_str() != "ST")
+            .map(|(code, n)| format!("{n} `{code}`"))
+            .collect::<Vec<_>>();
+        let _ = writeln!(
+            m,
+            "(An SMC100 loses a command line sent within `smc100_min_command_gap_ms` of a set command, or before a \
+             query's reply has reached the host: {lost} lines were lost so, {stops} of them stops (`ST`), which the \
+             drivers send at once on purpose and again the moment the controller's pause is over{}. The first \
+             `TS` after power-up and after homing gets no reply; the wheel takes the vendor's time per position and \
+             sends noise when its port opens; every Zaber device rejects a bad checksum.)\n",
+            if others.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    ", and {} caught by such a stop in the middle of an exchange (retried)",
+                    others.join(", ")
+                )
+            }
+        );
+        let _ = writeln!(
+            m,
             "(`stall_rate` is one stall per {:.0} points at about {:.1} move commands per point; the devices vanish \
              every `disconnect_every_s` for `reconnect_after_s`; every reply is late by `delay_ms` plus a uniform \
              draw up to `delay_jitter_ms`.)\n",

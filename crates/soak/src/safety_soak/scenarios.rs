@@ -2,9 +2,9 @@
 //! ([`fixed_case`]), and sabotage ([`Sabotage`]): controllers reset behind the engine's back, before it starts or
 //! at a chosen moment of the run, so that recovery homing is checked by the same record and the same rules.
 
-use gonio_simulator::SimInstrument;
 use gonio_simulator::scene::Pose;
-use tokio::io::{AsyncWriteExt, DuplexStream};
+use gonio_simulator::{SerialStream, SimInstrument};
+use tokio::io::AsyncWriteExt;
 
 use super::{Case, FaultLevel, Interruption};
 
@@ -107,11 +107,11 @@ impl Sabotage {
 }
 
 /// The reset of a running saboteur: when (simulated s), the pose then, and the connection it used (kept open).
-pub(super) type Reset = (f64, Pose, DuplexStream);
+pub(super) type Reset = (f64, Pose, SerialStream);
 
 /// Send a raw line to a simulated serial device on a connection of its own; the connection is returned so that
 /// it stays open.
-pub(super) async fn send_raw(sim: &SimInstrument, device: &str, line: &str) -> Result<DuplexStream, String> {
+pub(super) async fn send_raw(sim: &SimInstrument, device: &str, line: &str) -> Result<SerialStream, String> {
     let mut port = sim
         .serial_port(device)
         .map_err(|e| format!("open {device}: {e}"))?;
@@ -122,7 +122,7 @@ pub(super) async fn send_raw(sim: &SimInstrument, device: &str, line: &str) -> R
 }
 
 /// Run the setup commands of `sabotage` (before the engine starts); the connections they used.
-pub(super) async fn set_up(sim: &SimInstrument, sabotage: &Sabotage) -> Result<Vec<DuplexStream>, String> {
+pub(super) async fn set_up(sim: &SimInstrument, sabotage: &Sabotage) -> Result<Vec<SerialStream>, String> {
     let mut ports = Vec::new();
     for (line, wait_s) in &sabotage.setup {
         ports.push(send_raw(sim, "arms", line).await?);

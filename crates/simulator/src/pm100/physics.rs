@@ -1,0 +1,193 @@
+//! The measurement physics: photodiode responsivity, photocurrent of the scene's optical power, noise per
+//! sample, the 16-bit converter on the range in use, and overload.
+
+use gonio_instrument::Detector;
+use rand_distr_lite::standard_normal;
+
+use super::{MeterState, Pm100, SAMPLE_S};
+use crate::scene::{Band, Pose};
+
+const ELEMENTARY_CHARGE_C: f64 = 1.602_176_634e-19;
+const BOLTZMANN_J_K: f64 = 1.380_649e-23;
+const TEMPERATURE_K: f64 = 295.0;
+/// Full-scale voltage of the transimpedance amplifier (sets the feedback resistor of each range).
+const FULL_SCALE_V: f64 = 2.0;
+const ADC_COUNTS: f64 = 65_536.0;
+
+/// Minimal normal deviates without another dependency.
+mod rand_distr_lite {
+    use rand::Rng;
+
+    /// A standard normal deviate (Box-Muller).
+    pub fn standard_normal(rng: &mut impl Rng) -> f64 {
+        let u1: f64 = rng.random::<f64>().max(f64::MIN_POSITIVE);
+        let u2: f64 = rng.random::<f64>();
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+}
+
+/// Photodiode responsivity (A/W) as a function of wavelength.
+#[derive(Debug, Clone)]
+pub(super) enum Responsivity {
+    Constant(f64),
+    Table(Vec<(f64, f64)>),
+}
+
+impl Responsivity {
+    pub(super) fn from_detector(d: &Detector) -> Result<Responsivity, String> {
+        match &d.responsivity_a_per_w {
+            None => Ok(Responsivity::Constant(0.5)),
+            Some(toml::Value::Float(x)) if *x > 0.0 => Ok(Responsivity::Constant(*x)),
+            Some(toml::Value::Integer(x)) if *x > 0 => Ok(Responsivity::Constant(*x as f64)),
+            Some(toml::Value::Table(t)) => {
+                let mut pts = Vec::new();
+                for (k, v) in t {
+                    let nm: f64 = k.trim().parse().map_err(|_| {
+                        format!(
+                            "[instrument.detector] responsivity_a_per_w: key {k:?} is not a wavelength in nm"
+                        )
+                    })?;
+                    let r = v
+                        .as_float()
+                        .or_else(|| v.as_integer().map(|i| i as f64))
+                        .filter(|r| *r > 0.0)
+                        .ok_or_else(|| {
+                            format!("[instrument.detector] responsivity_a_per_w: value at {k} nm must be > 0")
+                        })?;
+                    pts.push((nm, r));
+                }
+                pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+                if pts.is_empty() {
+                    return Err("[instrument.detector] responsivity_a_per_w: empty table".into());
+                }
+                Ok(Responsivity::Table(pts))
+            }
+            Some(v) => Err(format!(
+                "[instrument.detector] responsivity_a_per_w: expected a number > 0 or a table, got {v}"
+            )),
+        }
+    }
+
+    /// Linear interpolation, constant beyond the table's ends.
+    pub(super) fn at(&self, nm: f64) -> f64 {
+        match self {
+            Responsivity::Constant(r) => *r,
+            Responsivity::Table(pts) => {
+                let (Some(first), Some(last)) = (pts.first(), pts.last()) else {
+                    return 0.5;
+                };
+                if nm <= first.0 {
+                    return first.1;
+                }
+                if nm >= last.0 {
+                    return last.1;
+                }
+                for w in pts.windows(2) {
+                    let (a, b) = (w[0], w[1]);
+                    if nm <= b.0 {
+                        let f = (nm - a.0) / (b.0 - a.0);
+                        return a.1 + f * (b.1 - a.1);
+                    }
+                }
+                last.1
+            }
+        }
+    }
+}
+impl Pm100 {
+    /// Simulate one averaged reading starting at `t0`: the photocurrent (A), or `None` in overload. `r_set` is
+    /// the responsivity at the wavelength the meter is set to (auto-range picks its range with it).
+    pub(super) fn reading_a(&self, st: &mut MeterState, t0: f64, n: u32, r_set: f64) -> Option<f64> {
+        let d = &self.detector;
+        let ranges = &d.ranges_w;
+        let world = &self.world;
+        let sample_times = |k: u32| t0 + (f64::from(k) + 0.5) * SAMPLE_S;
+        // Axes and wheel at rest over the window: one scene evaluation serves every sample.
+        let (p_first, b_first) = (world.pose(sample_times(0)), world.band(sample_times(0)));
+        let (p_last, b_last) = (world.pose(sample_times(n - 1)), world.band(sample_times(n - 1)));
+        let steady = p_first == p_last && b_first == b_last;
+        let optical_at = |k: u32| -> (f64, Band) {
+            let t = sample_times(k);
+            let (pose, band): (Pose, Band) = if steady {
+                (p_first, b_first)
+            } else {
+                (world.pose(t), world.band(t))
+            };
+            let p = world.scene.detector_power_w(&pose, &band, t);
+            (if p.is_finite() { p.max(0.0) } else { 0.0 }, band)
+        };
+        // Current of each sample: the light's, the dark current, and stray light (the wheel's lit sensors).
+        let stray_a = world.stray_a(t0);
+        let current = |p: f64, band: &Band| {
+            let r_band = band.band_nm.map(|nm| self.responsivity.at(nm)).unwrap_or(0.0);
+            p * r_band + d.dark_current_a + stray_a
+        };
+        let currents: Vec<f64> = if steady && !d.noise {
+            // At rest and without noise every sample is the same.
+            let (p, band) = optical_at(n / 2);
+            vec![current(p, &band); n as usize]
+        } else if steady {
+            // At rest, only the source changes from sample to sample: the scene computes the geometry once.
+            let times: Vec<f64> = (0..n).map(sample_times).collect();
+            let mut powers = Vec::with_capacity(times.len());
+            world
+                .scene
+                .detector_power_series_w(&p_first, &b_first, &times, &mut powers);
+            powers.iter().map(|p| current(p.max(0.0), &b_first)).collect()
+        } else {
+            (0..n)
+                .map(|k| {
+                    let (p, band) = optical_at(k);
+                    current(p, &band)
+                })
+                .collect()
+        };
+        let mean_i = currents.iter().sum::<f64>() / f64::from(n);
+        // Range in use: auto picks the smallest whose full-scale current holds the signal.
+        let full_scale_i = |idx: usize| ranges.get(idx).copied().unwrap_or(0.0) * r_set;
+        let range = if st.settings.auto_range {
+            ranges
+                .iter()
+                .position(|r| r * r_set >= mean_i.abs())
+                .unwrap_or(ranges.len().saturating_sub(1))
+        } else {
+            st.settings.range
+        };
+        let fs = full_scale_i(range);
+        let saturate = self.faults.injector().saturate_reading(&self.name);
+        if saturate || mean_i > fs {
+            tracing::info!(meter = %self.name, current_a = mean_i, full_scale_a = fs, "PM100 overload");
+            return None;
+        }
+        let mut i = mean_i;
+        if d.noise && fs > 0.0 {
+            // Each sample: shot noise of its current and Johnson noise of the range's feedback resistor, then
+            // the 16-bit converter over the range; the reading is the mean of the quantised samples.
+            let bandwidth_hz = 1.0 / (2.0 * SAMPLE_S);
+            let r_feedback = FULL_SCALE_V / fs;
+            let johnson_var = 4.0 * BOLTZMANN_J_K * TEMPERATURE_K * bandwidth_hz / r_feedback;
+            let lsb = fs / ADC_COUNTS;
+            let mut sum = 0.0;
+            for c in &currents {
+                let shot_var = 2.0 * ELEMENTARY_CHARGE_C * c.abs() * bandwidth_hz;
+                let sample = c + (shot_var + johnson_var).sqrt() * standard_normal(&mut st.rng);
+                sum += (sample / lsb).round() * lsb;
+            }
+            i = sum / f64::from(n);
+        }
+        Some(i)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn responsivity_interpolates_linearly_and_clamps() {
+        let r = Responsivity::Table(vec![(400.0, 0.1), (500.0, 0.3)]);
+        assert!((r.at(450.0) - 0.2).abs() < 1e-12);
+        assert_eq!(r.at(300.0), 0.1);
+        assert_eq!(r.at(900.0), 0.3);
+    }
+}
