@@ -11,6 +11,7 @@
 //!   moves, homing, retries and reconnection); a campaign and a person at a console drive the same layer.
 //! - [`acquisition`]: the meter's configuration, one reading with its uncertainty, the measurement equation as a
 //!   pure function.
+//! - [`calibration`]: darks and normalisation readings per band, the source's drift extrapolated in time.
 //! - `runner`: the run loop over a campaign's steps (calibration, per-point acquisition committed, faults,
 //!   resume), on `motion` and `acquisition`.
 //! - [`export`]: the points CSV (shared by `gonio run` and the HTTP API).
@@ -22,6 +23,7 @@
 
 pub mod acquisition;
 pub mod api;
+pub mod calibration;
 pub mod control;
 pub mod engine;
 pub mod export;

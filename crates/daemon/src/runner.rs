@@ -48,13 +48,13 @@ mod calibrate;
 mod passes;
 mod reference;
 
-use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
 use gonio_brdf::measurement::Reading;
 use gonio_instrument::InstrumentFile;
 use gonio_scheduler::schedule::{Step, StepKind};
 
+use crate::calibration::{Darks, Normalisations};
 use crate::control::{Control, Event};
 use crate::engine::{EngineError, PreparedCampaign};
 use crate::motion::{Device, Motion, MotionError};
@@ -65,8 +65,6 @@ use reference::Transfer;
 
 /// Failed points in a row after which the campaign pauses instead of recording more failures.
 const MAX_FAILED_IN_ROW: u32 = 3;
-/// Direct-beam readings closer in time than this are not used to extrapolate drift (s).
-const MIN_DRIFT_BASE_S: f64 = 30.0;
 
 /// Why the loop stopped before the end.
 #[derive(Debug)]
@@ -93,10 +91,6 @@ impl From<MotionError> for Interrupt {
     }
 }
 
-fn band_key(nm: f64) -> u64 {
-    nm.to_bits()
-}
-
 /// The relative method's reference at run time.
 struct ReferenceRun {
     name: String,
@@ -119,10 +113,10 @@ struct Run<'a> {
     t_clock0: f64,
     configured_nm: Option<f64>,
     wheel_at: Option<u8>,
-    darks: BTreeMap<u64, (f64, Reading)>,
+    darks: Darks,
     /// Normalisation readings per band, net of dark, in time order: direct beam (absolute) or reference sample
     /// (relative).
-    norm: BTreeMap<u64, Vec<(f64, Reading)>>,
+    norm: Normalisations,
     failed_in_row: u32,
     /// Dry-runs: the sample holder the (simulated) operator works, with the sample's ground truth.
     holder: Option<Arc<dyn SampleHolder>>,
@@ -244,8 +238,8 @@ pub(crate) async fn run(
         t_clock0: clock.now_s(),
         configured_nm: None,
         wheel_at: None,
-        darks: BTreeMap::new(),
-        norm: BTreeMap::new(),
+        darks: Darks::default(),
+        norm: Normalisations::default(),
         failed_in_row: 0,
         holder,
         reference,

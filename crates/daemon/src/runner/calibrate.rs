@@ -2,6 +2,8 @@
 //! (remove or swap the sample; the simulated operator in dry-runs).
 
 use gonio_brdf::Wavelength;
+
+use crate::calibration::net_of_dark;
 use gonio_scheduler::kinematics::{Kinematics, Pose};
 
 use super::*;
@@ -12,7 +14,8 @@ impl<'a> Run<'a> {
         let Some(blank) = self.blank_position() else {
             // No blank: darks are zero with no uncertainty (the instrument file says there is no way to take one).
             for b in bands {
-                self.darks.insert(band_key(*b), (self.t(), Reading::exact(0.0)));
+                let t = self.t();
+                self.darks.keep(*b, t, Reading::exact(0.0));
             }
             return Ok(());
         };
@@ -25,7 +28,7 @@ impl<'a> Run<'a> {
                 )));
             }
             let t = self.t();
-            self.darks.insert(band_key(*b), (t, Reading::new(v, u)));
+            self.darks.keep(*b, t, Reading::new(v, u));
             let rec = CalibrationRecord {
                 kind: "dark".into(),
                 band_nm: Some(*b),
@@ -207,7 +210,7 @@ impl<'a> Run<'a> {
                     )));
                 }
                 let dark = self.dark(*b);
-                let net = Reading::new(v - dark.value_w, u.hypot(dark.std_w));
+                let net = net_of_dark(Reading::new(v, u), dark);
                 if net.value_w <= 0.0 {
                     return Err(Interrupt::Pause(format!(
                         "no direct beam at {b} nm ({v} W read, dark {} W): is the source on and the path clear?",
@@ -228,10 +231,7 @@ impl<'a> Run<'a> {
 
     /// The last dark reading of band `nm` (zero, exactly, when none was taken).
     pub(super) fn dark(&self, nm: f64) -> Reading {
-        self.darks
-            .get(&band_key(nm))
-            .map(|d| d.1)
-            .unwrap_or(Reading::exact(0.0))
+        self.darks.of(nm)
     }
 
     /// Keep a band's net normalisation reading for the drift extrapolation, and store the raw one as `kind`.
@@ -244,7 +244,7 @@ impl<'a> Run<'a> {
         u_w: f64,
     ) -> Result<(), Interrupt> {
         let t = self.t();
-        self.norm.entry(band_key(nm)).or_default().push((t, net));
+        self.norm.keep(nm, t, net);
         let rec = CalibrationRecord {
             kind: kind.into(),
             band_nm: Some(nm),
@@ -269,22 +269,10 @@ impl<'a> Run<'a> {
         self.operator(message, Holder::Sample).await
     }
 
-    /// The normalisation reading (net direct beam, or net reference signal) at time `t` for a band,
-    /// extrapolating the drift from the last two readings of this session when they are far enough apart.
+    /// The normalisation reading (net direct beam, or net reference signal) at time `t` for a band, with the
+    /// source's drift extrapolated ([`crate::calibration::Normalisations::at`]).
     pub(super) fn normalisation(&self, nm: f64, t: f64) -> Option<Reading> {
-        let list = self.norm.get(&band_key(nm))?;
-        let (t2, r2) = *list.last()?;
-        if list.len() >= 2
-            && let Some((t1, r1)) = list.get(list.len() - 2).copied()
-            && t2 - t1 >= MIN_DRIFT_BASE_S
-        {
-            let slope = (r2.value_w - r1.value_w) / (t2 - t1);
-            let x = (t - t2) / (t2 - t1);
-            let value = r2.value_w + slope * (t - t2);
-            let std = (r2.std_w * (1.0 + x)).hypot(r1.std_w * x);
-            return Some(Reading::new(value, std));
-        }
-        Some(r2)
+        self.norm.at(nm, t)
     }
 }
 
