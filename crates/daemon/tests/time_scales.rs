@@ -15,27 +15,22 @@ use std::sync::{Arc, Mutex, OnceLock};
 use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_campaign};
 use gonio_daemon::store::{CampaignState, Store};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_testkit::CampaignText;
 use tracing_subscriber::layer::{Context, SubscriberExt};
 
-const CAMPAIGN: &str = r#"
-[campaign]
-id = "time-scales"
-[sample]
-radius_mm = 12.5
-[plan]
-bands_nm = [450.0, 650.0]
-[plan.grid]
-kind = "isotropic"
-theta_i_deg = { from = 0.0, to = 60.0, step = 30.0 }
-theta_o_deg = { from = 0.0, to = 60.0, step = 30.0 }
-delta_phi_deg = { from = 0.0, to = 180.0, step = 90.0 }
-[plan.calibration]
-dark_every_points = 10
-[calibration]
-simulate_operator = true
-[material]
-preset = "spectralon"
-"#;
+/// Two bands on a small isotropic grid, darks every 10 points, the direct beam at start and end.
+fn campaign() -> String {
+    CampaignText::isotropic(
+        "time-scales",
+        "{ from = 0.0, to = 60.0, step = 30.0 }",
+        "{ from = 0.0, to = 60.0, step = 30.0 }",
+        "{ from = 0.0, to = 180.0, step = 90.0 }",
+    )
+    .bands("[450.0, 650.0]")
+    .plan_calibration("dark_every_points = 10")
+    .material("preset = \"spectralon\"")
+    .to_string()
+}
 
 /// Warnings of the SMC100 driver (target, message), from every thread.
 #[derive(Default)]
@@ -99,10 +94,11 @@ async fn dry_run(time_scale: f64) -> (CampaignState, usize, u64, Vec<String>, u6
         file.simulator.quirks.smc100_min_command_gap_ms >= 60.0 && file.simulator.quirks.smc100_drop_first_ts
     );
     let dir = tempfile::tempdir().expect("tempdir");
-    let prepared = prepare_campaign(CAMPAIGN, "time-scales.toml", dir.path(), &file).expect("valid campaign");
+    let text = campaign();
+    let prepared = prepare_campaign(&text, "time-scales.toml", dir.path(), &file).expect("valid campaign");
     let mut store = Store::open(dir.path()).expect("store");
     let id = store
-        .create_campaign(&prepared.new_campaign(CAMPAIGN, SIMULATED_INSTRUMENT_TOML))
+        .create_campaign(&prepared.new_campaign(&text, SIMULATED_INSTRUMENT_TOML))
         .expect("create");
     let store = Arc::new(Mutex::new(store));
     let rig = Rig::connect_with_time_scale(&file, None, time_scale)
