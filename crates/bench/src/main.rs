@@ -13,11 +13,12 @@
 //! Writes `BENCHMARKS.md` at the workspace root and SVG plots under `docs/bench/`. Every number is measured by
 //! this run (criterion's and the large stress tier's are read from their own last run, and say so); nothing is
 //! edited by hand. `--quick` shrinks every section (for a smoke run; noisier, smaller plans).
-//! `--only <readings|campaigns|throughput>` prints one section and leaves BENCHMARKS.md alone; `--only stress-large` runs
+//! `--only <readings|campaigns|throughput|budget>` prints one section and leaves BENCHMARKS.md alone; `--only stress-large` runs
 //! the large stress tier and records it (docs/bench/stress-large.txt) without writing the report.
 
 mod campaigns;
 mod criterion_summary;
+mod error_budget;
 mod ordering;
 mod plot;
 mod readings;
@@ -109,6 +110,10 @@ fn main() {
     loads.push(("3 throughput", load_average()));
     let through = throughput_section(&target, quick);
 
+    eprintln!("(5) the realistic instrument's error budget...");
+    loads.push(("5 realistic error budget", load_average()));
+    let budget_md = budget_section(&root, quick);
+
     eprintln!("(4) micro-benchmarks...");
     loads.push(("4 micro-benchmarks", load_average()));
     let eval_rate = eval_throughput(&root, if quick { 200_000 } else { 2_000_000 });
@@ -168,6 +173,8 @@ fn main() {
     report = report.replace("<!-- THROUGHPUT -->", &through_md);
     report = report.replace("<!-- CRITERION -->", &criterion_md);
     report = report.replace("<!-- STRESS -->", &stress_md);
+    report.push('\n');
+    report.push_str(&budget_md);
     let mut load_lines = String::new();
     for (section, load) in &loads {
         let _ = writeln!(
@@ -189,6 +196,22 @@ fn main() {
         Ok(()) => eprintln!("wrote {} and docs/bench/*.svg", path.display()),
         Err(e) => eprintln!("cannot write {}: {e}", path.display()),
     }
+}
+
+/// Section 5: the realistic instrument's error budget and its throughput beside the ideal one's.
+fn budget_section(root: &Path, quick: bool) -> String {
+    /// Issue 16's target for an in-process dry-run on the realistic instrument.
+    const TARGET_PPS: f64 = 2000.0;
+    let variants = match error_budget::budget(root) {
+        Ok(v) => v,
+        Err(e) => return format!("## 5. The realistic instrument: error budget\n\nFAILED: {e}\n"),
+    };
+    let text = throughput::campaign_text("bench-realistic", if quick { 10.0 } else { 5.0 }, &[550.0]);
+    let runs = error_budget::throughput_runs(root, &text).unwrap_or_else(|e| {
+        eprintln!("realistic throughput: {e}");
+        Vec::new()
+    });
+    error_budget::markdown(&variants, &runs, TARGET_PPS)
 }
 
 fn met(ok: bool) -> &'static str {
@@ -389,6 +412,10 @@ fn run_only(section: &str, quick: bool) {
                 }
             }
         }
+        "budget" => print!(
+            "{}",
+            budget_section(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../.."), quick)
+        ),
         "stress-large" => {
             let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
             print!("{}", stress::run_and_record(&root, &load_average()));

@@ -161,6 +161,25 @@ pub fn in_process(text: &str) -> Result<Throughput, String> {
 
 /// In process, paused clock, the store in a directory under `base`.
 pub fn in_process_in(text: &str, base: &Path) -> Result<Throughput, String> {
+    let file = InstrumentFile::simulated();
+    in_process_on(text, &file, SIMULATED_INSTRUMENT_TOML, base).map(|(_, t)| t)
+}
+
+/// A campaign run in process to completion (paused clock, the store under the system temp dir): its committed
+/// points.
+pub fn in_process_points(text: &str) -> Result<Vec<PointRecord>, String> {
+    let file = InstrumentFile::simulated();
+    in_process_on(text, &file, SIMULATED_INSTRUMENT_TOML, &std::env::temp_dir()).map(|(p, _)| p)
+}
+
+/// A campaign run in process to completion on the instrument `file` (whose text is `instrument_toml`), the store
+/// in a directory under `base`: its committed points and its throughput.
+pub fn in_process_on(
+    text: &str,
+    file: &InstrumentFile,
+    instrument_toml: &str,
+    base: &Path,
+) -> Result<(Vec<PointRecord>, Throughput), String> {
     // The runtime `gonio run` gives an in-process dry-run: current thread, paused clock, timers only.
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_time()
@@ -168,31 +187,16 @@ pub fn in_process_in(text: &str, base: &Path) -> Result<Throughput, String> {
         .build()
         .map_err(|e| e.to_string())?;
     let dir = scratch_dir_in(base, "inproc");
-    let file = InstrumentFile::simulated();
-    let result = rt.block_on(run_once(text, &file, SIMULATED_INSTRUMENT_TOML, 1.0, &dir));
+    let result = rt.block_on(run_once(text, file, instrument_toml, 1.0, &dir));
     let _ = std::fs::remove_dir_all(&dir);
     let (points, wall_s, instrument_s, steady_wall_s) = result?;
-    Ok(Throughput {
+    let throughput = Throughput {
         points: points.len() as u64,
         wall_s,
         instrument_s,
         steady_wall_s,
-    })
-}
-
-/// A campaign run in process to completion (paused clock, the store under the system temp dir): its committed
-/// points.
-pub fn in_process_points(text: &str) -> Result<Vec<PointRecord>, String> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_time()
-        .start_paused(true)
-        .build()
-        .map_err(|e| e.to_string())?;
-    let dir = scratch_dir("points");
-    let file = InstrumentFile::simulated();
-    let result = rt.block_on(run_once(text, &file, SIMULATED_INSTRUMENT_TOML, 1.0, &dir));
-    let _ = std::fs::remove_dir_all(&dir);
-    result.map(|r| r.0)
+    };
+    Ok((points, throughput))
 }
 
 /// Serial devices on pseudo-terminals, real clock at [`PTY_TIME_SCALE`].

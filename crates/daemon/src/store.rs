@@ -55,7 +55,8 @@ pub const STORE_FILE: &str = "gonio.sqlite";
 /// Bumped when the schema changes; a store with another version is refused rather than misread.
 /// Version 2: `signal_w`, `dark_w` and `incident_w` may be NULL (a failed point has no reading; SQLite cannot
 /// store NaN and turns it into NULL).
-const SCHEMA_VERSION: i64 = 2;
+/// Version 3: `truth_effects_json` (a dry-run's per-point attribution of its imperfections).
+const SCHEMA_VERSION: i64 = 3;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

@@ -6,11 +6,21 @@
 //! Everything is zero by default: a file without the table (or with every key 0) is the ideal instrument, bit for
 //! bit.
 //!
-//! One sub-table per group of effects. `geometry` is implemented; `detector`, `source`, `filters` and `sample`
-//! are the later groups of issue 16 and get their own sub-tables here, each a struct with `Default` = off and a
-//! `validate` that names its keys.
+//! One sub-table per group of effects, each a struct with `Default` = off and a `validate` that names its keys:
+//! [`geometry`], [`detector`], [`source`], [`sample`]. The filters' finite bands and the beam's profile are the
+//! later groups of issue 16.
+
+pub mod detector;
+pub mod geometry;
+pub mod sample;
+pub mod source;
 
 use serde::{Deserialize, Serialize};
+
+pub use detector::DetectorImperfections;
+pub use geometry::GeometryImperfections;
+pub use sample::SampleImperfections;
+pub use source::SourceImperfections;
 
 /// `[simulator.imperfections]`: every group off by default.
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
@@ -19,37 +29,16 @@ pub struct Imperfections {
     /// Where the axes and the sample really are (zero offsets, sample tilt, re-seating, eccentricity, encoder).
     #[serde(default)]
     pub geometry: GeometryImperfections,
-}
-
-/// `[simulator.imperfections.geometry]`: magnitudes of the geometric errors (the models are documented in
-/// crates/simulator/src/imperfections/geometry.rs).
-#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct GeometryImperfections {
-    /// Standard deviation of each axis's true zero about the zero the instrument file states (degrees): the
-    /// controller's zero is not the geometric zero. One independent draw per axis.
+    /// What the photodiode and the meter do to a reading (range gains, nonlinearity, offsets, saturation,
+    /// amplifier noise, stray light by pose, ambient light).
     #[serde(default)]
-    pub zero_offset_sd_deg: f64,
-    /// Standard deviation of each of the two components of the sample normal's tilt from the stage's rotation axis
-    /// (degrees): a wedged sample or a holder not square to the axis. Fixed for the instrument; the normal wobbles
-    /// as the stage rotates.
+    pub detector: DetectorImperfections,
+    /// How the source's power really varies (warm-up, random walk, flicker).
     #[serde(default)]
-    pub sample_tilt_sd_deg: f64,
-    /// Standard deviation of each component of the extra tilt of one mounting (degrees): each time the sample is
-    /// put back in the holder (after a direct-beam reading) it seats a little differently.
+    pub source: SourceImperfections,
+    /// How the sample's reflectance varies over its area (gradient, centre to rim).
     #[serde(default)]
-    pub reseat_tilt_sd_deg: f64,
-    /// Standard deviation of each horizontal component of the offset between the arms' rotation axis and the
-    /// illuminated spot (mm).
-    #[serde(default)]
-    pub eccentricity_sd_mm: f64,
-    /// Amplitude of the periodic (cyclic) error of every rotation axis's encoder (degrees); the phase of each axis
-    /// is drawn.
-    #[serde(default)]
-    pub encoder_error_amplitude_deg: f64,
-    /// Cycles of that error per revolution (1 = an encoder disc mounted off-centre; 0 means 1).
-    #[serde(default)]
-    pub encoder_error_harmonic: u32,
+    pub sample: SampleImperfections,
 }
 
 /// Why `[simulator.imperfections]` was refused: the key (full TOML path) and the value.
@@ -73,142 +62,51 @@ pub enum ImperfectionsError {
     },
     #[error("[simulator.imperfections.geometry] encoder_error_harmonic must be at most {limit}, got {value}")]
     Harmonic { value: u32, limit: u32 },
+    #[error("[simulator.imperfections.{group}] {key} must be > 0 when {needed_by} is on, got {value}")]
+    Needed {
+        group: &'static str,
+        key: &'static str,
+        needed_by: &'static str,
+        value: f64,
+    },
+}
+
+/// One magnitude: finite, >= 0 and at most `limit` (`why` says what a larger value would mean).
+pub(crate) fn check(
+    group: &'static str,
+    key: &'static str,
+    value: f64,
+    limit: f64,
+    why: &'static str,
+) -> Result<(), ImperfectionsError> {
+    if !(value.is_finite() && value >= 0.0) {
+        return Err(ImperfectionsError::Negative { group, key, value });
+    }
+    if value > limit {
+        return Err(ImperfectionsError::TooLarge {
+            group,
+            key,
+            value,
+            limit,
+            why,
+        });
+    }
+    Ok(())
 }
 
 impl Imperfections {
     /// True when every magnitude is zero: the ideal instrument.
     pub fn is_ideal(&self) -> bool {
         self.geometry.is_ideal()
+            && self.detector.is_ideal()
+            && self.source.is_ideal()
+            && self.sample.is_ideal()
     }
 
     pub fn validate(&self) -> Result<(), ImperfectionsError> {
-        self.geometry.validate()
-    }
-}
-
-impl GeometryImperfections {
-    /// The largest harmonic accepted: beyond that a "periodic error" is encoder noise, not geometry.
-    pub const MAX_HARMONIC: u32 = 64;
-
-    pub fn is_ideal(&self) -> bool {
-        self.zero_offset_sd_deg == 0.0
-            && self.sample_tilt_sd_deg == 0.0
-            && self.reseat_tilt_sd_deg == 0.0
-            && self.eccentricity_sd_mm == 0.0
-            && self.encoder_error_amplitude_deg == 0.0
-    }
-
-    /// The harmonic in use (0 in the file means 1).
-    pub fn harmonic(&self) -> u32 {
-        self.encoder_error_harmonic.max(1)
-    }
-
-    /// Finite, >= 0, and small enough for the models (small-angle errors, an offset much smaller than the arms).
-    pub fn validate(&self) -> Result<(), ImperfectionsError> {
-        const G: &str = "geometry";
-        // Limits: these are errors of an instrument that works at all. A 5 degree tilt or a 10 mm eccentricity is
-        // a broken set-up, not an imperfect one, and the models' small-error reading of "tilt" would not hold.
-        for (key, value, limit, why) in [
-            (
-                "zero_offset_sd_deg",
-                self.zero_offset_sd_deg,
-                5.0,
-                "an axis that far off is not homed",
-            ),
-            (
-                "sample_tilt_sd_deg",
-                self.sample_tilt_sd_deg,
-                5.0,
-                "a sample that tilted is not mounted",
-            ),
-            (
-                "reseat_tilt_sd_deg",
-                self.reseat_tilt_sd_deg,
-                5.0,
-                "a sample that tilted is not mounted",
-            ),
-            (
-                "eccentricity_sd_mm",
-                self.eccentricity_sd_mm,
-                10.0,
-                "the spot would miss the sample",
-            ),
-            (
-                "encoder_error_amplitude_deg",
-                self.encoder_error_amplitude_deg,
-                1.0,
-                "an encoder that far off fails its own check",
-            ),
-        ] {
-            if !(value.is_finite() && value >= 0.0) {
-                return Err(ImperfectionsError::Negative { group: G, key, value });
-            }
-            if value > limit {
-                return Err(ImperfectionsError::TooLarge {
-                    group: G,
-                    key,
-                    value,
-                    limit,
-                    why,
-                });
-            }
-        }
-        if self.encoder_error_harmonic > Self::MAX_HARMONIC {
-            return Err(ImperfectionsError::Harmonic {
-                value: self.encoder_error_harmonic,
-                limit: Self::MAX_HARMONIC,
-            });
-        }
-        Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn default_is_ideal_and_valid() {
-        let d = Imperfections::default();
-        assert!(d.is_ideal());
-        assert_eq!(d.validate(), Ok(()));
-    }
-
-    #[test]
-    fn each_bad_value_names_its_key() {
-        for (key, set) in [
-            ("zero_offset_sd_deg", 0usize),
-            ("sample_tilt_sd_deg", 1),
-            ("reseat_tilt_sd_deg", 2),
-            ("eccentricity_sd_mm", 3),
-            ("encoder_error_amplitude_deg", 4),
-        ] {
-            for bad in [-1.0, f64::NAN, f64::INFINITY, 1e6] {
-                let mut g = GeometryImperfections::default();
-                let slot = match set {
-                    0 => &mut g.zero_offset_sd_deg,
-                    1 => &mut g.sample_tilt_sd_deg,
-                    2 => &mut g.reseat_tilt_sd_deg,
-                    3 => &mut g.eccentricity_sd_mm,
-                    _ => &mut g.encoder_error_amplitude_deg,
-                };
-                *slot = bad;
-                let msg = g.validate().expect_err("refused").to_string();
-                assert!(
-                    msg.contains(key) && msg.contains("[simulator.imperfections.geometry]"),
-                    "{msg}"
-                );
-            }
-        }
-        let g = GeometryImperfections {
-            encoder_error_harmonic: 1000,
-            ..Default::default()
-        };
-        assert!(
-            g.validate()
-                .expect_err("harmonic")
-                .to_string()
-                .contains("encoder_error_harmonic")
-        );
+        self.geometry.validate()?;
+        self.detector.validate()?;
+        self.source.validate()?;
+        self.sample.validate()
     }
 }

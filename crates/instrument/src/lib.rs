@@ -30,7 +30,10 @@ mod validate;
 
 use std::path::Path;
 
-pub use imperfections::{GeometryImperfections, Imperfections, ImperfectionsError};
+pub use imperfections::{
+    DetectorImperfections, GeometryImperfections, Imperfections, ImperfectionsError, SampleImperfections,
+    SourceImperfections,
+};
 
 use serde::{Deserialize, Serialize};
 

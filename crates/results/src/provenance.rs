@@ -15,7 +15,10 @@
 
 mod simulator_truth;
 
-pub use simulator_truth::{AxisTruthRecord, GeometryTruthRecord, SeatingRecord, SimulatorTruth};
+pub use simulator_truth::{
+    AxisTruthRecord, DetectorTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
+    SeatingRecord, SimulatorTruth, SourceTruthRecord,
+};
 
 use std::collections::BTreeMap;
 
@@ -409,6 +412,33 @@ pub(crate) mod tests {
                     tilt_x_deg: 0.01,
                     tilt_y_deg: 0.0,
                 }],
+            }),
+            detector: Some(DetectorTruthRecord {
+                ranges: vec![RangeTruthRecord {
+                    gain: 1e-3,
+                    nonlinearity: -2e-3,
+                    offset_fs: 1e-4,
+                }],
+                saturation_current_a: 2.5,
+                amplifier_noise_a_per_rthz: 0.0,
+                signature_peak_sr: 1e-3,
+                signature_width_deg: 2.0,
+                signature_floor_sr: 1e-5,
+                ambient_a: 2e-11,
+                ambient_variation: 0.2,
+                ambient_period_s: 1800.0,
+                ambient_phase_deg: 40.0,
+            }),
+            source: Some(SourceTruthRecord {
+                warmup_fraction: 0.01,
+                warmup_time_s: 600.0,
+                random_walk_per_rthour: 5e-4,
+                flicker_rms: 2e-4,
+            }),
+            sample: Some(SampleTruthRecord {
+                gradient_x: 0.002,
+                gradient_y: -0.001,
+                radial: 0.003,
             }),
         });
         let text = r.to_json_text();

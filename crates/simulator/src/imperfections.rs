@@ -8,20 +8,31 @@
 //! [`crate::optics::Optics::hidden_truth`] (tests) and through the rig into a dry-run's run.json (crates/daemon
 //! /src/rig/), never into the engine, the drivers or the calibration code.
 //!
-//! Groups (one sub-module each): [`geometry`] (axis zero offsets and periodic encoder error, sample tilt and
-//! re-seating, the arms' eccentricity). Still to come (issue 16): detector, source, filters, sample; each adds a
-//! field to [`HiddenTruth`] (`None` when off) and applies itself where its physics lives in crate::optics.
+//! Groups (one sub-module each), each a field of [`HiddenTruth`] (`None` when off) applied where its physics
+//! lives: [`geometry`] (axis zero offsets and periodic encoder error, sample tilt and re-seating, the arms'
+//! eccentricity; crate::optics), [`detector`] (range gains, nonlinearity and offsets, saturation, amplifier
+//! noise and ambient light in the power meter, crate::pm100::physics; stray light by pose in crate::optics),
+//! [`source`] (warm-up, random walk, flicker; crate::optics::source), [`sample`] (reflectance varying over the
+//! sample's area; crate::optics). Still to come (issue 16): filters, beam.
 //!
 //! An all-zero table is the ideal instrument bit for bit: [`HiddenTruth::draw`] returns `None` for a group that
 //! is off, and the optics then take exactly the code path they take with no table at all.
 
+pub mod detector;
 pub mod draw;
+pub mod effects;
 pub mod geometry;
+pub mod sample;
+pub mod source;
 
 use gonio_instrument::{AxisRole, InstrumentFile};
 use serde::Serialize;
 
+pub use detector::{DetectorTruth, RangeTruth, Signature};
+pub use effects::{MeterEffects, OpticsEffects};
 pub use geometry::{AxisTruth, GeometryTruth, Tilt, TrueGeometry};
+pub use sample::SampleTruth;
+pub use source::SourceTruth;
 
 /// The hidden values of one simulated instrument: what each imperfection actually is.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -31,6 +42,15 @@ pub struct HiddenTruth {
     /// `None` when every geometric magnitude is zero.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub geometry: Option<GeometryTruth>,
+    /// `None` when every detector magnitude is zero.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub detector: Option<DetectorTruth>,
+    /// `None` when every source magnitude is zero.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub source: Option<SourceTruth>,
+    /// `None` when every sample magnitude is zero.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sample: Option<SampleTruth>,
 }
 
 impl HiddenTruth {
@@ -47,7 +67,25 @@ impl HiddenTruth {
         let geometry = (!settings.geometry.is_ideal())
             .then(|| GeometryTruth::draw(&settings.geometry, &roles, seed))
             .filter(|g| !g.is_ideal());
-        geometry.is_some().then_some(HiddenTruth { seed, geometry })
+        let ranges = file.instrument.detector.ranges_w.len();
+        let detector = (!settings.detector.is_ideal())
+            .then(|| DetectorTruth::draw(&settings.detector, ranges, seed))
+            .filter(|d| !d.is_ideal());
+        let source = (!settings.source.is_ideal())
+            .then(|| SourceTruth::draw(&settings.source, seed))
+            .filter(|s| !s.is_ideal());
+        let sample = (!settings.sample.is_ideal())
+            .then(|| SampleTruth::draw(&settings.sample, seed))
+            .filter(|s| !s.is_ideal());
+        (geometry.is_some() || detector.is_some() || source.is_some() || sample.is_some()).then_some(
+            HiddenTruth {
+                seed,
+                geometry,
+                detector,
+                source,
+                sample,
+            },
+        )
     }
 
     /// The values as JSON (for run.json and reports).

@@ -198,6 +198,7 @@ impl SimInstrument {
                 &file.simulator,
                 Arc::clone(&world),
                 faults.for_device(&dev.name),
+                hidden.as_ref().and_then(|h| h.detector.clone()),
             )
             .map_err(SimError::Invalid)?;
             meters.insert(dev.name.clone(), Arc::new(meter));
@@ -307,6 +308,12 @@ impl SimInstrument {
             .iter()
             .map(|(name, (p, _))| (name.clone(), *p))
             .collect()
+    }
+
+    /// What the imperfections did to the named meter's last reading (hidden truth, for a dry-run's record and
+    /// tests); `None` on the ideal instrument, before any reading, or for an unknown device.
+    pub fn last_meter_effects(&self, device: &str) -> Option<crate::imperfections::MeterEffects> {
+        self.inner.meters.get(device).and_then(|m| m.last_effects())
     }
 
     /// Names of the USB devices (power meters).

@@ -140,6 +140,12 @@ pub struct OpticalReading {
     pub specular_in_aperture: bool,
     /// BRDF evaluations spent on this reading.
     pub evaluations: u32,
+    /// The sample's reflectance factor averaged over the beam's footprint (crate::imperfections::sample): 1 on
+    /// an even sample. The truth fields are the material's, without it.
+    pub sample_factor: f64,
+    /// Part of `power_w` that is stray light (the instrument signature, crate::imperfections::detector): 0 on
+    /// the ideal instrument (W).
+    pub stray_power_w: f64,
 }
 
 /// An aperture-averaged ground truth for arbitrary directions.
@@ -177,6 +183,10 @@ pub struct Optics {
     sample_mounted: AtomicBool,
     /// The instrument's hidden imperfections; `None` on the ideal instrument ([`Optics::with_hidden_truth`]).
     hidden: Option<std::sync::Arc<HiddenTruth>>,
+    /// The instrument signature (crate::imperfections::detector); `None` on the ideal instrument.
+    signature: Option<crate::imperfections::Signature>,
+    /// What the imperfections did to the last reading (recorded only on an imperfect instrument).
+    last_effects: std::sync::Mutex<Option<crate::imperfections::OpticsEffects>>,
     /// The sample's current mounting (re-seating draws a new tilt each time it goes back).
     seating: RwLock<Seating>,
     /// Distance from the arms' axis to the detector's aperture (mm): eccentricity moves the viewing direction.
@@ -223,6 +233,8 @@ impl Optics {
             source: SourceModel::new(src.power_w, src.drift_per_hour, src.relative_noise, seed),
             sample_mounted: AtomicBool::new(true),
             hidden: None,
+            signature: None,
+            last_effects: std::sync::Mutex::new(None),
             seating: RwLock::new(Seating::default()),
             detector_distance_mm: det.distance_mm,
             material: sample.material,

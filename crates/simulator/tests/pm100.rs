@@ -6,50 +6,12 @@ mod common;
 
 use std::time::Duration;
 
+use common::meter::{out_msg, query, request_in, value};
 use common::sim_with;
+use gonio_simulator::UsbSimError;
 use gonio_simulator::pm100::*;
-use gonio_simulator::{SimUsbDevice, UsbSimError};
 
 const T: Duration = Duration::from_secs(1);
-
-fn out_msg(btag: u8, text: &str) -> Vec<u8> {
-    let mut v = vec![DEV_DEP_MSG_OUT, btag, !btag, 0];
-    v.extend_from_slice(&(text.len() as u32).to_le_bytes());
-    v.extend_from_slice(&[1, 0, 0, 0]);
-    v.extend_from_slice(text.as_bytes());
-    while v.len() % 4 != 0 {
-        v.push(0);
-    }
-    v
-}
-
-fn request_in(btag: u8, max: u32) -> Vec<u8> {
-    let mut v = vec![REQUEST_DEV_DEP_MSG_IN, btag, !btag, 0];
-    v.extend_from_slice(&max.to_le_bytes());
-    v.extend_from_slice(&[0, 0, 0, 0]);
-    v
-}
-
-/// Send `text`, request up to `max`, return (header, data).
-async fn query(dev: &SimUsbDevice, btag: u8, text: &str, max: u32) -> (Vec<u8>, Vec<u8>) {
-    dev.bulk_out(BULK_OUT_EP, &out_msg(btag, text), T)
-        .await
-        .expect("out");
-    let rb = btag.wrapping_add(1).max(1);
-    dev.bulk_out(BULK_OUT_EP, &request_in(rb, max), T)
-        .await
-        .expect("request");
-    let t = dev
-        .bulk_in(BULK_IN_EP, max as usize + 12 + 3, T)
-        .await
-        .expect("in");
-    let n = u32::from_le_bytes([t[4], t[5], t[6], t[7]]) as usize;
-    (t[..12].to_vec(), t[12..12 + n].to_vec())
-}
-
-fn value(data: &[u8]) -> f64 {
-    String::from_utf8_lossy(data).trim_end().parse().expect("number")
-}
 
 fn quiet() -> gonio_simulator::SimInstrument {
     sim_with(|f| f.instrument.detector.noise = false)

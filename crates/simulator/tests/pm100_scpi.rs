@@ -4,64 +4,9 @@
 
 mod common;
 
-use std::time::Duration;
-
+use common::meter::{Host, request_in};
 use common::sim_with;
-use gonio_simulator::SimUsbDevice;
-use gonio_simulator::pm100::*;
-
-const T: Duration = Duration::from_secs(1);
-
-fn out_msg(btag: u8, text: &str) -> Vec<u8> {
-    let mut v = vec![DEV_DEP_MSG_OUT, btag, !btag, 0];
-    v.extend_from_slice(&(text.len() as u32).to_le_bytes());
-    v.extend_from_slice(&[1, 0, 0, 0]);
-    v.extend_from_slice(text.as_bytes());
-    while v.len() % 4 != 0 {
-        v.push(0);
-    }
-    v
-}
-
-/// A host talking to the meter: one bTag counter, write and ask.
-struct Host {
-    dev: SimUsbDevice,
-    btag: u8,
-}
-
-impl Host {
-    fn new(sim: &gonio_simulator::SimInstrument) -> Host {
-        Host {
-            dev: sim.usb_device("meter").expect("open"),
-            btag: 0,
-        }
-    }
-
-    fn tag(&mut self) -> u8 {
-        self.btag = self.btag.wrapping_add(1).max(1);
-        self.btag
-    }
-
-    async fn write(&mut self, text: &str) {
-        let b = self.tag();
-        self.dev
-            .bulk_out(BULK_OUT_EP, &out_msg(b, &format!("{text}\n")), T)
-            .await
-            .expect("out");
-    }
-
-    async fn ask(&mut self, text: &str) -> String {
-        self.write(text).await;
-        let b = self.tag();
-        let mut req = vec![REQUEST_DEV_DEP_MSG_IN, b, !b, 0];
-        req.extend_from_slice(&256u32.to_le_bytes());
-        req.extend_from_slice(&[0, 0, 0, 0]);
-        self.dev.bulk_out(BULK_OUT_EP, &req, T).await.expect("request");
-        let t = self.dev.bulk_in(BULK_IN_EP, 256 + 12, T).await.expect("in");
-        let n = u32::from_le_bytes([t[4], t[5], t[6], t[7]]) as usize;
-        String::from_utf8_lossy(&t[12..12 + n]).trim_end().to_string()
-    }
-}
+use gonio_simulator::pm100::BULK_OUT_EP;
 
 fn num(s: &str) -> f64 {
     s.parse().unwrap_or_else(|_| panic!("not a number: {s:?}"))
@@ -140,10 +85,10 @@ async fn ieee_488_2_common_commands_and_status_byte() {
     assert_eq!(h.ask("*OPC?").await, "1");
     // A query error (-4xx) sets QYE (bit 2): a read with nothing to read.
     let b = h.tag();
-    let mut req = vec![REQUEST_DEV_DEP_MSG_IN, b, !b, 0];
-    req.extend_from_slice(&64u32.to_le_bytes());
-    req.extend_from_slice(&[0, 0, 0, 0]);
-    h.dev.bulk_out(BULK_OUT_EP, &req, T).await.expect("request");
+    h.dev
+        .bulk_out(BULK_OUT_EP, &request_in(b, 64), std::time::Duration::from_secs(1))
+        .await
+        .expect("request");
     assert_eq!(h.ask("*ESR?").await, "4");
     // *RST restores the settings, not the status registers.
     h.write("SENS:CORR:WAV 500;*ESE 1;*RST").await;

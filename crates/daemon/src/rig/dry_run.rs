@@ -10,6 +10,7 @@ use std::sync::Arc;
 use gonio_brdf::material::Material;
 use gonio_brdf::{Direction, Wavelength};
 use gonio_simulator::clock::SimClock;
+use gonio_simulator::imperfections::{MeterEffects, OpticsEffects};
 use gonio_simulator::optics::{Optics, SampleSpec};
 
 use super::Rig;
@@ -31,9 +32,65 @@ pub trait SampleHolder: Send + Sync + std::fmt::Debug {
     /// The operator has just left `held` in the holder: from now on the detector sees it.
     fn hold(&self, held: Held);
 
-    /// Ground truth of the campaign's sample at a geometry: the point BRDF and the BRDF averaged over the
-    /// detector's aperture (1/sr), where the simulator can tell them.
-    fn truth(&self, wi: &Direction, wo: &Direction, wavelength: Wavelength) -> (Option<f64>, Option<f64>);
+    /// Ground truth of the campaign's sample at a geometry, asked right after the point's reading: the point
+    /// BRDF and the BRDF averaged over the detector's aperture (1/sr), where the simulator can tell them, and
+    /// on an imperfect instrument what each imperfection did to that reading.
+    fn truth(&self, wi: &Direction, wo: &Direction, wavelength: Wavelength) -> PointTruth;
+}
+
+/// A dry-run point's ground truth (stored beside the point, never used in a measurement).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PointTruth {
+    pub point_sr: Option<f64>,
+    pub aperture_sr: Option<f64>,
+    /// JSON: what each imperfection did to the reading ([`effects_json`]); `None` on the ideal instrument.
+    pub effects_json: Option<String>,
+}
+
+/// The attribution record of one reading: the simulator's optical and meter records and the relative effects
+/// derived from them, each "what this effect changed, as a fraction of the reading":
+/// - `geometry`: the aperture-averaged BRDF at the true geometry over the one at the nominal geometry, - 1;
+/// - `stray`: stray-light power over the power on the detector;
+/// - `sample`: the sample's reflectance over the footprint against the material's (its non-uniformity);
+/// - `source_slow`, `source_flicker`: the source's warm-up and walk, and its flicker, during the reading (the
+///   normalisation readings had their own: the BRDF sees the ratio);
+/// - `saturation`, `meter`: the photodiode's compression and the range's gain, nonlinearity and offset;
+/// - `ambient`: the ambient light's current over the light's.
+pub fn effects_json(
+    optics: &OpticsEffects,
+    meter: Option<&MeterEffects>,
+    nominal_aperture_sr: Option<f64>,
+) -> Option<String> {
+    let ratio = |a: f64, b: f64| {
+        if b != 0.0 && a.is_finite() && b.is_finite() {
+            a / b - 1.0
+        } else {
+            0.0
+        }
+    };
+    let mut relative = serde_json::json!({
+        "geometry": nominal_aperture_sr.map_or(0.0, |n| ratio(optics.true_aperture_sr, n)),
+        "stray": if optics.power_w > 0.0 { optics.stray_power_w / optics.power_w } else { 0.0 },
+        "sample": optics.sample_factor - 1.0,
+        "source_slow": optics.source_slow_factor - 1.0,
+        "source_flicker": optics.source_flicker_factor - 1.0,
+    });
+    if let (Some(m), Some(map)) = (meter, relative.as_object_mut()) {
+        map.insert("saturation".into(), m.saturation_rel.into());
+        map.insert("meter".into(), m.meter_rel.into());
+        let ambient = if m.light_a > 0.0 {
+            m.ambient_a / m.light_a
+        } else {
+            0.0
+        };
+        map.insert("ambient".into(), ambient.into());
+    }
+    serde_json::to_string(&serde_json::json!({
+        "relative": relative,
+        "optics": optics,
+        "meter": meter,
+    }))
+    .ok()
 }
 
 /// The simulator's holder: each sample has its own optics on the same source.
@@ -66,14 +123,26 @@ impl SampleHolder for SimulatedHolder {
         }
     }
 
-    fn truth(&self, wi: &Direction, wo: &Direction, wavelength: Wavelength) -> (Option<f64>, Option<f64>) {
-        (
-            self.sample.truth(wi, wo, wavelength).ok(),
-            self.sample
-                .truth_aperture(wi, wo, wavelength)
-                .ok()
-                .map(|a| a.average_sr),
-        )
+    fn truth(&self, wi: &Direction, wo: &Direction, wavelength: Wavelength) -> PointTruth {
+        let point_sr = self.sample.truth(wi, wo, wavelength).ok();
+        let aperture_sr = self
+            .sample
+            .truth_aperture(wi, wo, wavelength)
+            .ok()
+            .map(|a| a.average_sr);
+        // The reading just taken left its records in the sample's optics and the meter (imperfect instrument).
+        let effects = self.sample.last_effects().and_then(|optics| {
+            let meter = self
+                .rig
+                .sim()
+                .and_then(|s| s.last_meter_effects(&self.rig.file().instrument.detector.device));
+            effects_json(&optics, meter.as_ref(), aperture_sr)
+        });
+        PointTruth {
+            point_sr,
+            aperture_sr,
+            effects_json: effects,
+        }
     }
 }
 

@@ -3,7 +3,10 @@
 //! drivers and the calibration never see it (crates/daemon/tests/layering.rs keeps the simulator inside the rig).
 
 use gonio_instrument::InstrumentFile;
-use gonio_results::provenance::{AxisTruthRecord, GeometryTruthRecord, SeatingRecord, SimulatorTruth};
+use gonio_results::provenance::{
+    AxisTruthRecord, DetectorTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
+    SeatingRecord, SimulatorTruth, SourceTruthRecord,
+};
 use gonio_simulator::imperfections::HiddenTruth;
 
 /// The hidden imperfections of the simulated instrument described by `instrument_toml`, for a dry-run's
@@ -51,6 +54,37 @@ fn record(hidden: &HiddenTruth, mountings: usize) -> SimulatorTruth {
                     }
                 })
                 .collect(),
+        }),
+        detector: hidden.detector.as_ref().map(|d| DetectorTruthRecord {
+            ranges: d
+                .ranges
+                .iter()
+                .map(|r| RangeTruthRecord {
+                    gain: r.gain,
+                    nonlinearity: r.nonlinearity,
+                    offset_fs: r.offset_fs,
+                })
+                .collect(),
+            saturation_current_a: d.saturation_current_a,
+            amplifier_noise_a_per_rthz: d.amplifier_noise_a_per_rthz,
+            signature_peak_sr: d.signature.peak_sr,
+            signature_width_deg: d.signature.width_deg,
+            signature_floor_sr: d.signature.floor_sr,
+            ambient_a: d.ambient_a,
+            ambient_variation: d.ambient_variation,
+            ambient_period_s: d.ambient_period_s,
+            ambient_phase_deg: d.ambient_phase_deg,
+        }),
+        source: hidden.source.as_ref().map(|s| SourceTruthRecord {
+            warmup_fraction: s.warmup_fraction,
+            warmup_time_s: s.warmup_time_s,
+            random_walk_per_rthour: s.random_walk_per_rthour,
+            flicker_rms: s.flicker_rms,
+        }),
+        sample: hidden.sample.as_ref().map(|s| SampleTruthRecord {
+            gradient_x: s.gradient[0],
+            gradient_y: s.gradient[1],
+            radial: s.radial,
         }),
     }
 }

@@ -129,9 +129,9 @@ impl<'a> Run<'a> {
                 }
             }
         }
-        let (truth_point_sr, truth_aperture_sr) = match (&self.holder, Wavelength::from_nm(band_nm)) {
+        let truth = match (&self.holder, Wavelength::from_nm(band_nm)) {
             (Some(h), Ok(wl)) => h.truth(&wi, &wo, wl),
-            _ => (None, None),
+            _ => Default::default(),
         };
         let point = PointRecord {
             index,
@@ -153,8 +153,9 @@ impl<'a> Run<'a> {
                 .cloned()
                 .zip(self.motion.readback_deg().iter().copied())
                 .collect(),
-            truth_point_sr,
-            truth_aperture_sr,
+            truth_point_sr: truth.point_sr,
+            truth_aperture_sr: truth.aperture_sr,
+            truth_effects_json: truth.effects_json,
         };
         self.st(|s| s.commit_point(self.id, &point))?;
         self.done += 1;

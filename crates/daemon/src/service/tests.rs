@@ -35,6 +35,7 @@ fn fake_point(index: u64) -> PointRecord {
         readback_deg: vec![],
         truth_point_sr: None,
         truth_aperture_sr: None,
+        truth_effects_json: None,
     }
 }
 

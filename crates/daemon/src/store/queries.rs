@@ -255,7 +255,8 @@ impl Store {
         let result = self.conn.prepare_cached(
             "INSERT INTO points (campaign_id, idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg,
              signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json, truth_point_sr,
-             truth_aperture_sr) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17)",
+             truth_aperture_sr, truth_effects_json)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18)",
         );
         let result = result.and_then(|mut st| {
             st.execute(params![
@@ -275,7 +276,8 @@ impl Store {
                 p.t_s,
                 readback,
                 p.truth_point_sr,
-                p.truth_aperture_sr
+                p.truth_aperture_sr,
+                p.truth_effects_json
             ])
         });
         match result {
@@ -325,8 +327,8 @@ impl Store {
             .conn
             .prepare(
                 "SELECT idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg, signal_w, dark_w,
-                 incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json, truth_point_sr, truth_aperture_sr
-                 FROM points WHERE campaign_id = ?1 AND idx >= ?2 ORDER BY idx",
+                 incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json, truth_point_sr, truth_aperture_sr,
+                 truth_effects_json FROM points WHERE campaign_id = ?1 AND idx >= ?2 ORDER BY idx",
             )
             .map_err(self.read_err())?;
         let rows = stmt
@@ -452,6 +454,7 @@ fn point_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<PointRecord,
         readback_deg,
         truth_point_sr: r.get(14)?,
         truth_aperture_sr: r.get(15)?,
+        truth_effects_json: r.get(16)?,
     }))
 }
 

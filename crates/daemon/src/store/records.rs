@@ -154,6 +154,11 @@ pub struct PointRecord {
     /// Dry-runs only: the simulator's ground truth at the nominal geometry and averaged over the aperture.
     pub truth_point_sr: Option<f64>,
     pub truth_aperture_sr: Option<f64>,
+    /// Dry-runs on an imperfect simulated instrument only: what each imperfection did to this point's reading
+    /// (JSON: the simulator's `OpticsEffects` and `MeterEffects`, crates/simulator/src/imperfections/effects.rs,
+    /// plus the relative effects derived from them; crates/daemon/src/rig/dry_run.rs).
+    #[serde(default)]
+    pub truth_effects_json: Option<String>,
 }
 
 /// A committed point's geometry and BRDF only: what an adaptive planner reads back (`Store::point_values`).

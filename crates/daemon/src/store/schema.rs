@@ -9,6 +9,29 @@ use rusqlite::{Connection, OptionalExtension};
 
 use super::{CampaignId, Durability, SCHEMA_VERSION, STORE_FILE, Store, StoreError};
 
+/// The points table's columns: one definition for a new store and for the rebuild of a version-1 one.
+const POINTS_COLUMNS: &str = "
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                idx INTEGER NOT NULL,
+                band_nm REAL NOT NULL,
+                theta_i_deg REAL NOT NULL,
+                phi_i_deg REAL NOT NULL,
+                theta_o_deg REAL NOT NULL,
+                phi_o_deg REAL NOT NULL,
+                signal_w REAL,
+                dark_w REAL,
+                incident_w REAL,
+                brdf_sr REAL,
+                brdf_u_sr REAL,
+                flags TEXT NOT NULL,
+                t_s REAL NOT NULL,
+                readback_json TEXT NOT NULL,
+                truth_point_sr REAL,
+                truth_aperture_sr REAL,
+                truth_effects_json TEXT,
+                PRIMARY KEY (campaign_id, idx)
+";
+
 impl Store {
     /// Open (creating if needed) the store in a data directory.
     pub fn open(dir: &Path) -> Result<Store, StoreError> {
@@ -106,31 +129,13 @@ impl Store {
     }
 
     /// Version 1 declared the readings NOT NULL, so a failed point (NaN reading) could not be committed.
-    /// SQLite cannot drop a NOT NULL constraint in place: rebuild the table, keeping every row.
-    fn migrate_v1_to_v2(&mut self) -> Result<(), StoreError> {
+    /// SQLite cannot drop a NOT NULL constraint in place: rebuild the table, keeping every row (with no
+    /// attribution: version 1 had none). This goes straight to the current version.
+    fn migrate_v1(&mut self) -> Result<(), StoreError> {
         let sql = format!(
             "BEGIN;
-            CREATE TABLE points_v2 (
-                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
-                idx INTEGER NOT NULL,
-                band_nm REAL NOT NULL,
-                theta_i_deg REAL NOT NULL,
-                phi_i_deg REAL NOT NULL,
-                theta_o_deg REAL NOT NULL,
-                phi_o_deg REAL NOT NULL,
-                signal_w REAL,
-                dark_w REAL,
-                incident_w REAL,
-                brdf_sr REAL,
-                brdf_u_sr REAL,
-                flags TEXT NOT NULL,
-                t_s REAL NOT NULL,
-                readback_json TEXT NOT NULL,
-                truth_point_sr REAL,
-                truth_aperture_sr REAL,
-                PRIMARY KEY (campaign_id, idx)
-            );
-            INSERT INTO points_v2 SELECT * FROM points;
+            CREATE TABLE points_v2 ({POINTS_COLUMNS});
+            INSERT INTO points_v2 SELECT *, NULL FROM points;
             DROP TABLE points;
             ALTER TABLE points_v2 RENAME TO points;
             PRAGMA user_version = {SCHEMA_VERSION};
@@ -154,7 +159,18 @@ impl Store {
             return Ok(());
         }
         if version == 1 {
-            return self.migrate_v1_to_v2();
+            return self.migrate_v1();
+        }
+        if version == 2 {
+            // Version 3 only adds a nullable column.
+            let sql = format!(
+                "BEGIN; ALTER TABLE points ADD COLUMN truth_effects_json TEXT; \
+                 PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+            );
+            return self.conn.execute_batch(&sql).map_err(|source| StoreError::Write {
+                path: self.path.clone(),
+                source,
+            });
         }
         if version != 0 {
             return Err(StoreError::SchemaVersion {
@@ -194,26 +210,7 @@ impl Store {
                 u_w REAL NOT NULL,
                 PRIMARY KEY (campaign_id, seq)
             );
-            CREATE TABLE points (
-                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
-                idx INTEGER NOT NULL,
-                band_nm REAL NOT NULL,
-                theta_i_deg REAL NOT NULL,
-                phi_i_deg REAL NOT NULL,
-                theta_o_deg REAL NOT NULL,
-                phi_o_deg REAL NOT NULL,
-                signal_w REAL,
-                dark_w REAL,
-                incident_w REAL,
-                brdf_sr REAL,
-                brdf_u_sr REAL,
-                flags TEXT NOT NULL,
-                t_s REAL NOT NULL,
-                readback_json TEXT NOT NULL,
-                truth_point_sr REAL,
-                truth_aperture_sr REAL,
-                PRIMARY KEY (campaign_id, idx)
-            );
+            CREATE TABLE points ({POINTS_COLUMNS});
             PRAGMA user_version = {SCHEMA_VERSION};
             COMMIT;"
         );

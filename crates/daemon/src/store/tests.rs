@@ -35,6 +35,7 @@ fn point(index: u64) -> PointRecord {
         readback_deg: vec![("light".into(), 30.000_123), ("detector".into(), -0.1 / 3.0)],
         truth_point_sr: Some(std::f64::consts::FRAC_1_PI),
         truth_aperture_sr: None,
+        truth_effects_json: None,
     }
 }
 
@@ -128,10 +129,14 @@ fn a_version_1_store_is_migrated_keeping_its_points() {
         .replace("signal_w REAL,", "signal_w REAL NOT NULL,")
         .replace("dark_w REAL,", "dark_w REAL NOT NULL,")
         .replace("incident_w REAL,", "incident_w REAL NOT NULL,")
+        .replace("truth_effects_json TEXT,", "")
         .replace("CREATE TABLE points", "CREATE TABLE points_v1");
     assert!(v1_table.contains("signal_w REAL NOT NULL"), "{v1_table}");
+    assert!(!v1_table.contains("truth_effects_json"), "{v1_table}");
     conn.execute_batch(&format!(
-        "{v1_table}; INSERT INTO points_v1 SELECT * FROM points; DROP TABLE points;
+        "{v1_table}; INSERT INTO points_v1 SELECT campaign_id, idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg,
+             phi_o_deg, signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json,
+             truth_point_sr, truth_aperture_sr FROM points; DROP TABLE points;
              ALTER TABLE points_v1 RENAME TO points; PRAGMA user_version = 1;"
     ))
     .expect("downgrade");
@@ -143,6 +148,28 @@ fn a_version_1_store_is_migrated_keeping_its_points() {
         .commit_point(id, &failed_point(1))
         .expect("a failed point commits after migration");
     assert_eq!(store.next_index(id).expect("next"), 2);
+}
+
+#[test]
+fn a_version_2_store_gains_the_attribution_column() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let id = {
+        let mut store = Store::open(dir.path()).expect("open");
+        let id = store.create_campaign(&new_campaign(3)).expect("create");
+        store.commit_point(id, &point(0)).expect("commit");
+        id
+    };
+    // Version 2: no truth_effects_json column.
+    let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
+    conn.execute_batch("ALTER TABLE points DROP COLUMN truth_effects_json; PRAGMA user_version = 2;")
+        .expect("downgrade");
+    drop(conn);
+    let mut store = Store::open(dir.path()).expect("migrates");
+    assert_eq!(store.points(id).expect("points"), vec![point(0)]);
+    let mut attributed = point(1);
+    attributed.truth_effects_json = Some("{\"relative\":{\"meter\":0.001}}".into());
+    store.commit_point(id, &attributed).expect("commit");
+    assert_eq!(store.points(id).expect("points")[1], attributed);
 }
 
 #[test]

@@ -13,6 +13,63 @@ pub struct SimulatorTruth {
     /// Geometry; absent when that group is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub geometry: Option<GeometryTruthRecord>,
+    /// Detector; absent when that group is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector: Option<DetectorTruthRecord>,
+    /// Source; absent when that group is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<SourceTruthRecord>,
+    /// Sample; absent when that group is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sample: Option<SampleTruthRecord>,
+}
+
+/// The sample's non-uniformity (model: crates/simulator/src/imperfections/sample.rs): its BRDF is the
+/// material's times `1 + (gradient_x x + gradient_y y) / R + radial (x^2 + y^2) / R^2`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SampleTruthRecord {
+    pub gradient_x: f64,
+    pub gradient_y: f64,
+    pub radial: f64,
+}
+
+/// The detector's imperfections (models: crates/simulator/src/imperfections/detector.rs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DetectorTruthRecord {
+    /// Per range of the meter, smallest first.
+    pub ranges: Vec<RangeTruthRecord>,
+    /// The photodiode's saturation current (A); 0: none.
+    pub saturation_current_a: f64,
+    /// Amplifier excess current noise density (A/sqrt(Hz)).
+    pub amplifier_noise_a_per_rthz: f64,
+    /// The instrument signature `peak / (1 + (alpha / width)^2) + floor` (1/sr; width in degrees).
+    pub signature_peak_sr: f64,
+    pub signature_width_deg: f64,
+    pub signature_floor_sr: f64,
+    /// Ambient light: `a (1 + v sin(2 pi t / period + phase))` (A).
+    pub ambient_a: f64,
+    pub ambient_variation: f64,
+    pub ambient_period_s: f64,
+    pub ambient_phase_deg: f64,
+}
+
+/// One range's hidden errors: a true current `I` reads `I (1 + gain) (1 + nonlinearity I / I_fs) + offset_fs
+/// I_fs`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RangeTruthRecord {
+    pub gain: f64,
+    pub nonlinearity: f64,
+    pub offset_fs: f64,
+}
+
+/// The source's imperfections (models: crates/simulator/src/imperfections/source.rs). The random walk's path and
+/// the flicker's phases are drawn from the seed; their effect on each point is in that point's truth.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SourceTruthRecord {
+    pub warmup_fraction: f64,
+    pub warmup_time_s: f64,
+    pub random_walk_per_rthour: f64,
+    pub flicker_rms: f64,
 }
 
 /// The geometric imperfections (models: crates/simulator/src/imperfections/geometry.rs).

@@ -37,6 +37,12 @@ impl Optics {
     /// starts in its first mounting.
     pub fn with_hidden_truth(mut self, truth: Option<&HiddenTruth>) -> Optics {
         self.hidden = truth.cloned().map(Arc::new);
+        self.signature = truth
+            .and_then(|t| t.detector.as_ref())
+            .map(|d| d.signature)
+            .filter(|s| !s.is_zero());
+        self.source
+            .set_imperfections(truth.and_then(|t| t.source.clone()));
         let tilt = self.seating_tilt(0);
         *self.seating.get_mut().unwrap_or_else(|e| e.into_inner()) = Seating { index: 0, tilt };
         self
@@ -132,6 +138,36 @@ impl Optics {
             &view,
             g.spot_mm,
             g.field_centre_mm,
+        )
+    }
+
+    /// The fraction of the beam that reaches the detector by stray paths with the detector arm along
+    /// `detector_arm_lab` and the source along `source_lab` (lab, from the sample): `Omega_d f_sig(alpha)`,
+    /// alpha the angle between the detector arm and the undeviated beam (crate::imperfections::detector).
+    pub(super) fn stray_fraction(&self, detector_arm_lab: &LabVector, source_lab: &LabVector) -> f64 {
+        let Some(sig) = self.signature else {
+            return 0.0;
+        };
+        let beam = [-source_lab[0], -source_lab[1], -source_lab[2]];
+        let alpha = kinematics::angle_between(detector_arm_lab, &beam);
+        self.aperture_sr * sig.at(alpha)
+    }
+
+    /// The sample's reflectance factor over the beam's footprint at geometry `g` (crate::imperfections::sample):
+    /// exactly 1 on an even sample.
+    pub(super) fn sample_factor(&self, g: &Geometry) -> f64 {
+        let Some(s) = self.hidden.as_ref().and_then(|h| h.sample.as_ref()) else {
+            return 1.0;
+        };
+        let cos_i = g.pose.wi.z();
+        if cos_i <= 0.0 {
+            return 1.0;
+        }
+        s.footprint_mean(
+            g.spot_mm,
+            self.beam_radius_mm / cos_i,
+            self.beam_radius_mm,
+            self.sample_radius_mm,
         )
     }
 

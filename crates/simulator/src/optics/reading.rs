@@ -20,6 +20,9 @@ struct AtRest {
     /// Filter transmission (0 at the blank).
     transmission: f64,
     light: Light,
+    /// Fraction of the beam reaching the detector by other paths (the instrument signature; 0 on the ideal
+    /// instrument, with the filter closed, or with the beam blocked).
+    stray_fraction: f64,
 }
 
 /// How the source's power reaches the detector at a pose at rest.
@@ -78,12 +81,20 @@ impl Optics {
             beam_blocked_by_detector: blocked,
             specular_in_aperture,
             evaluations: 0,
+            stray_power_w: 0.0,
+            sample_factor: 1.0,
+        };
+        let stray_fraction = if band.band_nm.is_some() && transmission > 0.0 && !blocked {
+            self.stray_fraction(&detector_arm_lab, &geometry.source_lab)
+        } else {
+            0.0
         };
         let (Some(nm), true) = (band.band_nm, band.transmission > 0.0) else {
             return Ok(AtRest {
                 out,
                 transmission,
                 light: Light::Dark,
+                stray_fraction,
             });
         };
         if !self.sample_mounted() {
@@ -95,6 +106,7 @@ impl Optics {
                 out,
                 transmission,
                 light: Light::DirectBeam { fraction },
+                stray_fraction,
             });
         }
         let r = self.resolved(nm)?;
@@ -110,19 +122,21 @@ impl Optics {
         let truth = self.aperture_truth(&r, &geometry.wi, &geometry.wo)?;
         out.truth_aperture_sr = truth.average_sr;
         out.evaluations = truth.evaluations;
+        out.sample_factor = self.sample_factor(&g);
         let light = if blocked {
             Light::Dark
         } else {
             Light::Sample {
                 intercepted: fp.intercepted_fraction,
-                collected: truth.integral + truth.delta,
-                integral_error: truth.integral_error,
+                collected: (truth.integral + truth.delta) * out.sample_factor,
+                integral_error: truth.integral_error * out.sample_factor,
             }
         };
         Ok(AtRest {
             out,
             transmission,
             light,
+            stray_fraction,
         })
     }
 
@@ -151,6 +165,13 @@ impl Optics {
                 out.integration_error_w = on_sample * integral_error;
             }
         }
+        if rest.stray_fraction > 0.0 {
+            // The signature rides on the beam: drift and noise as the beam has them.
+            let stray_w = drifted_w * transmission * rest.stray_fraction;
+            out.stray_power_w = stray_w * noise;
+            out.noiseless_power_w += stray_w;
+            out.power_w += out.stray_power_w;
+        }
         out
     }
 }
@@ -159,12 +180,56 @@ fn neg(v: &[f64; 3]) -> [f64; 3] {
     [-v[0], -v[1], -v[2]]
 }
 
+impl Optics {
+    /// Record what the imperfections did to a reading at rest sampled at `times_s` with `powers_w`
+    /// (crate::imperfections::effects); nothing on the ideal instrument.
+    fn record_effects(&self, rest: &AtRest, times_s: &[f64], powers_w: &[f64]) {
+        if self.hidden.is_none() || times_s.is_empty() {
+            return;
+        }
+        let n = times_s.len() as f64;
+        let (mut slow, mut fast, mut stray) = (0.0, 0.0, 0.0);
+        for &t in times_s {
+            let (s, f) = self.source.imperfection_factors(t);
+            slow += s;
+            fast += f;
+            stray += self.at_time(rest, t).stray_power_w;
+        }
+        let out = &rest.out;
+        let ((theta_i, phi_i), (theta_o, phi_o)) = (out.wi.to_spherical_deg(), out.wo.to_spherical_deg());
+        let effects = crate::imperfections::OpticsEffects {
+            true_theta_i_deg: theta_i,
+            true_phi_i_deg: phi_i,
+            true_theta_o_deg: theta_o,
+            true_phi_o_deg: phi_o,
+            true_aperture_sr: out.truth_aperture_sr,
+            intercepted_fraction: out.intercepted_fraction,
+            sample_factor: out.sample_factor,
+            power_w: powers_w.iter().sum::<f64>() / n,
+            stray_power_w: stray / n,
+            source_slow_factor: slow / n,
+            source_flicker_factor: fast / n,
+        };
+        *self.last_effects.lock().unwrap_or_else(|e| e.into_inner()) = Some(effects);
+    }
+
+    /// What the imperfections did to the last reading (hidden truth, for the dry-run's record and tests); `None`
+    /// on the ideal instrument or before any reading.
+    pub fn last_effects(&self) -> Option<crate::imperfections::OpticsEffects> {
+        *self.last_effects.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
 impl Scene for Optics {
     /// The reading's `power_w`; 0 (with a warning) if the material cannot be evaluated at the band.
     fn detector_power_w(&self, pose: &Pose, band: &Band, t_s: f64) -> f64 {
-        match self.reading(pose, band, t_s) {
-            Ok(r) if r.power_w.is_finite() => r.power_w,
-            Ok(_) => 0.0,
+        match self.at_rest(pose, band) {
+            Ok(rest) => {
+                let p = self.at_time(&rest, t_s).power_w;
+                let p = if p.is_finite() { p } else { 0.0 };
+                self.record_effects(&rest, &[t_s], &[p]);
+                p
+            }
             Err(e) => {
                 tracing::warn!(error = %e, "optics cannot evaluate the sample; reporting no light");
                 0.0
@@ -176,10 +241,13 @@ impl Scene for Optics {
     fn detector_power_series_w(&self, pose: &Pose, band: &Band, times_s: &[f64], out: &mut Vec<f64>) {
         out.clear();
         match self.at_rest(pose, band) {
-            Ok(rest) => out.extend(times_s.iter().map(|&t| {
-                let p = self.at_time(&rest, t).power_w;
-                if p.is_finite() { p } else { 0.0 }
-            })),
+            Ok(rest) => {
+                out.extend(times_s.iter().map(|&t| {
+                    let p = self.at_time(&rest, t).power_w;
+                    if p.is_finite() { p } else { 0.0 }
+                }));
+                self.record_effects(&rest, times_s, out);
+            }
             Err(e) => {
                 tracing::warn!(error = %e, "optics cannot evaluate the sample; reporting no light");
                 out.resize(times_s.len(), 0.0);

@@ -22,6 +22,8 @@ pub struct SourceModel {
     drift_on: bool,
     noise_on: bool,
     phases: [f64; 3],
+    /// The source's hidden imperfections (warm-up, random walk, flicker); `None` on the ideal instrument.
+    imperfections: Option<crate::imperfections::SourceTruth>,
 }
 
 impl SourceModel {
@@ -38,7 +40,13 @@ impl SourceModel {
             drift_on: drift_per_hour != 0.0,
             noise_on: relative_noise > 0.0,
             phases,
+            imperfections: None,
         }
+    }
+
+    /// Give the source its hidden imperfections (crate::imperfections::source); `None`: the ideal source.
+    pub fn set_imperfections(&mut self, truth: Option<crate::imperfections::SourceTruth>) {
+        self.imperfections = truth;
     }
 
     pub fn set_drift(&mut self, on: bool) {
@@ -53,13 +61,30 @@ impl SourceModel {
         self.noise_on
     }
 
+    /// The imperfection factors at `t_s` (crate::imperfections::source): slow (warm-up, walk) and flicker;
+    /// both 1 on the ideal source.
+    pub fn imperfection_factors(&self, t_s: f64) -> (f64, f64) {
+        self.imperfections
+            .as_ref()
+            .map_or((1.0, 1.0), |t| (t.slow_factor(t_s), t.fast_factor(t_s)))
+    }
+
     /// The nominal power before drift and noise (W).
     pub fn nominal_power_w(&self) -> f64 {
         self.power_w
     }
 
-    /// The drifted power at time `t_s`, without noise (W).
+    /// The drifted power at time `t_s`, without noise (W): the file's smooth drift times, on an imperfect
+    /// instrument, the warm-up and the random walk.
     pub fn drifted_power_w(&self, t_s: f64) -> f64 {
+        let smooth = self.smooth_drift_w(t_s);
+        match &self.imperfections {
+            Some(t) => smooth * t.slow_factor(t_s),
+            None => smooth,
+        }
+    }
+
+    fn smooth_drift_w(&self, t_s: f64) -> f64 {
         if !self.drift_on || !t_s.is_finite() {
             return self.power_w;
         }
@@ -73,8 +98,14 @@ impl SourceModel {
         (self.power_w * (1.0 + self.drift_per_hour * g)).max(0.0)
     }
 
-    /// The relative noise factor `1 + sigma n(t)` at time `t_s` (exactly 1 when the noise is off: no draw).
+    /// The relative noise factor `1 + sigma n(t)` at time `t_s` (exactly 1 when the noise is off: no draw),
+    /// times the flicker on an imperfect instrument.
     pub fn noise_factor(&self, t_s: f64) -> f64 {
+        let flicker = self.imperfections.as_ref().map_or(1.0, |t| t.fast_factor(t_s));
+        flicker * self.white_noise_factor(t_s)
+    }
+
+    fn white_noise_factor(&self, t_s: f64) -> f64 {
         if !self.noise_on {
             return 1.0;
         }

@@ -196,6 +196,11 @@ pub struct Pm100 {
     faults: DeviceFaults,
     seed: u64,
     overrange: Pm100Overrange,
+    /// The meter's and photodiode's hidden errors (crate::imperfections::detector); `None` on the ideal
+    /// instrument.
+    imperfections: Option<crate::imperfections::DetectorTruth>,
+    /// What the imperfections did to the last reading (recorded only on an imperfect instrument).
+    last_effects: Mutex<Option<crate::imperfections::MeterEffects>>,
     state: Mutex<MeterState>,
     notify: tokio::sync::Notify,
 }
@@ -207,6 +212,7 @@ impl Pm100 {
         sim: &SimulatorSettings,
         world: Arc<World>,
         faults: DeviceFaults,
+        imperfections: Option<crate::imperfections::DetectorTruth>,
     ) -> Result<Pm100, String> {
         let detector = inst.detector.clone();
         let responsivity = Responsivity::from_detector(&detector)?;
@@ -222,9 +228,16 @@ impl Pm100 {
             faults,
             seed,
             overrange: sim.quirks.pm100_overrange,
+            imperfections,
+            last_effects: Mutex::new(None),
             state,
             notify: tokio::sync::Notify::new(),
         })
+    }
+
+    /// What the imperfections did to the last reading (hidden truth); `None` on the ideal instrument.
+    pub fn last_effects(&self) -> Option<crate::imperfections::MeterEffects> {
+        *self.last_effects.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     fn power_up_settings(detector: &Detector) -> Settings {

@@ -116,13 +116,23 @@ impl Pm100 {
             let p = world.scene.detector_power_w(&pose, &band, t);
             (if p.is_finite() { p.max(0.0) } else { 0.0 }, band)
         };
-        // Current of each sample: the light's, the dark current, and stray light (the wheel's lit sensors).
+        // Current of each sample: the light's, the dark current, and stray light (the wheel's lit sensors); on an
+        // imperfect instrument also the ambient light, through the photodiode's saturation
+        // (crate::imperfections::detector).
         let stray_a = world.stray_a(t0);
+        let imperfect = self.imperfections.as_ref();
+        let ambient_a = imperfect.map_or(0.0, |t| t.ambient_at_a(t0 + 0.5 * f64::from(n) * SAMPLE_S));
         let current = |p: f64, band: &Band| {
             let r_band = band.band_nm.map(|nm| self.responsivity.at(nm)).unwrap_or(0.0);
-            p * r_band + d.dark_current_a + stray_a
+            let i = p * r_band + d.dark_current_a + stray_a;
+            match imperfect {
+                Some(t) => t.photodiode_a(i + ambient_a),
+                None => i,
+            }
         };
-        let currents: Vec<f64> = if steady && !d.noise {
+        let amplifier_noise = imperfect.map_or(0.0, |t| t.amplifier_noise_a_per_rthz);
+        let noisy = d.noise || amplifier_noise > 0.0;
+        let currents: Vec<f64> = if steady && !noisy {
             // At rest and without noise every sample is the same.
             let (p, band) = optical_at(n / 2);
             vec![current(p, &band); n as usize]
@@ -159,19 +169,62 @@ impl Pm100 {
             tracing::info!(meter = %self.name, current_a = mean_i, full_scale_a = fs, "PM100 overload");
             return None;
         }
-        let mut i = mean_i;
-        if d.noise && fs > 0.0 {
-            // Each sample: shot noise of its current and Johnson noise of the range's feedback resistor, then
-            // the 16-bit converter over the range; the reading is the mean of the quantised samples.
+        // The meter's own transfer on this range: exact on the ideal instrument, gain, nonlinearity and offset on
+        // an imperfect one.
+        let transfer = |i: f64| imperfect.map_or(i, |t| t.meter_a(range, i, fs));
+        let mut i = transfer(mean_i);
+        if let Some(t) = imperfect {
+            // What the imperfections did (crate::imperfections::effects): the light's current before saturation
+            // (the mean of the samples' currents undone, exactly for the first-order saturation model).
+            let light_a = currents
+                .iter()
+                .map(|&c| {
+                    let raw = if t.saturation_current_a > 0.0 && c > 0.0 && c < t.saturation_current_a {
+                        c / (1.0 - c / t.saturation_current_a)
+                    } else {
+                        c
+                    };
+                    raw - ambient_a - d.dark_current_a - stray_a
+                })
+                .sum::<f64>()
+                / f64::from(n);
+            let total = light_a + ambient_a + d.dark_current_a + stray_a;
+            let effects = crate::imperfections::MeterEffects {
+                range_w: ranges.get(range).copied().unwrap_or(0.0),
+                light_a,
+                ambient_a,
+                saturation_rel: if total > 0.0 {
+                    t.photodiode_a(total) / total - 1.0
+                } else {
+                    0.0
+                },
+                meter_rel: if mean_i != 0.0 { i / mean_i - 1.0 } else { 0.0 },
+            };
+            *self.last_effects.lock().unwrap_or_else(|e| e.into_inner()) = Some(effects);
+        }
+        if noisy && fs > 0.0 {
+            // Each sample: shot noise of its current, Johnson noise of the range's feedback resistor and the
+            // amplifier's excess current noise (imperfect instrument), then the meter's transfer and the 16-bit
+            // converter over the range; the reading is the mean of the quantised samples.
             let bandwidth_hz = 1.0 / (2.0 * SAMPLE_S);
             let r_feedback = FULL_SCALE_V / fs;
-            let johnson_var = 4.0 * BOLTZMANN_J_K * TEMPERATURE_K * bandwidth_hz / r_feedback;
+            let johnson_var = if d.noise {
+                4.0 * BOLTZMANN_J_K * TEMPERATURE_K * bandwidth_hz / r_feedback
+            } else {
+                0.0
+            };
+            let amplifier_var = amplifier_noise * amplifier_noise * bandwidth_hz;
             let lsb = fs / ADC_COUNTS;
             let mut sum = 0.0;
             for c in &currents {
-                let shot_var = 2.0 * ELEMENTARY_CHARGE_C * c.abs() * bandwidth_hz;
-                let sample = c + (shot_var + johnson_var).sqrt() * standard_normal(&mut st.rng);
-                sum += (sample / lsb).round() * lsb;
+                let shot_var = if d.noise {
+                    2.0 * ELEMENTARY_CHARGE_C * c.abs() * bandwidth_hz
+                } else {
+                    0.0
+                };
+                let sample =
+                    c + (shot_var + johnson_var + amplifier_var).sqrt() * standard_normal(&mut st.rng);
+                sum += (transfer(sample) / lsb).round() * lsb;
             }
             i = sum / f64::from(n);
         }

@@ -1,6 +1,8 @@
 //! Helpers shared by the simulator's integration tests.
 #![allow(dead_code)]
 
+pub mod meter;
+
 use std::sync::Arc;
 use std::time::Duration;
 

@@ -4,9 +4,15 @@
 //! crates/instrument/src/lib.rs (not with the simulator's kinematics). Here too: the ideal instrument is
 //! untouched by an all-zero table, and the hidden values are fixed by the seed.
 //!
-//! `geometry`: one test per effect. This file: the shared set-up and the hidden truth itself.
+//! `geometry`, `detector`, `source`, `sample`: one test per effect. This file: the shared set-up and the hidden truth
+//! itself.
 
+#[path = "../common/mod.rs"]
+mod common;
+mod detector;
 mod geometry;
+mod sample;
+mod source;
 
 use std::path::Path;
 use std::sync::Arc;

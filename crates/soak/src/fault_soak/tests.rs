@@ -45,6 +45,7 @@ fn point(index: u64, value: Option<f64>, flags: &[&str]) -> PointRecord {
         readback_deg: Vec::new(),
         truth_point_sr: Some(0.1),
         truth_aperture_sr: Some(0.1),
+        truth_effects_json: None,
     }
 }
 
