@@ -66,7 +66,7 @@ mount -t functionfs pm100 /dev/ffs-pm100 || fail "mount functionfs"
 # --- the device side: the simulator, its serial devices on links, the meter behind FunctionFS
 mkfifo /run/sim.in /run/run.in
 exec 3<>/run/sim.in 4<>/run/run.in
-RUST_LOG=info gonio sim --time-scale "$scale" --material spectralon --link-dir /run/links \
+RUST_LOG=info,gonio_simulator::pm100=debug gonio sim --time-scale "$scale" --material spectralon --link-dir /run/links \
     --usb-gadget /dev/ffs-pm100 <&3 >/run/sim.out 2>/run/sim.log &
 sim_pid=$!
 sim_ready() { grep -q '"ready":true' /run/sim.out || ! kill -0 $sim_pid; }
@@ -134,27 +134,43 @@ wait_running() {
     done
 }
 
-# The faults start once the calibration's operator steps are done: from then on the meter is read at every point.
+# The faults are paced by the meter's readings (every MEAS:POW? the emulator receives is in its log), so they land
+# mid-campaign whatever the guest's speed (KVM or TCG); the unplug lasts 3 s of wall time.
+readings() { grep -c 'MEAS:POW?' /run/sim.log; }
+# after_readings N: answer prompts until N more readings were taken; fails if the campaign ends first.
+after_readings() {
+    target=$(($(readings) + $1))
+    while [ "$(readings)" -lt $target ]; do
+        running || fail "the campaign ended before the next fault"
+        operator
+        sleep 0.1
+    done
+}
 while running && [ "$answered" -lt 2 ]; do
     operator
     sleep 0.2
 done
-say "calibration steps done at $(uptime_s) s (prompts answered: $answered, running: $(running && echo yes || echo no))"
-wait_running 2
-running || fail "the campaign ended before the faults"
-say "fault 1: unplug (gadget unbound) at $(uptime_s) s"
+say "calibration steps done at $(uptime_s) s ($(readings) readings so far)"
+after_readings 2
+# While gonio holds the meter, the interface belongs to usbfs (libusb's claim), not to usbtmc.
+[ "$(driver_of)" = usbfs ] || fail "gonio did not detach usbtmc (interface driver: $(driver_of))"
+say "while gonio runs, the interface is claimed through usbfs (usbtmc detached)"
+say "fault 1: unplug (gadget unbound) at $(uptime_s) s, reading $(readings)"
 echo "" >$G/UDC
 wait_running 3
+running || fail "the campaign ended during the unplug"
 echo dummy_udc.0 >$G/UDC || fail "rebind the gadget"
 say "replugged at $(uptime_s) s"
-wait_running 5
-running || fail "the campaign ended before the halt"
-say "fault 2: Bulk-IN halted at $(uptime_s) s"
+after_readings 4
+say "fault 2: Bulk-IN halted at $(uptime_s) s, reading $(readings)"
 echo "usb halt in" >&3
-wait_running 3
-running || fail "the campaign ended before the delay"
-say "fault 3: next reply 2.5 s late (driver timeout 1 s) at $(uptime_s) s"
+after_readings 4
+say "fault 3: Bulk-OUT halted at $(uptime_s) s, reading $(readings)"
+echo "usb halt out" >&3
+after_readings 4
+say "fault 4: next reply 2.5 s late (driver timeout 1 s) at $(uptime_s) s, reading $(readings)"
 echo "usb delay 2500" >&3
+after_readings 2
 while running; do
     operator
     sleep 0.2
@@ -169,12 +185,13 @@ wait_for 5 usbtmc_bound || fail "usbtmc not re-attached after gonio exited (driv
 say "kernel driver re-attached after exit: $(driver_of)"
 
 # --- what the driver saw (its own log lines)
-for what in "USB device reopened" "configuration restored after reconnect" "Bulk-IN halted" "Bulk-IN timed out"; do
+for what in "USB device reopened" "configuration restored after reconnect" "Bulk-IN halted" "Bulk-OUT halted" \
+    "Bulk-IN timed out"; do
     c=$(grep -c "$what" /run/run.err)
     say "driver log: \"$what\" x$c"
     [ "$c" -gt 0 ] || fail "the driver never logged \"$what\": the fault did not reach it"
 done
-say "simulator log: $(grep -c 'power cycled' /run/sim.log) power cycle(s), $(grep -c 'endpoint halted' /run/sim.log) halt(s)"
+say "simulator log: $(grep -c 'power cycled' /run/sim.log) power cycle(s), $(grep -c 'endpoint halted' /run/sim.log) halt(s), $(readings) readings"
 
 # --- every planned point exactly once, each a valid reading of the material the simulator holds
 csv=/run/out/points.csv
@@ -203,4 +220,7 @@ say "values: worst relative error against spectralon $worst, $bad beyond 3%"
 [ "$bad" = 0 ] || fail "$bad points disagree with the material (meter not reconfigured?)"
 
 kill $sim_pid 2>/dev/null
+# For the record: the driver's USB lines and the kernel's.
+grep -a 'gonio_driver::\(pm100\|usbtmc\|transport\)' /run/run.err | sed 's/\x1b\[[0-9;]*m//g; s/^/tier-log: /'
+dmesg | grep -ai 'usb' | sed 's/^/tier-dmesg: /'
 finish "PASS ($points points at time scale $scale, campaign $(awk -v a="$t0" -v b="$(uptime_s)" 'BEGIN{printf "%.1f", b-a}') s)"

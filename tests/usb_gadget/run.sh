@@ -129,10 +129,10 @@ timeout "${GONIO_USB_TIER_TIMEOUT:-420}" qemu-system-x86_64 "${qaccel[@]}" -m 10
     -append "console=ttyS0 quiet panic=-1 tier_scale=${GONIO_USB_TIER_SCALE:-3}" >"$log" 2>&1 || true
 end=$(date +%s)
 # The guest's report: every line it prefixed with "tier:".
-grep -a '^tier:' "$log" | sed 's/\r$//' || true
+grep -a "^tier:" "$log" | sed 's/\r$//' || true
 if ! grep -aq '^tier: PASS' "$log"; then
     echo "--- last lines of the guest console" >&2
     tail -n 60 "$log" | sed 's/\r$//' >&2
     fail "the USB tier did not pass (guest ran $((end - boot)) s; whole console in $log)"
 fi
-echo "USB tier passed: guest $((end - boot)) s, whole tier $((end - start)) s"
+echo "USB tier passed: guest $((end - boot)) s, whole tier $((end - start)) s (console with the driver's and kernel's USB lines: $log)"
