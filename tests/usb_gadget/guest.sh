@@ -171,14 +171,24 @@ after_readings 4
 say "fault 4: next reply 2.5 s late (driver timeout 1 s) at $(uptime_s) s, reading $(readings)"
 echo "usb delay 2500" >&3
 after_readings 2
+# Ctrl-C mid-campaign: gonio stops, releases the interface, and usbtmc must be back; then the same command resumes.
+kill -INT $run_pid
+wait $run_pid
+say "gonio run interrupted (SIGINT) at $(uptime_s) s, exit $?, reading $(readings)"
+wait_for 5 usbtmc_bound || fail "usbtmc not re-attached after an interrupted run (driver: $(driver_of))"
+say "kernel driver re-attached after the interrupted run: $(driver_of)"
+RUST_LOG=warn,gonio_driver=info gonio run /tier/campaign.toml --instrument /tier/lab.toml --out /run/out --quiet \
+    <&4 >/run/run2.out 2>>/run/run.err &
+run_pid=$!
 while running; do
     operator
     sleep 0.2
 done
 wait $run_pid
 rc=$?
-say "gonio run exited $rc after $(awk -v a="$t0" -v b="$(uptime_s)" 'BEGIN{printf "%.1f", b-a}') s"
-[ $rc = 0 ] || fail "gonio run failed"
+say "gonio run (resumed) exited $rc; whole campaign $(awk -v a="$t0" -v b="$(uptime_s)" 'BEGIN{printf "%.1f", b-a}') s"
+[ $rc = 0 ] || fail "the resumed gonio run failed"
+say "resumed run: $(grep -h -m1 'completed' /run/run2.out /run/run.err)"
 
 # --- the kernel driver is back once gonio has exited
 wait_for 5 usbtmc_bound || fail "usbtmc not re-attached after gonio exited (driver: $(driver_of))"
@@ -191,6 +201,11 @@ for what in "USB device reopened" "configuration restored after reconnect" "Bulk
     say "driver log: \"$what\" x$c"
     [ "$c" -gt 0 ] || fail "the driver never logged \"$what\": the fault did not reach it"
 done
+# The meter came back in its power-up state (633 nm): the emulator must have been told the wavelength again before
+# its next reading.
+awk '/power cycled/ { p = 1 } p && /SCPI message/ && /MEAS:POW\?/ { exit 1 } p && /SENS:CORR:WAV 550/ { ok = 1; exit }
+    END { exit !ok }' /run/sim.log || fail "the meter was read after its power cycle before it was reconfigured"
+say "after the power cycle the emulator received SENS:CORR:WAV 550 before its next MEAS:POW?"
 say "simulator log: $(grep -c 'power cycled' /run/sim.log) power cycle(s), $(grep -c 'endpoint halted' /run/sim.log) halt(s), $(readings) readings"
 
 # --- every planned point exactly once, each a valid reading of the material the simulator holds
