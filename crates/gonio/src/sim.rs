@@ -232,6 +232,8 @@ fn usb_fault(gadget: &FfsDevice, command: &str, time_scale: f64) -> serde_json::
             }
             _ => serde_json::json!({"error": format!("usb delay: not a number of milliseconds: {ms:?}")}),
         },
-        _ => serde_json::json!({"error": format!("unknown usb fault {command:?}; expected halt in|out or delay MS")}),
+        _ => {
+            serde_json::json!({"error": format!("unknown usb fault {command:?}; expected halt in|out or delay MS")})
+        }
     }
 }

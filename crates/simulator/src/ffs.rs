@@ -89,8 +89,11 @@ impl FfsDevice {
             .write(true)
             .open(&ep0_path)
             .map_err(|e| err(format!("cannot open {}", ep0_path.display()), e))?;
-        ep0.write_all(&descriptors::descriptors(dev.bulk_in_endpoint(), dev.bulk_out_endpoint()))
-            .map_err(|e| err("the kernel refused the descriptors".into(), e))?;
+        ep0.write_all(&descriptors::descriptors(
+            dev.bulk_in_endpoint(),
+            dev.bulk_out_endpoint(),
+        ))
+        .map_err(|e| err("the kernel refused the descriptors".into(), e))?;
         ep0.write_all(&descriptors::strings("PM100 USBTMC"))
             .map_err(|e| err("the kernel refused the strings".into(), e))?;
         // With VIRTUAL_ADDR the kernel names the endpoint files by the addresses we wrote: ep81, ep02.
@@ -102,7 +105,10 @@ impl FfsDevice {
                 .open(&path)
                 .map_err(|e| err(format!("cannot open {}", path.display()), e))
         };
-        let (ep_in, ep_out) = (open_ep(dev.bulk_in_endpoint())?, open_ep(dev.bulk_out_endpoint())?);
+        let (ep_in, ep_out) = (
+            open_ep(dev.bulk_in_endpoint())?,
+            open_ep(dev.bulk_out_endpoint())?,
+        );
         let shared = Arc::new(Shared {
             name: device.to_string(),
             dev,

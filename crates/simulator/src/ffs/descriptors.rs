@@ -42,7 +42,17 @@ pub const HS_BULK_PACKET: u16 = 512;
 fn interface() -> [u8; 9] {
     // bLength, bDescriptorType, bInterfaceNumber (renumbered by the kernel), bAlternateSetting, bNumEndpoints,
     // class, subclass, protocol, iInterface (string 1 of the string blob).
-    [9, DT_INTERFACE, 0, 0, 2, USBTMC_CLASS, USBTMC_SUBCLASS, USB488_PROTOCOL, 1]
+    [
+        9,
+        DT_INTERFACE,
+        0,
+        0,
+        2,
+        USBTMC_CLASS,
+        USBTMC_SUBCLASS,
+        USB488_PROTOCOL,
+        1,
+    ]
 }
 
 fn endpoint(address: u8, packet: u16) -> [u8; 7] {
