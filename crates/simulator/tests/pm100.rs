@@ -415,7 +415,10 @@ async fn a_power_cycle_restores_power_up_settings_and_a_delay_applies_to_one_rep
         .await
         .expect("the late reply");
     let late = sim.now_s() - t0;
-    assert!((2.0..2.1).contains(&late), "the delayed reply came after {late} s");
+    assert!(
+        (2.0..2.1).contains(&late),
+        "the delayed reply came after {late} s"
+    );
     let t1 = sim.now_s();
     let _ = query(&dev, 7, "*IDN?\n", 256).await;
     let next = sim.now_s() - t1;
