@@ -99,6 +99,23 @@ gonio devices >/run/devices.txt 2>&1
 grep -q '1313:8072 PM100USB serial P2000001' /run/devices.txt || { cat /run/devices.txt; fail "gonio devices"; }
 say "gonio devices: $(grep 1313:8072 /run/devices.txt | sed 's/^ *//')"
 
+# --- permissions on the device node: a user it does not admit is told why; a mode a udev rule would set admits them
+mkdir -p /etc
+printf 'root:x:0:0::/root:/bin/sh\nlab:x:1000:1000::/tmp:/bin/sh\n' >/etc/passwd
+printf 'root:x:0:\nlab:x:1000:\n' >/etc/group
+node=/dev/bus/usb/$(printf %03d "$(cat "$D/busnum")")/$(printf %03d "$(cat "$D/devnum")")
+mode=$(stat -c %a "$node")
+su -s /bin/sh lab -c 'PATH=/bin gonio devices' >/run/devices-lab.txt 2>&1
+grep -q '1313:8072 PM100USB (cannot open: no permission' /run/devices-lab.txt ||
+    { cat /run/devices-lab.txt; fail "gonio devices as a user without access"; }
+say "as a user, with $node mode $mode: $(grep 1313:8072 /run/devices-lab.txt | sed 's/^ *//')"
+chmod 0666 "$node"
+su -s /bin/sh lab -c 'PATH=/bin gonio devices' >/run/devices-lab.txt 2>&1
+grep -q '1313:8072 PM100USB serial P2000001' /run/devices-lab.txt ||
+    { cat /run/devices-lab.txt; fail "gonio devices as a user once the node is 0666"; }
+say "as a user, with $node mode 0666: $(grep 1313:8072 /run/devices-lab.txt | sed 's/^ *//')"
+chmod "$mode" "$node"
+
 # --- the campaign, with an operator answering prompts and the USB faults injected while it runs
 gonio plan /tier/campaign.toml --instrument /tier/lab.toml --points /run/plan.csv >/dev/null 2>&1 ||
     fail "gonio plan"

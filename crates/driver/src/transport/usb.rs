@@ -12,6 +12,8 @@
 //!   interface when the last handle is dropped (gonio exiting, also after SIGINT) re-attaches `usbtmc` (libusb
 //!   does it on release in auto-detach mode, so the handle must be dropped, not leaked; a SIGKILLed gonio is
 //!   not covered by the tier).
+//! - Permissions: without a udev rule the device node (`/dev/bus/usb/BBB/DDD`) is root's, mode 600; opening it
+//!   as another user fails with an access error, which discovery and [`UsbError::Access`] name as such.
 //! - Unplugged (the gadget unbound), every transfer fails with "no device" at once; the device comes back at a
 //!   new address, so the handle is useless and [`RusbPipe::open`] enumerates again, detaching `usbtmc` again
 //!   from the new interface. The meter comes back in its power-up state (bus-powered): the PM100 driver
