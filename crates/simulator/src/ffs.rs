@@ -11,16 +11,18 @@
 //! - `ep81` (Bulk-IN) and `ep02` (Bulk-OUT), one thread each: every packet the host sends is handed to the
 //!   emulator's `bulk_out`; every transfer the emulator has ready is written as one Bulk-IN transfer, followed
 //!   by a zero-length packet when its length is a multiple of the packet size (else a host reading more than
-//!   that would wait for the rest of a transfer that has ended).
+//!   that would wait for the rest of a transfer that has ended; no PM100 reply is that long, so the USB tier
+//!   does not exercise it).
 //!
 //! Halts: the emulator decides when an endpoint halts (a malformed header halts Bulk-OUT); the bridge then
 //! halts the kernel's endpoint (FunctionFS halts an endpoint on I/O in the wrong direction) and clears the
 //! emulator's, because from then on the host's CLEAR_FEATURE(ENDPOINT_HALT) goes to the kernel, which never
 //! forwards it here. The same path serves the fault commands [`FfsDevice::halt_in`] / [`FfsDevice::halt_out`].
 //!
-//! Limits: Bulk-OUT is read one high-speed packet (512 bytes) at a time, so a transfer ends at a short packet
-//! as the host sends it (a full-speed controller would need 64); the interrupt endpoint of USB488 (service
-//! requests) is not offered.
+//! Limits: Bulk-OUT is read one high-speed packet (512 bytes) at a time and the emulator joins the packets into
+//! transfers by the sizes in their USBTMC headers, so the bridge never waits for a short or zero-length packet
+//! the host need not send (a full-speed controller would need reads of 64); the interrupt endpoint of USB488
+//! (service requests) is not offered.
 
 pub mod descriptors;
 
@@ -36,7 +38,7 @@ use nix::errno::Errno;
 use crate::instrument::{SimError, SimInstrument};
 use crate::pm100::{SimUsbDevice, UsbSimError};
 
-/// Bulk packet size of the controller the gadget runs on (dummy_hcd and real UDCs run at high speed).
+/// Bulk packet size of the controller the gadget runs on (dummy_hcd runs at high speed by default).
 const PACKET: usize = descriptors::HS_BULK_PACKET as usize;
 /// Largest Bulk-IN transfer taken from the emulator at once (a USBTMC reply transfer is far smaller).
 const MAX_IN_TRANSFER: usize = 64 * 1024;
