@@ -184,6 +184,15 @@ impl Usbtmc {
         self.btag
     }
 
+    /// The size of every Bulk-IN read: room for a header, `max_chunk` bytes and padding, rounded up to a
+    /// multiple of 512 bytes, the bulk packet size at high speed (a multiple of full speed's 64 too). libusb
+    /// and the kernel report an overflow when a packet does not fit what is left of the buffer, so a read that
+    /// is not a whole number of packets can fail on a device that sends one packet more than asked; a whole
+    /// number never does, and the transfer still ends at its short (or zero-length) packet.
+    fn in_buffer_len(&self) -> usize {
+        (HEADER_LEN + self.max_chunk as usize + 3).div_ceil(512) * 512
+    }
+
     fn take_btag(&mut self) -> u8 {
         self.btag = next_btag(self.btag);
         self.btag
@@ -261,8 +270,7 @@ impl Usbtmc {
         message: &mut Vec<u8>,
         deadline: Instant,
     ) -> Result<bool, UsbtmcError> {
-        // Room for header, data and padding; rounded to a multiple of the 64-byte full-speed packet.
-        let buf_len = (HEADER_LEN + self.max_chunk as usize + 3).div_ceil(64) * 64;
+        let buf_len = self.in_buffer_len();
         loop {
             let transfer = self.bulk_in_checked(buf_len, tag, deadline).await?;
             let header = match decode_in_header(&transfer) {
@@ -438,10 +446,7 @@ impl Usbtmc {
     async fn drain_in(&mut self) -> Result<(), UsbtmcError> {
         match self
             .pipe
-            .bulk_in(
-                HEADER_LEN + self.max_chunk as usize + 64,
-                Duration::from_millis(100),
-            )
+            .bulk_in(self.in_buffer_len(), Duration::from_millis(100))
             .await
         {
             Ok(v) => {

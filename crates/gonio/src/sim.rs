@@ -14,6 +14,11 @@
 //! campaign against this simulator through exactly the code path of real hardware. The simulated operator
 //! takes commands on stdin: `sample out` / `sample in` (see [`simulated_operator`]).
 //!
+//! With `--usb-gadget DIR` (a mounted FunctionFS function, see tests/usb_gadget/), the power meter is served
+//! instead as a real USB device through that function (`gonio_simulator::ffs`), and stdin also takes the USB
+//! faults: `usb halt in`, `usb halt out` (an endpoint halts) and `usb delay MS` (the next reply comes MS
+//! milliseconds of real time late).
+//!
 //! The terminals and their bridges are `gonio_simulator::pty::PtyDevice`s (see there for the details).
 
 use std::io::Write;
@@ -22,6 +27,7 @@ use std::sync::Arc;
 
 use gonio_instrument::InstrumentFile;
 use gonio_simulator::SimInstrument;
+use gonio_simulator::ffs::FfsDevice;
 use gonio_simulator::optics::{Optics, SampleSpec};
 use gonio_simulator::pty::PtyDevice;
 use gonio_simulator::scene::Scene;
@@ -44,6 +50,9 @@ pub struct SimArgs {
     /// (created if missing; the links are removed on exit).
     #[arg(long, value_name = "DIR")]
     pub link_dir: Option<PathBuf>,
+    /// Serve the power meter as a USB device through the FunctionFS function mounted at DIR (Linux gadget).
+    #[arg(long, value_name = "DIR")]
+    pub usb_gadget: Option<PathBuf>,
 }
 
 pub fn run(args: SimArgs) -> Result<(), CliError> {
@@ -67,7 +76,12 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
         std::fs::create_dir_all(dir)
             .map_err(|e| CliError::io(format!("cannot create --link-dir {}", dir.display()), e))?;
     }
-    let result = runtime.block_on(serve(file, optics, args.time_scale, args.link_dir.as_deref()));
+    let served = Served {
+        time_scale: args.time_scale,
+        link_dir: args.link_dir.as_deref(),
+        usb_gadget: args.usb_gadget.as_deref(),
+    };
+    let result = runtime.block_on(serve(file, optics, served));
     // The bridges are idle reads: cancel them at once rather than waiting for the default shutdown.
     runtime.shutdown_timeout(std::time::Duration::from_millis(100));
     // The terminals close only now, so no bridge sees its slave vanish (EIO) while the runtime still runs.
@@ -92,13 +106,24 @@ fn build_optics(file: &InstrumentFile, material: &str) -> Result<Arc<Optics>, Cl
     Ok(Arc::new(optics))
 }
 
+/// How and where the devices are served.
+struct Served<'a> {
+    time_scale: f64,
+    link_dir: Option<&'a std::path::Path>,
+    usb_gadget: Option<&'a std::path::Path>,
+}
+
 /// Serve until SIGINT/SIGTERM; returns the terminals, to be closed after the runtime stopped.
 async fn serve(
     file: InstrumentFile,
     optics: Arc<Optics>,
-    time_scale: f64,
-    link_dir: Option<&std::path::Path>,
+    served: Served<'_>,
 ) -> Result<(Vec<PtyDevice>, Vec<UsbSocketDevice>), CliError> {
+    let Served {
+        time_scale,
+        link_dir,
+        usb_gadget,
+    } = served;
     let scene: Arc<dyn Scene> = optics.clone();
     let sim = SimInstrument::new(&file, scene, time_scale).map_err(|e| CliError::input(e.to_string()))?;
     let mut stdout = std::io::stdout().lock();
@@ -115,9 +140,17 @@ async fn serve(
         keep.push(pty);
     }
     let mut sockets = Vec::new();
+    let mut gadget = None;
     for name in sim.usb_devices() {
-        let line = match link_dir {
-            Some(dir) => {
+        let line = match (link_dir, usb_gadget) {
+            (_, Some(dir)) if gadget.is_none() => {
+                let device = FfsDevice::serve(&sim, &name, dir, tokio::runtime::Handle::current())
+                    .map_err(|e| CliError::io(format!("cannot serve {name}"), std::io::Error::other(e)))?;
+                gadget = Some(Arc::new(device));
+                serde_json::json!({"device": name, "protocol": "pm100", "path": dir.display().to_string(),
+                    "transport": "functionfs"})
+            }
+            (Some(dir), _) => {
                 let socket = UsbSocketDevice::serve(&sim, &name, &dir.join(&name))
                     .map_err(|e| CliError::io(format!("cannot serve {name}"), std::io::Error::other(e)))?;
                 let path = socket.path().display().to_string();
@@ -125,7 +158,7 @@ async fn serve(
                 serde_json::json!({"device": name, "protocol": "pm100", "path": path, "transport": "usb-socket",
                     "port": format!("{}{path}", gonio_driver::transport::usb_socket::PORT_PREFIX)})
             }
-            None => serde_json::json!({"device": name, "protocol": "pm100", "path": null,
+            (None, _) => serde_json::json!({"device": name, "protocol": "pm100", "path": null,
                 "note": "USB device: in-process only (--link-dir serves it on a socket)"}),
         };
         writeln!(stdout, "{line}").map_err(|e| CliError::io("stdout", e))?;
@@ -134,7 +167,7 @@ async fn serve(
     stdout.flush().map_err(|e| CliError::io("stdout", e))?;
     drop(stdout);
     // Detached: it blocks on stdin, and ends with the process.
-    std::thread::spawn(move || simulated_operator(optics));
+    std::thread::spawn(move || simulated_operator(optics, gadget, time_scale));
 
     let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
         .map_err(|e| CliError::io("cannot listen for SIGTERM", e))?;
@@ -150,8 +183,9 @@ async fn serve(
 /// The simulated operator of a separate simulator: stdin lines `sample out` and `sample in` take the sample out
 /// of the holder (the detector then sees the direct beam, for an absolute calibration) and put it back; each
 /// answered by a JSON line `{"sample_mounted":...}`, anything else by `{"error":...}`. End of input ends this,
-/// not the simulator. Runs on its own thread (blocking reads of stdin).
-fn simulated_operator(optics: Arc<Optics>) {
+/// not the simulator. With a USB gadget, `usb halt in|out` and `usb delay MS` inject its faults. Runs on its own
+/// thread (blocking reads of stdin).
+fn simulated_operator(optics: Arc<Optics>, gadget: Option<Arc<FfsDevice>>, time_scale: f64) {
     use std::io::BufRead;
     for line in std::io::stdin().lock().lines() {
         let Ok(line) = line else { return };
@@ -165,14 +199,41 @@ fn simulated_operator(optics: Arc<Optics>) {
                 optics.set_sample_mounted(true);
                 serde_json::json!({"sample_mounted": true})
             }
-            other => serde_json::json!({
-                "error": format!("unknown command {other:?}; expected \"sample out\" or \"sample in\"")
-            }),
+            other => match (other.strip_prefix("usb "), &gadget) {
+                (Some(fault), Some(gadget)) => usb_fault(gadget, fault, time_scale),
+                _ => serde_json::json!({
+                    "error": format!("unknown command {other:?}; expected \"sample out\" or \"sample in\"")
+                }),
+            },
         };
         tracing::info!(%reply, "simulated operator");
         let mut stdout = std::io::stdout().lock();
         if writeln!(stdout, "{reply}").and_then(|()| stdout.flush()).is_err() {
             return;
+        }
+    }
+}
+
+/// One USB fault command on the gadget: `halt in`, `halt out`, `delay MS` (real milliseconds).
+fn usb_fault(gadget: &FfsDevice, command: &str, time_scale: f64) -> serde_json::Value {
+    match command.split_whitespace().collect::<Vec<_>>()[..] {
+        ["halt", "in"] => {
+            gadget.halt_in();
+            serde_json::json!({"usb_fault": "halt in"})
+        }
+        ["halt", "out"] => {
+            gadget.halt_out();
+            serde_json::json!({"usb_fault": "halt out"})
+        }
+        ["delay", ms] => match ms.parse::<f64>() {
+            Ok(ms) if ms.is_finite() && ms >= 0.0 => {
+                gadget.delay_next_reply(ms / 1000.0 * time_scale);
+                serde_json::json!({"usb_fault": "delay", "ms": ms})
+            }
+            _ => serde_json::json!({"error": format!("usb delay: not a number of milliseconds: {ms:?}")}),
+        },
+        _ => {
+            serde_json::json!({"error": format!("unknown usb fault {command:?}; expected halt in|out or delay MS")})
         }
     }
 }

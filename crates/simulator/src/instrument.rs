@@ -42,6 +42,8 @@ pub enum SimError {
     NoRuntime { device: String },
     #[error("simulated device {device:?}: pseudo-terminal: {message}")]
     Pty { device: String, message: String },
+    #[error("simulated device {device:?}: FunctionFS gadget: {message}")]
+    Gadget { device: String, message: String },
 }
 
 /// The simulated instrument. Cheap to clone: every clone shares the same devices and clock.

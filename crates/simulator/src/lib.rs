@@ -15,12 +15,14 @@
 //! - [`smc100`], [`zaber`], [`fw102c`], [`pm100`]: the device emulators, speaking the real wire protocols.
 //! - [`pty`]: a serial device served on a real pseudo-terminal ([`pty::PtyDevice`]).
 //! - [`usb_socket`]: the USB power meter served on a Unix socket, for hosts in another process.
+//! - [`ffs`]: the USB power meter as a real USB device, behind a Linux FunctionFS gadget function.
 //! - [`session`]: the byte-stream session between a host and a serial emulator ([`SerialStream`], the host's end,
 //!   stamps each write with when it was sent).
 //! - [`faults`]: seeded fault injection and its counters.
 
 pub mod clock;
 pub mod faults;
+pub mod ffs;
 pub mod fw102c;
 pub mod imperfections;
 pub mod instrument;

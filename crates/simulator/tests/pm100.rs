@@ -347,3 +347,42 @@ async fn blank_position_gives_the_dark_reading() {
         value(&d)
     );
 }
+
+/// The gadget's hooks: a power cycle (the gadget unbound) forgets every setting, as a bus-powered meter that lost
+/// its cable does; a delayed reply is ready that much simulated time later, once.
+#[tokio::test(start_paused = true)]
+async fn a_power_cycle_restores_power_up_settings_and_a_delay_applies_to_one_reply() {
+    let sim = quiet();
+    let dev = sim.usb_device("meter").expect("open");
+    let (_, before) = query(&dev, 1, "SENS:CORR:WAV 550;SENS:CORR:WAV?\n", 256).await;
+    assert_eq!(value(&before), 550.0);
+    dev.power_cycle();
+    let (_, after) = query(&dev, 3, "SENS:CORR:WAV?\n", 256).await;
+    assert_eq!(value(&after), 633.0, "power-up wavelength");
+
+    dev.delay_next_reply(2.0);
+    dev.bulk_out(BULK_OUT_EP, &out_msg(5, "*IDN?\n"), T)
+        .await
+        .expect("out");
+    dev.bulk_out(BULK_OUT_EP, &request_in(6, 256), T)
+        .await
+        .expect("request");
+    let t0 = sim.now_s();
+    assert_eq!(
+        dev.bulk_in(BULK_IN_EP, 512, T).await,
+        Err(UsbSimError::Timeout { transferred: 0 }),
+        "past a 1 s timeout"
+    );
+    dev.bulk_in(BULK_IN_EP, 512, Duration::from_secs(5))
+        .await
+        .expect("the late reply");
+    let late = sim.now_s() - t0;
+    assert!(
+        (2.0..2.1).contains(&late),
+        "the delayed reply came after {late} s"
+    );
+    let t1 = sim.now_s();
+    let _ = query(&dev, 7, "*IDN?\n", 256).await;
+    let next = sim.now_s() - t1;
+    assert!(next < 0.1, "only one reply is delayed, the next took {next} s");
+}

@@ -4,6 +4,32 @@
 //! ([`RusbPipe`]) runs each blocking libusb call on tokio's blocking pool (`spawn_blocking`), so a transfer that
 //! waits for its timeout never blocks the runtime. [`MemoryPipe`] is an in-memory device for tests: a scripted
 //! responder sees every OUT transfer and queues IN transfers, and every control request is logged.
+//!
+//! What a real Linux USB stack does to [`RusbPipe`], as established by the USB tier (tests/usb_gadget/: a Debian
+//! kernel with dummy_hcd, the PM100 emulator behind a FunctionFS gadget with the PM100USB's ids, usbtmc loaded):
+//! - The kernel's `usbtmc` binds the interface at enumeration, before gonio opens it. Auto-detach is set before
+//!   the claim, so libusb detaches it, the interface shows `usbfs` while gonio holds it, and releasing the
+//!   interface when the last handle is dropped (gonio exiting, also after SIGINT) re-attaches `usbtmc` (libusb
+//!   does it on release in auto-detach mode, so the handle must be dropped, not leaked; a SIGKILLed gonio is
+//!   not covered by the tier).
+//! - Permissions: without a udev rule the device node (`/dev/bus/usb/BBB/DDD`) is root's, mode 600; opening it
+//!   as another user fails with an access error, which discovery and [`UsbError::Access`] name as such.
+//! - Unplugged (the gadget unbound), every transfer fails with "no device" at once; the device comes back at a
+//!   new address, so the handle is useless and [`RusbPipe::open`] enumerates again, detaching `usbtmc` again
+//!   from the new interface. The meter comes back in its power-up state (bus-powered): the PM100 driver
+//!   restores its configuration before reading.
+//! - A halted endpoint fails the transfer with a pipe error at once, and `clear_halt` (CLEAR_FEATURE
+//!   ENDPOINT_HALT) resets it at the controller. A reply already handed to the device's controller survives the
+//!   halt and the INITIATE_CLEAR that follows (the gadget holds one, as a real device's endpoint buffer may): the
+//!   next Bulk-IN transfer is then that old reply, which the USBTMC layer discards by its bTag.
+//! - A reply later than the transfer's timeout: libusb cancels the URB and reports a timeout with nothing
+//!   transferred; the USBTMC layer aborts the Bulk-IN transfer (INITIATE_ABORT_BULK_IN, answered SUCCESS by
+//!   the emulator) and asks again.
+//! - Short and zero-length packets: the device runs at high speed (512-byte bulk packets). A Bulk-IN read is
+//!   now a whole number of 512-byte packets (it was a multiple of 64, which libusb's overflow rule does not
+//!   allow at high speed) and larger than any transfer requested, so a transfer ends at its short packet; one
+//!   that is an exact multiple of 512 bytes ends at the device's zero-length packet, which the gadget sends as
+//!   USBTMC devices do. Bulk-OUT never needs one: the device knows each transfer's size from its header.
 
 use std::collections::VecDeque;
 use std::future::Future;

@@ -182,6 +182,8 @@ struct MeterState {
     ques_enable: u16,
     oper_event: u16,
     oper_enable: u16,
+    /// Extra delay (simulated s) for the next response only: the gadget's "reply late" fault.
+    next_reply_delay_s: f64,
 }
 
 /// The power meter: shared by every handle opened on it.
@@ -278,6 +280,7 @@ impl Pm100 {
             ques_enable: 0,
             oper_event: 0,
             oper_enable: 0,
+            next_reply_delay_s: 0.0,
         }
     }
 
@@ -347,7 +350,7 @@ impl Pm100 {
         }
         let mut bytes = responses.join(";").into_bytes();
         bytes.push(b'\n');
-        let delay = self.faults.reply_delay_s();
+        let delay = self.faults.reply_delay_s() + std::mem::take(&mut st.next_reply_delay_s);
         if let crate::faults::ReplyFate::Drop = self.faults.reply(Vec::from([0u8])) {
             // The reply is lost: the host's read will time out. (USB is CRC-protected: no garbling.)
             return;
@@ -445,5 +448,24 @@ impl SimUsbDevice {
     /// Clear a halted endpoint (CLEAR_FEATURE ENDPOINT_HALT).
     pub async fn clear_halt(&self, endpoint: u8) -> Result<(), UsbSimError> {
         self.meter.clear_halt(self.opened_s, endpoint)
+    }
+
+    /// The meter lost its bus power (its USB cable was pulled, or its gadget unbound): every setting, queued
+    /// message and halt is gone; it comes back in its power-up state, as a bus-powered PM100USB does.
+    pub fn power_cycle(&self) {
+        let now = self.meter.now();
+        tracing::info!(meter = %self.meter.name, "PM100 power cycled: power-up state");
+        let mut st = self.meter.lock();
+        *st = Pm100::power_up_state(&self.meter.detector, self.meter.seed.wrapping_add(1), now);
+        drop(st);
+        self.meter.notify.notify_waiters();
+    }
+
+    /// Answer the next query `delay_s` simulated seconds late (a fault: a reply past the host's timeout).
+    pub fn delay_next_reply(&self, delay_s: f64) {
+        if delay_s.is_finite() && delay_s >= 0.0 {
+            tracing::info!(meter = %self.meter.name, delay_s, "PM100: next reply delayed (fault)");
+            self.meter.lock().next_reply_delay_s = delay_s;
+        }
     }
 }
