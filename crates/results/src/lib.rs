@@ -18,15 +18,19 @@
 //! nothing of the daemon; the daemon turns its store's records into this crate's types (its `export` module)
 //! and the `gonio` binary hands a [`run::Run`] over.
 
+pub mod astm;
 pub mod error;
 pub mod export;
 pub mod fit;
+pub mod hemispherical;
 pub mod iso;
 pub mod merl_export;
 pub mod plot;
 pub mod points;
 pub mod provenance;
 pub mod run;
+pub mod sha256;
+pub mod zemax;
 
 pub use error::ResultsError;
 pub use run::Run;

@@ -14,8 +14,10 @@
 //! run.json is unchanged).
 
 mod simulator_truth;
+pub mod summary;
 
 pub use simulator_truth::{AxisTruthRecord, GeometryTruthRecord, SeatingRecord, SimulatorTruth};
+pub use summary::{ExportSetup, iso8601_utc, provenance_lines};
 
 use std::collections::BTreeMap;
 

@@ -77,7 +77,7 @@ proptest! {
         prop_assert!(table.is_ok(), "{:?}", table.err());
         let Ok(table) = table else { return Ok(()) };
         let run = Run::from_parts("fuzz".into(), "fuzz".into(), table, None);
-        let ctx = ExportContext { exported_by: "test".into(), resolved: None };
+        let ctx = ExportContext { exported_by: "test".into(), resolved: None, setup: None };
         let csv = export::to_csv(&run, &ctx);
         // The export's table reads back.
         let back: String = csv.lines().filter(|l| !l.starts_with('#')).map(|l| format!("{l}\n")).collect();
