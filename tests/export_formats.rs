@@ -1,7 +1,9 @@
 //! `gonio export` to the formats of other communities, checked from the outside: the Zemax BSDF Data Interchange
 //! file by a reader written here from the format's specification (R. Rykowski, "BSDF Data Interchange File
 //! Format Specification", Radiant Imaging / Zemax knowledge base), not by gonio's writer; the ASTM table by
-//! parsing it and comparing every row with the run's points; and the provenance that every format carries.
+//! parsing it and comparing every row with the run's points; the RGL tensor file by a reader written from the
+//! renderers' layout, its values against gonio's interpolant; and the provenance that every format carries.
+//! (Mitsuba 3 itself reading the RGL file is tests/mitsuba/, a Python tier.)
 
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -455,10 +457,152 @@ fn every_export_carries_the_provenance() {
     let zemax = dir.path().join("p.bsdf");
     export(&r, &["--format", "zemax", "--out", zemax.to_str().expect("utf8")]);
     check("zemax", &std::fs::read_to_string(&zemax).expect("zemax file"));
+    let rgl = dir.path().join("p-rgl.bsdf");
+    export(&r, &["--format", "rgl", "--out", rgl.to_str().expect("utf8")]);
+    check(
+        "rgl (description)",
+        &String::from_utf8_lossy(&std::fs::read(&rgl).expect("rgl file")),
+    );
     let merl = dir.path().join("p.binary");
     export(&r, &["--format", "merl", "--out", merl.to_str().expect("utf8")]);
     check(
         "merl (material file)",
         &std::fs::read_to_string(dir.path().join("p.material.toml")).expect("material file"),
     );
+}
+
+/// A field of a tensor file: type code, shape, data bytes.
+struct TensorField {
+    dtype: u8,
+    shape: Vec<usize>,
+    data: Vec<u8>,
+}
+
+/// Reads a tensor file as Mitsuba 3's and pbrt-v4's readers do: `tensor_file\0`, version 1.0, a u32 field
+/// count, then per field a u16 name length, the name, u16 rank, u8 type, u64 offset and u64 extents.
+fn read_tensor_file(bytes: &[u8]) -> std::collections::HashMap<String, TensorField> {
+    assert_eq!(&bytes[..12], b"tensor_file\0");
+    assert_eq!(&bytes[12..14], &[1, 0], "version 1.0");
+    let mut at = 14;
+    let mut take = |n: usize| {
+        let s = &bytes[at..at + n];
+        at += n;
+        s
+    };
+    let u = |s: &[u8]| s.iter().rev().fold(0u64, |acc, b| (acc << 8) | u64::from(*b));
+    let count = u(take(4));
+    let mut fields = std::collections::HashMap::new();
+    for _ in 0..count {
+        let name_len = u(take(2)) as usize;
+        let name = String::from_utf8(take(name_len).to_vec()).expect("a UTF-8 name");
+        let ndim = u(take(2)) as usize;
+        let dtype = take(1)[0];
+        let offset = u(take(8)) as usize;
+        let shape: Vec<usize> = (0..ndim).map(|_| u(take(8)) as usize).collect();
+        let size = match dtype {
+            1 => 1,
+            10 => 4,
+            other => panic!("{name}: unexpected type {other}"),
+        } * shape.iter().product::<usize>();
+        fields.insert(
+            name,
+            TensorField {
+                dtype,
+                shape,
+                data: bytes[offset..offset + size].to_vec(),
+            },
+        );
+    }
+    fields
+}
+
+fn floats(f: &TensorField) -> Vec<f32> {
+    assert_eq!(f.dtype, 10, "float32");
+    f.data
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+#[test]
+fn rgl_export_has_the_fields_the_renderers_check_and_gonio_values() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let plastic = run(
+        dir.path(),
+        "rgl",
+        "[450.0, 650.0]",
+        "[0.0, 30.0, 60.0]",
+        "preset = \"coloured-plastic\"",
+    );
+    let out = dir.path().join("plastic.bsdf");
+    export(
+        &plastic,
+        &["--format", "rgl", "--out", out.to_str().expect("utf8")],
+    );
+    let fields = read_tensor_file(&std::fs::read(&out).expect("written"));
+    let f = |name: &str| fields.get(name).unwrap_or_else(|| panic!("no field {name}"));
+    // The structure Mitsuba 3's `measured` plugin and pbrt-v4's MeasuredBRDF::Create require.
+    let (theta_i, phi_i, wavelengths) = (floats(f("theta_i")), floats(f("phi_i")), floats(f("wavelengths")));
+    assert_eq!((f("description").dtype, f("description").shape.len()), (1, 1));
+    assert_eq!((f("jacobian").dtype, f("jacobian").shape.clone()), (1, vec![1]));
+    assert_eq!(f("ndf").shape.len(), 2);
+    assert_eq!(f("sigma").shape.len(), 2);
+    let spectra = f("spectra");
+    assert_eq!(spectra.shape.len(), 5);
+    assert_eq!(
+        spectra.shape[..3],
+        [phi_i.len(), theta_i.len(), wavelengths.len()]
+    );
+    assert_eq!(spectra.shape[3], spectra.shape[4]);
+    for name in ["vndf", "luminance"] {
+        assert_eq!(f(name).shape[..2], [phi_i.len(), theta_i.len()], "{name}");
+        assert_eq!(f(name).shape[2..], spectra.shape[3..], "{name}");
+    }
+    assert_eq!(phi_i, vec![0.0], "isotropic: one phi_i");
+    assert_eq!(wavelengths, vec![450.0, 650.0]);
+    assert!(theta_i.windows(2).all(|w| w[1] > w[0]));
+    let description = String::from_utf8(f("description").data.clone()).expect("UTF-8 description");
+    assert!(description.contains("NOT MEASURED") && description.contains("provenance.instrument: simulated"));
+
+    // The values: f cos(theta_o) of gonio's interpolant at the half-vector nodes, u = (sqrt(theta_m / (pi/2)),
+    // (phi_m - phi_i + pi) / (2 pi)), for wi at (theta_i, 0) and wo its mirror image about the half vector.
+    let n = spectra.shape[3];
+    let values = floats(spectra);
+    for (b, band) in [450.0, 650.0].into_iter().enumerate() {
+        let (_, grid) = gonio_view(&plastic, band);
+        let mut compared = 0;
+        for (t, ti) in theta_i.iter().enumerate() {
+            let ti = f64::from(*ti);
+            let wi = [ti.sin(), 0.0, ti.cos()];
+            for (y, x) in (0..n)
+                .step_by(7)
+                .flat_map(|y| (0..n).step_by(5).map(move |x| (y, x)))
+            {
+                let (ux, uy) = (x as f64 / (n - 1) as f64, y as f64 / (n - 1) as f64);
+                let (tm, pm) = (ux * ux * PI / 2.0, (2.0 * uy - 1.0) * PI);
+                let m = [tm.sin() * pm.cos(), tm.sin() * pm.sin(), tm.cos()];
+                let c: f64 = (0..3).map(|k| wi[k] * m[k]).sum();
+                let wo: Vec<f64> = (0..3).map(|k| 2.0 * c * m[k] - wi[k]).collect();
+                let stored = f64::from(values[((t * 2 + b) * n + y) * n + x]);
+                let want = if wo[2] > 0.0 {
+                    let (wi_d, wo_d) = (
+                        gonio_brdf::geometry::Direction::new(wi[0], wi[1], wi[2]).expect("unit"),
+                        gonio_brdf::geometry::Direction::new(wo[0], wo[1], wo[2]).expect("unit"),
+                    );
+                    gonio_results::hemispherical::covered_value(&grid, &wi_d, &wo_d).unwrap_or(0.0) * wo[2]
+                } else {
+                    0.0
+                };
+                assert!(
+                    (stored - want).abs() <= 1e-6 * want.abs().max(1e-3),
+                    "{band} nm, theta_i {ti}, node ({x}, {y}): {stored} vs {want}"
+                );
+                compared += usize::from(want > 0.0);
+            }
+        }
+        assert!(
+            compared > 40,
+            "{band} nm: only {compared} measured nodes compared"
+        );
+    }
 }

@@ -1,4 +1,4 @@
-//! `gonio export RUN --format csv|json|merl|zemax|astm [--out FILE]`: a run for other tools.
+//! `gonio export RUN --format csv|json|merl|zemax|astm|rgl [--out FILE]`: a run for other tools.
 //!
 //! RUN is a run directory (`gonio run --out DIR` writes DIR/points.csv and DIR/run.json) or a points CSV; or,
 //! instead of RUN, `--data DIR --campaign ID` reads a campaign from a daemon's store (read only). This module
@@ -6,7 +6,7 @@
 //!
 //! csv, json and astm go to stdout unless `--out` names a file; merl needs `--out` (a binary file) and writes a
 //! material file beside it (`<stem>.material.toml`, `model = "measured"`) that `gonio brdf eval --material`
-//! and the simulator's `[material]` read; zemax needs `--out` and writes one file per band. Every format carries
+//! and the simulator's `[material]` read; zemax needs `--out` and writes one file per band; rgl needs `--out`. Every format carries
 //! the run's provenance ([`gonio_results::provenance::summary`]), with the instrument and calibration facts
 //! read here from the run's stored instrument and campaign texts ([`export_setup`]).
 
@@ -18,7 +18,7 @@ use gonio_instrument::InstrumentFile;
 use gonio_results::export::{self, ExportContext};
 use gonio_results::provenance::{ExportSetup, provenance_lines};
 use gonio_results::run::Run;
-use gonio_results::{astm, merl_export, zemax};
+use gonio_results::{astm, merl_export, rgl, zemax};
 use serde_json::{Value, json};
 
 use crate::CliError;
@@ -201,6 +201,8 @@ pub enum Format {
     Zemax,
     /// A BRDF table after ASTM E1392 / E2387: every measurement with geometry, band, polarisation, uncertainty.
     Astm,
+    /// RGL material (`.bsdf` tensor file) for Mitsuba 3's and pbrt-v4's `measured` BSDF, every band.
+    Rgl,
 }
 
 #[derive(Debug, clap::Args)]
@@ -250,7 +252,30 @@ pub fn run(args: ExportArgs) -> Result<(), CliError> {
         ),
         Format::Merl => export_merl(&run, &args, setup),
         Format::Zemax => export_zemax(&run, &args, setup.as_ref()),
+        Format::Rgl => export_rgl(&run, &args, setup.as_ref()),
     }
+}
+
+fn export_rgl(run: &Run, args: &ExportArgs, setup: Option<&ExportSetup>) -> Result<(), CliError> {
+    let Some(out) = &args.out else {
+        return Err(CliError::input(
+            "--format rgl writes a binary file: give it with --out FILE (e.g. --out sample.bsdf)",
+        ));
+    };
+    let exported = rgl::to_rgl(run).map_err(|e| CliError::input(e.to_string()))?;
+    let provenance = provenance_lines(run, &exported_by(), setup);
+    let bytes = exported.to_bytes(&rgl::description(&exported, run, &provenance));
+    std::fs::write(out, bytes).map_err(|e| CliError::io(format!("cannot write {}", out.display()), e))?;
+    eprintln!(
+        "gonio: {} incidences x {} band(s) on a {n} x {n} half-vector grid; {:.1}% of the nodes measured, the \
+         rest 0",
+        exported.theta_i.len(),
+        exported.bands_nm.len(),
+        100.0 * exported.covered,
+        n = rgl::RESOLUTION
+    );
+    println!("{}", out.display());
+    Ok(())
 }
 
 /// Writes a text export to `out`, or to stdout without it.
