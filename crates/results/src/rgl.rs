@@ -20,9 +20,11 @@
 //! retro-reflection (the arms collide), so neither is measured here: `vndf` is uniform (the warp is the
 //! identity, sample space = half-vector coordinates), `ndf` is 1 and `sigma` 1/4 everywhere so that
 //! D / (4 sigma) = 1 and `spectra` hold f cos(theta_o) directly, `jacobian` is 1 as in the database's files.
-//! `spectra` are gonio's interpolant of the run ([`crate::hemispherical::covered_value`]: never extrapolated,
-//! 0 where not measured) times cos(theta_o), at the grid's nodes, for every measured band; `luminance` is their
-//! mean over the bands (with a floor of 1e-6 of the largest value, so that no direction with a value has zero
+//! `spectra` are gonio's interpolant of the run ([`crate::hemispherical::covered_value_near`]: never
+//! extrapolated but for the value of a measured node within [`EDGE_MARGIN_RAD`] of it beside a hole or the edge
+//! of the measured region, as in the MERL export, so that the renderer's bilinear cells do not mix the 0 of an
+//! unmeasured neighbour into a measured node; 0 where not measured) times cos(theta_o), at the grid's nodes,
+//! for every measured band; `luminance` is their mean over the bands (with a floor of 1e-6 of the largest value, so that no direction with a value has zero
 //! sampling density); `theta_i` are the interpolant's polar nodes with each interval divided into steps of at
 //! most [`INCIDENCE_STEP_RAD`] (the values there are gonio's interpolation, as everywhere). The renderers
 //! interpolate bilinearly between nodes and linearly between incidences and wavelengths, and hold the end
@@ -31,8 +33,9 @@
 use gonio_brdf::geometry::Direction;
 
 use crate::error::ResultsError;
-use crate::hemispherical::covered_value;
+use crate::hemispherical::covered_value_near;
 use crate::iso::{IsoGrid, IsoPoint};
+use crate::merl_export::EDGE_MARGIN_RAD;
 use crate::run::{BAND_TOLERANCE_NM, Run, list_nm};
 
 /// Nodes per side of the sample-space grid.
@@ -191,6 +194,8 @@ pub fn to_rgl(run: &Run) -> Result<RglExport, ResultsError> {
         theta_i.extend((0..parts).map(|k| pair[0] + (pair[1] - pair[0]) * k as f64 / parts as f64));
     }
     theta_i.extend(nodes.last().copied());
+    // The file stores the incidences as float32: the tables are computed at exactly those values.
+    let theta_i: Vec<f64> = theta_i.into_iter().map(|t| f64::from(t as f32)).collect();
     if theta_i.is_empty() {
         return Err(ResultsError::NoData {
             origin: run.origin.clone(),
@@ -207,8 +212,9 @@ pub fn to_rgl(run: &Run) -> Result<RglExport, ResultsError> {
             for y in 0..n {
                 for x in 0..n {
                     let m = half_vector(node(x), node(y));
-                    let v = outgoing(&wi, &m)
-                        .and_then(|wo| covered_value(grid, &wi, &wo).map(|f| f * wo.cos_theta()));
+                    let v = outgoing(&wi, &m).and_then(|wo| {
+                        covered_value_near(grid, &wi, &wo, EDGE_MARGIN_RAD).map(|f| f * wo.cos_theta())
+                    });
                     covered += usize::from(v.is_some());
                     spectra.push(v.unwrap_or(0.0));
                 }
@@ -285,7 +291,8 @@ pub fn description(export: &RglExport, run: &Run, provenance: &[(&str, String)])
     let mut s = format!(
         "gonio measurement of campaign {} ({}), exported as an RGL material. Bands: {}. Incidences: {} deg. \
          spectra = BRDF x cos(theta_o) from gonio's interpolant of the measured points (log-trilinear between \
-         measured nodes, with reciprocity, isotropic), 0 where not measured ({:.1}% of the nodes have data); \
+         measured nodes, with reciprocity, isotropic; within 2 degrees of a measured node beside a hole or the edge \
+         of the measured region, the node's value), 0 where not measured ({:.1}% of the nodes have data); \
          incidences between measured ones are gonio's interpolation; renderers hold the values of the first and \
          last incidence and band beyond them. NOT MEASURED and \
          therefore not derived: the microfacet distribution (the arms cannot reach retro-reflection), so vndf is \
