@@ -222,7 +222,10 @@ pub fn to_rgl(run: &Run) -> Result<RglExport, ResultsError> {
         }
     }
     // The format stores float32: a value beyond its range would be written as infinity.
-    if let Some(v) = spectra.iter().find(|v| !(v.abs() <= f64::from(f32::MAX))) {
+    if let Some(v) = spectra
+        .iter()
+        .find(|v| v.is_nan() || v.abs() > f64::from(f32::MAX))
+    {
         return Err(ResultsError::Invalid(format!(
             "{}: a resampled value ({v:e} 1/sr x cos) lies beyond the float32 range the RGL format stores",
             run.origin
