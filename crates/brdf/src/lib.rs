@@ -7,6 +7,7 @@
 //! - [`brdf`]: the [`Brdf`] trait every model implements.
 //! - [`fresnel`]: exact unpolarised Fresnel reflectance (conductor with complex index, dielectric).
 //! - [`microfacet`]: GGX and Beckmann distributions, Smith masking, microfacet sampling, the delta switch-over.
+//! - [`rgl`]: measured BRDF from an RGL material file (`.bsdf`), evaluated as Mitsuba 3 does.
 //! - [`models`]: the analytic models (Lambertian, mirror, Oren-Nayar, Phong, conductor, plastic).
 //! - [`radiometry`]: solid angles (patch, aperture in stable form, cone), projected solid angle, radiance <-> irradiance.
 //! - [`integrate`]: hemisphere and cone quadrature with error estimates (Gauss-Legendre x trapezoid, lobe-adapted,
@@ -34,6 +35,7 @@ pub mod microfacet;
 pub mod models;
 pub mod presets;
 pub mod radiometry;
+pub mod rgl;
 pub mod spectrum;
 
 pub use brdf::{Brdf, DeltaLobe, DirectionSample};

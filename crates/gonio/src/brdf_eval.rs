@@ -1,9 +1,10 @@
-//! `gonio brdf eval`: evaluate a material's BRDF for geometries read on stdin.
+//! `gonio brdf eval`: evaluate a material's BRDF, or a measured run's interpolant (`--run`), for geometries
+//! read on stdin.
 //!
 //! Input: one geometry per line, `theta_i phi_i theta_o phi_o` in degrees, separated by whitespace; blank lines
 //! and lines starting with `#` (after optional whitespace) are skipped. Output: one line per geometry, f in 1/sr
 //! (no cosine factor), printed with the shortest representation that round-trips as f64. A direction at or
-//! below the horizon gives 0. A malformed line stops the run with an error naming its line number.
+//! below the horizon gives 0; with `--run`, a pair the run did not measure gives `NaN`. A malformed line stops the run with an error naming its line number.
 //!
 //! Streaming and speed: input is read through a 1 MiB buffer and lines are parsed in place (a line split across
 //! two refills is assembled in one reused buffer), output goes through
@@ -22,33 +23,77 @@ const BUFFER_BYTES: usize = 1 << 20;
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
     /// A material TOML file with a [material] table, or a preset name (e.g. gold, spectralon).
+    #[arg(long, required_unless_present = "run", conflicts_with = "run")]
+    pub material: Option<String>,
+    /// Instead of a material: a measured run (a run directory or its points CSV), evaluated with gonio's
+    /// interpolant of its points (the one every resampling export uses); `nan` where it was not measured.
+    /// `--wavelength` picks the band (default: the run's only band).
     #[arg(long)]
-    pub material: String,
+    pub run: Option<std::path::PathBuf>,
     /// Wavelength in nm (default 550).
     #[arg(long)]
     pub wavelength: Option<f64>,
 }
 
+/// What is evaluated at a pair of directions (both above the horizon): f in 1/sr, NaN where there is no value.
+type Evaluator<'a> = dyn Fn(&Direction, &Direction) -> Result<f64, String> + 'a;
+
 pub fn run(args: EvalArgs) -> Result<(), CliError> {
-    let material =
-        Material::from_file_or_preset(&args.material).map_err(|e| CliError::input(e.to_string()))?;
+    if let Some(path) = &args.run {
+        return run_interpolant(path, args.wavelength);
+    }
+    let name = args.material.unwrap_or_default();
+    let material = Material::from_file_or_preset(&name).map_err(|e| CliError::input(e.to_string()))?;
     let wavelength = Wavelength::from_nm(args.wavelength.unwrap_or(Wavelength::DEFAULT.nm()))
         .map_err(|e| CliError::input(format!("--wavelength: {e}")))?;
     let resolved = material
         .resolved(wavelength)
-        .map_err(|e| CliError::input(format!("{}: {e}", args.material)))?;
+        .map_err(|e| CliError::input(format!("{name}: {e}")))?;
     if resolved.has_delta_lobe() {
         eprintln!(
-            "gonio: note: material {} is a delta (mirror-like) reflector: its specular reflection has no pointwise \
-             value, so eval prints only the non-delta part (0 for an ideal mirror)",
-            args.material
+            "gonio: note: material {name} is a delta (mirror-like) reflector: its specular reflection has no pointwise \
+             value, so eval prints only the non-delta part (0 for an ideal mirror)"
         );
     }
+    let f = |wi: &Direction, wo: &Direction| resolved.eval(wi, wo, wavelength).map_err(|e| e.to_string());
+    stream_stdio(&f)
+}
+
+/// `--run`: the run's interpolant for one band.
+fn run_interpolant(path: &std::path::Path, wavelength: Option<f64>) -> Result<(), CliError> {
+    let run = gonio_results::Run::load(path).map_err(|e| CliError::input(e.to_string()))?;
+    let bands = run.bands_nm();
+    let band = match (wavelength, bands.as_slice()) {
+        (Some(nm), _) => run.band(nm).map_err(|e| CliError::input(e.to_string()))?,
+        (None, [only]) => *only,
+        (None, _) => {
+            return Err(CliError::input(format!(
+                "{}: give --wavelength, one of the run's bands: {}",
+                run.origin,
+                gonio_results::run::list_nm(&bands)
+            )));
+        }
+    };
+    let points: Vec<gonio_results::iso::IsoPoint> = run
+        .points
+        .iter()
+        .filter(|p| (p.band_nm - band).abs() <= gonio_results::run::BAND_TOLERANCE_NM)
+        .filter_map(gonio_results::iso::IsoPoint::from_point)
+        .collect();
+    let grid = gonio_results::iso::IsoGrid::build(&points);
+    let f = |wi: &Direction, wo: &Direction| {
+        Ok(gonio_results::hemispherical::covered_value(&grid, wi, wo).unwrap_or(f64::NAN))
+    };
+    stream_stdio(&f)
+}
+
+/// Streams stdin to stdout through `f`.
+fn stream_stdio(f: &Evaluator) -> Result<(), CliError> {
     let stdin = std::io::stdin();
     let stdout = std::io::stdout();
     let input = BufReader::with_capacity(BUFFER_BYTES, stdin.lock());
     let mut output = BufWriter::with_capacity(BUFFER_BYTES, stdout.lock());
-    let result = eval_stream(&resolved, wavelength, input, &mut output);
+    let result = eval_stream(f, input, &mut output);
     // Flush whatever was computed before an error too: the lines before a malformed one are valid results.
     let flushed = output.flush().map_err(|e| CliError::io("writing to stdout", e));
     result.and(flushed)
@@ -58,12 +103,7 @@ pub fn run(args: EvalArgs) -> Result<(), CliError> {
 ///
 /// Lines are taken in place from the reader's buffer (no copy), except a line split across two refills, which is
 /// assembled in `carry`.
-fn eval_stream(
-    material: &Material,
-    wavelength: Wavelength,
-    mut input: impl BufRead,
-    output: &mut impl Write,
-) -> Result<(), CliError> {
+fn eval_stream(f: &Evaluator, mut input: impl BufRead, output: &mut impl Write) -> Result<(), CliError> {
     let mut carry: Vec<u8> = Vec::with_capacity(256);
     let mut number = ryu::Buffer::new();
     let mut line_no: u64 = 0;
@@ -72,7 +112,7 @@ fn eval_stream(
         if buf.is_empty() {
             if !carry.is_empty() {
                 line_no += 1;
-                eval_line(material, wavelength, &carry, line_no, &mut number, output)?;
+                eval_line(f, &carry, line_no, &mut number, output)?;
             }
             return Ok(());
         }
@@ -82,17 +122,10 @@ fn eval_stream(
             let end = start + offset + 1;
             line_no += 1;
             if carry.is_empty() {
-                eval_line(
-                    material,
-                    wavelength,
-                    &buf[start..end],
-                    line_no,
-                    &mut number,
-                    output,
-                )?;
+                eval_line(f, &buf[start..end], line_no, &mut number, output)?;
             } else {
                 carry.extend_from_slice(&buf[start..end]);
-                eval_line(material, wavelength, &carry, line_no, &mut number, output)?;
+                eval_line(f, &carry, line_no, &mut number, output)?;
                 carry.clear();
             }
             start = end;
@@ -104,8 +137,7 @@ fn eval_stream(
 
 /// One input line: its value on a line of `output`, nothing for a blank or comment line, or the error.
 fn eval_line(
-    material: &Material,
-    wavelength: Wavelength,
+    f: &Evaluator,
     line: &[u8],
     line_no: u64,
     number: &mut ryu::Buffer,
@@ -118,15 +150,13 @@ fn eval_line(
     };
     let wi = Direction::from_spherical_deg(angles[0], angles[1]);
     let wo = Direction::from_spherical_deg(angles[2], angles[3]);
-    let f = if wi.is_above_horizon() && wo.is_above_horizon() {
-        material
-            .eval(&wi, &wo, wavelength)
-            .map_err(|e| CliError::input(format!("stdin line {line_no}: {e}")))?
+    let value = if wi.is_above_horizon() && wo.is_above_horizon() {
+        f(&wi, &wo).map_err(|e| CliError::input(format!("stdin line {line_no}: {e}")))?
     } else {
         0.0
     };
     output
-        .write_all(number.format(f).as_bytes())
+        .write_all(number.format(value).as_bytes())
         .map_err(|e| CliError::io("writing to stdout", e))?;
     output
         .write_all(b"\n")
@@ -287,24 +317,28 @@ mod tests {
     #[test]
     fn lines_split_across_buffer_refills_give_the_same_output() {
         let material = Material::preset("gold").expect("preset");
+        let f = |wi: &Direction, wo: &Direction| {
+            material
+                .eval(wi, wo, Wavelength::DEFAULT)
+                .map_err(|e| e.to_string())
+        };
         let text = b"# header\n10 20 30 200\n\n  45.5 0 60 180.25\r\n0 0 0 0\n80 359.9 1 3";
         let whole = {
             let mut out = Vec::new();
-            eval_stream(&material, Wavelength::DEFAULT, &text[..], &mut out).expect("valid");
+            eval_stream(&f, &text[..], &mut out).expect("valid");
             out
         };
         assert_eq!(String::from_utf8_lossy(&whole).lines().count(), 4);
         for capacity in 1..text.len() + 2 {
             let mut out = Vec::new();
             let reader = std::io::BufReader::with_capacity(capacity, &text[..]);
-            eval_stream(&material, Wavelength::DEFAULT, reader, &mut out).expect("valid");
+            eval_stream(&f, reader, &mut out).expect("valid");
             assert_eq!(out, whole, "buffer of {capacity} bytes");
         }
         // The line number of an error counts lines across refills too.
         let bad = b"1 2 3 4\n5 6 7 8\n# c\n1 2 x 4\n";
         let err = eval_stream(
-            &material,
-            Wavelength::DEFAULT,
+            &f,
             std::io::BufReader::with_capacity(3, &bad[..]),
             &mut Vec::new(),
         )
@@ -315,14 +349,14 @@ mod tests {
     #[test]
     fn stream_stops_at_the_first_bad_line_and_names_it() {
         let material = Material::preset("spectralon").expect("preset");
+        let f = |wi: &Direction, wo: &Direction| {
+            material
+                .eval(wi, wo, Wavelength::DEFAULT)
+                .map_err(|e| e.to_string())
+        };
         let mut out = Vec::new();
-        let err = eval_stream(
-            &material,
-            Wavelength::DEFAULT,
-            &b"# header\n0 0 0 0\n\n1 2 3\n"[..],
-            &mut out,
-        )
-        .expect_err("line 4 is malformed");
+        let err =
+            eval_stream(&f, &b"# header\n0 0 0 0\n\n1 2 3\n"[..], &mut out).expect_err("line 4 is malformed");
         assert!(err.to_string().contains("stdin line 4"), "{err}");
         assert_eq!(String::from_utf8(out).expect("utf8").lines().count(), 1);
     }

@@ -1,12 +1,14 @@
-//! `gonio export RUN --format csv|json|merl [--out FILE]`: a run for other tools.
+//! `gonio export RUN --format csv|json|merl|zemax|astm|rgl [--out FILE]`: a run for other tools.
 //!
 //! RUN is a run directory (`gonio run --out DIR` writes DIR/points.csv and DIR/run.json) or a points CSV; or,
 //! instead of RUN, `--data DIR --campaign ID` reads a campaign from a daemon's store (read only). This module
 //! also holds that shared loading ([`RunSource`]) for `gonio fit` and `gonio plot`.
 //!
-//! csv and json go to stdout unless `--out` names a file; merl needs `--out` (a binary file) and writes a
+//! csv, json and astm go to stdout unless `--out` names a file; merl needs `--out` (a binary file) and writes a
 //! material file beside it (`<stem>.material.toml`, `model = "measured"`) that `gonio brdf eval --material`
-//! and the simulator's `[material]` read.
+//! and the simulator's `[material]` read; zemax needs `--out` and writes one file per band; rgl needs `--out`. Every format carries
+//! the run's provenance ([`gonio_results::provenance::summary`]), with the instrument and calibration facts
+//! read here from the run's stored instrument and campaign texts ([`export_setup`]).
 
 use std::path::{Path, PathBuf};
 
@@ -14,8 +16,9 @@ use gonio_daemon::campaign::{self, Method, Range, Sources};
 use gonio_daemon::store::{CampaignRecord, STORE_FILE, Store};
 use gonio_instrument::InstrumentFile;
 use gonio_results::export::{self, ExportContext};
-use gonio_results::merl_export;
+use gonio_results::provenance::{ExportSetup, provenance_lines};
 use gonio_results::run::Run;
+use gonio_results::{astm, merl_export, rgl, zemax};
 use serde_json::{Value, json};
 
 use crate::CliError;
@@ -99,6 +102,52 @@ fn load_from_store(dir: &Path, campaign: &str) -> Result<Run, CliError> {
     ))
 }
 
+/// How the materials a stored campaign text names resolve: a text stored by gonio carries them (a `[resolved]`
+/// table); an older one names them and they resolve against the run's directory.
+fn sources_for(campaign_toml: &str, base_dir: &Path) -> Sources {
+    if campaign_toml
+        .lines()
+        .any(|l| l.trim_start().starts_with("[resolved"))
+    {
+        Sources::Stored
+    } else {
+        Sources::Local(base_dir.to_path_buf())
+    }
+}
+
+/// The facts of the run's instrument and campaign files every export's provenance and the ASTM header need;
+/// `None` without provenance or when the stored texts no longer parse (the exports then say "unknown").
+pub fn export_setup(run: &Run, base_dir: &Path) -> Option<ExportSetup> {
+    let config = run.config()?;
+    let file = InstrumentFile::parse(&config.instrument_toml, "<run's instrument file>").ok()?;
+    let sources = sources_for(&config.campaign_toml, base_dir);
+    let campaign = campaign::load(&config.campaign_toml, "<run's campaign file>", &sources, &file).ok()?;
+    let instrument = &file.instrument;
+    let bandwidths_nm = instrument
+        .filter_wheel
+        .iter()
+        .flat_map(|w| w.positions.iter())
+        .filter_map(|p| p.band_nm.map(|b| (b, p.bandwidth_nm)))
+        .chain(instrument.source.wavelength_nm.map(|b| (b, None)))
+        .collect();
+    let calibration = &campaign.calibration;
+    Some(ExportSetup {
+        instrument_name: instrument.name.clone(),
+        detector_aperture_radius_mm: instrument.detector.aperture_radius_mm,
+        detector_distance_mm: instrument.detector.distance_mm,
+        bandwidths_nm,
+        calibration_method: match calibration.method {
+            Method::Absolute => "absolute".into(),
+            Method::Relative => "relative".into(),
+        },
+        calibration_reference: calibration.reference.as_ref().map(|r| r.name.clone()),
+        // The instrument description has no polariser on either arm.
+        polarisation: "unpolarised".into(),
+        // gonio has no instrument-signature measurement (a scan with no sample) yet.
+        signature: None,
+    })
+}
+
 /// The run's configuration as the campaign parser resolves it (defaults applied, presets expanded into model
 /// parameters), from the texts stored in its provenance. `None` without provenance; an `error` entry when the
 /// stored texts no longer parse (e.g. a material file named relative to a campaign file that moved).
@@ -109,16 +158,7 @@ pub fn resolved_config(run: &Run, base_dir: &Path) -> Option<Value> {
         Ok(f) => f,
         Err(e) => return Some(json!({ "error": e.to_string() })),
     };
-    // A stored campaign text carries the materials it named, resolved at submission (a `[resolved]` table);
-    // an older one names them and they resolve against the run's directory.
-    let sources = if campaign_toml
-        .lines()
-        .any(|l| l.trim_start().starts_with("[resolved"))
-    {
-        Sources::Stored
-    } else {
-        Sources::Local(base_dir.to_path_buf())
-    };
+    let sources = sources_for(campaign_toml, base_dir);
     let prepared = match campaign::load_and_prepare(campaign_toml, "<run's campaign file>", &sources, &file) {
         Ok(p) => p,
         Err(e) => return Some(json!({ "error": e.to_string() })),
@@ -157,6 +197,12 @@ pub enum Format {
     Json,
     /// MERL binary (isotropic, resampled onto the MERL grid), plus a material file beside it.
     Merl,
+    /// BSDF Data Interchange text (Zemax OpticStudio, LightTools): one file per band, about the specular direction.
+    Zemax,
+    /// A BRDF table after ASTM E1392 / E2387: every measurement with geometry, band, polarisation, uncertainty.
+    Astm,
+    /// RGL material (`.bsdf` tensor file) for Mitsuba 3's and pbrt-v4's `measured` BSDF, every band.
+    Rgl,
 }
 
 #[derive(Debug, clap::Args)]
@@ -166,9 +212,13 @@ pub struct ExportArgs {
     /// Output format.
     #[arg(long, value_enum)]
     pub format: Format,
-    /// Output file (csv and json: default stdout; merl: required).
+    /// Output file (csv, json and astm: default stdout; merl and zemax: required; zemax writes
+    /// `<stem>-<band>nm.<ext>` per band when the run has several and no --wavelength is given).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// zemax: export only this band (nm).
+    #[arg(long)]
+    pub wavelength: Option<f64>,
     /// merl: the measured bands (nm) for the red, green and blue channels, e.g. `--channels 650,550,450`
     /// (default: the bands nearest to 650, 550 and 450 nm).
     #[arg(long, value_delimiter = ',', num_args = 1)]
@@ -177,11 +227,14 @@ pub struct ExportArgs {
 
 pub fn run(args: ExportArgs) -> Result<(), CliError> {
     let run = args.source.load()?;
+    let base_dir = args.source.default_dir();
+    let setup = export_setup(&run, &base_dir);
     match args.format {
         Format::Csv | Format::Json => {
             let ctx = ExportContext {
                 exported_by: exported_by(),
-                resolved: resolved_config(&run, &args.source.default_dir()),
+                resolved: resolved_config(&run, &base_dir),
+                setup,
             };
             let text = if args.format == Format::Csv {
                 export::to_csv(&run, &ctx)
@@ -191,22 +244,107 @@ pub fn run(args: ExportArgs) -> Result<(), CliError> {
                 t.push('\n');
                 t
             };
-            match &args.out {
-                Some(path) => std::fs::write(path, text)
-                    .map_err(|e| CliError::io(format!("cannot write {}", path.display()), e)),
-                None => {
-                    use std::io::Write;
-                    std::io::stdout()
-                        .write_all(text.as_bytes())
-                        .map_err(|e| CliError::io("writing to stdout", e))
-                }
-            }
+            write_text(args.out.as_deref(), &text)
         }
-        Format::Merl => export_merl(&run, &args),
+        Format::Astm => write_text(
+            args.out.as_deref(),
+            &astm::write(&run, &exported_by(), setup.as_ref()),
+        ),
+        Format::Merl => export_merl(&run, &args, setup),
+        Format::Zemax => export_zemax(&run, &args, setup.as_ref()),
+        Format::Rgl => export_rgl(&run, &args, setup.as_ref()),
     }
 }
 
-fn export_merl(run: &Run, args: &ExportArgs) -> Result<(), CliError> {
+fn export_rgl(run: &Run, args: &ExportArgs, setup: Option<&ExportSetup>) -> Result<(), CliError> {
+    let Some(out) = &args.out else {
+        return Err(CliError::input(
+            "--format rgl writes a binary file: give it with --out FILE (e.g. --out sample.bsdf)",
+        ));
+    };
+    let exported = rgl::to_rgl(run).map_err(|e| CliError::input(e.to_string()))?;
+    let provenance = provenance_lines(run, &exported_by(), setup);
+    let bytes = exported.to_bytes(&rgl::description(&exported, run, &provenance));
+    std::fs::write(out, bytes).map_err(|e| CliError::io(format!("cannot write {}", out.display()), e))?;
+    eprintln!(
+        "gonio: {} incidences x {} band(s) on a {n} x {n} half-vector grid; {:.1}% of the nodes measured, the \
+         rest 0",
+        exported.theta_i.len(),
+        exported.bands_nm.len(),
+        100.0 * exported.covered,
+        n = rgl::RESOLUTION
+    );
+    println!("{}", out.display());
+    Ok(())
+}
+
+/// Writes a text export to `out`, or to stdout without it.
+fn write_text(out: Option<&Path>, text: &str) -> Result<(), CliError> {
+    match out {
+        Some(path) => std::fs::write(path, text)
+            .map_err(|e| CliError::io(format!("cannot write {}", path.display()), e)),
+        None => {
+            use std::io::Write;
+            std::io::stdout()
+                .write_all(text.as_bytes())
+                .map_err(|e| CliError::io("writing to stdout", e))
+        }
+    }
+}
+
+/// `<stem>-<band>nm.<ext>` beside `out` (the extension `bsdf` when `out` has none).
+fn per_band_path(out: &Path, band_nm: f64) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "export".into());
+    let ext = out
+        .extension()
+        .map(|e| e.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "bsdf".into());
+    out.with_file_name(format!("{stem}-{band_nm}nm.{ext}"))
+}
+
+fn export_zemax(run: &Run, args: &ExportArgs, setup: Option<&ExportSetup>) -> Result<(), CliError> {
+    let Some(out) = &args.out else {
+        return Err(CliError::input(
+            "--format zemax writes one file per band: give it with --out FILE (e.g. --out sample.bsdf)",
+        ));
+    };
+    let bands = match args.wavelength {
+        Some(nm) => vec![run.band(nm).map_err(|e| CliError::input(e.to_string()))?],
+        None => run.bands_nm(),
+    };
+    if bands.is_empty() {
+        return Err(CliError::input(format!(
+            "{}: no valid points to export",
+            run.origin
+        )));
+    }
+    for &band in &bands {
+        let exported = zemax::to_zemax(run, band).map_err(|e| CliError::input(e.to_string()))?;
+        let path = if bands.len() == 1 {
+            out.clone()
+        } else {
+            per_band_path(out, band)
+        };
+        write_text(Some(&path), &zemax::write(&exported, run, &exported_by(), setup))?;
+        for b in &exported.blocks {
+            eprintln!(
+                "gonio: {band} nm, incidence {:.4} deg: TIS {:.5} (+- {:.1e}), covered {:.1}% of the projected \
+                 solid angle, the rest written as 0",
+                b.theta_i_deg,
+                b.integrals.reflectance.value,
+                b.integrals.reflectance.error,
+                100.0 * b.integrals.covered_projected_sr.value / std::f64::consts::PI
+            );
+        }
+        println!("{}", path.display());
+    }
+    Ok(())
+}
+
+fn export_merl(run: &Run, args: &ExportArgs, setup: Option<ExportSetup>) -> Result<(), CliError> {
     let Some(out) = &args.out else {
         return Err(CliError::input(
             "--format merl writes a binary file: give it with --out FILE (e.g. --out sample.binary)",
@@ -245,7 +383,8 @@ fn export_merl(run: &Run, args: &ExportArgs) -> Result<(), CliError> {
         .min_by(|a, b| (a.band_nm - 550.0).abs().total_cmp(&(b.band_nm - 550.0).abs()))
         .map(|c| c.channel)
         .unwrap_or(gonio_brdf::merl::MerlChannel::Green);
-    let toml = merl_export::material_toml(&exported, run, &file_name, channel);
+    let provenance = provenance_lines(run, &exported_by(), setup.as_ref());
+    let toml = merl_export::material_toml(&exported, run, &file_name, channel, &provenance);
     std::fs::write(&material_path, toml)
         .map_err(|e| CliError::io(format!("cannot write {}", material_path.display()), e))?;
     for (i, c) in exported.channels.iter().enumerate() {

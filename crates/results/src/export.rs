@@ -6,13 +6,15 @@
 //! skip comment lines (`pandas.read_csv(comment="#")`, R's `read.csv(comment.char="#")`, gnuplot) read the
 //! table directly. JSON: one object ([`FORMAT`] version [`FORMAT_VERSION`]) with `units`, `conventions`,
 //! `provenance` (run.json as written by the run), `resolved` and `points` (one object per point, missing
-//! values as `null`, read-backs as an object axis -> degrees).
+//! values as `null`, read-backs as an object axis -> degrees). Both also carry the short provenance every export
+//! has ([`crate::provenance::summary`]): `# provenance.<key> = "<value>"` lines, a `provenance_summary` object.
 
 use std::fmt::Write as _;
 
 use serde_json::{Map, Value, json};
 
 use crate::points::{self, Point};
+use crate::provenance::{ExportSetup, provenance_lines};
 use crate::run::Run;
 
 /// The `format` field of the JSON export.
@@ -28,6 +30,16 @@ pub struct ExportContext {
     /// The run's configuration as resolved by the campaign parser (defaults applied, presets expanded), when
     /// the caller could resolve it; kept verbatim.
     pub resolved: Option<Value>,
+    /// Facts from the run's instrument and campaign files (instrument name, detector, calibration), when the
+    /// caller could read them.
+    pub setup: Option<ExportSetup>,
+}
+
+impl ExportContext {
+    /// The short provenance every export carries ([`provenance_lines`]).
+    pub fn provenance_lines(&self, run: &Run) -> Vec<(&'static str, String)> {
+        provenance_lines(run, &self.exported_by, self.setup.as_ref())
+    }
 }
 
 /// Unit (or meaning) of every column, in the column order of the points CSV.
@@ -126,6 +138,9 @@ pub fn to_csv(run: &Run, ctx: &ExportContext) -> String {
         "# exported_by = {}",
         one_line(&Value::String(ctx.exported_by.clone()))
     );
+    for (k, v) in ctx.provenance_lines(run) {
+        let _ = writeln!(s, "# provenance.{k} = {}", one_line(&Value::String(v)));
+    }
     s.push_str("# units:");
     let units = column_units(run);
     let _ = writeln!(
@@ -232,6 +247,11 @@ pub fn to_json(run: &Run, ctx: &ExportContext) -> Value {
         "exported_by": ctx.exported_by,
         "source": run.origin,
         "campaign": run.name,
+        "provenance_summary": ctx
+            .provenance_lines(run)
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), json!(v)))
+            .collect::<Map<String, Value>>(),
         "dry_run": run.dry_run,
         "axes": run.axis_names,
         "units": units,
@@ -270,6 +290,7 @@ mod tests {
             &ExportContext {
                 exported_by: "gonio test".into(),
                 resolved: None,
+                setup: None,
             },
         );
         // The table part reads back to the same points (comment lines skipped).
@@ -310,6 +331,7 @@ mod tests {
             &ExportContext {
                 exported_by: "gonio test".into(),
                 resolved: Some(json!({"a": 1})),
+                setup: None,
             },
         );
         assert_eq!(v["format"], FORMAT);

@@ -8,8 +8,12 @@
 //! - [`run`]: a run (points and provenance) from a run directory or assembled by the caller.
 //! - [`iso`]: the isotropic reduction (theta_i, theta_o, delta_phi) with reciprocity, and the piecewise-linear
 //!   interpolant on the measurement grid.
+//! - [`hemispherical`]: the directional-hemispherical reflectance of the interpolant over the measured region.
 //! - [`export`]: CSV and JSON with units and the run's provenance; [`merl_export`]: the MERL binary
-//!   (isotropic data resampled onto the MERL grid, uncovered cells marked -1).
+//!   (isotropic data resampled onto the MERL grid, uncovered cells marked -1); [`zemax`]: the BSDF Data
+//!   Interchange text of Zemax OpticStudio (about the specular direction, TIS per incidence); [`astm`]: a BRDF
+//!   table after ASTM E1392 / E2387; [`rgl`]: the RGL tensor file of Mitsuba 3's and pbrt-v4's `measured`
+//!   BSDF. Every export carries [`provenance::summary`]; [`sha256`] names files.
 //! - [`fit`]: robust, cosine- and uncertainty-weighted least squares of an analytic model, with parameter
 //!   uncertainties, written as a material file.
 //! - [`plot`]: SVG plots (plotters): in-plane polar slices, (theta_o, phi_o) heat maps, measurement against model.
@@ -18,15 +22,20 @@
 //! nothing of the daemon; the daemon turns its store's records into this crate's types (its `export` module)
 //! and the `gonio` binary hands a [`run::Run`] over.
 
+pub mod astm;
 pub mod error;
 pub mod export;
 pub mod fit;
+pub mod hemispherical;
 pub mod iso;
 pub mod merl_export;
 pub mod plot;
 pub mod points;
 pub mod provenance;
+pub mod rgl;
 pub mod run;
+pub mod sha256;
+pub mod zemax;
 
 pub use error::ResultsError;
 pub use run::Run;

@@ -178,11 +178,21 @@ pub fn to_merl(run: &Run, bands: Option<[f64; 3]>) -> Result<MerlExport, Results
 
 /// A material file (`[material]` with `model = "measured"`) that reads `file_name` (relative to the material
 /// file's directory), for `gonio brdf eval --material` and the simulator.
-pub fn material_toml(export: &MerlExport, run: &Run, file_name: &str, channel: MerlChannel) -> String {
+pub fn material_toml(
+    export: &MerlExport,
+    run: &Run,
+    file_name: &str,
+    channel: MerlChannel,
+    provenance: &[(&str, String)],
+) -> String {
     let mut s = format!(
         "# Measured material exported by `gonio export --format merl` from {} (campaign {}).\n",
         run.origin, run.name
     );
+    // The MERL binary has no room for text: its provenance lives here, beside it.
+    for (k, v) in provenance {
+        s.push_str(&format!("# provenance.{k}: {v}\n"));
+    }
     s.push_str("# MERL channels: ");
     s.push_str(
         &export

@@ -1,5 +1,6 @@
 //! Whatever a points CSV holds (any finite numbers, negative or absurd angles and values, flags, missing
-//! fields), reading it and every operation on the run return a value or an error: never a panic.
+//! fields), reading it and every operation on the run (exports of every format included) return a value or an
+//! error: never a panic.
 
 use gonio_results::export::{self, ExportContext};
 use gonio_results::fit::{self, FitModel, FitOptions, Loss};
@@ -7,6 +8,7 @@ use gonio_results::iso::{IsoGrid, IsoPoint};
 use gonio_results::plot::{self, PlotOptions};
 use gonio_results::points::parse_points_csv;
 use gonio_results::run::Run;
+use gonio_results::{astm, rgl, zemax};
 use proptest::prelude::*;
 
 const HEADER: &str = "index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,signal_w,dark_w,incident_w,\
@@ -77,7 +79,7 @@ proptest! {
         prop_assert!(table.is_ok(), "{:?}", table.err());
         let Ok(table) = table else { return Ok(()) };
         let run = Run::from_parts("fuzz".into(), "fuzz".into(), table, None);
-        let ctx = ExportContext { exported_by: "test".into(), resolved: None };
+        let ctx = ExportContext { exported_by: "test".into(), resolved: None, setup: None };
         let csv = export::to_csv(&run, &ctx);
         // The export's table reads back.
         let back: String = csv.lines().filter(|l| !l.starts_with('#')).map(|l| format!("{l}\n")).collect();
@@ -95,6 +97,22 @@ proptest! {
                 if let Some(v) = grid.eval(&p.angles) {
                     prop_assert!(v.is_finite());
                 }
+            }
+        }
+        let _ = astm::write(&run, "test", None);
+        if let Ok(e) = rgl::to_rgl(&run) {
+            let bytes = e.to_bytes("fuzz");
+            prop_assert!(gonio_brdf::rgl::RglBrdf::from_bytes(&bytes).is_ok(), "the export reads back");
+        }
+        // The Zemax export integrates per incidence (up to a million evaluations each): a few points suffice.
+        let mut small = run.clone();
+        small.points.truncate(5);
+        for band in small.bands_nm() {
+            if let Ok(z) = zemax::to_zemax(&small, band) {
+                for b in &z.blocks {
+                    prop_assert!(b.integrals.reflectance.value.is_finite());
+                }
+                let _ = zemax::write(&z, &small, "test", None);
             }
         }
         let _ = plot::render(&run, &PlotOptions::default());

@@ -125,25 +125,46 @@ pub(super) fn build(
                 .file
                 .as_ref()
                 .ok_or_else(|| missing("file", "the path of the data file"))?;
-            spec.format.ok_or_else(|| missing("format", "\"merl\""))?;
-            let channel = spec
-                .channel
-                .ok_or_else(|| missing("channel", "\"red\", \"green\" or \"blue\""))?;
+            let format = spec
+                .format
+                .ok_or_else(|| missing("format", "\"merl\" or \"rgl\""))?;
             let path = if file.is_absolute() {
                 file.clone()
             } else {
                 base_dir.join(file)
             };
-            let brdf =
-                MeasuredBrdf::from_merl_file(&path, channel).map_err(|source| MaterialError::Measured {
-                    at: locate("file"),
-                    source,
-                })?;
-            Material::Measured(MeasuredMaterial {
-                brdf: Arc::new(brdf),
-                file: path,
-                channel,
-            })
+            let table = match format {
+                MeasuredFormat::Merl => {
+                    let channel = spec
+                        .channel
+                        .ok_or_else(|| missing("channel", "\"red\", \"green\" or \"blue\""))?;
+                    let brdf = MeasuredBrdf::from_merl_file(&path, channel).map_err(|source| {
+                        MaterialError::Measured {
+                            at: locate("file"),
+                            source,
+                        }
+                    })?;
+                    MeasuredTable::Merl {
+                        brdf: Arc::new(brdf),
+                        channel,
+                    }
+                }
+                MeasuredFormat::Rgl => {
+                    if spec.channel.is_some() {
+                        return Err(MaterialError::Value {
+                            at: locate("channel"),
+                            key: "channel".into(),
+                            message: "applies to MERL files only: an RGL file is spectral".into(),
+                        });
+                    }
+                    let brdf = RglBrdf::from_file(&path).map_err(|source| MaterialError::Rgl {
+                        at: locate("file"),
+                        source,
+                    })?;
+                    MeasuredTable::Rgl(Arc::new(brdf))
+                }
+            };
+            Material::Measured(MeasuredMaterial { table, file: path })
         }
     })
 }

@@ -14,8 +14,8 @@
 //! | `plastic`     | `distribution`, `masking`, `alpha` or `alpha_x` + `alpha_y`, `ior` (Spectral, [1, 4]),|
 //! |               | `albedo` (Spectral, [0, 1])                                                           |
 //! | `mirror`      | `eta` (Spectral, (0, 1000]), `k` (Spectral, [0, 1000])                                |
-//! | `measured`    | `file` (path, relative to the TOML file's directory), `format` (`merl`),              |
-//! |               | `channel` (`red`/`green`/`blue`)                                                      |
+//! | `measured`    | `file` (path, relative to the TOML file's directory), `format` (`merl` or `rgl`),     |
+//! |               | `channel` (`red`/`green`/`blue`; MERL only: an RGL file is spectral)                  |
 //!
 //! The optical constants `eta` and `k` (the complex refractive index `eta + i k` of a conductor or mirror) are
 //! capped at [`crate::models::MAX_OPTICAL_CONSTANT`] = 1000 at every wavelength of the table: real metals in the
@@ -41,12 +41,15 @@ use crate::merl::{MerlChannel, MerlError};
 use crate::microfacet::{Distribution, Masking};
 use crate::models::{Conductor, Lambertian, Mirror, OrenNayar, ParamError, Phong, Plastic};
 use crate::presets;
+use crate::rgl::{RglBrdf, RglError};
 use crate::spectrum::{Spectral, SpectrumError, Wavelength};
 
 mod build;
+mod measured;
 mod parse;
 
 use build::build;
+pub use measured::{MeasuredMaterial, MeasuredTable};
 use parse::{line_of, not_applicable, parse_table};
 
 /// Which model a `[material]` table describes.
@@ -116,6 +119,8 @@ impl ModelKind {
 #[serde(rename_all = "lowercase")]
 pub enum MeasuredFormat {
     Merl,
+    /// The RGL material database's tensor file ([`crate::rgl`]).
+    Rgl,
 }
 
 /// Every key a `[material]` table may hold.
@@ -277,29 +282,10 @@ pub enum MaterialError {
     UnknownPreset { name: String, known: String },
     #[error("{at}: [material] key `file`: cannot load the measured data: {source}")]
     Measured { at: Location, source: MerlError },
+    #[error("{at}: [material] key `file`: cannot load the measured data: {source}")]
+    Rgl { at: Location, source: RglError },
     #[error("material {model}: {source}")]
     Wavelength { model: String, source: SpectrumError },
-}
-
-/// A measured material: the table, shared (it is large), and where it came from.
-#[derive(Debug, Clone)]
-pub struct MeasuredMaterial {
-    brdf: Arc<MeasuredBrdf>,
-    file: PathBuf,
-    channel: MerlChannel,
-}
-
-impl MeasuredMaterial {
-    pub fn brdf(&self) -> &MeasuredBrdf {
-        &self.brdf
-    }
-    /// The data file, resolved against the directory of the description it came from.
-    pub fn file(&self) -> &Path {
-        &self.file
-    }
-    pub fn channel(&self) -> MerlChannel {
-        self.channel
-    }
 }
 
 /// A material: one of the concrete reflectance models (enum dispatch; implements [`Brdf`]).
@@ -323,10 +309,7 @@ macro_rules! dispatch {
             Material::Conductor($m) => $e,
             Material::Plastic($m) => $e,
             Material::Mirror($m) => $e,
-            Material::Measured(mm) => {
-                let $m: &MeasuredBrdf = &mm.brdf;
-                $e
-            }
+            Material::Measured($m) => $e,
         }
     };
 }
@@ -542,8 +525,13 @@ impl Material {
             }
             Material::Measured(m) => {
                 s.file = Some(m.file.clone());
-                s.format = Some(MeasuredFormat::Merl);
-                s.channel = Some(m.channel);
+                match &m.table {
+                    MeasuredTable::Merl { channel, .. } => {
+                        s.format = Some(MeasuredFormat::Merl);
+                        s.channel = Some(*channel);
+                    }
+                    MeasuredTable::Rgl(_) => s.format = Some(MeasuredFormat::Rgl),
+                }
             }
         }
         s

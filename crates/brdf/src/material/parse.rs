@@ -131,7 +131,12 @@ pub(super) fn parse_table(
                     )));
                 }
             },
-            "format" => spec.format = Some(parse_choice(v, &[("merl", MeasuredFormat::Merl)]).map_err(err)?),
+            "format" => {
+                spec.format = Some(
+                    parse_choice(v, &[("merl", MeasuredFormat::Merl), ("rgl", MeasuredFormat::Rgl)])
+                        .map_err(err)?,
+                )
+            }
             "channel" => {
                 spec.channel = Some(
                     parse_choice(
