@@ -8,7 +8,6 @@
 //! caller as an [`ExportSetup`].
 
 use crate::run::Run;
-use crate::sha256::sha256_hex;
 
 /// Facts from the run's instrument and campaign files, read by the caller.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -152,5 +151,25 @@ mod tests {
         assert_eq!(iso8601_utc(1_796_182_655.0), "2026-12-02T03:37:35Z");
         assert_eq!(iso8601_utc(-1.0), "1969-12-31T23:59:59Z");
         assert_eq!(iso8601_utc(f64::NAN), "unknown");
+    }
+}
+/// The SHA-256 digest of `data` as 64 lowercase hex digits (names a configuration file exactly).
+fn sha256_hex(data: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(data)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+#[cfg(test)]
+mod sha_tests {
+    #[test]
+    fn sha256_is_the_published_digest() {
+        // FIPS 180-2 appendix B.1 ("abc").
+        assert_eq!(
+            super::sha256_hex(b"abc"),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
     }
 }
