@@ -10,7 +10,6 @@ use std::path::{Path, PathBuf};
 use gonio_results::hemispherical::directional_hemispherical;
 use gonio_results::iso::{IsoGrid, IsoPoint};
 use gonio_results::run::Run;
-use gonio_results::sha256::sha256_hex;
 use gonio_testkit::cli::dry_run;
 use gonio_testkit::{CampaignText, gonio, text};
 
@@ -468,4 +467,13 @@ fn every_export_carries_the_provenance() {
         "merl (material file)",
         &std::fs::read_to_string(dir.path().join("p.material.toml")).expect("material file"),
     );
+}
+
+/// SHA-256 as lowercase hex, from the sha2 crate (not gonio's code).
+fn sha256_hex(data: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(data)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
