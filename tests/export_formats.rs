@@ -15,17 +15,10 @@ use gonio_testkit::{CampaignText, gonio, text};
 
 /// A dry-run on an isotropic grid with reciprocity (the campaign's default) of `material` (a `[material]` body).
 fn run(dir: &Path, id: &str, bands: &str, theta_i: &str, material: &str) -> PathBuf {
-    let campaign = CampaignText::isotropic(
-        id,
-        theta_i,
-        "{ from = 0.0, to = 80.0, step = 10.0 }",
-        "{ from = 0.0, to = 180.0, step = 45.0 }",
-    )
-    .bands(bands)
-    .acquisition("averaging = 4")
-    .plan_calibration("dark_every_points = 200")
-    .material(material)
-    .to_string();
+    let campaign = CampaignText::isotropic_export_grid(id, theta_i)
+        .bands(bands)
+        .material(material)
+        .to_string();
     dry_run(dir, id, &campaign)
 }
 

@@ -110,16 +110,9 @@ fn the_relative_method_runs_on_the_realistic_instrument() {
 /// The realistic instrument with only the named groups of `[simulator.imperfections]`, written into `dir`.
 fn realistic_with_only(dir: &Path, groups: &[&str]) -> PathBuf {
     let text = std::fs::read_to_string(realistic()).expect("realistic.toml");
-    let mut doc: toml::Table = text.parse().expect("TOML");
-    if let Some(i) = doc
-        .get_mut("simulator")
-        .and_then(|s| s.get_mut("imperfections"))
-        .and_then(|i| i.as_table_mut())
-    {
-        i.retain(|group, _| groups.contains(&group));
-    }
+    let only = gonio_instrument::imperfections::keep_only_groups(&text, groups).expect("valid TOML");
     let path = dir.join(format!("realistic-{}.toml", groups.join("-")));
-    std::fs::write(&path, toml::to_string(&doc).expect("TOML")).expect("write");
+    std::fs::write(&path, only).expect("write");
     path
 }
 

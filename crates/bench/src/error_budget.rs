@@ -50,15 +50,8 @@ pub struct ClassErrors {
 
 /// The realistic instrument's text with only `keep` of its imperfection groups (none: `&[]`).
 pub fn variant_text(realistic: &str, keep: &[&str]) -> Result<String, String> {
-    let mut doc: toml::Table = realistic.parse().map_err(|e| format!("realistic.toml: {e}"))?;
-    let imperfections = doc
-        .get_mut("simulator")
-        .and_then(|s| s.as_table_mut())
-        .and_then(|s| s.get_mut("imperfections"))
-        .and_then(|i| i.as_table_mut())
-        .ok_or("realistic.toml has no [simulator.imperfections]")?;
-    imperfections.retain(|group, _| keep.contains(&group));
-    toml::to_string(&doc).map_err(|e| e.to_string())
+    gonio_instrument::imperfections::keep_only_groups(realistic, keep)
+        .map_err(|e| format!("realistic.toml: {e}"))
 }
 
 /// The class of a nominal geometry (degrees; index into [`CLASSES`]).

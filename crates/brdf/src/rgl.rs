@@ -21,7 +21,7 @@ use std::collections::HashMap;
 use std::f64::consts::{FRAC_PI_2, PI};
 use std::path::{Path, PathBuf};
 
-use crate::brdf::{Brdf, DeltaLobe, DirectionSample};
+use crate::brdf::Brdf;
 use crate::geometry::Direction;
 use crate::spectrum::{SpectrumError, Wavelength};
 
@@ -408,21 +408,6 @@ impl Brdf for RglBrdf {
     }
     fn is_spectrally_flat(&self) -> bool {
         false
-    }
-    fn delta_lobe(
-        &self,
-        _wi: &Direction,
-        _wavelength: Wavelength,
-    ) -> Result<Option<DeltaLobe>, SpectrumError> {
-        Ok(None)
-    }
-    fn sample(
-        &self,
-        _wi: &Direction,
-        _u: [f64; 2],
-        _wavelength: Wavelength,
-    ) -> Result<Option<DirectionSample>, SpectrumError> {
-        Ok(None)
     }
 }
 

@@ -62,6 +62,8 @@ pub enum ImperfectionsError {
     },
     #[error("[simulator.imperfections.geometry] encoder_error_harmonic must be at most {limit}, got {value}")]
     Harmonic { value: u32, limit: u32 },
+    #[error("instrument file: {0}")]
+    Text(String),
     #[error("[simulator.imperfections.{group}] {key} must be > 0 when {needed_by} is on, got {value}")]
     Needed {
         group: &'static str,
@@ -69,6 +71,23 @@ pub enum ImperfectionsError {
         needed_by: &'static str,
         value: f64,
     },
+}
+
+/// The instrument file `text` with only the groups of `[simulator.imperfections]` named in `keep` (none: the
+/// same instrument, ideal): how one group's effect is isolated (the benchmark's error budget, tests). Comments
+/// are not kept.
+pub fn keep_only_groups(text: &str, keep: &[&str]) -> Result<String, ImperfectionsError> {
+    let mut doc: toml::Table = text
+        .parse()
+        .map_err(|e| ImperfectionsError::Text(format!("{e}")))?;
+    if let Some(groups) = doc
+        .get_mut("simulator")
+        .and_then(|s| s.get_mut("imperfections"))
+        .and_then(|i| i.as_table_mut())
+    {
+        groups.retain(|group, _| keep.contains(&group));
+    }
+    toml::to_string(&doc).map_err(|e| ImperfectionsError::Text(e.to_string()))
 }
 
 /// One magnitude: finite, >= 0 and at most `limit` (`why` says what a larger value would mean).

@@ -45,6 +45,19 @@ impl CampaignText {
         )
     }
 
+    /// The export tests' measurement: an isotropic grid at the incidences `theta_i_deg`, theta_o 0-80 by 10,
+    /// delta phi 0-180 by 45 (with reciprocity, the default), averaging 4, darks every 200 points.
+    pub fn isotropic_export_grid(id: &str, theta_i_deg: &str) -> CampaignText {
+        CampaignText::isotropic(
+            id,
+            theta_i_deg,
+            "{ from = 0.0, to = 80.0, step = 10.0 }",
+            "{ from = 0.0, to = 180.0, step = 45.0 }",
+        )
+        .acquisition("averaging = 4")
+        .plan_calibration("dark_every_points = 200")
+    }
+
     /// A grid in the plane of incidence: incidence and outgoing polar angles.
     pub fn in_plane_grid(id: &str, theta_i_deg: &str, theta_o_deg: &str) -> CampaignText {
         CampaignText::with_grid(

@@ -110,15 +110,18 @@ fn a_failed_point_without_a_reading_is_committed_and_read_back() {
     assert_eq!(store.next_index(id).expect("next"), 1);
 }
 
+/// A store in `dir` with one campaign of 3 points and its point 0 committed (closed again).
+fn store_with_one_point(dir: &std::path::Path) -> CampaignId {
+    let mut store = Store::open(dir).expect("open");
+    let id = store.create_campaign(&new_campaign(3)).expect("create");
+    store.commit_point(id, &point(0)).expect("commit");
+    id
+}
+
 #[test]
 fn a_version_1_store_is_migrated_keeping_its_points() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let id = {
-        let mut store = Store::open(dir.path()).expect("open");
-        let id = store.create_campaign(&new_campaign(3)).expect("create");
-        store.commit_point(id, &point(0)).expect("commit");
-        id
-    };
+    let id = store_with_one_point(dir.path());
     // Turn the file back into version 1 (readings NOT NULL), as stores written before the change are.
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     let v1_table = conn
@@ -153,12 +156,7 @@ fn a_version_1_store_is_migrated_keeping_its_points() {
 #[test]
 fn a_version_2_store_gains_the_attribution_column() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let id = {
-        let mut store = Store::open(dir.path()).expect("open");
-        let id = store.create_campaign(&new_campaign(3)).expect("create");
-        store.commit_point(id, &point(0)).expect("commit");
-        id
-    };
+    let id = store_with_one_point(dir.path());
     // Version 2: no truth_effects_json column.
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch("ALTER TABLE points DROP COLUMN truth_effects_json; PRAGMA user_version = 2;")

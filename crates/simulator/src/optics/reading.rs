@@ -181,19 +181,18 @@ fn neg(v: &[f64; 3]) -> [f64; 3] {
 }
 
 impl Optics {
-    /// Record what the imperfections did to a reading at rest sampled at `times_s` with `powers_w`
-    /// (crate::imperfections::effects); nothing on the ideal instrument.
-    fn record_effects(&self, rest: &AtRest, times_s: &[f64], powers_w: &[f64]) {
+    /// Record what the imperfections did to a reading at rest sampled at `times_s` with `powers_w`, whose
+    /// stray-light parts sum to `stray_sum_w` (crate::imperfections::effects); nothing on the ideal instrument.
+    fn record_effects(&self, rest: &AtRest, times_s: &[f64], powers_w: &[f64], stray_sum_w: f64) {
         if self.hidden.is_none() || times_s.is_empty() {
             return;
         }
         let n = times_s.len() as f64;
-        let (mut slow, mut fast, mut stray) = (0.0, 0.0, 0.0);
+        let (mut slow, mut fast) = (0.0, 0.0);
         for &t in times_s {
             let (s, f) = self.source.imperfection_factors(t);
             slow += s;
             fast += f;
-            stray += self.at_time(rest, t).stray_power_w;
         }
         let out = &rest.out;
         let ((theta_i, phi_i), (theta_o, phi_o)) = (out.wi.to_spherical_deg(), out.wo.to_spherical_deg());
@@ -206,7 +205,7 @@ impl Optics {
             intercepted_fraction: out.intercepted_fraction,
             sample_factor: out.sample_factor,
             power_w: powers_w.iter().sum::<f64>() / n,
-            stray_power_w: stray / n,
+            stray_power_w: stray_sum_w / n,
             source_slow_factor: slow / n,
             source_flicker_factor: fast / n,
         };
@@ -225,9 +224,9 @@ impl Scene for Optics {
     fn detector_power_w(&self, pose: &Pose, band: &Band, t_s: f64) -> f64 {
         match self.at_rest(pose, band) {
             Ok(rest) => {
-                let p = self.at_time(&rest, t_s).power_w;
-                let p = if p.is_finite() { p } else { 0.0 };
-                self.record_effects(&rest, &[t_s], &[p]);
+                let r = self.at_time(&rest, t_s);
+                let p = if r.power_w.is_finite() { r.power_w } else { 0.0 };
+                self.record_effects(&rest, &[t_s], &[p], r.stray_power_w);
                 p
             }
             Err(e) => {
@@ -242,11 +241,13 @@ impl Scene for Optics {
         out.clear();
         match self.at_rest(pose, band) {
             Ok(rest) => {
+                let mut stray_sum_w = 0.0;
                 out.extend(times_s.iter().map(|&t| {
-                    let p = self.at_time(&rest, t).power_w;
-                    if p.is_finite() { p } else { 0.0 }
+                    let r = self.at_time(&rest, t);
+                    stray_sum_w += r.stray_power_w;
+                    if r.power_w.is_finite() { r.power_w } else { 0.0 }
                 }));
-                self.record_effects(&rest, times_s, out);
+                self.record_effects(&rest, times_s, out, stray_sum_w);
             }
             Err(e) => {
                 tracing::warn!(error = %e, "optics cannot evaluate the sample; reporting no light");

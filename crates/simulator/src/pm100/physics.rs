@@ -124,15 +124,14 @@ impl Pm100 {
         let ambient_a = imperfect.map_or(0.0, |t| t.ambient_at_a(t0 + 0.5 * f64::from(n) * SAMPLE_S));
         let current = |p: f64, band: &Band| {
             let r_band = band.band_nm.map(|nm| self.responsivity.at(nm)).unwrap_or(0.0);
-            let i = p * r_band + d.dark_current_a + stray_a;
-            match imperfect {
-                Some(t) => t.photodiode_a(i + ambient_a),
-                None => i,
-            }
+            p * r_band + d.dark_current_a + stray_a
         };
+        // What the photodiode delivers for a current: the same on the ideal instrument.
+        let delivered = |i: f64| imperfect.map_or(i, |t| t.photodiode_a(i + ambient_a));
         let amplifier_noise = imperfect.map_or(0.0, |t| t.amplifier_noise_a_per_rthz);
         let noisy = d.noise || amplifier_noise > 0.0;
-        let currents: Vec<f64> = if steady && !noisy {
+        // Photocurrents of the samples as the light generates them, before the photodiode delivers them.
+        let generated: Vec<f64> = if steady && !noisy {
             // At rest and without noise every sample is the same.
             let (p, band) = optical_at(n / 2);
             vec![current(p, &band); n as usize]
@@ -151,6 +150,13 @@ impl Pm100 {
                     current(p, &band)
                 })
                 .collect()
+        };
+        // The light's own mean current (beam and its stray light), for the attribution; imperfect instrument only.
+        let light_a =
+            imperfect.map(|_| generated.iter().sum::<f64>() / f64::from(n) - d.dark_current_a - stray_a);
+        let currents: Vec<f64> = match imperfect {
+            Some(_) => generated.iter().map(|&i| delivered(i)).collect(),
+            None => generated,
         };
         let mean_i = currents.iter().sum::<f64>() / f64::from(n);
         // Range in use: auto picks the smallest whose full-scale current holds the signal.
@@ -173,21 +179,8 @@ impl Pm100 {
         // an imperfect one.
         let transfer = |i: f64| imperfect.map_or(i, |t| t.meter_a(range, i, fs));
         let mut i = transfer(mean_i);
-        if let Some(t) = imperfect {
-            // What the imperfections did (crate::imperfections::effects): the light's current before saturation
-            // (the mean of the samples' currents undone, exactly for the first-order saturation model).
-            let light_a = currents
-                .iter()
-                .map(|&c| {
-                    let raw = if t.saturation_current_a > 0.0 && c > 0.0 && c < t.saturation_current_a {
-                        c / (1.0 - c / t.saturation_current_a)
-                    } else {
-                        c
-                    };
-                    raw - ambient_a - d.dark_current_a - stray_a
-                })
-                .sum::<f64>()
-                / f64::from(n);
+        if let (Some(t), Some(light_a)) = (imperfect, light_a) {
+            // What the imperfections did (crate::imperfections::effects).
             let total = light_a + ambient_a + d.dark_current_a + stray_a;
             let effects = crate::imperfections::MeterEffects {
                 range_w: ranges.get(range).copied().unwrap_or(0.0),
