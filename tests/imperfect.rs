@@ -147,6 +147,7 @@ fn every_realistic_point_says_what_each_imperfection_did_and_ideal_points_say_no
             "saturation",
             "meter",
             "ambient",
+            "filter",
         ] {
             assert!(r[key].as_f64().is_some_and(f64::is_finite), "{key}: {e}");
         }

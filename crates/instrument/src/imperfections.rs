@@ -7,10 +7,11 @@
 //! bit.
 //!
 //! One sub-table per group of effects, each a struct with `Default` = off and a `validate` that names its keys:
-//! [`geometry`], [`detector`], [`source`], [`sample`]. The filters' finite bands and the beam's profile are the
-//! later groups of issue 16.
+//! [`geometry`], [`detector`], [`source`], [`sample`], [`filters`]. The beam's profile is a later group of
+//! issue 16.
 
 pub mod detector;
+pub mod filters;
 pub mod geometry;
 pub mod sample;
 pub mod source;
@@ -18,6 +19,7 @@ pub mod source;
 use serde::{Deserialize, Serialize};
 
 pub use detector::DetectorImperfections;
+pub use filters::FilterImperfections;
 pub use geometry::GeometryImperfections;
 pub use sample::SampleImperfections;
 pub use source::SourceImperfections;
@@ -39,6 +41,9 @@ pub struct Imperfections {
     /// How the sample's reflectance varies over its area (gradient, centre to rim).
     #[serde(default)]
     pub sample: SampleImperfections,
+    /// How wide the filters' bands really are and what they leak (finite bandwidth, out-of-band leakage).
+    #[serde(default)]
+    pub filters: FilterImperfections,
 }
 
 /// Why `[simulator.imperfections]` was refused: the key (full TOML path) and the value.
@@ -64,6 +69,15 @@ pub enum ImperfectionsError {
     Harmonic { value: u32, limit: u32 },
     #[error("instrument file: {0}")]
     Text(String),
+    #[error(
+        "[simulator.imperfections.{group}] {key} must be [low, high] with low < high (nm), got [{lo}, {hi}]"
+    )]
+    Range {
+        group: &'static str,
+        key: &'static str,
+        lo: f64,
+        hi: f64,
+    },
     #[error("[simulator.imperfections.{group}] {key} must be > 0 when {needed_by} is on, got {value}")]
     Needed {
         group: &'static str,
@@ -120,12 +134,14 @@ impl Imperfections {
             && self.detector.is_ideal()
             && self.source.is_ideal()
             && self.sample.is_ideal()
+            && self.filters.is_ideal()
     }
 
     pub fn validate(&self) -> Result<(), ImperfectionsError> {
         self.geometry.validate()?;
         self.detector.validate()?;
         self.source.validate()?;
-        self.sample.validate()
+        self.sample.validate()?;
+        self.filters.validate()
     }
 }

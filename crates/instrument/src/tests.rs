@@ -41,6 +41,37 @@ fn the_realistic_instrument_loads_and_has_geometry_imperfections() {
 }
 
 #[test]
+fn a_finite_band_needs_its_shape_and_source_and_a_sane_range() {
+    for (table, key) in [
+        ("centre_sd_nm = 1.0\nsource_temperature_k = 3000.0", "cavities"),
+        ("cavities = 3", "source_temperature_k"),
+        (
+            "cavities = 3\nsource_temperature_k = 3000.0\nleakage_range_nm = [900.0, 400.0]",
+            "leakage_range_nm",
+        ),
+        (
+            "cavities = 3\nsource_temperature_k = 3000.0\nout_of_band_transmission = 0.5",
+            "out_of_band",
+        ),
+    ] {
+        let text = format!("{SIMULATED_INSTRUMENT_TOML}\n[simulator.imperfections.filters]\n{table}\n");
+        let msg = InstrumentFile::parse(&text, "f.toml")
+            .expect_err(table)
+            .to_string();
+        assert!(msg.contains("filters") && msg.contains(key), "{table}: {msg}");
+    }
+    let ok = format!(
+        "{SIMULATED_INSTRUMENT_TOML}\n[simulator.imperfections.filters]\ncavities = 3\nsource_temperature_k = 3000.0\n"
+    );
+    let file = InstrumentFile::parse(&ok, "f.toml").expect("valid");
+    assert!(!file.simulator.imperfections.is_ideal());
+    assert_eq!(
+        file.simulator.imperfections.filters.leakage_range_nm,
+        [400.0, 1100.0]
+    );
+}
+
+#[test]
 fn a_bad_imperfection_is_refused_with_the_file_and_the_key() {
     let text = format!(
         "{SIMULATED_INSTRUMENT_TOML}\n[simulator.imperfections.geometry]\nreseat_tilt_sd_deg = -0.01\n"

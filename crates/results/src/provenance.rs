@@ -17,8 +17,8 @@ mod simulator_truth;
 pub mod summary;
 
 pub use simulator_truth::{
-    AxisTruthRecord, DetectorTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
-    SeatingRecord, SimulatorTruth, SourceTruthRecord,
+    AxisTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord, GeometryTruthRecord,
+    RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth, SourceTruthRecord,
 };
 pub use summary::{ExportSetup, iso8601_utc, provenance_lines};
 
@@ -441,6 +441,19 @@ pub(crate) mod tests {
                 gradient_x: 0.002,
                 gradient_y: -0.001,
                 radial: 0.003,
+            }),
+            filters: Some(FiltersTruthRecord {
+                cavities: 3,
+                source_temperature_k: 3000.0,
+                out_of_band_transmission: 1e-5,
+                leakage_range_nm: [400.0, 1100.0],
+                filters: vec![FilterTruthRecord {
+                    position: 2,
+                    nominal_nm: 550.0,
+                    nominal_bandwidth_nm: 10.0,
+                    centre_nm: 550.8,
+                    bandwidth_nm: 9.6,
+                }],
             }),
         });
         let text = r.to_json_text();

@@ -13,7 +13,8 @@
 //! eccentricity; crate::optics), [`detector`] (range gains, nonlinearity and offsets, saturation, amplifier
 //! noise and ambient light in the power meter, crate::pm100::physics; stray light by pose in crate::optics),
 //! [`source`] (warm-up, random walk, flicker; crate::optics::source), [`sample`] (reflectance varying over the
-//! sample's area; crate::optics). Still to come (issue 16): filters, beam.
+//! sample's area; crate::optics), [`filters`] (finite bands and out-of-band leakage; crate::optics::spectral).
+//! Still to come (issue 16): beam.
 //!
 //! An all-zero table is the ideal instrument bit for bit: [`HiddenTruth::draw`] returns `None` for a group that
 //! is off, and the optics then take exactly the code path they take with no table at all.
@@ -21,6 +22,7 @@
 pub mod detector;
 pub mod draw;
 pub mod effects;
+pub mod filters;
 pub mod geometry;
 pub mod sample;
 pub mod source;
@@ -30,6 +32,7 @@ use serde::Serialize;
 
 pub use detector::{DetectorTruth, RangeTruth, Signature};
 pub use effects::{MeterEffects, OpticsEffects};
+pub use filters::{FilterTruth, FiltersTruth};
 pub use geometry::{AxisTruth, GeometryTruth, Tilt, TrueGeometry};
 pub use sample::SampleTruth;
 pub use source::SourceTruth;
@@ -51,6 +54,9 @@ pub struct HiddenTruth {
     /// `None` when every sample magnitude is zero.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sample: Option<SampleTruth>,
+    /// `None` when the filters' bands are single wavelengths.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub filters: Option<FiltersTruth>,
 }
 
 impl HiddenTruth {
@@ -77,15 +83,20 @@ impl HiddenTruth {
         let sample = (!settings.sample.is_ideal())
             .then(|| SampleTruth::draw(&settings.sample, seed))
             .filter(|s| !s.is_ideal());
-        (geometry.is_some() || detector.is_some() || source.is_some() || sample.is_some()).then_some(
-            HiddenTruth {
-                seed,
-                geometry,
-                detector,
-                source,
-                sample,
-            },
-        )
+        let filters = FiltersTruth::draw(&settings.filters, file);
+        let any = geometry.is_some()
+            || detector.is_some()
+            || source.is_some()
+            || sample.is_some()
+            || filters.is_some();
+        any.then_some(HiddenTruth {
+            seed,
+            geometry,
+            detector,
+            source,
+            sample,
+            filters,
+        })
     }
 
     /// The values as JSON (for run.json and reports).

@@ -32,6 +32,7 @@ pub mod optics;
 pub mod pm100;
 pub mod pty;
 pub mod recording;
+pub mod responsivity;
 pub mod scene;
 pub mod session;
 pub mod smc100;

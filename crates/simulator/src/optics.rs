@@ -15,8 +15,12 @@
 //! - when the detector arm is within `safety.retro_block_deg` of the light arm, the detector's body blocks the
 //!   incident beam: `P_s = 0` and the reading says so.
 //!
-//! Spectral treatment: the filter bands are narrow (10 nm); each band is treated at its centre wavelength, where
-//! the material is resolved once (`Material::at_wavelength`) and cached. Nothing is integrated over the band.
+//! Spectral treatment: on the ideal instrument each band is treated at its centre wavelength, where the material
+//! is resolved once (`Material::at_wavelength`) and cached; nothing is integrated over the band. With
+//! `[simulator.imperfections.filters]` a band has a width, a shifted centre and leakage: a reading integrates
+//! BRDF x transmission x source spectrum x responsivity over it ([`spectral`], model in
+//! crate::imperfections::filters); the aperture integral stays at the centre wavelength, scaled by the point
+//! BRDF's spectrum.
 //!
 //! Ground truth: every reading carries `f` at the nominal geometry (wi, wo through the sample and detector
 //! centres; the regular part only: a delta lobe has no finite point value) and the cos-weighted aperture average
@@ -54,6 +58,7 @@ mod imperfect;
 mod reading;
 mod resolved;
 pub mod source;
+mod spectral;
 mod strategy;
 mod truth;
 
@@ -94,6 +99,9 @@ pub enum OpticsError {
     /// The material cannot be evaluated at a band's wavelength (its spectral tables do not cover it).
     #[error("sample material at {band_nm} nm: {source}")]
     Spectrum { band_nm: f64, source: SpectrumError },
+    /// `[instrument.detector] responsivity_a_per_w` cannot be read (it weights a finite filter band).
+    #[error("{0}")]
+    Responsivity(String),
 }
 
 /// Everything one reading knows: the power on the photodiode, its integration error, the ground truth, and what
@@ -193,6 +201,10 @@ pub struct Optics {
     detector_distance_mm: f64,
     material: Material,
     bands: RwLock<Vec<std::sync::Arc<Resolved>>>,
+    /// The photodiode's responsivity, which weights a finite band (crate::imperfections::filters).
+    responsivity: crate::responsivity::Responsivity,
+    /// The filters' finite bands (crate::optics::spectral); empty on the ideal instrument: single wavelengths.
+    spectral: Vec<std::sync::Arc<spectral::SpectralBand>>,
 }
 
 impl Optics {
@@ -239,6 +251,9 @@ impl Optics {
             detector_distance_mm: det.distance_mm,
             material: sample.material,
             bands: RwLock::new(Vec::new()),
+            responsivity: crate::responsivity::Responsivity::from_detector(det)
+                .map_err(OpticsError::Responsivity)?,
+            spectral: Vec::new(),
         };
         for nm in instrument.bands_nm() {
             optics.resolved(nm)?;
@@ -308,12 +323,20 @@ impl Optics {
         }
     }
 
-    /// Beam power at the sample position at time `t_s` in `band`, drift and noise included (W).
+    /// Beam power at the sample position at time `t_s` in `band`, drift and noise included (W; through a finite
+    /// band, as the meter set to the band's nominal wavelength counts it: crate::imperfections::filters).
     pub fn incident_power_w(&self, band: &Band, t_s: f64) -> f64 {
         if band.band_nm.is_none() {
             return 0.0;
         }
-        self.source.drifted_power_w(t_s) * band.transmission.max(0.0) * self.source.noise_factor(t_s)
+        let filter_total = band
+            .band_nm
+            .and_then(|nm| self.spectral_band(nm))
+            .map_or(1.0, |b| b.total);
+        self.source.drifted_power_w(t_s)
+            * band.transmission.max(0.0)
+            * filter_total
+            * self.source.noise_factor(t_s)
     }
 
     /// What the detector reads looking straight into the source with no sample: the beam power at that time and

@@ -55,7 +55,10 @@ pub struct PointTruth {
 /// - `source_slow`, `source_flicker`: the source's warm-up and walk, and its flicker, during the reading (the
 ///   normalisation readings had their own: the BRDF sees the ratio);
 /// - `saturation`, `meter`: the photodiode's compression and the range's gain, nonlinearity and offset;
-/// - `ambient`: the ambient light's current over the light's.
+/// - `ambient`: the ambient light's current over the light's;
+/// - `filter`: the finite band's mean of the sample's spectrum against its value at the band's centre
+///   (`filter_factor / filter_total`, what remains after a direct-beam or reference reading through the same
+///   filter divides out the band's power; the record keeps both).
 pub fn effects_json(
     optics: &OpticsEffects,
     meter: Option<&MeterEffects>,
@@ -74,6 +77,7 @@ pub fn effects_json(
         "sample": optics.sample_factor - 1.0,
         "source_slow": optics.source_slow_factor - 1.0,
         "source_flicker": optics.source_flicker_factor - 1.0,
+        "filter": ratio(optics.filter_factor, optics.filter_total),
     });
     if let (Some(m), Some(map)) = (meter, relative.as_object_mut()) {
         map.insert("saturation".into(), m.saturation_rel.into());

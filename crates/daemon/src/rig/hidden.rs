@@ -4,8 +4,8 @@
 
 use gonio_instrument::InstrumentFile;
 use gonio_results::provenance::{
-    AxisTruthRecord, DetectorTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
-    SeatingRecord, SimulatorTruth, SourceTruthRecord,
+    AxisTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord, GeometryTruthRecord,
+    RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth, SourceTruthRecord,
 };
 use gonio_simulator::imperfections::HiddenTruth;
 
@@ -86,6 +86,23 @@ fn record(hidden: &HiddenTruth, mountings: usize) -> SimulatorTruth {
             gradient_y: s.gradient[1],
             radial: s.radial,
         }),
+        filters: hidden.filters.as_ref().map(|f| FiltersTruthRecord {
+            cavities: f.cavities,
+            source_temperature_k: f.source_temperature_k,
+            out_of_band_transmission: f.out_of_band_transmission,
+            leakage_range_nm: f.leakage_range_nm,
+            filters: f
+                .filters
+                .iter()
+                .map(|t| FilterTruthRecord {
+                    position: t.position,
+                    nominal_nm: t.nominal_nm,
+                    nominal_bandwidth_nm: t.nominal_bandwidth_nm,
+                    centre_nm: t.centre_nm,
+                    bandwidth_nm: t.bandwidth_nm,
+                })
+                .collect(),
+        }),
     }
 }
 
@@ -102,6 +119,9 @@ mod tests {
         assert_eq!(g.axes.len(), 4);
         assert_eq!(g.axes[0].role, "light-arm");
         assert_eq!(g.seatings.len(), 4, "mountings 0..=3");
+        let f = t.filters.expect("filters");
+        assert_eq!(f.filters.len(), 5, "realistic.toml's five bands");
+        assert!(f.filters.iter().all(|b| b.centre_nm != b.nominal_nm));
         assert_eq!(
             simulator_truth(REALISTIC, false, 3),
             None,

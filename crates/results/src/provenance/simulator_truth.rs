@@ -22,6 +22,31 @@ pub struct SimulatorTruth {
     /// Sample; absent when that group is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sample: Option<SampleTruthRecord>,
+    /// Filters; absent when the bands are single wavelengths.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub filters: Option<FiltersTruthRecord>,
+}
+
+/// The filters' actual bands (model: crates/simulator/src/imperfections/filters.rs): an N-cavity passband
+/// `1 / (1 + x^(2N))` about each actual centre with its actual width, plus the blocking's floor over the
+/// photodiode's range, weighted by a Planck source and the photodiode's responsivity.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FiltersTruthRecord {
+    pub cavities: u32,
+    pub source_temperature_k: f64,
+    pub out_of_band_transmission: f64,
+    pub leakage_range_nm: [f64; 2],
+    pub filters: Vec<FilterTruthRecord>,
+}
+
+/// One filter's nominal and actual band (nm).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FilterTruthRecord {
+    pub position: u8,
+    pub nominal_nm: f64,
+    pub nominal_bandwidth_nm: f64,
+    pub centre_nm: f64,
+    pub bandwidth_nm: f64,
 }
 
 /// The sample's non-uniformity (model: crates/simulator/src/imperfections/sample.rs): its BRDF is the

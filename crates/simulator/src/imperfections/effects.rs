@@ -27,6 +27,11 @@ pub struct OpticsEffects {
     /// The source's imperfection factors over the reading (means): warm-up and random walk, flicker.
     pub source_slow_factor: f64,
     pub source_flicker_factor: f64,
+    /// The finite band's factor on this reading's light against a single wavelength at the band's centre
+    /// (crate::optics::spectral), and its factor on spectrally flat light (`∫ W`, what a direct-beam or
+    /// reference reading through the same filter sees); both 1 on the ideal instrument.
+    pub filter_factor: f64,
+    pub filter_total: f64,
 }
 
 /// The meter's side of one reading.

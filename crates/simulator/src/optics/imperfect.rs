@@ -43,6 +43,16 @@ impl Optics {
             .filter(|s| !s.is_zero());
         self.source
             .set_imperfections(truth.and_then(|t| t.source.clone()));
+        self.spectral = truth
+            .and_then(|t| t.filters.as_ref())
+            .map(|f| {
+                f.filters
+                    .iter()
+                    .filter_map(|filter| super::spectral::SpectralBand::new(f, filter, &self.responsivity))
+                    .map(Arc::new)
+                    .collect()
+            })
+            .unwrap_or_default();
         let tilt = self.seating_tilt(0);
         *self.seating.get_mut().unwrap_or_else(|e| e.into_inner()) = Seating { index: 0, tilt };
         self

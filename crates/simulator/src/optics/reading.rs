@@ -23,6 +23,10 @@ struct AtRest {
     /// Fraction of the beam reaching the detector by other paths (the instrument signature; 0 on the ideal
     /// instrument, with the filter closed, or with the beam blocked).
     stray_fraction: f64,
+    /// A finite band's factor on the light (crate::optics::spectral) and its total weight `∫ W`, the factor on
+    /// spectrally flat light; both 1 for a single wavelength.
+    filter_factor: f64,
+    filter_total: f64,
 }
 
 /// How the source's power reaches the detector at a pose at rest.
@@ -60,8 +64,12 @@ impl Optics {
         let mirror = geometry.wi.reflect_about_normal();
         let specular_in_aperture =
             geometry.wi.z() > 0.0 && mirror.angle_to(&geometry.wo) <= self.aperture_half_rad;
+        // A finite band (crate::imperfections::filters) passes its total weight `∫ W` of the single wavelength's
+        // power: part of the filter's transmission.
+        let spectral = band.band_nm.and_then(|nm| self.spectral_band(nm));
+        let filter_total = spectral.map_or(1.0, |b| b.total);
         let transmission = if band.band_nm.is_some() {
-            band.transmission.max(0.0)
+            band.transmission.max(0.0) * filter_total
         } else {
             0.0
         };
@@ -95,6 +103,8 @@ impl Optics {
                 transmission,
                 light: Light::Dark,
                 stray_fraction,
+                filter_factor: filter_total,
+                filter_total,
             });
         };
         if !self.sample_mounted() {
@@ -107,6 +117,8 @@ impl Optics {
                 transmission,
                 light: Light::DirectBeam { fraction },
                 stray_fraction,
+                filter_factor: filter_total,
+                filter_total,
             });
         }
         let r = self.resolved(nm)?;
@@ -123,13 +135,28 @@ impl Optics {
         out.truth_aperture_sr = truth.average_sr;
         out.evaluations = truth.evaluations;
         out.sample_factor = self.sample_factor(&g);
+        // The band's spectral weighting of the sample, relative to its total (the transmission has that).
+        let ratios = match spectral {
+            Some(b) if !blocked => self.band_ratios(b, &r, &wi_m, &wo_m)?,
+            _ => super::spectral::BandRatios {
+                regular: 1.0,
+                delta: 1.0,
+            },
+        };
+        let (regular, delta) = (truth.integral * ratios.regular, truth.delta * ratios.delta);
+        let line = truth.integral + truth.delta;
+        let filter_factor = if line != 0.0 {
+            filter_total * (regular + delta) / line
+        } else {
+            filter_total
+        };
         let light = if blocked {
             Light::Dark
         } else {
             Light::Sample {
                 intercepted: fp.intercepted_fraction,
-                collected: (truth.integral + truth.delta) * out.sample_factor,
-                integral_error: truth.integral_error * out.sample_factor,
+                collected: (regular + delta) * out.sample_factor,
+                integral_error: truth.integral_error * ratios.regular * out.sample_factor,
             }
         };
         Ok(AtRest {
@@ -137,6 +164,8 @@ impl Optics {
             transmission,
             light,
             stray_fraction,
+            filter_factor,
+            filter_total,
         })
     }
 
@@ -208,6 +237,8 @@ impl Optics {
             stray_power_w: stray_sum_w / n,
             source_slow_factor: slow / n,
             source_flicker_factor: fast / n,
+            filter_factor: rest.filter_factor,
+            filter_total: rest.filter_total,
         };
         *self.last_effects.lock().unwrap_or_else(|e| e.into_inner()) = Some(effects);
     }

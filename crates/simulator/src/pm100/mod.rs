@@ -65,7 +65,7 @@ mod physics;
 mod scpi;
 mod usbtmc;
 
-use physics::Responsivity;
+use crate::responsivity::Responsivity;
 
 /// USB identity.
 pub const VENDOR_ID: u16 = 0x1313;

@@ -4,12 +4,13 @@
 //! crates/instrument/src/lib.rs (not with the simulator's kinematics). Here too: the ideal instrument is
 //! untouched by an all-zero table, and the hidden values are fixed by the seed.
 //!
-//! `geometry`, `detector`, `source`, `sample`: one test per effect. This file: the shared set-up and the hidden truth
+//! `geometry`, `detector`, `source`, `sample`, `filters`: one test per effect. This file: the shared set-up and the hidden truth
 //! itself.
 
 #[path = "../common/mod.rs"]
 mod common;
 mod detector;
+mod filters;
 mod geometry;
 mod sample;
 mod source;
@@ -52,10 +53,15 @@ fn optics(file: &InstrumentFile) -> Optics {
 }
 
 fn optics_of_radius(file: &InstrumentFile, radius_mm: f64) -> Optics {
+    optics_of(file, lambertian(), radius_mm)
+}
+
+/// Optics of a sample of `material` and radius `radius_mm` with drift and noise off, on `file`'s hidden truth.
+fn optics_of(file: &InstrumentFile, material: Material, radius_mm: f64) -> Optics {
     Optics::new(
         &file.instrument,
         SampleSpec {
-            material: lambertian(),
+            material,
             radius_mm,
             orientation_deg: 0.0,
         },
