@@ -10,6 +10,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 
+use gonio_brdf::geometry::IsotropicAngles;
 use gonio_results::iso::{IsoGrid, IsoPoint};
 use gonio_results::run::Run;
 use gonio_testkit::cli::dry_run;
@@ -139,48 +140,66 @@ fn rgl_export_has_the_fields_the_renderers_check_and_gonio_values() {
     let description = String::from_utf8(f("description").data.clone()).expect("UTF-8 description");
     assert!(description.contains("NOT MEASURED") && description.contains("provenance.instrument: simulated"));
 
-    // The values: f cos(theta_o) of gonio's interpolant (extended by 2 degrees beside holes and edges, as the
-    // module documents) at the half-vector nodes, u = (sqrt(theta_m / (pi/2)),
-    // (phi_m - phi_i + pi) / (2 pi)), for wi at (theta_i, 0) and wo its mirror image about the half vector.
+    // The values: f cos(theta_o) of gonio's interpolant at the half-vector nodes,
+    // u = (sqrt(theta_m / (pi/2)), (phi_m - phi_i + pi) / (2 pi)), for wi at (theta_i, 0) and wo its mirror
+    // image about the half vector; at a node without a value that shares a bilinear cell with one that has a
+    // value (the guard band, as the module documents), the interpolant's value at the nearest point of the
+    // measured region within 15 degrees of node moves; 0 elsewhere.
     let n = spectra.shape[3];
     let values = floats(spectra);
+    let geometry = |ti: f64, x: usize, y: usize| -> Option<(IsotropicAngles, f64)> {
+        let wi = [ti.sin(), 0.0, ti.cos()];
+        let (ux, uy) = (x as f64 / (n - 1) as f64, y as f64 / (n - 1) as f64);
+        let (tm, pm) = (ux * ux * PI / 2.0, (2.0 * uy - 1.0) * PI);
+        let m = [tm.sin() * pm.cos(), tm.sin() * pm.sin(), tm.cos()];
+        let c: f64 = (0..3).map(|k| wi[k] * m[k]).sum();
+        let wo: Vec<f64> = (0..3).map(|k| 2.0 * c * m[k] - wi[k]).collect();
+        if c <= 0.0 || wo[2] <= 0.0 {
+            return None;
+        }
+        // The isotropic angles, written out: theta of each, |phi_o - phi_i| folded into [0, pi].
+        let angles = IsotropicAngles {
+            theta_i: ti,
+            theta_o: wo[2].clamp(-1.0, 1.0).acos(),
+            delta_phi: wo[1].atan2(wo[0]).abs(),
+        };
+        Some((angles, wo[2]))
+    };
     for (b, band) in [450.0, 650.0].into_iter().enumerate() {
         let grid = interpolant(&plastic, band);
-        let mut compared = 0;
+        let (mut measured, mut guard) = (0, 0);
         for (t, ti) in theta_i.iter().enumerate() {
             let ti = f64::from(*ti);
-            let wi = [ti.sin(), 0.0, ti.cos()];
-            for (y, x) in (0..n)
-                .step_by(7)
-                .flat_map(|y| (0..n).step_by(5).map(move |x| (y, x)))
-            {
-                let (ux, uy) = (x as f64 / (n - 1) as f64, y as f64 / (n - 1) as f64);
-                let (tm, pm) = (ux * ux * PI / 2.0, (2.0 * uy - 1.0) * PI);
-                let m = [tm.sin() * pm.cos(), tm.sin() * pm.sin(), tm.cos()];
-                let c: f64 = (0..3).map(|k| wi[k] * m[k]).sum();
-                let wo: Vec<f64> = (0..3).map(|k| 2.0 * c * m[k] - wi[k]).collect();
-                let stored = f64::from(values[((t * 2 + b) * n + y) * n + x]);
-                let want = if wo[2] > 0.0 {
-                    let (wi_d, wo_d) = (
-                        gonio_brdf::geometry::Direction::new(wi[0], wi[1], wi[2]).expect("unit"),
-                        gonio_brdf::geometry::Direction::new(wo[0], wo[1], wo[2]).expect("unit"),
-                    );
-                    gonio_results::hemispherical::covered_value_near(&grid, &wi_d, &wo_d, 2f64.to_radians())
-                        .unwrap_or(0.0)
-                        * wo[2]
-                } else {
-                    0.0
+            let strict: Vec<Option<f64>> = (0..n * n)
+                .map(|k| {
+                    geometry(ti, k % n, k / n).and_then(|(a, cos)| grid.eval(&a).map(|f| f.max(0.0) * cos))
+                })
+                .collect();
+            for (y, x) in (0..n).flat_map(|y| (0..n).map(move |x| (y, x))) {
+                let beside = (y.saturating_sub(1)..=(y + 1).min(n - 1)).any(|yy| {
+                    (x.saturating_sub(1)..=(x + 1).min(n - 1)).any(|xx| strict[yy * n + xx].is_some())
+                });
+                let want = match strict[y * n + x] {
+                    Some(v) => {
+                        measured += 1;
+                        v
+                    }
+                    None if beside => geometry(ti, x, y)
+                        .and_then(|(a, cos)| grid.eval_held(&a, 15f64.to_radians()).map(|f| f.max(0.0) * cos))
+                        .inspect(|_| guard += 1)
+                        .unwrap_or(0.0),
+                    None => 0.0,
                 };
+                let stored = f64::from(values[((t * 2 + b) * n + y) * n + x]);
                 assert!(
                     (stored - want).abs() <= 1e-6 * want.abs().max(1e-3),
                     "{band} nm, theta_i {ti}, node ({x}, {y}): {stored} vs {want}"
                 );
-                compared += usize::from(want > 0.0);
             }
         }
         assert!(
-            compared > 40,
-            "{band} nm: only {compared} measured nodes compared"
+            measured > 1000 && guard > 100,
+            "{band} nm: only {measured} measured and {guard} guard nodes compared"
         );
     }
 }
@@ -293,6 +312,25 @@ fn an_rgl_file_read_back_as_a_material_reproduces_the_run_and_round_trips() {
         0.01,
         0.03,
     );
+    // At the measured geometries themselves (those a second run measures): there the interpolant has its kinks
+    // and the edges of the measured region and of the retro-reflection hole run through them, so this is where
+    // the file's bilinear cells differ most from it (before the guard band: 80th percentile 7.7 %, 95th 42 %).
+    let nodes: Vec<[f64; 4]> = Run::load(&first)
+        .expect("the run loads")
+        .points
+        .iter()
+        .filter(|p| p.brdf_sr.is_some())
+        .map(|p| [p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg])
+        .collect();
+    within_tolerance(
+        "RGL read back against the run at the measured geometries",
+        &differences(
+            &eval(&["--run".as_ref(), first.as_os_str()], &nodes),
+            &eval(&["--material".as_ref(), material_a.as_os_str()], &nodes),
+        ),
+        0.01,
+        0.03,
+    );
 
     // The RGL material as a dry-run's sample, measured on the same plan and exported again.
     let second = run(
@@ -309,14 +347,17 @@ fn an_rgl_file_read_back_as_a_material_reproduces_the_run_and_round_trips() {
     export_rgl(&second, &b);
     let material_b = rgl_material(dir.path(), "second-rgl", &b);
     let from_b = eval(&["--material".as_ref(), material_b.as_os_str()], &geometries);
-    // The second run measures the first file's table (aperture-averaged, with the instrument's noise) at the
-    // same nodes, and its export resamples that again: two resamplings stand between the files. Measured here:
-    // median 1.1 %, 80th percentile 3.5 %, the tail next to the retro-reflection hole. Tolerance: median 2 %,
-    // 80 % of the pairs within 6 %.
+    // The second run measures the first file at the same nodes (aperture-averaged, with the instrument's noise)
+    // and its export resamples that again. Measured here: median 0.74 %, 80th percentile 1.6 %, 95th 3.3 %,
+    // mostly the first file's bilinear cells smoothing the interpolant's kinks at the nodes the second run
+    // measures (checked above); the second run's aperture averaging of the file adds 0.2 % and its noise 0.09 %
+    // at the 80th percentile. Before the export's guard band (crates/results/src/rgl.rs) the file was up to 58 %
+    // low at measured nodes beside the retro-reflection hole and the round trip missed this tolerance (median
+    // 1.1 %, 80th percentile 3.5 %). The export's stated tolerance: median 1 %, 80 % of the pairs within 3 %.
     within_tolerance(
         "RGL re-measured and re-exported against the first",
         &differences(&from_a, &from_b),
-        0.02,
-        0.06,
+        0.01,
+        0.03,
     );
 }

@@ -267,11 +267,12 @@ fn export_rgl(run: &Run, args: &ExportArgs, setup: Option<&ExportSetup>) -> Resu
     let bytes = exported.to_bytes(&rgl::description(&exported, run, &provenance));
     std::fs::write(out, bytes).map_err(|e| CliError::io(format!("cannot write {}", out.display()), e))?;
     eprintln!(
-        "gonio: {} incidences x {} band(s) on a {n} x {n} half-vector grid; {:.1}% of the nodes measured, the \
-         rest 0",
+        "gonio: {} incidences x {} band(s) on a {n} x {n} half-vector grid; {:.1}% of the nodes measured, {:.1}% \
+         the guard band beside them (the nearest measured value), the rest 0",
         exported.theta_i.len(),
         exported.bands_nm.len(),
         100.0 * exported.covered,
+        100.0 * exported.guard,
         n = rgl::RESOLUTION
     );
     println!("{}", out.display());

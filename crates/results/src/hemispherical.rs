@@ -36,17 +36,6 @@ pub fn covered_value(grid: &IsoGrid, wi: &Direction, wo: &Direction) -> Option<f
         .map(|v| v.max(0.0))
 }
 
-/// [`covered_value`], extended by [`IsoGrid::eval_near`]: within `margin_rad` of a measured node beside a hole
-/// or the edge of the measured region, the node's value. Renderer tables use it, whose interpolation between
-/// their own nodes would otherwise mix the 0 of an unmeasured neighbour into a measured node's value.
-pub fn covered_value_near(grid: &IsoGrid, wi: &Direction, wo: &Direction, margin_rad: f64) -> Option<f64> {
-    if !(wi.is_above_horizon() && wo.is_above_horizon()) {
-        return None;
-    }
-    grid.eval_near(&IsotropicAngles::from_directions(wi, wo), margin_rad)
-        .map(|v| v.max(0.0))
-}
-
 /// The integrals for one incidence.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hemispherical {

@@ -261,6 +261,57 @@ impl IsoGrid {
         self.eval(&snapped)
     }
 
+    /// The value at the point of the measured region nearest to `a` that differs from it only by moving some
+    /// of its angles onto a node (lower or upper) within `margin` (radians): the value a table node just beyond
+    /// the edge of the measured region holds so that a renderer's interpolation between it and its measured
+    /// neighbours reproduces the measured values up to the edge (crates/results/src/rgl.rs). Nearest: the
+    /// smallest summed squared chord between the directions of `a` and of the moved angles, so that a large
+    /// azimuth step near the pole, where it moves the directions little, is preferred to a polar step. `None`
+    /// when [`IsoGrid::eval`] has a value at `a` (the caller wants that) or no such point has one.
+    pub fn eval_held(&self, a: &IsotropicAngles, margin: f64) -> Option<f64> {
+        if self.eval(a).is_some() {
+            return None;
+        }
+        // Per angle: itself, and the nodes on either side of it within the margin.
+        let candidates = |nodes: &[f64], x: f64| -> Vec<f64> {
+            let i = nodes.partition_point(|n| *n < x);
+            let mut c = vec![x];
+            c.extend(
+                [i.checked_sub(1), Some(i)]
+                    .into_iter()
+                    .flatten()
+                    .filter_map(|j| nodes.get(j).copied())
+                    .filter(|n| (n - x).abs() <= margin && *n != x),
+            );
+            c
+        };
+        let (wi, wo) = a.to_directions();
+        let chord2 = |p: &Direction, q: &Direction| {
+            (p.x() - q.x()).powi(2) + (p.y() - q.y()).powi(2) + (p.z() - q.z()).powi(2)
+        };
+        let mut best: Option<(f64, f64)> = None;
+        for theta_i in candidates(&self.theta, a.theta_i) {
+            for theta_o in candidates(&self.theta, a.theta_o) {
+                for delta_phi in candidates(&self.dphi, a.delta_phi) {
+                    let b = IsotropicAngles {
+                        theta_i,
+                        theta_o,
+                        delta_phi,
+                    };
+                    let (bi, bo) = b.to_directions();
+                    let d = chord2(&wi, &bi) + chord2(&wo, &bo);
+                    if best.is_some_and(|(bd, _)| bd <= d) {
+                        continue;
+                    }
+                    if let Some(v) = self.eval(&b) {
+                        best = Some((d, v));
+                    }
+                }
+            }
+        }
+        best.map(|(_, v)| v)
+    }
+
     /// The interpolated value at these angles; `None` outside the measured region (module doc).
     pub fn eval(&self, a: &IsotropicAngles) -> Option<f64> {
         let (i0, i1, ti) = bracket(&self.theta, a.theta_i)?;
@@ -429,6 +480,42 @@ mod tests {
             g.eval_near(&at(30.0, 30.0, 45.0), margin),
             g.eval(&at(30.0, 30.0, 45.0))
         );
+    }
+
+    #[test]
+    fn a_guard_value_is_the_nearest_measured_point_within_the_margin() {
+        let mut pts = Vec::new();
+        for ti in [20.0, 40.0] {
+            for to in [20.0, 40.0] {
+                for dp in [0.0, 90.0, 180.0] {
+                    // (20, 20, 0) is the retro-reflection: not measurable, a hole.
+                    if !(ti == 20.0 && to == 20.0 && dp == 0.0) {
+                        pts.push(iso(ti, to, dp, multilinear(ti, to, dp)));
+                    }
+                }
+            }
+        }
+        let g = IsoGrid::build(&pts);
+        let margin = 15f64.to_radians();
+        // In the hole at (20, 30, 80): moving theta_o to 40 (a 10 degree step of theta_o) or delta_phi to 90
+        // (at theta_o = 30 a chord of 2 sin 30 sin 5 = 0.087, against 2 sin 5 = 0.174) both reach the measured
+        // region; the azimuth move is the nearer, and there the interpolant is the multilinear function.
+        assert_eq!(g.eval(&at(20.0, 30.0, 80.0)), None);
+        let held = g
+            .eval_held(&at(20.0, 30.0, 80.0), margin)
+            .expect("the measured region is within the margin");
+        let want = multilinear(20.0, 30.0, 90.0);
+        assert!((held - want).abs() < 1e-12 * want, "{held} vs {want}");
+        // Beyond the edge theta_o = 40: the edge's value; beyond the margin, nothing.
+        let edge = g
+            .eval_held(&at(20.0, 45.0, 90.0), margin)
+            .expect("within the margin of the edge");
+        let want = multilinear(20.0, 40.0, 90.0);
+        assert!((edge - want).abs() < 1e-12 * want, "{edge} vs {want}");
+        assert_eq!(g.eval_held(&at(20.0, 60.0, 90.0), margin), None);
+        // Inside the measured region it has nothing to hold: the caller uses the interpolant.
+        assert!(g.eval(&at(30.0, 30.0, 135.0)).is_some());
+        assert_eq!(g.eval_held(&at(30.0, 30.0, 135.0), margin), None);
     }
 
     #[test]

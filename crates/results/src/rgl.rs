@@ -20,12 +20,18 @@
 //! retro-reflection (the arms collide), so neither is measured here: `vndf` is uniform (the warp is the
 //! identity, sample space = half-vector coordinates), `ndf` is 1 and `sigma` 1/4 everywhere so that
 //! D / (4 sigma) = 1 and `spectra` hold f cos(theta_o) directly, `jacobian` is 1 as in the database's files.
-//! `spectra` are gonio's interpolant of the run ([`crate::hemispherical::covered_value_near`]: never
-//! extrapolated but for the value of a measured node within [`EDGE_MARGIN_RAD`] of it beside a hole or the edge
-//! of the measured region, as in the MERL export, so that the renderer's bilinear cells do not mix the 0 of an
-//! unmeasured neighbour into a measured node; 0 where not measured) times cos(theta_o), at the grid's nodes,
-//! for every measured band; `luminance` is their mean over the bands (with a floor of 1e-6 of the largest value, so that no direction with a value has zero
-//! sampling density); `theta_i` are the interpolant's polar nodes with each interval divided into steps of at
+//! `spectra` are gonio's interpolant of the run ([`IsoGrid::eval`]: log-trilinear between measured nodes, never
+//! extrapolated; 0 where not measured) times cos(theta_o) at the grid's nodes ([`table`]), with one guard band:
+//! a node without a value that shares a bilinear cell with a node that has one holds the interpolant's value at
+//! the nearest point of the measured region (at most [`GUARD_MARGIN_RAD`] of node moves away,
+//! [`IsoGrid::eval_held`]). Without it the renderer's bilinear cells across the edge of the measured region (and
+//! around the retro-reflection hole) mix the 0 of the unmeasured node into measured directions: on the export
+//! tests' plan (10 degree polar, 45 degree azimuth steps) that put the file up to 58 % below the measurement at
+//! measured nodes beside the hole and up to 38 % below it at theta_o = 80 degrees (tests/export_rgl.rs). With
+//! it the measured directions keep their values up to the edge, and the renderer fades to 0 within one cell
+//! beyond it (at most 5.7 degrees of theta_o, about 11 degrees of delta_phi away from the pole), as the
+//! description says. Tables for every measured band; `luminance` is their mean over the bands (with a floor of
+//! 1e-6 of the largest value, so that no direction with a value has zero sampling density); `theta_i` are the interpolant's polar nodes with each interval divided into steps of at
 //! most [`INCIDENCE_STEP_RAD`] (the values there are gonio's interpolation, as everywhere). The renderers
 //! interpolate bilinearly between nodes and linearly between incidences and wavelengths, and hold the end
 //! values beyond the measured incidences and bands: the description says so, with the run's provenance.
@@ -33,9 +39,9 @@
 use gonio_brdf::geometry::Direction;
 
 use crate::error::ResultsError;
-use crate::hemispherical::covered_value_near;
+use gonio_brdf::geometry::IsotropicAngles;
+
 use crate::iso::{IsoGrid, IsoPoint};
-use crate::merl_export::EDGE_MARGIN_RAD;
 use crate::run::{BAND_TOLERANCE_NM, Run, list_nm};
 
 /// Nodes per side of the sample-space grid.
@@ -43,6 +49,13 @@ pub const RESOLUTION: usize = 64;
 
 /// The largest step between the incidences of the tables, radians (2.5 degrees).
 pub const INCIDENCE_STEP_RAD: f64 = 2.5 * std::f64::consts::PI / 180.0;
+
+/// How far (radians, 15 degrees) a guard node's angles may move onto the measured region's nodes: more than a
+/// table cell spans away from the pole (theta_m cells are at most 2.9 degrees wide, so theta_o moves by at most
+/// 5.7; phi_m cells 5.7 degrees, delta_phi moves by about twice that), so that every guard node beside an edge
+/// finds its held value (estimate from the cell sizes; near the pole an azimuth cell spans more of delta_phi, but
+/// the directions move little there).
+pub const GUARD_MARGIN_RAD: f64 = 15.0 * std::f64::consts::PI / 180.0;
 
 /// The tensor file's magic bytes.
 pub const MAGIC: &[u8; 12] = b"tensor_file\0";
@@ -155,6 +168,8 @@ pub struct RglExport {
     pub spectra: Vec<f64>,
     /// Share of the grid nodes (over incidences and bands) with a measured value.
     pub covered: f64,
+    /// Share of the grid nodes (over incidences and bands) in the guard band (module doc).
+    pub guard: f64,
 }
 
 /// Resamples every band of the run onto the sample-space grid (module doc).
@@ -202,23 +217,15 @@ pub fn to_rgl(run: &Run) -> Result<RglExport, ResultsError> {
             message: format!("no valid point above the horizon in {}", list_nm(&bands)),
         });
     }
-    let n = RESOLUTION;
-    let node = |k: usize| k as f64 / (n - 1) as f64;
-    let mut spectra = Vec::with_capacity(theta_i.len() * bands.len() * n * n);
-    let mut covered = 0usize;
+    let mut spectra = Vec::with_capacity(theta_i.len() * bands.len() * RESOLUTION * RESOLUTION);
+    let (mut covered, mut guard) = (0usize, 0usize);
     for &ti in &theta_i {
         let wi = Direction::from_spherical(ti, 0.0);
         for grid in &grids {
-            for y in 0..n {
-                for x in 0..n {
-                    let m = half_vector(node(x), node(y));
-                    let v = outgoing(&wi, &m).and_then(|wo| {
-                        covered_value_near(grid, &wi, &wo, EDGE_MARGIN_RAD).map(|f| f * wo.cos_theta())
-                    });
-                    covered += usize::from(v.is_some());
-                    spectra.push(v.unwrap_or(0.0));
-                }
-            }
+            let table = table(grid, &wi);
+            covered += table.iter().filter(|v| matches!(v, Node::Measured(_))).count();
+            guard += table.iter().filter(|v| matches!(v, Node::Guard(_))).count();
+            spectra.extend(table.iter().map(Node::value));
         }
     }
     // The format stores float32: a value beyond its range would be written as infinity.
@@ -231,13 +238,69 @@ pub fn to_rgl(run: &Run) -> Result<RglExport, ResultsError> {
             run.origin
         )));
     }
-    let total = spectra.len().max(1);
+    let total = spectra.len().max(1) as f64;
     Ok(RglExport {
         theta_i,
         bands_nm: bands,
         spectra,
-        covered: covered as f64 / total as f64,
+        covered: covered as f64 / total,
+        guard: guard as f64 / total,
     })
+}
+
+/// A node of a table: inside the measured region, in the guard band beside it, or neither.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Node {
+    /// gonio's interpolant times cos(theta_o).
+    Measured(f64),
+    /// Beside a measured node and outside the measured region: the held value (module doc) times cos(theta_o).
+    Guard(f64),
+    /// Neither: 0 in the file.
+    Empty,
+}
+
+impl Node {
+    /// The value the file stores.
+    pub fn value(&self) -> f64 {
+        match self {
+            Node::Measured(v) | Node::Guard(v) => *v,
+            Node::Empty => 0.0,
+        }
+    }
+}
+
+/// One band's table at incidence `wi` ([y][x], module doc): the interpolant where it has a value, the held
+/// value at the nodes that are not measured but share a bilinear cell with a measured one.
+pub fn table(grid: &IsoGrid, wi: &Direction) -> Vec<Node> {
+    let n = RESOLUTION;
+    let node = |k: usize| k as f64 / (n - 1) as f64;
+    let angles = |x: usize, y: usize| {
+        outgoing(wi, &half_vector(node(x), node(y)))
+            .map(|wo| (IsotropicAngles::from_directions(wi, &wo), wo.cos_theta()))
+    };
+    let mut table: Vec<Node> = (0..n * n)
+        .map(|k| {
+            angles(k % n, k / n)
+                .and_then(|(a, cos)| grid.eval(&a).map(|f| Node::Measured(f.max(0.0) * cos)))
+                .unwrap_or(Node::Empty)
+        })
+        .collect();
+    let measured: Vec<bool> = table.iter().map(|v| matches!(v, Node::Measured(_))).collect();
+    for y in 0..n {
+        for x in 0..n {
+            let beside = (y.saturating_sub(1)..=(y + 1).min(n - 1))
+                .any(|yy| (x.saturating_sub(1)..=(x + 1).min(n - 1)).any(|xx| measured[yy * n + xx]));
+            if measured[y * n + x] || !beside {
+                continue;
+            }
+            if let Some(v) = angles(x, y)
+                .and_then(|(a, cos)| grid.eval_held(&a, GUARD_MARGIN_RAD).map(|f| f.max(0.0) * cos))
+            {
+                table[y * n + x] = Node::Guard(v);
+            }
+        }
+    }
+    table
 }
 
 impl RglExport {
@@ -301,8 +364,10 @@ pub fn description(export: &RglExport, run: &Run, provenance: &[(&str, String)])
     let mut s = format!(
         "gonio measurement of campaign {} ({}), exported as an RGL material. Bands: {}. Incidences: {} deg. \
          spectra = BRDF x cos(theta_o) from gonio's interpolant of the measured points (log-trilinear between \
-         measured nodes, with reciprocity, isotropic; within 2 degrees of a measured node beside a hole or the edge \
-         of the measured region, the node's value), 0 where not measured ({:.1}% of the nodes have data); \
+         measured nodes, with reciprocity, isotropic; {:.1}% of the nodes), 0 where not measured, except a guard \
+         band ({:.1}% of the nodes): a node outside the measured region that shares a bilinear cell with a \
+         measured one holds the value of the nearest measured point (within 15 degrees of node moves), so that \
+         interpolation keeps the measured values up to the edge and fades to 0 within one cell beyond it; \
          incidences between measured ones are gonio's interpolation; renderers hold the values of the first and \
          last incidence and band beyond them. NOT MEASURED and \
          therefore not derived: the microfacet distribution (the arms cannot reach retro-reflection), so vndf is \
@@ -317,7 +382,8 @@ pub fn description(export: &RglExport, run: &Run, provenance: &[(&str, String)])
             .map(|t| format!("{:.2}", t.to_degrees()))
             .collect::<Vec<_>>()
             .join(", "),
-        100.0 * export.covered
+        100.0 * export.covered,
+        100.0 * export.guard
     );
     for (k, v) in provenance {
         s.push_str(&format!(" provenance.{k}: {v};"));
