@@ -19,7 +19,7 @@ use gonio_instrument::InstrumentFile;
 use crate::throughput::{self, Throughput};
 
 /// The groups of `[simulator.imperfections]` realistic.toml has, in report order.
-pub const GROUPS: [&str; 4] = ["geometry", "detector", "source", "sample"];
+pub const GROUPS: [&str; 5] = ["geometry", "detector", "source", "sample", "beam"];
 
 /// Angular classes, in report order.
 pub const CLASSES: [&str; 4] = [
@@ -185,8 +185,8 @@ pub fn markdown(variants: &[Variant], throughput: &[(&str, Throughput)], target_
          nominal geometry. Classes: grazing (theta_i or theta_o >= 70 deg) first, then by the angle between the \
          outgoing direction and the mirror of the incident one. The ideal row is the same campaign on the ideal \
          instrument: what the measurement equation, the finite aperture and the meter's noise cost by \
-         themselves. Not yet in the simulator (issue 16's later groups): finite filter bands, the beam's \
-         profile and pointing. Details: crates/bench/src/error_budget.rs.\n\n",
+         themselves. Not yet in the simulator (issue 16's later group): finite filter bands. \
+         Details: crates/bench/src/error_budget.rs.\n\n",
     );
     s.push_str("| imperfections | class | points | median | p95 | max |\n|---|---|---|---|---|---|\n");
     for v in variants {

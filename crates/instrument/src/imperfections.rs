@@ -7,9 +7,10 @@
 //! bit.
 //!
 //! One sub-table per group of effects, each a struct with `Default` = off and a `validate` that names its keys:
-//! [`geometry`], [`detector`], [`source`], [`sample`]. The filters' finite bands and the beam's profile are the
-//! later groups of issue 16.
+//! [`geometry`], [`detector`], [`source`], [`sample`], [`beam`]. The filters' finite bands are a later group of
+//! issue 16.
 
+pub mod beam;
 pub mod detector;
 pub mod geometry;
 pub mod sample;
@@ -17,6 +18,7 @@ pub mod source;
 
 use serde::{Deserialize, Serialize};
 
+pub use beam::{BeamImperfections, BeamProfile};
 pub use detector::DetectorImperfections;
 pub use geometry::GeometryImperfections;
 pub use sample::SampleImperfections;
@@ -39,6 +41,9 @@ pub struct Imperfections {
     /// How the sample's reflectance varies over its area (gradient, centre to rim).
     #[serde(default)]
     pub sample: SampleImperfections,
+    /// What the beam really is (profile, pointing, divergence).
+    #[serde(default)]
+    pub beam: BeamImperfections,
 }
 
 /// Why `[simulator.imperfections]` was refused: the key (full TOML path) and the value.
@@ -120,12 +125,14 @@ impl Imperfections {
             && self.detector.is_ideal()
             && self.source.is_ideal()
             && self.sample.is_ideal()
+            && self.beam.is_ideal()
     }
 
     pub fn validate(&self) -> Result<(), ImperfectionsError> {
         self.geometry.validate()?;
         self.detector.validate()?;
         self.source.validate()?;
-        self.sample.validate()
+        self.sample.validate()?;
+        self.beam.validate()
     }
 }

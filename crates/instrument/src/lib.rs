@@ -31,7 +31,7 @@ mod validate;
 use std::path::Path;
 
 pub use imperfections::{
-    DetectorImperfections, GeometryImperfections, Imperfections, ImperfectionsError, SampleImperfections,
+    BeamImperfections, BeamProfile, DetectorImperfections, GeometryImperfections, Imperfections, ImperfectionsError, SampleImperfections,
     SourceImperfections,
 };
 

@@ -17,7 +17,7 @@ mod simulator_truth;
 pub mod summary;
 
 pub use simulator_truth::{
-    AxisTruthRecord, DetectorTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
+    AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
     SeatingRecord, SimulatorTruth, SourceTruthRecord,
 };
 pub use summary::{ExportSetup, iso8601_utc, provenance_lines};
@@ -441,6 +441,15 @@ pub(crate) mod tests {
                 gradient_x: 0.002,
                 gradient_y: -0.001,
                 radial: 0.003,
+            }),
+            beam: Some(BeamTruthRecord {
+                profile: "gaussian".into(),
+                gaussian_radius_mm: 1.5,
+                pointing_in_plane_deg: 0.004,
+                pointing_vertical_deg: -0.002,
+                source_distance_mm: 500.0,
+                divergence_deg: 0.055,
+                nominal_divergence_deg: 0.05,
             }),
         });
         let text = r.to_json_text();

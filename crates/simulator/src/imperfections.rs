@@ -13,11 +13,13 @@
 //! eccentricity; crate::optics), [`detector`] (range gains, nonlinearity and offsets, saturation, amplifier
 //! noise and ambient light in the power meter, crate::pm100::physics; stray light by pose in crate::optics),
 //! [`source`] (warm-up, random walk, flicker; crate::optics::source), [`sample`] (reflectance varying over the
-//! sample's area; crate::optics). Still to come (issue 16): filters, beam.
+//! sample's area; crate::optics), [`beam`] (profile, pointing, divergence; crate::optics). Still to come
+//! (issue 16): filters.
 //!
 //! An all-zero table is the ideal instrument bit for bit: [`HiddenTruth::draw`] returns `None` for a group that
 //! is off, and the optics then take exactly the code path they take with no table at all.
 
+pub mod beam;
 pub mod detector;
 pub mod draw;
 pub mod effects;
@@ -28,6 +30,7 @@ pub mod source;
 use gonio_instrument::{AxisRole, InstrumentFile};
 use serde::Serialize;
 
+pub use beam::BeamTruth;
 pub use detector::{DetectorTruth, RangeTruth, Signature};
 pub use effects::{MeterEffects, OpticsEffects};
 pub use geometry::{AxisTruth, GeometryTruth, Tilt, TrueGeometry};
@@ -51,6 +54,9 @@ pub struct HiddenTruth {
     /// `None` when every sample magnitude is zero.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sample: Option<SampleTruth>,
+    /// `None` when the beam is the ideal one (top hat, no pointing or divergence error).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub beam: Option<BeamTruth>,
 }
 
 impl HiddenTruth {
@@ -77,15 +83,18 @@ impl HiddenTruth {
         let sample = (!settings.sample.is_ideal())
             .then(|| SampleTruth::draw(&settings.sample, seed))
             .filter(|s| !s.is_ideal());
-        (geometry.is_some() || detector.is_some() || source.is_some() || sample.is_some()).then_some(
-            HiddenTruth {
+        let beam = (!settings.beam.is_ideal())
+            .then(|| BeamTruth::draw(&settings.beam, file.instrument.source.divergence_deg, seed))
+            .filter(|b| !b.is_ideal());
+        (geometry.is_some() || detector.is_some() || source.is_some() || sample.is_some() || beam.is_some())
+            .then_some(HiddenTruth {
                 seed,
                 geometry,
                 detector,
                 source,
                 sample,
-            },
-        )
+                beam,
+            })
     }
 
     /// The values as JSON (for run.json and reports).

@@ -47,8 +47,10 @@
 //! physics they use: [`source`], [`footprint`], [`aperture`], [`cap`].
 
 pub mod aperture;
+mod beam;
 pub mod cap;
 pub mod footprint;
+pub mod footprint_gaussian;
 pub mod footprint_offset;
 mod imperfect;
 mod reading;
@@ -157,6 +159,9 @@ pub struct ApertureTruth {
     pub integral_error: f64,
     /// Delta-lobe reflectance times the fraction of the divergence cone inside the aperture.
     pub delta: f64,
+    /// The same with the instrument's true beam (profile, divergence: crate::imperfections::beam): what a
+    /// reading collects; equal to `delta` when the beam is ideal. The truth (`average_sr`) uses `delta`.
+    pub delta_beam: f64,
     /// `(integral + delta) / (Omega_d cos(theta_o))` (1/sr); 0 when `wo` is below the horizon.
     pub average_sr: f64,
     pub evaluations: u32,
@@ -183,6 +188,8 @@ pub struct Optics {
     sample_mounted: AtomicBool,
     /// The instrument's hidden imperfections; `None` on the ideal instrument ([`Optics::with_hidden_truth`]).
     hidden: Option<std::sync::Arc<HiddenTruth>>,
+    /// The true beam (crate::imperfections::beam); `None` when it is the ideal one.
+    beam: Option<beam::BeamOptics>,
     /// The instrument signature (crate::imperfections::detector); `None` on the ideal instrument.
     signature: Option<crate::imperfections::Signature>,
     /// What the imperfections did to the last reading (recorded only on an imperfect instrument).
@@ -233,6 +240,7 @@ impl Optics {
             source: SourceModel::new(src.power_w, src.drift_per_hour, src.relative_noise, seed),
             sample_mounted: AtomicBool::new(true),
             hidden: None,
+            beam: None,
             signature: None,
             last_effects: std::sync::Mutex::new(None),
             seating: RwLock::new(Seating::default()),
@@ -319,7 +327,6 @@ impl Optics {
     /// What the detector reads looking straight into the source with no sample: the beam power at that time and
     /// band times the fraction of the divergence cone inside the aperture (1 for this instrument).
     pub fn direct_beam_power_w(&self, band: &Band, t_s: f64) -> f64 {
-        self.incident_power_w(band, t_s)
-            * cap::fraction_inside(self.divergence_half_rad, self.aperture_half_rad, 0.0)
+        self.incident_power_w(band, t_s) * self.lobe_fraction(0.0, false)
     }
 }

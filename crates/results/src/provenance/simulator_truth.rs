@@ -22,6 +22,26 @@ pub struct SimulatorTruth {
     /// Sample; absent when that group is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sample: Option<SampleTruthRecord>,
+    /// Beam; absent when that group is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub beam: Option<BeamTruthRecord>,
+}
+
+/// The beam as it really is (model: crates/simulator/src/imperfections/beam.rs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BeamTruthRecord {
+    /// "top-hat" or "gaussian".
+    pub profile: String,
+    /// The Gaussian's 1/e^2 radius (mm); 0 for the top hat.
+    pub gaussian_radius_mm: f64,
+    /// The pointing error: in the arms' plane (towards increasing arm angle) and vertical (degrees).
+    pub pointing_in_plane_deg: f64,
+    pub pointing_vertical_deg: f64,
+    /// From the source's output to the arms' axis (mm).
+    pub source_distance_mm: f64,
+    /// The true full divergence angle and the nominal one (degrees).
+    pub divergence_deg: f64,
+    pub nominal_divergence_deg: f64,
 }
 
 /// The sample's non-uniformity (model: crates/simulator/src/imperfections/sample.rs): its BRDF is the

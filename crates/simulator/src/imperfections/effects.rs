@@ -27,6 +27,11 @@ pub struct OpticsEffects {
     /// The source's imperfection factors over the reading (means): warm-up and random walk, flicker.
     pub source_slow_factor: f64,
     pub source_flicker_factor: f64,
+    /// Relative change of the light reaching the detector by the beam's profile and true divergence, against
+    /// the ideal (top-hat, nominal-divergence) beam at the same true geometry: the intercepted fraction and a
+    /// delta lobe's share, or the direct beam's fraction (crate::imperfections::beam; 0 with the ideal beam).
+    /// The beam's pointing acts through the true directions above.
+    pub beam_fraction_rel: f64,
 }
 
 /// The meter's side of one reading.

@@ -10,7 +10,7 @@ use crate::kinematics;
 use crate::scene::{Band, Pose, Scene};
 
 use super::imperfect::Geometry;
-use super::{OpticalReading, Optics, OpticsError, cap};
+use super::{OpticalReading, Optics, OpticsError};
 
 /// A reading without its instant: [`Optics::at_rest`].
 #[derive(Debug, Clone, Copy)]
@@ -23,6 +23,9 @@ struct AtRest {
     /// Fraction of the beam reaching the detector by other paths (the instrument signature; 0 on the ideal
     /// instrument, with the filter closed, or with the beam blocked).
     stray_fraction: f64,
+    /// Relative change of the light by the beam's profile and true divergence (crate::imperfections::beam;
+    /// 0 with the ideal beam).
+    beam_rel: f64,
 }
 
 /// How the source's power reaches the detector at a pose at rest.
@@ -95,18 +98,20 @@ impl Optics {
                 transmission,
                 light: Light::Dark,
                 stray_fraction,
+                beam_rel: 0.0,
             });
         };
         if !self.sample_mounted() {
             // No sample: the detector sees the beam itself when it faces the source, nothing otherwise.
             let off_axis = kinematics::angle_between(&detector_arm_lab, &neg(&geometry.source_lab));
-            let fraction = cap::fraction_inside(self.divergence_half_rad, self.aperture_half_rad, off_axis);
+            let (fraction, nominal) = self.direct_fraction(&g, off_axis);
             out.intercepted_fraction = fraction;
             return Ok(AtRest {
                 out,
                 transmission,
                 light: Light::DirectBeam { fraction },
                 stray_fraction,
+                beam_rel: relative(fraction, nominal),
             });
         }
         let r = self.resolved(nm)?;
@@ -128,15 +133,29 @@ impl Optics {
         } else {
             Light::Sample {
                 intercepted: fp.intercepted_fraction,
-                collected: (truth.integral + truth.delta) * out.sample_factor,
+                collected: (truth.integral + truth.delta_beam) * out.sample_factor,
                 integral_error: truth.integral_error * out.sample_factor,
             }
+        };
+        let beam_rel = if self.beam.is_some() {
+            // Against the ideal beam at the same (true) geometry: a top hat's footprint, the nominal divergence.
+            let top_hat = match self.beam.as_ref().and_then(|b| b.gaussian_mm) {
+                Some(_) => self.footprint_top_hat(&g).intercepted_fraction,
+                None => fp.intercepted_fraction,
+            };
+            relative(
+                fp.intercepted_fraction * (truth.integral + truth.delta_beam),
+                top_hat * (truth.integral + truth.delta),
+            )
+        } else {
+            0.0
         };
         Ok(AtRest {
             out,
             transmission,
             light,
             stray_fraction,
+            beam_rel,
         })
     }
 
@@ -176,6 +195,15 @@ impl Optics {
     }
 }
 
+/// `a / b - 1`, 0 when `b` is 0 or either is not finite.
+fn relative(a: f64, b: f64) -> f64 {
+    if b != 0.0 && a.is_finite() && b.is_finite() {
+        a / b - 1.0
+    } else {
+        0.0
+    }
+}
+
 fn neg(v: &[f64; 3]) -> [f64; 3] {
     [-v[0], -v[1], -v[2]]
 }
@@ -208,6 +236,7 @@ impl Optics {
             stray_power_w: stray_sum_w / n,
             source_slow_factor: slow / n,
             source_flicker_factor: fast / n,
+            beam_fraction_rel: rest.beam_rel,
         };
         *self.last_effects.lock().unwrap_or_else(|e| e.into_inner()) = Some(effects);
     }
