@@ -112,7 +112,8 @@ fn a_gaussian_beam_overfills_a_small_sample_by_its_weight_beyond_the_edge() {
 
 #[test]
 fn the_sample_s_footprint_mean_is_weighted_by_the_gaussian() {
-    let w = 1.5;
+    // Not the nominal top hat's 1.5 mm, so that the weighting shows.
+    let w = 1.2;
     let uneven = SampleImperfections {
         gradient_sd: 0.02,
         radial_sd: 0.05,
@@ -261,4 +262,70 @@ fn the_true_divergence_sets_how_much_of_the_direct_beam_s_cone_enters_the_apertu
     let ratio = r1.power_w / r0.power_w;
     assert!((ratio / (f1 / f0) - 1.0).abs() < 1e-3, "{ratio} vs {}", f1 / f0);
     assert!((ratio - 1.0).abs() > 0.05, "the drawn divergence matters here: {ratio}");
+}
+
+fn mirror_optics(f: &InstrumentFile) -> Optics {
+    let material = gonio_brdf::Material::from_document(
+        "[material]\nmodel = \"mirror\"\neta = 1.5\nk = 0.0\n",
+        "test",
+        std::path::Path::new("."),
+    )
+    .expect("valid material");
+    Optics::new(
+        &f.instrument,
+        gonio_simulator::optics::SampleSpec {
+            material,
+            radius_mm: 25.0,
+            orientation_deg: 0.0,
+        },
+        f.simulator.seed,
+    )
+    .expect("optics")
+    .with_source_noise(false)
+    .with_source_drift(false)
+    .with_hidden_truth(HiddenTruth::draw(f).as_ref())
+}
+
+/// A Gaussian's (1/e^2 radius `w`) power through a disc of radius `a` whose centre is `s` from the beam's axis,
+/// by brute force in polar coordinates about the disc's centre.
+fn gaussian_through(w: f64, a: f64, s: f64) -> f64 {
+    let (nr, np) = (800, 800);
+    let mut sum = 0.0;
+    for i in 0..nr {
+        let r = (i as f64 + 0.5) * a / nr as f64;
+        for j in 0..np {
+            let phi = (j as f64 + 0.5) * std::f64::consts::TAU / np as f64;
+            let (x, y) = (r * phi.cos() + s, r * phi.sin());
+            sum += (-2.0 * (x * x + y * y) / (w * w)).exp() * r;
+        }
+    }
+    sum * (a / nr as f64) * (std::f64::consts::TAU / np as f64) * 2.0 / (std::f64::consts::PI * w * w)
+}
+
+#[test]
+fn a_mirror_s_reflected_gaussian_loses_the_same_tails_as_the_direct_beam() {
+    let w = 3.0;
+    let f = file(gaussian(w), 31);
+    let (ideal, o) = (mirror_optics(&InstrumentFile::simulated()), mirror_optics(&f));
+    let spread = DETECTOR_MM * (0.5 * DIVERGENCE_DEG).to_radians().tan();
+    let w_d = w.hypot(spread);
+    // At the mirror direction and 0.3 degrees off it: the reflected beam's axis passes d sin(g) from the
+    // aperture's centre. The ideal top-hat cone (0.025 deg) lies wholly inside the aperture (0.57 deg) at both.
+    for g_deg in [0.0f64, 0.3] {
+        let p = pose(30.0, -30.0 - g_deg, 0.0, 0.0);
+        let r0 = ideal.reading(&p, &BAND_550, 5.0).expect("reading");
+        let r1 = o.reading(&p, &BAND_550, 5.0).expect("reading");
+        let expected = gaussian_through(w_d, APERTURE_MM, DETECTOR_MM * g_deg.to_radians().sin());
+        let ratio = r1.power_w / r0.power_w;
+        assert!((ratio - expected).abs() < 2e-6, "{g_deg}: {ratio} vs {expected}");
+        assert_eq!(r1.truth_aperture_sr, r0.truth_aperture_sr, "the truth is the nominal beam's");
+    }
+    // The calibration sees the same loss: mirror reading over direct beam is the mirror's reflectance.
+    let p = pose(30.0, -30.0, 0.0, 0.0);
+    let reflectance = |o: &Optics| {
+        let on_mirror = o.reading(&p, &BAND_550, 5.0).expect("reading").power_w;
+        on_mirror / o.direct_beam_power_w(&BAND_550, 5.0)
+    };
+    let (a, b) = (reflectance(&ideal), reflectance(&o));
+    assert!((a / b - 1.0).abs() < 1e-12, "{a} vs {b}");
 }
