@@ -6,12 +6,14 @@
 //! - `T` is the filter's transmission; the blank gives 0;
 //! - `eta_footprint` is the fraction of the beam that lands on the sample inside the detector's field of view
 //!   ([`footprint`], exact closed form: the footprint grows as 1/cos(theta_i) and spills past the sample's edge;
-//!   [`footprint_offset`] when the spot is off-centre on an imperfect instrument);
+//!   [`footprint_offset`] when the spot is off-centre on an imperfect instrument; [`footprint_gaussian`] for a
+//!   Gaussian beam, crate::imperfections::beam);
 //! - the integral runs over the detector's circular aperture seen from the sample centre: a cone about `wo` of
 //!   half-angle `atan(r/d)` ([`aperture`], computed as cheaply as the tolerance allows, with an error estimate);
 //! - an ideal specular (delta) lobe of reflectance `F` is added analytically: `eta_delta` is the fraction of the
 //!   beam's divergence cone (full angle `divergence_deg`, top hat) that enters the aperture ([`cap`]); with zero
-//!   divergence it is 1 or 0;
+//!   divergence it is 1 or 0 (with the imperfect beam's true divergence, or its Gaussian spread over the
+//!   aperture, crate::imperfections::beam);
 //! - when the detector arm is within `safety.retro_block_deg` of the light arm, the detector's body blocks the
 //!   incident beam: `P_s = 0` and the reading says so.
 //!
@@ -30,7 +32,8 @@
 //! simulated arms' limits). With no sample the detector reads the part of the beam that enters its aperture and
 //! nothing elsewhere; [`Optics::direct_beam_power_w`] gives the reading of the facing pose directly.
 //! Far-field approximation: the beam (radius 1.5 mm) is narrower than the aperture (2.5 mm) and treated, like the
-//! mirror reflection, as a divergence cone from the sample centre.
+//! mirror reflection, as a divergence cone from the sample centre. A Gaussian beam (crate::imperfections::beam)
+//! is not: its tails beyond the aperture are lost, in the direct beam and in a mirror's reflection alike.
 //!
 //! # Cost
 //! A Lambertian sample costs one BRDF evaluation per reading (its integral is `f` times the exact projected solid

@@ -68,7 +68,8 @@ impl Optics {
     }
 
     /// The true geometry of the pose the controllers believe (hidden truth, for tests); the nominal geometry
-    /// on the ideal instrument.
+    /// on the ideal instrument. The geometry group's only: a reading then applies the beam's pointing
+    /// (crate::imperfections::beam) to it.
     pub fn true_geometry(&self, pose: &Pose) -> Option<crate::imperfections::TrueGeometry> {
         let g = self.hidden.as_ref()?.geometry.as_ref()?;
         Some(g.true_geometry(pose, &self.seating().1, self.detector_distance_mm))
