@@ -31,8 +31,8 @@ mod validate;
 use std::path::Path;
 
 pub use imperfections::{
-    BeamImperfections, BeamProfile, DetectorImperfections, GeometryImperfections, Imperfections, ImperfectionsError, SampleImperfections,
-    SourceImperfections,
+    BeamImperfections, BeamProfile, DetectorImperfections, GeometryImperfections, Imperfections,
+    ImperfectionsError, SampleImperfections, SourceImperfections,
 };
 
 use serde::{Deserialize, Serialize};

@@ -61,7 +61,8 @@ fn the_beam_group_needs_its_width_and_distance_and_knows_its_profiles() {
         assert!(msg.contains(key), "{table}: {msg}");
     }
     // A top hat with no pointing or divergence error is the ideal beam, whatever else the table states.
-    let file = parse("profile = \"top-hat\"\ngaussian_radius_mm = 1.0\nsource_distance_mm = 400.0").expect("valid");
+    let file =
+        parse("profile = \"top-hat\"\ngaussian_radius_mm = 1.0\nsource_distance_mm = 400.0").expect("valid");
     assert!(file.simulator.imperfections.is_ideal());
 }
 

@@ -17,8 +17,8 @@ mod simulator_truth;
 pub mod summary;
 
 pub use simulator_truth::{
-    AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
-    SeatingRecord, SimulatorTruth, SourceTruthRecord,
+    AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, GeometryTruthRecord, RangeTruthRecord,
+    SampleTruthRecord, SeatingRecord, SimulatorTruth, SourceTruthRecord,
 };
 pub use summary::{ExportSetup, iso8601_utc, provenance_lines};
 

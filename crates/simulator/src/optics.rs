@@ -328,7 +328,8 @@ impl Optics {
     }
 
     /// What the detector reads looking straight into the source with no sample: the beam power at that time and
-    /// band times the fraction of the divergence cone inside the aperture (1 for this instrument).
+    /// band times the fraction of the divergence cone inside the aperture (1 for this instrument; less for a
+    /// Gaussian beam whose tails miss the aperture, crate::imperfections::beam).
     pub fn direct_beam_power_w(&self, band: &Band, t_s: f64) -> f64 {
         self.incident_power_w(band, t_s) * self.lobe_fraction(0.0, false)
     }

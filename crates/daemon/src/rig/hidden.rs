@@ -4,8 +4,8 @@
 
 use gonio_instrument::InstrumentFile;
 use gonio_results::provenance::{
-    AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
-    SeatingRecord, SimulatorTruth, SourceTruthRecord,
+    AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, GeometryTruthRecord, RangeTruthRecord,
+    SampleTruthRecord, SeatingRecord, SimulatorTruth, SourceTruthRecord,
 };
 use gonio_simulator::imperfections::HiddenTruth;
 

@@ -100,7 +100,8 @@ impl BeamTruth {
 
     /// The Gaussian's 1/e^2 radius, `None` for the top hat.
     pub fn gaussian_mm(&self) -> Option<f64> {
-        (self.profile == BeamProfile::Gaussian && self.gaussian_radius_mm > 0.0).then_some(self.gaussian_radius_mm)
+        (self.profile == BeamProfile::Gaussian && self.gaussian_radius_mm > 0.0)
+            .then_some(self.gaussian_radius_mm)
     }
 
     pub fn has_pointing(&self) -> bool {
@@ -203,7 +204,13 @@ mod tests {
 
     #[test]
     fn the_gaussian_in_a_disc_matches_the_bessel_integral() {
-        for (w, a, s) in [(1.5, 2.5, 0.0), (1.5, 2.5, 0.4), (3.0, 2.5, 1.0), (1.0, 2.5, 3.0), (2.0, 2.5, 2.5)] {
+        for (w, a, s) in [
+            (1.5, 2.5, 0.0),
+            (1.5, 2.5, 0.4),
+            (3.0, 2.5, 1.0),
+            (1.0, 2.5, 3.0),
+            (2.0, 2.5, 2.5),
+        ] {
             let f = gaussian_in_disc(w, a, s);
             let g = bessel(w, a, s);
             assert!((f - g).abs() < 1e-6, "({w}, {a}, {s}): {f} vs {g}");

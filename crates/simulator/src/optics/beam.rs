@@ -4,6 +4,7 @@
 //! take exactly the ideal code path.
 
 use crate::imperfections::BeamTruth;
+use crate::imperfections::beam::gaussian_in_disc;
 use crate::kinematics::{LabVector, dot};
 
 use super::imperfect::Geometry;
@@ -92,7 +93,7 @@ impl Optics {
         match self.beam.as_ref().filter(|_| !nominal) {
             None => cap::fraction_inside(self.divergence_half_rad, self.aperture_half_rad, g_rad),
             Some(b) => match b.gaussian_mm {
-                Some((_, w_det)) => super::super::imperfections::beam::gaussian_in_disc(
+                Some((_, w_det)) => gaussian_in_disc(
                     w_det,
                     b.aperture_radius_mm,
                     self.detector_distance_mm * g_rad.min(std::f64::consts::FRAC_PI_2).sin(),
@@ -123,7 +124,7 @@ impl Optics {
                 ];
                 let along = dot(&r, &s);
                 let offset = (dot(&r, &r) - along * along).max(0.0).sqrt();
-                super::super::imperfections::beam::gaussian_in_disc(w_det, b.aperture_radius_mm, offset)
+                gaussian_in_disc(w_det, b.aperture_radius_mm, offset)
             }
         };
         (fraction, nominal)

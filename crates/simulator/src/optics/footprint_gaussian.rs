@@ -170,7 +170,15 @@ mod tests {
 
     #[test]
     fn a_small_centred_beam_is_wholly_intercepted() {
-        let f = footprint_gaussian(1.0, 12.5, 12.0, &dir(30.0, 0.0), &dir(30.0, 180.0), [0.0; 2], [0.0; 2]);
+        let f = footprint_gaussian(
+            1.0,
+            12.5,
+            12.0,
+            &dir(30.0, 0.0),
+            &dir(30.0, 180.0),
+            [0.0; 2],
+            [0.0; 2],
+        );
         assert_eq!(f.intercepted_fraction, 1.0);
         assert!(!f.overfilled_sample && !f.overfilled_field);
     }

@@ -48,7 +48,10 @@ fn a_gaussian_wider_than_the_aperture_loses_its_tails_in_the_direct_beam() {
     let p = Optics::direct_beam_pose(-90.0);
     let r0 = ideal.reading(&p, &BAND_550, 5.0).expect("reading");
     let r1 = o.reading(&p, &BAND_550, 5.0).expect("reading");
-    assert_eq!(r0.intercepted_fraction, 1.0, "the top-hat cone lies inside the aperture");
+    assert_eq!(
+        r0.intercepted_fraction, 1.0,
+        "the top-hat cone lies inside the aperture"
+    );
     // At the aperture the Gaussian has spread by the divergence's 1/e^2 half-angle over the distance.
     let spread = DETECTOR_MM * (0.5 * DIVERGENCE_DEG).to_radians().tan();
     let w_d2 = w * w + spread * spread;
@@ -104,10 +107,17 @@ fn a_gaussian_beam_overfills_a_small_sample_by_its_weight_beyond_the_edge() {
     let r0 = ideal.reading(&p, &BAND_550, 5.0).expect("reading");
     let r1 = o.reading(&p, &BAND_550, 5.0).expect("reading");
     let expected = gaussian_on_disc(w, r_s, 60f64.to_radians());
-    assert!((r1.intercepted_fraction - expected).abs() < 1e-5, "{} vs {expected}", r1.intercepted_fraction);
+    assert!(
+        (r1.intercepted_fraction - expected).abs() < 1e-5,
+        "{} vs {expected}",
+        r1.intercepted_fraction
+    );
     let ratio = r1.power_w / r0.power_w;
     let fractions = r1.intercepted_fraction / r0.intercepted_fraction;
-    assert!((ratio - fractions).abs() < 1e-12, "only the footprint changes: {ratio} vs {fractions}");
+    assert!(
+        (ratio - fractions).abs() < 1e-12,
+        "only the footprint changes: {ratio} vs {fractions}"
+    );
 }
 
 #[test]
@@ -121,7 +131,9 @@ fn the_sample_s_footprint_mean_is_weighted_by_the_gaussian() {
     let mut both = file(gaussian(w), 21);
     both.simulator.imperfections.sample = uneven;
     let (o, gaussian_only) = (optics(&both), optics(&file(gaussian(w), 21)));
-    let s = HiddenTruth::draw(&both).and_then(|h| h.sample).expect("sample truth");
+    let s = HiddenTruth::draw(&both)
+        .and_then(|h| h.sample)
+        .expect("sample truth");
     for theta_i in [0.0f64, 50.0, 80.0] {
         let p = pose(theta_i, -(theta_i - 30.0).abs().max(10.0), 0.0, 0.0);
         let r0 = gaussian_only.reading(&p, &BAND_550, 5.0).expect("reading");
@@ -132,7 +144,10 @@ fn the_sample_s_footprint_mean_is_weighted_by_the_gaussian() {
         let second = w * w / (4.0 * c * c) + w * w / 4.0;
         let expected = 1.0 + s.radial * second / (25.0 * 25.0);
         let ratio = r1.power_w / r0.power_w;
-        assert!((ratio - expected).abs() < 1e-12, "{theta_i}: {ratio} vs {expected}");
+        assert!(
+            (ratio - expected).abs() < 1e-12,
+            "{theta_i}: {ratio} vs {expected}"
+        );
     }
 }
 
@@ -148,13 +163,20 @@ fn pointed(t: &BeamTruth, light_deg: f64, detector_deg: f64, c: [f64; 3]) -> ([f
     let a = light_deg.to_radians();
     let s = [a.cos(), a.sin(), 0.0];
     let e1 = [-a.sin(), a.cos(), 0.0];
-    let (t1, t2) = (t.pointing_deg[0].to_radians().tan(), t.pointing_deg[1].to_radians().tan());
+    let (t1, t2) = (
+        t.pointing_deg[0].to_radians().tan(),
+        t.pointing_deg[1].to_radians().tan(),
+    );
     let sp = unit([s[0] + t1 * e1[0], s[1] + t1 * e1[1], t2]);
     let l = t.source_distance_mm;
     let origin = [c[0] + l * s[0], c[1] + l * s[1], c[2]];
     // The beam meets the plane X = 0.
     let k = origin[0] / sp[0];
-    let p = [origin[0] - k * sp[0], origin[1] - k * sp[1], origin[2] - k * sp[2]];
+    let p = [
+        origin[0] - k * sp[0],
+        origin[1] - k * sp[1],
+        origin[2] - k * sp[2],
+    ];
     let d = detector_deg.to_radians();
     let aperture = [c[0] + DETECTOR_MM * d.cos(), c[1] + DETECTOR_MM * d.sin(), c[2]];
     let wo = unit([aperture[0] - p[0], aperture[1] - p[1], aperture[2] - p[2]]);
@@ -162,7 +184,10 @@ fn pointed(t: &BeamTruth, light_deg: f64, detector_deg: f64, c: [f64; 3]) -> ([f
 }
 
 fn assert_close(got: [f64; 3], want: [f64; 3], tol: f64) {
-    assert!((0..3).all(|k| (got[k] - want[k]).abs() < tol), "{got:?} vs {want:?}");
+    assert!(
+        (0..3).all(|k| (got[k] - want[k]).abs() < tol),
+        "{got:?} vs {want:?}"
+    );
 }
 
 #[test]
@@ -174,18 +199,29 @@ fn the_pointing_error_turns_the_incidence_by_the_drawn_angle_and_moves_the_spot(
     };
     let f = file(beam, 11);
     let t = beam_truth(&f);
-    assert!(t.pointing_deg[0].abs() > 0.02 && t.pointing_deg[1].abs() > 0.02, "{t:?}");
+    assert!(
+        t.pointing_deg[0].abs() > 0.02 && t.pointing_deg[1].abs() > 0.02,
+        "{t:?}"
+    );
     let o = optics(&f);
     let (light, detector) = (40.0, -10.0);
-    let r = o.reading(&pose(light, detector, 0.0, 0.0), &BAND_550, 5.0).expect("reading");
+    let r = o
+        .reading(&pose(light, detector, 0.0, 0.0), &BAND_550, 5.0)
+        .expect("reading");
     let (wi, spot, wo) = pointed(&t, light, detector, [0.0; 3]);
     assert_close([r.wi.x(), r.wi.y(), r.wi.z()], wi, 1e-12);
     assert_close([r.wo.x(), r.wo.y(), r.wo.z()], wo, 1e-12);
-    assert!((r.spot_mm[0] - spot[0]).abs() < 1e-9 && (r.spot_mm[1] - spot[1]).abs() < 1e-9, "{r:?}");
+    assert!(
+        (r.spot_mm[0] - spot[0]).abs() < 1e-9 && (r.spot_mm[1] - spot[1]).abs() < 1e-9,
+        "{r:?}"
+    );
     // The specular direction turns with the beam: theta_i is the arm's angle plus the in-plane pointing (to
     // second order in the vertical one), and the spot moved by about L times the angle.
     let theta_i = r.wi.theta().to_degrees();
-    assert!((theta_i - (light + t.pointing_deg[0])).abs() < 2e-3, "{theta_i} {t:?}");
+    assert!(
+        (theta_i - (light + t.pointing_deg[0])).abs() < 2e-3,
+        "{theta_i} {t:?}"
+    );
     assert!(spot[0].hypot(spot[1]) > 400.0 * 0.02f64.to_radians());
 }
 
@@ -206,11 +242,16 @@ fn the_pointing_error_composes_with_the_arms_eccentricity() {
     let c = [g.eccentricity_mm[0], g.eccentricity_mm[1], 0.0];
     let o = optics(&f);
     let (light, detector) = (35.0, -25.0);
-    let r = o.reading(&pose(light, detector, 0.0, 0.0), &BAND_550, 5.0).expect("reading");
+    let r = o
+        .reading(&pose(light, detector, 0.0, 0.0), &BAND_550, 5.0)
+        .expect("reading");
     let (wi, spot, wo) = pointed(&t, light, detector, c);
     assert_close([r.wi.x(), r.wi.y(), r.wi.z()], wi, 1e-12);
     assert_close([r.wo.x(), r.wo.y(), r.wo.z()], wo, 1e-12);
-    assert!((r.spot_mm[0] - spot[0]).abs() < 1e-9 && (r.spot_mm[1] - spot[1]).abs() < 1e-9, "{r:?}");
+    assert!(
+        (r.spot_mm[0] - spot[0]).abs() < 1e-9 && (r.spot_mm[1] - spot[1]).abs() < 1e-9,
+        "{r:?}"
+    );
 }
 
 /// The fraction of a disc of radius `r1` inside a disc of radius `r2`, centres `g` apart (planar lens area).
@@ -254,14 +295,24 @@ fn the_true_divergence_sets_how_much_of_the_direct_beam_s_cone_enters_the_apertu
     };
     let r0 = ideal.reading(&p, &BAND_550, 5.0).expect("reading");
     let r1 = o.reading(&p, &BAND_550, 5.0).expect("reading");
-    let (half_nominal, half_true) = (0.5 * nominal_deg.to_radians(), 0.5 * t.divergence_deg.to_radians());
+    let (half_nominal, half_true) = (
+        0.5 * nominal_deg.to_radians(),
+        0.5 * t.divergence_deg.to_radians(),
+    );
     let f0 = lens_fraction(half_nominal, beta, g);
     let f1 = lens_fraction(half_true, beta, g);
     // Planar against spherical caps: relative differences of the order of the angles squared (1e-4).
-    assert!((r0.intercepted_fraction / f0 - 1.0).abs() < 1e-3, "{} vs {f0}", r0.intercepted_fraction);
+    assert!(
+        (r0.intercepted_fraction / f0 - 1.0).abs() < 1e-3,
+        "{} vs {f0}",
+        r0.intercepted_fraction
+    );
     let ratio = r1.power_w / r0.power_w;
     assert!((ratio / (f1 / f0) - 1.0).abs() < 1e-3, "{ratio} vs {}", f1 / f0);
-    assert!((ratio - 1.0).abs() > 0.05, "the drawn divergence matters here: {ratio}");
+    assert!(
+        (ratio - 1.0).abs() > 0.05,
+        "the drawn divergence matters here: {ratio}"
+    );
 }
 
 fn mirror_optics(f: &InstrumentFile) -> Optics {
@@ -318,7 +369,10 @@ fn a_mirror_s_reflected_gaussian_loses_the_same_tails_as_the_direct_beam() {
         let expected = gaussian_through(w_d, APERTURE_MM, DETECTOR_MM * g_deg.to_radians().sin());
         let ratio = r1.power_w / r0.power_w;
         assert!((ratio - expected).abs() < 2e-6, "{g_deg}: {ratio} vs {expected}");
-        assert_eq!(r1.truth_aperture_sr, r0.truth_aperture_sr, "the truth is the nominal beam's");
+        assert_eq!(
+            r1.truth_aperture_sr, r0.truth_aperture_sr,
+            "the truth is the nominal beam's"
+        );
     }
     // The calibration sees the same loss: mirror reading over direct beam is the mirror's reflectance.
     let p = pose(30.0, -30.0, 0.0, 0.0);
