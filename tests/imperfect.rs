@@ -142,6 +142,7 @@ fn every_realistic_point_says_what_each_imperfection_did_and_ideal_points_say_no
             "geometry",
             "stray",
             "sample",
+            "beam",
             "source_slow",
             "source_flicker",
             "saturation",

@@ -19,7 +19,7 @@ use gonio_instrument::InstrumentFile;
 use crate::throughput::{self, Throughput};
 
 /// The groups of `[simulator.imperfections]` realistic.toml has, in report order.
-pub const GROUPS: [&str; 5] = ["geometry", "detector", "source", "sample", "filters"];
+pub const GROUPS: [&str; 6] = ["geometry", "detector", "source", "sample", "filters", "beam"];
 
 /// Angular classes, in report order.
 pub const CLASSES: [&str; 4] = [
@@ -185,8 +185,7 @@ pub fn markdown(variants: &[Variant], throughput: &[(&str, Throughput)], target_
          nominal geometry. Classes: grazing (theta_i or theta_o >= 70 deg) first, then by the angle between the \
          outgoing direction and the mirror of the incident one. The ideal row is the same campaign on the ideal \
          instrument: what the measurement equation, the finite aperture and the meter's noise cost by \
-         themselves. Not yet in the simulator (issue 16's later group): the beam's profile and pointing. \
-         Details: crates/bench/src/error_budget.rs.\n\n\
+         themselves. Details: crates/bench/src/error_budget.rs.\n\n\
          How to read the filters' row: the direct-beam calibration passes the same filter, so what remains is \
          the band's mean of the sample's spectrum against its value at the band's centre. Coloured plastic's \
          spectrum is a table linear between 50 nm knots, and the demo's bands (450, 550, 650 nm) sit on knots \

@@ -7,9 +7,10 @@
 //! bit.
 //!
 //! One sub-table per group of effects, each a struct with `Default` = off and a `validate` that names its keys:
-//! [`geometry`], [`detector`], [`source`], [`sample`], [`filters`]. The beam's profile is a later group of
+//! [`geometry`], [`detector`], [`source`], [`sample`], [`filters`], [`beam`]: the groups of
 //! issue 16.
 
+pub mod beam;
 pub mod detector;
 pub mod filters;
 pub mod geometry;
@@ -18,6 +19,7 @@ pub mod source;
 
 use serde::{Deserialize, Serialize};
 
+pub use beam::{BeamImperfections, BeamProfile};
 pub use detector::DetectorImperfections;
 pub use filters::FilterImperfections;
 pub use geometry::GeometryImperfections;
@@ -44,6 +46,9 @@ pub struct Imperfections {
     /// How wide the filters' bands really are and what they leak (finite bandwidth, out-of-band leakage).
     #[serde(default)]
     pub filters: FilterImperfections,
+    /// What the beam really is (profile, pointing, divergence).
+    #[serde(default)]
+    pub beam: BeamImperfections,
 }
 
 /// Why `[simulator.imperfections]` was refused: the key (full TOML path) and the value.
@@ -135,6 +140,7 @@ impl Imperfections {
             && self.source.is_ideal()
             && self.sample.is_ideal()
             && self.filters.is_ideal()
+            && self.beam.is_ideal()
     }
 
     pub fn validate(&self) -> Result<(), ImperfectionsError> {
@@ -142,6 +148,7 @@ impl Imperfections {
         self.detector.validate()?;
         self.source.validate()?;
         self.sample.validate()?;
-        self.filters.validate()
+        self.filters.validate()?;
+        self.beam.validate()
     }
 }

@@ -31,8 +31,8 @@ mod validate;
 use std::path::Path;
 
 pub use imperfections::{
-    DetectorImperfections, FilterImperfections, GeometryImperfections, Imperfections, ImperfectionsError,
-    SampleImperfections, SourceImperfections,
+    BeamImperfections, BeamProfile, DetectorImperfections, FilterImperfections, GeometryImperfections,
+    Imperfections, ImperfectionsError, SampleImperfections, SourceImperfections,
 };
 
 use serde::{Deserialize, Serialize};

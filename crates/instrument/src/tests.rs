@@ -72,6 +72,32 @@ fn a_finite_band_needs_its_shape_and_source_and_a_sane_range() {
 }
 
 #[test]
+fn the_beam_group_needs_its_width_and_distance_and_knows_its_profiles() {
+    let parse = |table: &str| {
+        InstrumentFile::parse(
+            &format!("{SIMULATED_INSTRUMENT_TOML}\n[simulator.imperfections.beam]\n{table}\n"),
+            "x.toml",
+        )
+    };
+    let file = parse("profile = \"gaussian\"\ngaussian_radius_mm = 1.2").expect("valid");
+    assert_eq!(file.simulator.imperfections.beam.profile, BeamProfile::Gaussian);
+    assert!(!file.simulator.imperfections.is_ideal());
+    for (table, key) in [
+        ("profile = \"gaussian\"", "gaussian_radius_mm"),
+        ("pointing_sd_deg = 0.01", "source_distance_mm"),
+        ("divergence_sd_deg = -0.01", "divergence_sd_deg"),
+        ("profile = \"donut\"", "donut"),
+    ] {
+        let msg = parse(table).expect_err(table).to_string();
+        assert!(msg.contains(key), "{table}: {msg}");
+    }
+    // A top hat with no pointing or divergence error is the ideal beam, whatever else the table states.
+    let file =
+        parse("profile = \"top-hat\"\ngaussian_radius_mm = 1.0\nsource_distance_mm = 400.0").expect("valid");
+    assert!(file.simulator.imperfections.is_ideal());
+}
+
+#[test]
 fn a_bad_imperfection_is_refused_with_the_file_and_the_key() {
     let text = format!(
         "{SIMULATED_INSTRUMENT_TOML}\n[simulator.imperfections.geometry]\nreseat_tilt_sd_deg = -0.01\n"

@@ -17,8 +17,9 @@ mod simulator_truth;
 pub mod summary;
 
 pub use simulator_truth::{
-    AxisTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord, GeometryTruthRecord,
-    RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth, SourceTruthRecord,
+    AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord,
+    GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth,
+    SourceTruthRecord,
 };
 pub use summary::{ExportSetup, iso8601_utc, provenance_lines};
 
@@ -454,6 +455,15 @@ pub(crate) mod tests {
                     centre_nm: 550.8,
                     bandwidth_nm: 9.6,
                 }],
+            }),
+            beam: Some(BeamTruthRecord {
+                profile: "gaussian".into(),
+                gaussian_radius_mm: 1.5,
+                pointing_in_plane_deg: 0.004,
+                pointing_vertical_deg: -0.002,
+                source_distance_mm: 500.0,
+                divergence_deg: 0.055,
+                nominal_divergence_deg: 0.05,
             }),
         });
         let text = r.to_json_text();

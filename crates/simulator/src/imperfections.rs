@@ -13,12 +13,13 @@
 //! eccentricity; crate::optics), [`detector`] (range gains, nonlinearity and offsets, saturation, amplifier
 //! noise and ambient light in the power meter, crate::pm100::physics; stray light by pose in crate::optics),
 //! [`source`] (warm-up, random walk, flicker; crate::optics::source), [`sample`] (reflectance varying over the
-//! sample's area; crate::optics), [`filters`] (finite bands and out-of-band leakage; crate::optics::spectral).
-//! Still to come (issue 16): beam.
+//! sample's area; crate::optics), [`filters`] (finite bands and out-of-band leakage; crate::optics::spectral),
+//! [`beam`] (profile, pointing, divergence; crate::optics).
 //!
 //! An all-zero table is the ideal instrument bit for bit: [`HiddenTruth::draw`] returns `None` for a group that
 //! is off, and the optics then take exactly the code path they take with no table at all.
 
+pub mod beam;
 pub mod detector;
 pub mod draw;
 pub mod effects;
@@ -30,6 +31,7 @@ pub mod source;
 use gonio_instrument::{AxisRole, InstrumentFile};
 use serde::Serialize;
 
+pub use beam::BeamTruth;
 pub use detector::{DetectorTruth, RangeTruth, Signature};
 pub use effects::{MeterEffects, OpticsEffects};
 pub use filters::{FilterTruth, FiltersTruth};
@@ -57,6 +59,9 @@ pub struct HiddenTruth {
     /// `None` when the filters' bands are single wavelengths.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub filters: Option<FiltersTruth>,
+    /// `None` when the beam is the ideal one (top hat, no pointing or divergence error).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub beam: Option<BeamTruth>,
 }
 
 impl HiddenTruth {
@@ -84,11 +89,15 @@ impl HiddenTruth {
             .then(|| SampleTruth::draw(&settings.sample, seed))
             .filter(|s| !s.is_ideal());
         let filters = FiltersTruth::draw(&settings.filters, file);
+        let beam = (!settings.beam.is_ideal())
+            .then(|| BeamTruth::draw(&settings.beam, file.instrument.source.divergence_deg, seed))
+            .filter(|b| !b.is_ideal());
         let any = geometry.is_some()
             || detector.is_some()
             || source.is_some()
             || sample.is_some()
-            || filters.is_some();
+            || filters.is_some()
+            || beam.is_some();
         any.then_some(HiddenTruth {
             seed,
             geometry,
@@ -96,6 +105,7 @@ impl HiddenTruth {
             source,
             sample,
             filters,
+            beam,
         })
     }
 

@@ -6,12 +6,14 @@
 //! - `T` is the filter's transmission; the blank gives 0;
 //! - `eta_footprint` is the fraction of the beam that lands on the sample inside the detector's field of view
 //!   ([`footprint`], exact closed form: the footprint grows as 1/cos(theta_i) and spills past the sample's edge;
-//!   [`footprint_offset`] when the spot is off-centre on an imperfect instrument);
+//!   [`footprint_offset`] when the spot is off-centre on an imperfect instrument; [`footprint_gaussian`] for a
+//!   Gaussian beam, crate::imperfections::beam);
 //! - the integral runs over the detector's circular aperture seen from the sample centre: a cone about `wo` of
 //!   half-angle `atan(r/d)` ([`aperture`], computed as cheaply as the tolerance allows, with an error estimate);
 //! - an ideal specular (delta) lobe of reflectance `F` is added analytically: `eta_delta` is the fraction of the
 //!   beam's divergence cone (full angle `divergence_deg`, top hat) that enters the aperture ([`cap`]); with zero
-//!   divergence it is 1 or 0;
+//!   divergence it is 1 or 0 (with the imperfect beam's true divergence, or its Gaussian spread over the
+//!   aperture, crate::imperfections::beam);
 //! - when the detector arm is within `safety.retro_block_deg` of the light arm, the detector's body blocks the
 //!   incident beam: `P_s = 0` and the reading says so.
 //!
@@ -34,7 +36,8 @@
 //! simulated arms' limits). With no sample the detector reads the part of the beam that enters its aperture and
 //! nothing elsewhere; [`Optics::direct_beam_power_w`] gives the reading of the facing pose directly.
 //! Far-field approximation: the beam (radius 1.5 mm) is narrower than the aperture (2.5 mm) and treated, like the
-//! mirror reflection, as a divergence cone from the sample centre.
+//! mirror reflection, as a divergence cone from the sample centre. A Gaussian beam (crate::imperfections::beam)
+//! is not: its tails beyond the aperture are lost, in the direct beam and in a mirror's reflection alike.
 //!
 //! # Cost
 //! A Lambertian sample costs one BRDF evaluation per reading (its integral is `f` times the exact projected solid
@@ -51,8 +54,10 @@
 //! physics they use: [`source`], [`footprint`], [`aperture`], [`cap`].
 
 pub mod aperture;
+mod beam;
 pub mod cap;
 pub mod footprint;
+pub mod footprint_gaussian;
 pub mod footprint_offset;
 mod imperfect;
 mod reading;
@@ -165,6 +170,9 @@ pub struct ApertureTruth {
     pub integral_error: f64,
     /// Delta-lobe reflectance times the fraction of the divergence cone inside the aperture.
     pub delta: f64,
+    /// The same with the instrument's true beam (profile, divergence: crate::imperfections::beam): what a
+    /// reading collects; equal to `delta` when the beam is ideal. The truth (`average_sr`) uses `delta`.
+    pub delta_beam: f64,
     /// `(integral + delta) / (Omega_d cos(theta_o))` (1/sr); 0 when `wo` is below the horizon.
     pub average_sr: f64,
     pub evaluations: u32,
@@ -191,6 +199,8 @@ pub struct Optics {
     sample_mounted: AtomicBool,
     /// The instrument's hidden imperfections; `None` on the ideal instrument ([`Optics::with_hidden_truth`]).
     hidden: Option<std::sync::Arc<HiddenTruth>>,
+    /// The true beam (crate::imperfections::beam); `None` when it is the ideal one.
+    beam: Option<beam::BeamOptics>,
     /// The instrument signature (crate::imperfections::detector); `None` on the ideal instrument.
     signature: Option<crate::imperfections::Signature>,
     /// What the imperfections did to the last reading (recorded only on an imperfect instrument).
@@ -245,6 +255,7 @@ impl Optics {
             source: SourceModel::new(src.power_w, src.drift_per_hour, src.relative_noise, seed),
             sample_mounted: AtomicBool::new(true),
             hidden: None,
+            beam: None,
             signature: None,
             last_effects: std::sync::Mutex::new(None),
             seating: RwLock::new(Seating::default()),
@@ -340,9 +351,9 @@ impl Optics {
     }
 
     /// What the detector reads looking straight into the source with no sample: the beam power at that time and
-    /// band times the fraction of the divergence cone inside the aperture (1 for this instrument).
+    /// band times the fraction of the divergence cone inside the aperture (1 for this instrument; less for a
+    /// Gaussian beam whose tails miss the aperture, crate::imperfections::beam).
     pub fn direct_beam_power_w(&self, band: &Band, t_s: f64) -> f64 {
-        self.incident_power_w(band, t_s)
-            * cap::fraction_inside(self.divergence_half_rad, self.aperture_half_rad, 0.0)
+        self.incident_power_w(band, t_s) * self.lobe_fraction(0.0, false)
     }
 }

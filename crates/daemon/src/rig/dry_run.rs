@@ -52,6 +52,8 @@ pub struct PointTruth {
 /// - `geometry`: the aperture-averaged BRDF at the true geometry over the one at the nominal geometry, - 1;
 /// - `stray`: stray-light power over the power on the detector;
 /// - `sample`: the sample's reflectance over the footprint against the material's (its non-uniformity);
+/// - `beam`: the light reaching the detector with the true beam's profile and divergence against the ideal
+///   beam's at the same geometry (the pointing acts through `geometry`, at the true directions);
 /// - `source_slow`, `source_flicker`: the source's warm-up and walk, and its flicker, during the reading (the
 ///   normalisation readings had their own: the BRDF sees the ratio);
 /// - `saturation`, `meter`: the photodiode's compression and the range's gain, nonlinearity and offset;
@@ -75,6 +77,7 @@ pub fn effects_json(
         "geometry": nominal_aperture_sr.map_or(0.0, |n| ratio(optics.true_aperture_sr, n)),
         "stray": if optics.power_w > 0.0 { optics.stray_power_w / optics.power_w } else { 0.0 },
         "sample": optics.sample_factor - 1.0,
+        "beam": optics.beam_fraction_rel,
         "source_slow": optics.source_slow_factor - 1.0,
         "source_flicker": optics.source_flicker_factor - 1.0,
         "filter": ratio(optics.filter_factor, optics.filter_total),

@@ -4,8 +4,9 @@
 
 use gonio_instrument::InstrumentFile;
 use gonio_results::provenance::{
-    AxisTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord, GeometryTruthRecord,
-    RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth, SourceTruthRecord,
+    AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord,
+    GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth,
+    SourceTruthRecord,
 };
 use gonio_simulator::imperfections::HiddenTruth;
 
@@ -102,6 +103,18 @@ fn record(hidden: &HiddenTruth, mountings: usize) -> SimulatorTruth {
                     bandwidth_nm: t.bandwidth_nm,
                 })
                 .collect(),
+        }),
+        beam: hidden.beam.as_ref().map(|b| BeamTruthRecord {
+            profile: match b.profile {
+                gonio_instrument::BeamProfile::TopHat => "top-hat".into(),
+                gonio_instrument::BeamProfile::Gaussian => "gaussian".into(),
+            },
+            gaussian_radius_mm: b.gaussian_radius_mm,
+            pointing_in_plane_deg: b.pointing_deg[0],
+            pointing_vertical_deg: b.pointing_deg[1],
+            source_distance_mm: b.source_distance_mm,
+            divergence_deg: b.divergence_deg,
+            nominal_divergence_deg: b.nominal_divergence_deg,
         }),
     }
 }

@@ -25,6 +25,9 @@ pub struct SimulatorTruth {
     /// Filters; absent when the bands are single wavelengths.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub filters: Option<FiltersTruthRecord>,
+    /// Beam; absent when that group is off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub beam: Option<BeamTruthRecord>,
 }
 
 /// The filters' actual bands (model: crates/simulator/src/imperfections/filters.rs): an N-cavity passband
@@ -47,6 +50,23 @@ pub struct FilterTruthRecord {
     pub nominal_bandwidth_nm: f64,
     pub centre_nm: f64,
     pub bandwidth_nm: f64,
+}
+
+/// The beam as it really is (model: crates/simulator/src/imperfections/beam.rs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BeamTruthRecord {
+    /// "top-hat" or "gaussian".
+    pub profile: String,
+    /// The Gaussian's 1/e^2 radius (mm); 0 for the top hat.
+    pub gaussian_radius_mm: f64,
+    /// The pointing error: in the arms' plane (towards increasing arm angle) and vertical (degrees).
+    pub pointing_in_plane_deg: f64,
+    pub pointing_vertical_deg: f64,
+    /// From the source's output to the arms' axis (mm).
+    pub source_distance_mm: f64,
+    /// The true full divergence angle and the nominal one (degrees).
+    pub divergence_deg: f64,
+    pub nominal_divergence_deg: f64,
 }
 
 /// The sample's non-uniformity (model: crates/simulator/src/imperfections/sample.rs): its BRDF is the

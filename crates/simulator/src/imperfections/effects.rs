@@ -32,6 +32,11 @@ pub struct OpticsEffects {
     /// reference reading through the same filter sees); both 1 on the ideal instrument.
     pub filter_factor: f64,
     pub filter_total: f64,
+    /// Relative change of the light reaching the detector by the beam's profile and true divergence, against
+    /// the ideal (top-hat, nominal-divergence) beam at the same true geometry: the intercepted fraction and a
+    /// delta lobe's share, or the direct beam's fraction (crate::imperfections::beam; 0 with the ideal beam).
+    /// The beam's pointing acts through the true directions above.
+    pub beam_fraction_rel: f64,
 }
 
 /// The meter's side of one reading.

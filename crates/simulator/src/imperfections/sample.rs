@@ -11,7 +11,9 @@
 //! of semi-axes `a = r_b / cos(theta_i)` and `b = r_b` centred on the spot `c`; the mean of `m` over it is exactly
 //! `1 + g.c / R + q (|c|^2 + (a^2 + b^2) / 4) / R^2` (the mean of x^2 over an ellipse is a^2/4 along its axis,
 //! whatever its orientation). So a footprint that grows towards grazing sees a different mean, and a spot off
-//! the centre (eccentricity) sees the gradient. Approximation: the mean is over the whole footprint, also where
+//! the centre (eccentricity, the beam's pointing) sees the gradient. A Gaussian beam (crate::imperfections::beam,
+//! 1/e^2 radius w) weights the footprint by its profile; its second moments are those of the uniform ellipse
+//! with `a = w / cos(theta_i)`, `b = w`, so the same closed form gives the weighted mean with those semi-axes. Approximation: the mean is over the whole footprint, also where
 //! it spills past the sample's edge or the detector's field (those points are flagged `overfilled`).
 
 use gonio_instrument::SampleImperfections;

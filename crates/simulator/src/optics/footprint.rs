@@ -8,7 +8,8 @@
 //! - the detector's field of view: `field_radius_mm` is the radius of the field perpendicular to the detector's
 //!   axis, so on the sample it is the ellipse `|p|^2 - (p . wo)^2 <= r_f^2` (semi-axes `r_f`, `r_f / cos(theta_o)`).
 //!
-//! The beam is uniform across its section, so the intercepted fraction is an area ratio:
+//! The (ideal) beam is uniform across its section, so the intercepted fraction is an area ratio (a Gaussian
+//! beam's is a weighted one: [`super::footprint_gaussian`]):
 //! `area(beam ∩ sample ∩ field) / area(beam)`. Every shape is star-shaped about the centre with squared boundary
 //! radius `rho_k^2(phi) = r_k^2 / q_k(phi)`, `q_k = alpha_k + R_k cos(2 phi - delta_k)`, so the area of the
 //! intersection is `1/2 ∫ min_k rho_k^2 dphi`. The crossings of two boundaries solve

@@ -23,6 +23,10 @@ pub(super) struct Geometry {
     pub spot_mm: [f64; 2],
     /// The centre of the detector's field of view on the sample (sample x, y; mm).
     pub field_centre_mm: [f64; 2],
+    /// The beam's centre on the sample plane, lab (mm): the origin unless the geometry or the beam moves it.
+    pub spot_lab: LabVector,
+    /// Where the arms' axis crosses the horizontal plane through the sample centre, lab (mm).
+    pub axis_lab: LabVector,
 }
 
 /// The sample's current mounting: its index (0 the first) and its tilt.
@@ -53,6 +57,10 @@ impl Optics {
                     .collect()
             })
             .unwrap_or_default();
+        let aperture_radius_mm = self.detector_distance_mm * self.aperture_half_rad.tan();
+        self.beam = truth
+            .and_then(|t| t.beam)
+            .map(|b| super::beam::BeamOptics::new(b, aperture_radius_mm, self.detector_distance_mm));
         let tilt = self.seating_tilt(0);
         *self.seating.get_mut().unwrap_or_else(|e| e.into_inner()) = Seating { index: 0, tilt };
         self
@@ -70,7 +78,8 @@ impl Optics {
     }
 
     /// The true geometry of the pose the controllers believe (hidden truth, for tests); the nominal geometry
-    /// on the ideal instrument.
+    /// on the ideal instrument. The geometry group's only: a reading then applies the beam's pointing
+    /// (crate::imperfections::beam) to it.
     pub fn true_geometry(&self, pose: &Pose) -> Option<crate::imperfections::TrueGeometry> {
         let g = self.hidden.as_ref()?.geometry.as_ref()?;
         Some(g.true_geometry(pose, &self.seating().1, self.detector_distance_mm))
@@ -99,6 +108,15 @@ impl Optics {
     /// The geometry a reading computes with: the true one on an imperfect instrument, the nominal kinematics on
     /// the ideal one (the same code path as without imperfections).
     pub(super) fn geometry_of(&self, pose: &Pose) -> Geometry {
+        let mut g = self.geometry_of_arms(pose);
+        if self.beam.is_some() {
+            self.point_beam(&mut g);
+        }
+        g
+    }
+
+    /// [`Optics::geometry_of`] before the beam's pointing: the axes, the sample and the arms' axis.
+    fn geometry_of_arms(&self, pose: &Pose) -> Geometry {
         match self.true_geometry(pose) {
             Some(t) => Geometry {
                 pose: PoseGeometry {
@@ -111,6 +129,12 @@ impl Optics {
                 detector_arm_lab: t.detector_arm_lab,
                 spot_mm: t.spot_mm,
                 field_centre_mm: t.field_centre_mm,
+                spot_lab: t.frame.to_lab(&[t.spot_mm[0], t.spot_mm[1], 0.0]),
+                axis_lab: self
+                    .hidden
+                    .as_ref()
+                    .and_then(|h| h.geometry.as_ref())
+                    .map_or([0.0; 3], |g| [g.eccentricity_mm[0], g.eccentricity_mm[1], 0.0]),
             },
             None => {
                 let pose = kinematics::forward(pose);
@@ -119,6 +143,8 @@ impl Optics {
                     pose,
                     spot_mm: [0.0, 0.0],
                     field_centre_mm: [0.0, 0.0],
+                    spot_lab: [0.0; 3],
+                    axis_lab: [0.0; 3],
                 }
             }
         }
@@ -127,6 +153,24 @@ impl Optics {
     /// The beam's footprint: the closed form when the spot and the field are centred (always on the ideal
     /// instrument), the off-centre integration otherwise.
     pub(super) fn footprint_of(&self, g: &Geometry) -> super::footprint::Footprint {
+        if let Some((w, _)) = self.beam.as_ref().and_then(|b| b.gaussian_mm) {
+            let a = g.pose.frame.to_sample(&g.detector_arm_lab);
+            let view = gonio_brdf::Direction::new(a[0], a[1], a[2]).unwrap_or(gonio_brdf::Direction::NORMAL);
+            return super::footprint_gaussian::footprint_gaussian(
+                w,
+                self.sample_radius_mm,
+                self.field_radius_mm,
+                &g.pose.wi,
+                &view,
+                g.spot_mm,
+                g.field_centre_mm,
+            );
+        }
+        self.footprint_top_hat(g)
+    }
+
+    /// The top hat's footprint (the ideal beam's, also for the beam's attribution).
+    pub(super) fn footprint_top_hat(&self, g: &Geometry) -> super::footprint::Footprint {
         if g.spot_mm == [0.0, 0.0] && g.field_centre_mm == [0.0, 0.0] {
             return super::footprint::footprint(
                 self.beam_radius_mm,
@@ -173,12 +217,8 @@ impl Optics {
         if cos_i <= 0.0 {
             return 1.0;
         }
-        s.footprint_mean(
-            g.spot_mm,
-            self.beam_radius_mm / cos_i,
-            self.beam_radius_mm,
-            self.sample_radius_mm,
-        )
+        let r = self.footprint_radius_mm();
+        s.footprint_mean(g.spot_mm, r / cos_i, r, self.sample_radius_mm)
     }
 
     /// Whether the sample is in the holder (kept with the seating so both change together).

@@ -10,7 +10,7 @@ use crate::kinematics;
 use crate::scene::{Band, Pose, Scene};
 
 use super::imperfect::Geometry;
-use super::{OpticalReading, Optics, OpticsError, cap};
+use super::{OpticalReading, Optics, OpticsError};
 
 /// A reading without its instant: [`Optics::at_rest`].
 #[derive(Debug, Clone, Copy)]
@@ -27,6 +27,9 @@ struct AtRest {
     /// spectrally flat light; both 1 for a single wavelength.
     filter_factor: f64,
     filter_total: f64,
+    /// Relative change of the light by the beam's profile and true divergence (crate::imperfections::beam;
+    /// 0 with the ideal beam).
+    beam_rel: f64,
 }
 
 /// How the source's power reaches the detector at a pose at rest.
@@ -105,12 +108,13 @@ impl Optics {
                 stray_fraction,
                 filter_factor: filter_total,
                 filter_total,
+                beam_rel: 0.0,
             });
         };
         if !self.sample_mounted() {
             // No sample: the detector sees the beam itself when it faces the source, nothing otherwise.
             let off_axis = kinematics::angle_between(&detector_arm_lab, &neg(&geometry.source_lab));
-            let fraction = cap::fraction_inside(self.divergence_half_rad, self.aperture_half_rad, off_axis);
+            let (fraction, nominal) = self.direct_fraction(&g, off_axis);
             out.intercepted_fraction = fraction;
             return Ok(AtRest {
                 out,
@@ -119,6 +123,7 @@ impl Optics {
                 stray_fraction,
                 filter_factor: filter_total,
                 filter_total,
+                beam_rel: relative(fraction, nominal),
             });
         }
         let r = self.resolved(nm)?;
@@ -143,8 +148,9 @@ impl Optics {
                 delta: 1.0,
             },
         };
-        let (regular, delta) = (truth.integral * ratios.regular, truth.delta * ratios.delta);
-        let line = truth.integral + truth.delta;
+        // The delta lobe as the true beam delivers it into the aperture (crate::imperfections::beam).
+        let (regular, delta) = (truth.integral * ratios.regular, truth.delta_beam * ratios.delta);
+        let line = truth.integral + truth.delta_beam;
         let filter_factor = if line != 0.0 {
             filter_total * (regular + delta) / line
         } else {
@@ -159,6 +165,19 @@ impl Optics {
                 integral_error: truth.integral_error * ratios.regular * out.sample_factor,
             }
         };
+        let beam_rel = if self.beam.is_some() {
+            // Against the ideal beam at the same (true) geometry: a top hat's footprint, the nominal divergence.
+            let top_hat = match self.beam.as_ref().and_then(|b| b.gaussian_mm) {
+                Some(_) => self.footprint_top_hat(&g).intercepted_fraction,
+                None => fp.intercepted_fraction,
+            };
+            relative(
+                fp.intercepted_fraction * (truth.integral + truth.delta_beam),
+                top_hat * (truth.integral + truth.delta),
+            )
+        } else {
+            0.0
+        };
         Ok(AtRest {
             out,
             transmission,
@@ -166,6 +185,7 @@ impl Optics {
             stray_fraction,
             filter_factor,
             filter_total,
+            beam_rel,
         })
     }
 
@@ -205,6 +225,15 @@ impl Optics {
     }
 }
 
+/// `a / b - 1`, 0 when `b` is 0 or either is not finite.
+fn relative(a: f64, b: f64) -> f64 {
+    if b != 0.0 && a.is_finite() && b.is_finite() {
+        a / b - 1.0
+    } else {
+        0.0
+    }
+}
+
 fn neg(v: &[f64; 3]) -> [f64; 3] {
     [-v[0], -v[1], -v[2]]
 }
@@ -239,6 +268,7 @@ impl Optics {
             source_flicker_factor: fast / n,
             filter_factor: rest.filter_factor,
             filter_total: rest.filter_total,
+            beam_fraction_rel: rest.beam_rel,
         };
         *self.last_effects.lock().unwrap_or_else(|e| e.into_inner()) = Some(effects);
     }

@@ -1,12 +1,12 @@
 //! The ground truth and the aperture integral behind a reading's power, in the material's frame: the point value
 //! `f(wi, wo)`, and the regular part integrated over the detector's aperture cone plus the delta lobe's share
-//! (the divergence cone inside the aperture, [`cap`]).
+//! (the divergence cone inside the aperture, [`super::cap`]; with the true beam too, crate::imperfections::beam).
 
 use gonio_brdf::{Brdf, Direction, Wavelength};
 
 use super::aperture::{self, Cone, ConeIntegral, Features, Plan};
 use super::resolved::{RegularPart, Resolved};
-use super::{ApertureTruth, Optics, OpticsError, cap};
+use super::{ApertureTruth, Optics, OpticsError};
 
 impl Optics {
     /// f(wi, wo) at a band's centre wavelength, regular part (1/sr): the point ground truth for validation grids.
@@ -76,12 +76,19 @@ impl Optics {
             }
             result
         };
-        let delta = match r.material.delta_lobe(&wi_m, r.wavelength).map_err(err)? {
+        let (delta, delta_beam) = match r.material.delta_lobe(&wi_m, r.wavelength).map_err(err)? {
             Some(lobe) if wi_m.z() > 0.0 => {
                 let g = wi_m.reflect_about_normal().angle_to(&wo_m);
-                lobe.reflectance * cap::fraction_inside(self.divergence_half_rad, self.aperture_half_rad, g)
+                let nominal = lobe.reflectance * self.lobe_fraction(g, true);
+                // The true beam's share (crate::imperfections::beam); the same value when it is ideal.
+                let true_beam = if self.beam.is_some() {
+                    lobe.reflectance * self.lobe_fraction(g, false)
+                } else {
+                    nominal
+                };
+                (nominal, true_beam)
             }
-            _ => 0.0,
+            _ => (0.0, 0.0),
         };
         let denominator = self.aperture_sr * wo_m.z();
         let average_sr = if wo_m.z() > 0.0 {
@@ -93,6 +100,7 @@ impl Optics {
             integral: integral.value,
             integral_error: integral.error,
             delta,
+            delta_beam,
             average_sr,
             evaluations: integral.evaluations,
         })

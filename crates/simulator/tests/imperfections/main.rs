@@ -4,9 +4,10 @@
 //! crates/instrument/src/lib.rs (not with the simulator's kinematics). Here too: the ideal instrument is
 //! untouched by an all-zero table, and the hidden values are fixed by the seed.
 //!
-//! `geometry`, `detector`, `source`, `sample`, `filters`: one test per effect. This file: the shared set-up and the hidden truth
+//! `geometry`, `detector`, `source`, `sample`, `filters`, `beam`: one test per effect. This file: the shared set-up and the hidden truth
 //! itself.
 
+mod beam;
 #[path = "../common/mod.rs"]
 mod common;
 mod detector;
@@ -94,7 +95,8 @@ fn an_all_zero_table_is_the_ideal_instrument_bit_for_bit() {
     let text = format!(
         "{}\n[simulator.imperfections.geometry]\nzero_offset_sd_deg = 0.0\nsample_tilt_sd_deg = 0.0\n\
          reseat_tilt_sd_deg = 0.0\neccentricity_sd_mm = 0.0\nencoder_error_amplitude_deg = 0.0\n\
-         encoder_error_harmonic = 3\n",
+         encoder_error_harmonic = 3\n[simulator.imperfections.beam]\nprofile = \"top-hat\"\n\
+         gaussian_radius_mm = 1.0\npointing_sd_deg = 0.0\nsource_distance_mm = 400.0\ndivergence_sd_deg = 0.0\n",
         gonio_instrument::SIMULATED_INSTRUMENT_TOML
     );
     let zero = InstrumentFile::parse(&text, "zero.toml").expect("valid");
