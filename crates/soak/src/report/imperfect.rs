@@ -50,7 +50,10 @@ impl InstrumentPass {
              saturation, amplifier noise, stray light, ambient light; source warm-up, random walk and flicker; an \
              uneven sample), their hidden values drawn from the file's `[simulator] seed`. The faults combine \
              with the imperfections. Rows, indices, committed rows byte for byte, pauses and every safety rule are \
-             checked exactly as on the ideal instrument: they do not depend on the instrument's errors.\n"
+             checked exactly as on the ideal instrument: they do not depend on the instrument's errors. The safety \
+             rules are checked on the motion the controllers executed; the true arms differ from it by the axis \
+             zero offsets and encoder error (hundredths of a degree in this file), far inside the margins the \
+             summary reports.\n"
         );
         let _ = writeln!(
             m,
