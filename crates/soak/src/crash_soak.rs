@@ -25,7 +25,8 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::SoakError;
 use crate::rows::{RowSummary, Snapshot};
-use crate::setup::{SoakCampaign, build_campaign, instrument_with_faults};
+use crate::setup::{SoakCampaign, SoakInstrument, build_campaign, instrument_with_faults};
+use crate::truth_check::Tolerance;
 use crate::worker::{DieAt, EXIT_COMPLETED, WorkerArgs};
 
 /// What to run.
@@ -42,6 +43,8 @@ pub struct CrashSoakConfig {
     pub worker: Vec<String>,
     /// Longest a daemon may run without being killed or finishing (wall time).
     pub round_timeout: Duration,
+    /// The instrument file the daemon runs on (no faults: the kills are the faults).
+    pub instrument: SoakInstrument,
 }
 
 /// Where a kill was planned.
@@ -180,7 +183,8 @@ fn kill_kinds(kills: u32, rng: &mut ChaCha8Rng) -> Vec<&'static str> {
 /// Run the crash soak.
 pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakError> {
     let wall = Instant::now();
-    let (file, instrument_text): (InstrumentFile, String) = instrument_with_faults(&Faults::default())?;
+    let (file, instrument_text): (InstrumentFile, String) =
+        instrument_with_faults(&cfg.instrument, &Faults::default())?;
     let campaign = build_campaign("crash-soak", cfg.points, cfg.seed, &file)?;
     let data = cfg.work_dir.join("data");
     if data.join(gonio_daemon::store::STORE_FILE).exists() {
@@ -340,7 +344,7 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
     let (final_state, committed, instrument_s) = match &record {
         Some(c) => {
             let points = store.points(c.id)?;
-            let mut committed = RowSummary::of(campaign.total_points, &points);
+            let mut committed = RowSummary::of(campaign.total_points, &points, &Tolerance::of(&file));
             let cals = store.calibrations(c.id)?;
             let t = points
                 .iter()

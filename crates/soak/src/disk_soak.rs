@@ -24,14 +24,15 @@ use std::time::{Duration, Instant};
 
 use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_campaign};
 use gonio_daemon::store::{CampaignState, STORE_FILE, Store};
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_instrument::InstrumentFile;
 use gonio_simulator::recording::MotionCommand;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::SoakError;
 use crate::rows::{RowSummary, Snapshot};
-use crate::setup::{SoakCampaign, build_campaign};
+use crate::setup::{SoakCampaign, SoakInstrument, build_campaign};
+use crate::truth_check::Tolerance;
 
 /// What to run.
 #[derive(Debug, Clone, PartialEq)]
@@ -45,6 +46,8 @@ pub struct DiskSoakConfig {
     pub data_dir: PathBuf,
     /// Simulated seconds the campaign is left paused on a full store before room comes back.
     pub hold_s: f64,
+    /// The instrument file the campaign runs on.
+    pub instrument: SoakInstrument,
 }
 
 /// One fill: the store capped, the campaign paused, room given back.
@@ -171,7 +174,7 @@ fn fill_moments(points: u64, fills: u32, seed: u64) -> Vec<u64> {
 /// Run the disk soak.
 pub fn run_disk_soak(cfg: &DiskSoakConfig) -> Result<DiskSoakReport, SoakError> {
     let wall = Instant::now();
-    let file = InstrumentFile::simulated();
+    let file = cfg.instrument.file()?;
     let campaign = build_campaign("disk-soak", cfg.points, cfg.seed, &file)?;
     std::fs::create_dir_all(&cfg.data_dir)
         .map_err(SoakError::io(format!("cannot create {}", cfg.data_dir.display())))?;
@@ -183,7 +186,7 @@ pub fn run_disk_soak(cfg: &DiskSoakConfig) -> Result<DiskSoakReport, SoakError> 
         )));
     }
     let prepared = prepare_campaign(&campaign.text, "disk-soak.toml", Path::new("."), &file)?;
-    let id = store.create_campaign(&prepared.new_campaign(&campaign.text, SIMULATED_INSTRUMENT_TOML))?;
+    let id = store.create_campaign(&prepared.new_campaign(&campaign.text, &cfg.instrument.text))?;
     let store = Arc::new(Mutex::new(store));
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -214,7 +217,7 @@ pub fn run_disk_soak(cfg: &DiskSoakConfig) -> Result<DiskSoakReport, SoakError> 
     let record = s.campaign(id)?;
     let points = s.points(id)?;
     drop(s);
-    let committed = RowSummary::of(campaign.total_points, &points);
+    let committed = RowSummary::of(campaign.total_points, &points, &Tolerance::of(&file));
     Ok(DiskSoakReport {
         config: cfg.clone(),
         campaign,

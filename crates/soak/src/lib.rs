@@ -2,8 +2,8 @@
 //! `RELIABILITY.md`) and the CI-sized tests in `tests/`, so that both run the same code.
 //!
 //! Module map:
-//! - [`setup`]: the soak campaigns (an exact number of points) and the simulated instrument with
-//!   `[simulator.faults]` set.
+//! - [`setup`]: the soak campaigns (an exact number of points) and the instrument ([`setup::SoakInstrument`]:
+//!   the ideal `simulated.toml` or the imperfect `realistic.toml`) with `[simulator.faults]` set.
 //! - [`logcap`]: a `tracing` layer that counts what the simulator injected, what the drivers and the engine
 //!   logged about it, and keeps a log file of warnings.
 //! - [`fault_soak`]: a dry-run campaign through the real drivers and engine on a faulty simulator; every point is
@@ -24,6 +24,8 @@
 //!   motion record: closest arm approach, commanded extremes against the limits, emergency-stop latency; its
 //!   [`safety_soak::scenarios`] are the fixed cases (regressions, controllers reset behind the engine's back) of
 //!   the safety tests (`tests/safety_soak.rs`).
+//! - [`truth_check`]: what "silently wrong" means for a point on the ideal and on an imperfect instrument (its
+//!   value against its ground truth, with the imperfections' allowance from the point's own attribution).
 //! - [`inputs`]: random and mutated inputs through the public wire parsers and file loaders.
 //! - [`report`]: the Markdown of `RELIABILITY.md`.
 
@@ -37,6 +39,7 @@ pub mod report;
 pub mod rows;
 pub mod safety_soak;
 pub mod setup;
+pub mod truth_check;
 pub mod worker;
 
 /// Why a soak could not run at all (as opposed to a soak that ran and found a defect, which is in its report).

@@ -1,11 +1,13 @@
 //! `gonio-soak`: runs the fault soak, the crash soak, the disk soak, the HTTP abuse soak, the safety soak and the
 //! input census, and writes `RELIABILITY.md` at the repository root (`cargo run --release -p gonio-soak`). Exits 1
 //! when an invariant broke (the report says which), 2 when a soak could not run. `--quick` shrinks every part (a
-//! smoke run of a minute or two; its report says `--quick` in its command line).
+//! smoke run of a minute or two; its report says `--quick` in its command line). The fault, crash, disk and safety
+//! soaks run twice: on the ideal `config/instruments/simulated.toml`, then on the imperfect
+//! `config/instruments/realistic.toml` (`--instrument <path>` for another file, `--ideal-only` for none).
 //!
 //! `gonio-soak worker ...` is the daemon process the crash soak starts and kills (see `gonio_soak::worker`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -15,8 +17,9 @@ use gonio_soak::disk_soak::{DiskSoakConfig, run_disk_soak};
 use gonio_soak::fault_soak::{FaultSoakConfig, run_fault_soak};
 use gonio_soak::http_abuse::{HttpAbuseConfig, run_http_abuse};
 use gonio_soak::inputs::run_inputs;
-use gonio_soak::report::Report;
+use gonio_soak::report::{InstrumentPass, Report};
 use gonio_soak::safety_soak::{SafetySoakConfig, run_safety_soak};
+use gonio_soak::setup::SoakInstrument;
 use gonio_soak::worker::{DieAt, EXIT_ERROR, WorkerArgs, run_worker};
 
 const DEFAULT_SEED: u64 = 8;
@@ -80,6 +83,13 @@ struct SoakArgs {
     /// the sizes above.
     #[arg(long)]
     quick: bool,
+    /// The imperfect instrument the fault, crash, disk and safety soaks run on after the ideal
+    /// config/instruments/simulated.toml (default: config/instruments/realistic.toml, embedded).
+    #[arg(long, value_name = "PATH")]
+    instrument: Option<PathBuf>,
+    /// Run those soaks on the ideal instrument only.
+    #[arg(long, conflicts_with = "instrument")]
+    ideal_only: bool,
     /// Where to write the report (default: RELIABILITY.md at the repository root).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -143,6 +153,13 @@ fn main() -> ExitCode {
 
 /// The command as typed to get these settings.
 fn command_line(a: &SoakArgs) -> String {
+    let mut instrument = match &a.instrument {
+        Some(path) => format!(" --instrument {}", path.display()),
+        None => String::new(),
+    };
+    if a.ideal_only {
+        instrument.push_str(" --ideal-only");
+    }
     if a.quick {
         // `--quick` sets every size itself.
         let seed = if a.seed == DEFAULT_SEED {
@@ -150,7 +167,7 @@ fn command_line(a: &SoakArgs) -> String {
         } else {
             format!(" --seed {}", a.seed)
         };
-        return format!("cargo run --release -p gonio-soak -- --quick{seed}");
+        return format!("cargo run --release -p gonio-soak -- --quick{seed}{instrument}");
     }
     let mut extra = Vec::new();
     for (flag, value, default) in [
@@ -174,10 +191,14 @@ fn command_line(a: &SoakArgs) -> String {
         }
     }
 
-    if extra.is_empty() {
+    if extra.is_empty() && instrument.is_empty() {
         "cargo run --release -p gonio-soak".into()
     } else {
-        format!("cargo run --release -p gonio-soak -- {}", extra.join(" "))
+        format!(
+            "cargo run --release -p gonio-soak -- {}{instrument}",
+            extra.join(" ")
+        )
+        .replace("--  --", "-- --")
     }
 }
 
@@ -195,6 +216,8 @@ fn quick(a: &SoakArgs) -> SoakArgs {
         http_points: 40,
         safety_cases: 4,
         quick: true,
+        instrument: a.instrument.clone(),
+        ideal_only: a.ideal_only,
         out: a.out.clone(),
         work: a.work.clone(),
     }
@@ -217,58 +240,20 @@ fn soak(a: &SoakArgs) -> Result<bool, Box<dyn std::error::Error>> {
         .clone()
         .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../RELIABILITY.md")));
 
-    eprintln!("gonio-soak: fault soak, {} points ...", a.points);
-    // A short run sees every kind of fault only at the higher rates of the CI test.
-    let mut fault_cfg = if a.quick {
-        FaultSoakConfig::stressed(a.points, a.seed, work.join("fault-soak"))
-    } else {
-        FaultSoakConfig::issue_8(a.points, a.seed, work.join("fault-soak"))
+    let ideal = soaks_on(a, &work.join("ideal"), &SoakInstrument::simulated())?;
+    let imperfect = match &a.instrument {
+        _ if a.ideal_only => None,
+        Some(path) => Some(soaks_on(
+            a,
+            &work.join("imperfect"),
+            &SoakInstrument::load(path)?,
+        )?),
+        None => Some(soaks_on(
+            a,
+            &work.join("imperfect"),
+            &SoakInstrument::realistic(),
+        )?),
     };
-    fault_cfg.log_file = Some(work.join("fault-soak.log"));
-    let fault = run_fault_soak(&fault_cfg)?;
-    eprintln!(
-        "gonio-soak: fault soak: {} ({} violations)",
-        fault.final_state,
-        fault.violations().len()
-    );
-
-    eprintln!(
-        "gonio-soak: crash soak, {} kills of a {}-point campaign ...",
-        a.kills, a.crash_points
-    );
-    let exe = std::env::current_exe()?;
-    let crash_cfg = CrashSoakConfig {
-        points: a.crash_points,
-        kills: a.kills,
-        seed: a.seed,
-        work_dir: work.join("crash-soak"),
-        worker: vec![exe.display().to_string(), "worker".into()],
-        round_timeout: Duration::from_secs(600),
-    };
-    std::fs::create_dir_all(&crash_cfg.work_dir)?;
-    let crash = run_crash_soak(&crash_cfg)?;
-    eprintln!(
-        "gonio-soak: crash soak: {} kills ({} violations)",
-        crash.kills(),
-        crash.violations().len()
-    );
-
-    eprintln!(
-        "gonio-soak: disk soak, {} fills of a {}-point campaign ...",
-        a.fills, a.disk_points
-    );
-    let disk = run_disk_soak(&DiskSoakConfig {
-        points: a.disk_points,
-        fills: a.fills,
-        seed: a.seed,
-        data_dir: work.join("disk-soak"),
-        hold_s: DISK_HOLD_S,
-    })?;
-    eprintln!(
-        "gonio-soak: disk soak: {} ({} violations)",
-        disk.final_state,
-        disk.violations().len()
-    );
 
     eprintln!(
         "gonio-soak: HTTP abuse, a {}-point campaign on the daemon ...",
@@ -288,28 +273,18 @@ fn soak(a: &SoakArgs) -> Result<bool, Box<dyn std::error::Error>> {
         http.violations().len()
     );
 
-    eprintln!("gonio-soak: safety, {} random campaigns ...", a.safety_cases);
-    let safety = run_safety_soak(&SafetySoakConfig {
-        cases: a.safety_cases,
-        seed: a.seed,
-    })?;
-    eprintln!(
-        "gonio-soak: safety: {} move commands ({} violations)",
-        safety.move_commands(),
-        safety.violations().len()
-    );
-
     eprintln!("gonio-soak: inputs ...");
     let inputs = run_inputs(a.seed, a.parser_inputs, a.loader_inputs);
 
     let report = Report {
         command: command_line(a),
         seed: a.seed,
-        fault,
-        crash,
-        disk,
+        fault: ideal.fault,
+        crash: ideal.crash,
+        disk: ideal.disk,
         http,
-        safety,
+        safety: ideal.safety,
+        imperfect,
         inputs,
         wall_s: wall.elapsed().as_secs_f64(),
     };
@@ -327,4 +302,91 @@ fn soak(a: &SoakArgs) -> Result<bool, Box<dyn std::error::Error>> {
         eprintln!("gonio-soak: stores and logs kept in {}", work.display());
     }
     Ok(violations.is_empty())
+}
+
+/// The soaks that run on each instrument: fault, crash, disk, safety.
+fn soaks_on(
+    a: &SoakArgs,
+    work: &Path,
+    instrument: &SoakInstrument,
+) -> Result<InstrumentPass, Box<dyn std::error::Error>> {
+    let on = &instrument.name;
+    std::fs::create_dir_all(work)?;
+    eprintln!("gonio-soak: [{on}] fault soak, {} points ...", a.points);
+    // A short run sees every kind of fault only at the higher rates of the CI test.
+    let mut fault_cfg = if a.quick {
+        FaultSoakConfig::stressed(a.points, a.seed, work.join("fault-soak"))
+    } else {
+        FaultSoakConfig::issue_8(a.points, a.seed, work.join("fault-soak"))
+    };
+    fault_cfg.log_file = Some(work.join("fault-soak.log"));
+    fault_cfg.instrument = instrument.clone();
+    let fault = run_fault_soak(&fault_cfg)?;
+    eprintln!(
+        "gonio-soak: [{on}] fault soak: {} ({} violations)",
+        fault.final_state,
+        fault.violations().len()
+    );
+
+    eprintln!(
+        "gonio-soak: [{on}] crash soak, {} kills of a {}-point campaign ...",
+        a.kills, a.crash_points
+    );
+    let exe = std::env::current_exe()?;
+    let crash_cfg = CrashSoakConfig {
+        points: a.crash_points,
+        kills: a.kills,
+        seed: a.seed,
+        work_dir: work.join("crash-soak"),
+        worker: vec![exe.display().to_string(), "worker".into()],
+        round_timeout: Duration::from_secs(600),
+        instrument: instrument.clone(),
+    };
+    std::fs::create_dir_all(&crash_cfg.work_dir)?;
+    let crash = run_crash_soak(&crash_cfg)?;
+    eprintln!(
+        "gonio-soak: [{on}] crash soak: {} kills ({} violations)",
+        crash.kills(),
+        crash.violations().len()
+    );
+
+    eprintln!(
+        "gonio-soak: [{on}] disk soak, {} fills of a {}-point campaign ...",
+        a.fills, a.disk_points
+    );
+    let disk = run_disk_soak(&DiskSoakConfig {
+        points: a.disk_points,
+        fills: a.fills,
+        seed: a.seed,
+        data_dir: work.join("disk-soak"),
+        hold_s: DISK_HOLD_S,
+        instrument: instrument.clone(),
+    })?;
+    eprintln!(
+        "gonio-soak: [{on}] disk soak: {} ({} violations)",
+        disk.final_state,
+        disk.violations().len()
+    );
+
+    eprintln!(
+        "gonio-soak: [{on}] safety, {} random campaigns ...",
+        a.safety_cases
+    );
+    let safety = run_safety_soak(&SafetySoakConfig {
+        cases: a.safety_cases,
+        seed: a.seed,
+        instrument: instrument.clone(),
+    })?;
+    eprintln!(
+        "gonio-soak: [{on}] safety: {} move commands ({} violations)",
+        safety.move_commands(),
+        safety.violations().len()
+    );
+    Ok(InstrumentPass {
+        instrument: instrument.name.clone(),
+        fault,
+        crash,
+        disk,
+        safety,
+    })
 }

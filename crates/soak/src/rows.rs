@@ -12,6 +12,7 @@ use rusqlite::{Connection, OpenFlags};
 
 use crate::SoakError;
 use crate::fault_soak::{PointCheck, check_points};
+use crate::truth_check::Tolerance;
 
 /// A campaign's committed points against its plan.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -27,13 +28,14 @@ pub struct RowSummary {
 }
 
 impl RowSummary {
-    /// The summary of a campaign's `points` (as the store returns them, in index order) against `planned`.
-    pub fn of(planned: u64, points: &[PointRecord]) -> RowSummary {
+    /// The summary of a campaign's `points` (as the store returns them, in index order) against `planned`, on an
+    /// instrument of tolerance `tol` ([`crate::truth_check`]).
+    pub fn of(planned: u64, points: &[PointRecord], tol: &Tolerance) -> RowSummary {
         RowSummary {
             planned,
             rows: points.len() as u64,
             indices_in_order: points.iter().enumerate().all(|(i, p)| p.index == i as u64),
-            points: check_points(points),
+            points: check_points(points, tol),
         }
     }
 
@@ -226,7 +228,7 @@ mod tests {
 
     #[test]
     fn a_row_summary_of_no_points_is_every_point_lost() {
-        let s = RowSummary::of(5, &[]);
+        let s = RowSummary::of(5, &[], &Tolerance::ideal());
         assert_eq!((s.rows, s.indices_in_order, s.lost()), (0, true, 5));
         assert_eq!(s.violations().len(), 1);
     }

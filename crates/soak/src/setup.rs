@@ -5,9 +5,11 @@
 //! geometries it cannot measure (retro-reflection, arm collision), so the number of geometries is found by
 //! bisection on what the engine's own validation counts.
 //!
-//! The instrument is `config/instruments/simulated.toml` (embedded) with keys appended to its
-//! `[simulator.faults]` table, so that the stored instrument text keeps the file's comments and units, and its
-//! `[simulator.quirks]` (the recorded real-device variants, each the most demanding for a host).
+//! The instrument is a [`SoakInstrument`]: `config/instruments/simulated.toml` (the ideal one, embedded) or
+//! `config/instruments/realistic.toml` (the imperfect one of issue 16, embedded too), or any instrument file,
+//! with keys appended to its `[simulator.faults]` table, so that the stored instrument text keeps the file's
+//! comments and units, its `[simulator.quirks]` (the recorded real-device variants, each the most demanding for
+//! a host) and its `[simulator.imperfections]`.
 
 use std::path::Path;
 
@@ -19,6 +21,66 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::SoakError;
+
+/// `config/instruments/realistic.toml`: the simulated instrument with the imperfections of issue 16.
+pub const REALISTIC_INSTRUMENT_TOML: &str = include_str!("../../../config/instruments/realistic.toml");
+
+/// The instrument file a soak runs on: what the report calls it, and its text.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SoakInstrument {
+    /// The name the report gives it (the file name).
+    pub name: String,
+    /// The file's text.
+    pub text: String,
+}
+
+impl Default for SoakInstrument {
+    fn default() -> SoakInstrument {
+        SoakInstrument::simulated()
+    }
+}
+
+impl SoakInstrument {
+    /// The ideal simulated instrument, `config/instruments/simulated.toml`.
+    pub fn simulated() -> SoakInstrument {
+        SoakInstrument {
+            name: "simulated.toml".into(),
+            text: SIMULATED_INSTRUMENT_TOML.into(),
+        }
+    }
+
+    /// The imperfect one, `config/instruments/realistic.toml`.
+    pub fn realistic() -> SoakInstrument {
+        SoakInstrument {
+            name: "realistic.toml".into(),
+            text: REALISTIC_INSTRUMENT_TOML.into(),
+        }
+    }
+
+    /// An instrument file on disk (it must have a `[simulator]` section and a `[simulator.faults]` table).
+    pub fn load(path: &Path) -> Result<SoakInstrument, SoakError> {
+        let text = std::fs::read_to_string(path).map_err(SoakError::io(path.display().to_string()))?;
+        let name = path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        let soak = SoakInstrument { name, text };
+        soak.file()?;
+        Ok(soak)
+    }
+
+    /// The parsed file.
+    pub fn file(&self) -> Result<InstrumentFile, SoakError> {
+        InstrumentFile::parse(&self.text, &self.name).map_err(|e| SoakError::Setup(e.to_string()))
+    }
+
+    /// The file has imperfections switched on (its points carry a per-point attribution of them).
+    pub fn is_imperfect(&self) -> bool {
+        self.file()
+            .ok()
+            .is_some_and(|f| !f.simulator.imperfections.is_ideal())
+    }
+}
 
 /// Bands measured at every geometry.
 pub const BANDS_NM: [f64; 2] = [450.0, 650.0];
@@ -144,25 +206,29 @@ pub fn build_campaign(
     })
 }
 
-/// The embedded simulated instrument with `faults` written into its `[simulator.faults]` table, everything else
-/// as in the file (its `[simulator.quirks]`: the recorded real-device variants): (the parsed file, its text).
-pub fn instrument_with_faults(faults: &Faults) -> Result<(InstrumentFile, String), SoakError> {
+/// The instrument `base` with `faults` written into its `[simulator.faults]` table, everything else as in the
+/// file (its `[simulator.quirks]`: the recorded real-device variants; its imperfections): (the parsed file, its
+/// text).
+pub fn instrument_with_faults(
+    base: &SoakInstrument,
+    faults: &Faults,
+) -> Result<(InstrumentFile, String), SoakError> {
     let header = "[simulator.faults]";
-    let Some(at) = SIMULATED_INSTRUMENT_TOML.find(header) else {
-        return Err(SoakError::Setup(
-            "config/instruments/simulated.toml has no [simulator.faults] table".into(),
-        ));
+    let src = base.text.as_str();
+    let Some(at) = src.find(header) else {
+        return Err(SoakError::Setup(format!(
+            "{} has no [simulator.faults] table",
+            base.name
+        )));
     };
     let body = at + header.len();
     // The faults table ends where the next table starts (or with the file).
-    let end = SIMULATED_INSTRUMENT_TOML[body..]
-        .find("\n[")
-        .map_or(SIMULATED_INSTRUMENT_TOML.len(), |i| body + i + 1);
-    let mut text = SIMULATED_INSTRUMENT_TOML[..body].to_string();
+    let end = src[body..].find("\n[").map_or(src.len(), |i| body + i + 1);
+    let mut text = src[..body].to_string();
     text.push_str("\n# Written by gonio-soak (crates/soak/src/setup.rs).\n");
     text.push_str(&faults_toml(faults));
     text.push('\n');
-    text.push_str(&SIMULATED_INSTRUMENT_TOML[end..]);
+    text.push_str(&src[end..]);
     let file =
         InstrumentFile::parse(&text, "<soak instrument>").map_err(|e| SoakError::Setup(e.to_string()))?;
     if file.simulator.faults != *faults {
@@ -171,10 +237,13 @@ pub fn instrument_with_faults(faults: &Faults) -> Result<(InstrumentFile, String
             faults, file.simulator.faults
         )));
     }
-    if file.simulator.quirks != InstrumentFile::simulated().simulator.quirks {
+    let original = base.file()?;
+    if file.simulator.quirks != original.simulator.quirks
+        || file.simulator.imperfections != original.simulator.imperfections
+    {
         return Err(SoakError::Setup(format!(
-            "the simulated instrument's quirks did not survive: {:?}",
-            file.simulator.quirks
+            "{}'s quirks or imperfections did not survive: {:?}",
+            base.name, file.simulator.quirks
         )));
     }
     Ok((file, text))
@@ -248,10 +317,20 @@ mod tests {
             disconnect_every_s: Some(240.0),
             saturate: false,
         };
-        let (file, text) = instrument_with_faults(&f).expect("valid");
+        let (file, text) = instrument_with_faults(&SoakInstrument::simulated(), &f).expect("valid");
         assert_eq!(file.simulator.faults, f);
         assert!(text.contains("garble_rate = 0.01\n"), "{text}");
         assert!(text.starts_with("# The simulated gonioreflectometer"));
+        // The realistic instrument keeps its imperfections (and its hidden values' seed) beside the faults.
+        let realistic = SoakInstrument::realistic();
+        let (file, text) = instrument_with_faults(&realistic, &f).expect("valid");
+        assert_eq!(file.simulator.faults, f);
+        assert!(realistic.is_imperfect() && !SoakInstrument::simulated().is_imperfect());
+        assert_eq!(
+            file.simulator.imperfections,
+            realistic.file().expect("valid").simulator.imperfections
+        );
+        assert!(text.contains("[simulator.imperfections.detector]"), "{text}");
     }
 
     #[test]

@@ -5,9 +5,20 @@ use std::time::Duration;
 
 use gonio_daemon::store::{CampaignState, Store};
 use gonio_soak::crash_soak::{CrashSoakConfig, KillPlan, run_crash_soak};
+use gonio_soak::setup::SoakInstrument;
 
 #[test]
 fn kills_at_start_up_mid_move_and_mid_commit_lose_and_change_nothing() {
+    kills_lose_and_change_nothing_on(SoakInstrument::simulated());
+}
+
+/// The same on the imperfect instrument (issue 16): its errors change no guarantee.
+#[test]
+fn on_the_realistic_instrument_kills_lose_and_change_nothing() {
+    kills_lose_and_change_nothing_on(SoakInstrument::realistic());
+}
+
+fn kills_lose_and_change_nothing_on(instrument: SoakInstrument) {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = CrashSoakConfig {
         points: 60,
@@ -16,6 +27,7 @@ fn kills_at_start_up_mid_move_and_mid_commit_lose_and_change_nothing() {
         work_dir: dir.path().to_path_buf(),
         worker: vec![env!("CARGO_BIN_EXE_gonio-soak").to_string(), "worker".into()],
         round_timeout: Duration::from_secs(120),
+        instrument,
     };
     let r = run_crash_soak(&cfg).expect("the soak runs");
     for round in &r.rounds {

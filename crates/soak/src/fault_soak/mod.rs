@@ -5,9 +5,10 @@
 //! Checked afterwards:
 //! - the campaign completed, with one row per planned point;
 //! - every point is either valid (its BRDF within 5 standard uncertainties, plus the optics' 1e-6 integration
-//!   floor, of the simulator's aperture-averaged ground truth stored with it) or recorded without a value and
-//!   with its reason (`failed: <the device's reason>`, or a measurement flag); a value outside that band is
-//!   silently wrong, a point with neither value nor reason is unexplained;
+//!   floor, of the simulator's aperture-averaged ground truth stored with it; on an imperfect instrument plus
+//!   what the imperfections explain, from the point's own attribution: [`crate::truth_check`]) or recorded
+//!   without a value and with its reason (`failed: <the device's reason>`, or a measurement flag); a value
+//!   outside that band is silently wrong, a point with neither value nor reason is unexplained;
 //! - every fault the simulator counted is in the log (its own "fault injected" report), and the host's side of
 //!   it: driver warnings, the engine's fault events (the campaign's event stream), reconnections.
 
@@ -17,7 +18,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_campaign};
-use gonio_daemon::store::{CampaignState, PointRecord, Store};
+use gonio_daemon::store::{CampaignState, Store};
 use gonio_instrument::{Faults, InstrumentFile};
 use gonio_simulator::FaultCounts;
 use tracing_subscriber::Layer as _;
@@ -26,7 +27,9 @@ use tracing_subscriber::layer::SubscriberExt as _;
 use crate::SoakError;
 use crate::logcap::{LogCapture, LogCounts, runtime_logging_to};
 use crate::rows::RowSummary;
-use crate::setup::{SoakCampaign, build_campaign, instrument_with_faults};
+use crate::setup::{SoakCampaign, SoakInstrument, build_campaign, instrument_with_faults};
+use crate::truth_check::Tolerance;
+pub use crate::truth_check::{PointCheck, check_points};
 
 /// What to run.
 #[derive(Debug, Clone, PartialEq)]
@@ -43,6 +46,8 @@ pub struct FaultSoakConfig {
     pub log_file: Option<PathBuf>,
     /// How many times the soak, acting as the operator, resumes a campaign that paused (each is reported).
     pub max_resumes: u32,
+    /// The instrument file the faults are written into.
+    pub instrument: SoakInstrument,
 }
 
 /// Move commands per measured point in a fault-free run of the soak campaign (about 4, counted from the
@@ -72,6 +77,7 @@ impl FaultSoakConfig {
             data_dir,
             log_file: None,
             max_resumes: 5,
+            instrument: SoakInstrument::simulated(),
         }
     }
 
@@ -95,74 +101,8 @@ impl FaultSoakConfig {
     }
 }
 
-/// The verdict on every point.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct PointCheck {
-    /// Values within tolerance of the ground truth.
-    pub valid: u64,
-    /// Points recorded as failed (`failed: ...`), by reason (the device and error, numbers stripped).
-    pub failed: BTreeMap<String, u64>,
-    /// Points without a value for a measurement reason (overfilled, grazing, saturated, ...), by flag.
-    pub flagged: BTreeMap<String, u64>,
-    /// Values outside tolerance: silently wrong (index and details).
-    pub wrong: Vec<String>,
-    /// Points with neither a valid value nor a reason (index and details).
-    pub unexplained: Vec<String>,
-    /// Largest |f - truth| / u over the valid points.
-    pub max_error_in_u: f64,
-}
-
-impl PointCheck {
-    pub fn failed_total(&self) -> u64 {
-        self.failed.values().sum()
-    }
-    pub fn flagged_total(&self) -> u64 {
-        self.flagged.values().sum()
-    }
-}
-
-/// Check committed points against the ground truth stored with them.
-pub fn check_points(points: &[PointRecord]) -> PointCheck {
-    let mut c = PointCheck::default();
-    for p in points {
-        let failed = p.flags.iter().find(|f| f.starts_with("failed"));
-        match (failed, p.brdf_sr, p.brdf_u_sr, p.truth_aperture_sr) {
-            (Some(reason), None, _, _) => {
-                *c.failed.entry(reason_class(reason)).or_default() += 1;
-            }
-            (None, None, _, _) if !p.flags.is_empty() => {
-                for f in &p.flags {
-                    *c.flagged.entry(f.clone()).or_default() += 1;
-                }
-            }
-            (None, Some(f), Some(u), Some(t)) if p.flags.is_empty() => {
-                let err = (f - t).abs();
-                if f.is_finite() && u.is_finite() && u > 0.0 && err <= 5.0 * u + 1e-6 * t.abs() {
-                    c.valid += 1;
-                    c.max_error_in_u = c.max_error_in_u.max(err / u);
-                } else {
-                    c.wrong.push(format!(
-                        "point {} ({} nm, theta_i {} theta_o {} phi_o {}): {f} 1/sr, truth {t}, u {u} ({:.1} u off)",
-                        p.index,
-                        p.band_nm,
-                        p.theta_i_deg,
-                        p.theta_o_deg,
-                        p.phi_o_deg,
-                        err / u
-                    ));
-                }
-            }
-            _ => c.unexplained.push(format!(
-                "point {}: value {:?}, u {:?}, truth {:?}, flags {:?}",
-                p.index, p.brdf_sr, p.brdf_u_sr, p.truth_aperture_sr, p.flags
-            )),
-        }
-    }
-    c
-}
-
 /// A failure reason without its numbers, so that reasons of one kind count together.
-fn reason_class(reason: &str) -> String {
+pub(crate) fn reason_class(reason: &str) -> String {
     let mut out = String::new();
     let mut in_number = false;
     let mut chars = reason.chars().peekable();
@@ -405,7 +345,7 @@ pub fn run_fault_soak(cfg: &FaultSoakConfig) -> Result<FaultSoakReport, SoakErro
     let wall = Instant::now();
     let mut faults = cfg.faults.clone();
     faults.seed = cfg.seed;
-    let (file, instrument_text) = instrument_with_faults(&faults)?;
+    let (file, instrument_text) = instrument_with_faults(&cfg.instrument, &faults)?;
     let campaign = build_campaign("fault-soak", cfg.points, cfg.seed, &file)?;
     let mut store = Store::open(&cfg.data_dir)?;
     if !store.campaigns()?.is_empty() {
@@ -444,7 +384,7 @@ pub fn run_fault_soak(cfg: &FaultSoakConfig) -> Result<FaultSoakReport, SoakErro
         .map(|p| p.t_s)
         .chain(calibrations.iter().map(|c| c.t_s))
         .fold(0.0f64, f64::max);
-    let committed = RowSummary::of(campaign.total_points, &points);
+    let committed = RowSummary::of(campaign.total_points, &points, &Tolerance::of(&file));
     Ok(FaultSoakReport {
         config: cfg.clone(),
         faults_toml: crate::setup::faults_toml(&faults),

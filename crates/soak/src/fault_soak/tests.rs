@@ -1,4 +1,6 @@
 use super::*;
+use crate::truth_check::Tolerance;
+use gonio_daemon::store::PointRecord;
 
 #[test]
 fn error_classes_follow_the_driver_messages() {
@@ -51,14 +53,17 @@ fn point(index: u64, value: Option<f64>, flags: &[&str]) -> PointRecord {
 
 #[test]
 fn a_value_beyond_five_sigma_is_silently_wrong_and_a_bare_gap_unexplained() {
-    let c = check_points(&[
-        point(0, Some(0.1004), &[]),
-        point(1, Some(0.1060), &[]),
-        point(2, None, &["failed: meter: no reply"]),
-        point(3, None, &["overfilled"]),
-        point(4, None, &[]),
-        point(5, Some(0.1), &["saturated"]),
-    ]);
+    let c = check_points(
+        &[
+            point(0, Some(0.1004), &[]),
+            point(1, Some(0.1060), &[]),
+            point(2, None, &["failed: meter: no reply"]),
+            point(3, None, &["overfilled"]),
+            point(4, None, &[]),
+            point(5, Some(0.1), &["saturated"]),
+        ],
+        &Tolerance::ideal(),
+    );
     assert_eq!(c.valid, 1);
     assert_eq!(c.wrong.len(), 1, "{:?}", c.wrong);
     assert!(c.wrong[0].starts_with("point 1 "));

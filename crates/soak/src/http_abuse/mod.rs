@@ -352,7 +352,11 @@ pub fn run_http_abuse(cfg: &HttpAbuseConfig) -> Result<HttpAbuseReport, SoakErro
         Some(r) => store.points(r.id)?,
         None => Vec::new(),
     };
-    let committed = RowSummary::of(campaign.total_points, &points);
+    let committed = RowSummary::of(
+        campaign.total_points,
+        &points,
+        &crate::truth_check::Tolerance::ideal(),
+    );
     Ok(HttpAbuseReport {
         max_connections: cfg.api.max_connections,
         header_read_timeout_s: cfg.api.header_read_timeout.as_secs_f64(),

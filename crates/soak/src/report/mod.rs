@@ -9,7 +9,11 @@ use crate::http_abuse::HttpAbuseReport;
 use crate::inputs::InputStats;
 use crate::safety_soak::{ESTOP_DEADLINE_S, Rule, SafetySoakReport};
 
+mod imperfect;
 mod sections;
+
+pub use imperfect::InstrumentPass;
+use sections::{crash_row, disk_row, fault_row, safety_row};
 
 /// Everything one run of the command measured.
 #[derive(Debug, Clone)]
@@ -22,6 +26,8 @@ pub struct Report {
     pub disk: DiskSoakReport,
     pub http: HttpAbuseReport,
     pub safety: SafetySoakReport,
+    /// The fault, crash, disk and safety soaks again on an imperfect instrument (realistic.toml), if run.
+    pub imperfect: Option<InstrumentPass>,
     pub inputs: Vec<InputStats>,
     pub wall_s: f64,
 }
@@ -59,6 +65,9 @@ impl Report {
                 .into_iter()
                 .map(|m| format!("safety: {m}")),
         );
+        if let Some(p) = &self.imperfect {
+            v.extend(p.violations());
+        }
         for s in &self.inputs {
             if s.panics > 0 {
                 v.push(format!(
@@ -86,6 +95,7 @@ impl Report {
             + c.changed.len() as u64
             + self.disk.data_lost()
             + self.http.data_lost()
+            + self.imperfect.as_ref().map_or(0, InstrumentPass::data_lost)
     }
 
     pub fn to_markdown(&self) -> String {
@@ -109,46 +119,29 @@ impl Report {
             secs(self.wall_s)
         );
 
+        if let Some(p) = &self.imperfect {
+            let _ = writeln!(
+                m,
+                "The fault, crash, disk and safety soaks run on the ideal `config/instruments/simulated.toml` and \
+                 again on the imperfect `{}` (its rows in the summary; *The imperfect instrument* below says what \
+                 \"silently wrong\" means there).\n",
+                p.instrument
+            );
+        }
         let _ = writeln!(m, "## Summary\n");
         let _ = writeln!(m, "| | load held | faults or kills | outcome |");
         let _ = writeln!(m, "|---|---|---|---|");
-        let _ = writeln!(
-            m,
-            "| fault soak | {} points, {:.2} instrument hours, {} wall | {} garbled and {} dropped replies, {} stalled moves, {} disconnects of every device, {} replies delayed | {} valid, {} failed with a reason, {} silently wrong, campaign {} |",
-            f.committed.rows,
-            f.instrument_s / 3600.0,
-            secs(f.wall_s),
-            f.injected.garbled,
-            f.injected.dropped,
-            f.log.stalls_manifested,
-            f.injected.outages,
-            f.injected.delayed,
-            f.committed.points.valid,
-            f.committed.points.failed_total(),
-            f.committed.points.wrong.len(),
-            f.final_state
-        );
-        let _ = writeln!(
-            m,
-            "| crash soak | {} points, {:.2} instrument hours, {} wall | {} × `kill -9` ({} mid-move, {} mid-commit, {} start-up, {} random), {} restarts | {} rows for {} planned, {} committed rows changed, {} silently wrong, campaign {} |",
-            c.committed.rows,
-            c.instrument_s / 3600.0,
-            secs(c.wall_s),
-            c.kills(),
-            c.kills_of("mid-move"),
-            c.kills_of("mid-commit"),
-            c.kills_of("start-up"),
-            c.kills_of("random"),
-            c.rounds.len().saturating_sub(1),
-            c.committed.rows,
-            c.campaign.total_points,
-            c.changed.len(),
-            c.committed.points.wrong.len(),
-            c.final_state
-                .map(|s| s.to_string())
-                .unwrap_or_else(|| "missing".into())
-        );
-        self.summary_rows(&mut m);
+        fault_row(&mut m, "fault soak", f);
+        crash_row(&mut m, "crash soak", c);
+        disk_row(&mut m, "disk trouble", &self.disk);
+        self.http_row(&mut m);
+        safety_row(&mut m, "safety", &self.safety);
+        if let Some(p) = &self.imperfect {
+            fault_row(&mut m, &format!("fault soak, {}", p.instrument), &p.fault);
+            crash_row(&mut m, &format!("crash soak, {}", p.instrument), &p.crash);
+            disk_row(&mut m, &format!("disk trouble, {}", p.instrument), &p.disk);
+            safety_row(&mut m, &format!("safety, {}", p.instrument), &p.safety);
+        }
         let tried: u64 = self.inputs.iter().map(|s| s.tried).sum();
         let panics: u64 = self.inputs.iter().map(|s| s.panics).sum();
         let _ = writeln!(
@@ -416,6 +409,9 @@ impl Report {
         self.disk_section(&mut m);
         self.http_section(&mut m);
         self.safety_section(&mut m);
+        if let Some(p) = &self.imperfect {
+            p.section(&mut m);
+        }
 
         // ------------------------------------------------------------------ inputs
         let _ = writeln!(m, "## Bad inputs\n");

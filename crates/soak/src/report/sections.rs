@@ -1,33 +1,10 @@
-//! The report's sections on the disk, HTTP abuse and safety soaks, and their rows of the summary table.
+//! The report's sections on the disk, HTTP abuse and safety soaks, and the rows of the summary table.
 
 use super::*;
 
 impl Report {
-    /// The summary table's rows of the disk, HTTP and safety soaks.
-    pub(super) fn summary_rows(&self, m: &mut String) {
-        let d = &self.disk;
-        let paused = d
-            .fills
-            .iter()
-            .filter(|f| f.ended == gonio_daemon::store::CampaignState::Paused)
-            .count();
-        let moves: u64 = d.fills.iter().map(|f| f.moves_while_paused).sum();
-        let _ = writeln!(
-            m,
-            "| disk trouble | {} points, {:.2} instrument hours, {} wall | the store full (SQLITE_FULL) {} times, {:.0} s of instrument time each before room came back | paused {} of {} times with the store's path and SQLite's reason, {} move commands while paused, {} rows for {} planned, {} committed rows changed, campaign {} |",
-            d.committed.rows,
-            d.instrument_s / 3600.0,
-            secs(d.wall_s),
-            d.fills.len(),
-            d.config.hold_s,
-            paused,
-            d.fills.len(),
-            moves,
-            d.committed.rows,
-            d.campaign.total_points,
-            d.changed.len(),
-            d.final_state
-        );
+    /// The summary table's row of the HTTP abuse soak.
+    pub(super) fn http_row(&self, m: &mut String) {
         let h = &self.http;
         let slow = h.header_tricklers.clients + h.body_tricklers.clients + h.idle.clients;
         let sent: u64 = h.oversized.iter().map(|o| o.sent).sum();
@@ -52,33 +29,6 @@ impl Report {
                 .map(|s| s.to_string())
                 .unwrap_or_else(|| "missing".into()),
             h.committed.rows
-        );
-        let s = &self.safety;
-        let [pauses, aborts, estops] = s.acts();
-        let lat = s.estop_latencies_s();
-        let n = s.cases.len();
-        let held = |rule: Rule| match s.broke(rule) {
-            0 => format!("held in all {n} cases"),
-            k => format!("**BROKEN in {k} of {n} cases**"),
-        };
-        let _ = writeln!(
-            m,
-            "| safety | {} random campaigns, {} move commands, {} wall | {} pauses, {} aborts, {} emergency stops; device faults in {} cases | arm separation {} (closest once apart {:.3} deg, minimum {} deg); limits {} (closest commanded target {:.3} deg inside); emergency stop {} (slowest {:.1} ms, deadline {:.0} ms) |",
-            n,
-            s.move_commands(),
-            secs(s.wall_s),
-            pauses,
-            aborts,
-            estops,
-            s.cases.iter().filter(|c| c.faults).count(),
-            held(Rule::Separation),
-            s.closest_motor_deg().min(s.closest_load_deg()),
-            s.min_separation_deg,
-            held(Rule::Limits),
-            s.command_margin_deg(),
-            held(Rule::Estop),
-            lat.last().copied().unwrap_or(f64::NAN) * 1e3,
-            ESTOP_DEADLINE_S * 1e3
         );
     }
 
@@ -373,4 +323,104 @@ impl Report {
         }
         let _ = writeln!(m);
     }
+}
+
+/// The summary table's row of a fault soak.
+pub(super) fn fault_row(m: &mut String, label: &str, f: &FaultSoakReport) {
+    let _ = writeln!(
+        m,
+        "| {label} | {} points, {:.2} instrument hours, {} wall | {} garbled and {} dropped replies, {} stalled moves, {} disconnects of every device, {} replies delayed | {} valid, {} failed with a reason, {} silently wrong, campaign {} |",
+        f.committed.rows,
+        f.instrument_s / 3600.0,
+        secs(f.wall_s),
+        f.injected.garbled,
+        f.injected.dropped,
+        f.log.stalls_manifested,
+        f.injected.outages,
+        f.injected.delayed,
+        f.committed.points.valid,
+        f.committed.points.failed_total(),
+        f.committed.points.wrong.len(),
+        f.final_state
+    );
+}
+
+/// The summary table's row of a crash soak.
+pub(super) fn crash_row(m: &mut String, label: &str, c: &CrashSoakReport) {
+    let _ = writeln!(
+        m,
+        "| {label} | {} points, {:.2} instrument hours, {} wall | {} × `kill -9` ({} mid-move, {} mid-commit, {} start-up, {} random), {} restarts | {} rows for {} planned, {} committed rows changed, {} silently wrong, campaign {} |",
+        c.committed.rows,
+        c.instrument_s / 3600.0,
+        secs(c.wall_s),
+        c.kills(),
+        c.kills_of("mid-move"),
+        c.kills_of("mid-commit"),
+        c.kills_of("start-up"),
+        c.kills_of("random"),
+        c.rounds.len().saturating_sub(1),
+        c.committed.rows,
+        c.campaign.total_points,
+        c.changed.len(),
+        c.committed.points.wrong.len(),
+        c.final_state
+            .map(|s| s.to_string())
+            .unwrap_or_else(|| "missing".into())
+    );
+}
+
+/// The summary table's row of a disk soak.
+pub(super) fn disk_row(m: &mut String, label: &str, d: &DiskSoakReport) {
+    let paused = d
+        .fills
+        .iter()
+        .filter(|f| f.ended == gonio_daemon::store::CampaignState::Paused)
+        .count();
+    let moves: u64 = d.fills.iter().map(|f| f.moves_while_paused).sum();
+    let _ = writeln!(
+        m,
+        "| {label} | {} points, {:.2} instrument hours, {} wall | the store full (SQLITE_FULL) {} times, {:.0} s of instrument time each before room came back | paused {} of {} times with the store's path and SQLite's reason, {} move commands while paused, {} rows for {} planned, {} committed rows changed, campaign {} |",
+        d.committed.rows,
+        d.instrument_s / 3600.0,
+        secs(d.wall_s),
+        d.fills.len(),
+        d.config.hold_s,
+        paused,
+        d.fills.len(),
+        moves,
+        d.committed.rows,
+        d.campaign.total_points,
+        d.changed.len(),
+        d.final_state
+    );
+}
+
+/// The summary table's row of a safety soak.
+pub(super) fn safety_row(m: &mut String, label: &str, s: &SafetySoakReport) {
+    let [pauses, aborts, estops] = s.acts();
+    let lat = s.estop_latencies_s();
+    let n = s.cases.len();
+    let held = |rule: Rule| match s.broke(rule) {
+        0 => format!("held in all {n} cases"),
+        k => format!("**BROKEN in {k} of {n} cases**"),
+    };
+    let _ = writeln!(
+        m,
+        "| {label} | {} random campaigns, {} move commands, {} wall | {} pauses, {} aborts, {} emergency stops; device faults in {} cases | arm separation {} (closest once apart {:.3} deg, minimum {} deg); limits {} (closest commanded target {:.3} deg inside); emergency stop {} (slowest {:.1} ms, deadline {:.0} ms) |",
+        n,
+        s.move_commands(),
+        secs(s.wall_s),
+        pauses,
+        aborts,
+        estops,
+        s.cases.iter().filter(|c| c.faults).count(),
+        held(Rule::Separation),
+        s.closest_motor_deg().min(s.closest_load_deg()),
+        s.min_separation_deg,
+        held(Rule::Limits),
+        s.command_margin_deg(),
+        held(Rule::Estop),
+        lat.last().copied().unwrap_or(f64::NAN) * 1e3,
+        ESTOP_DEADLINE_S * 1e3
+    );
 }

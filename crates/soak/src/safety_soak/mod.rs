@@ -30,7 +30,9 @@ use std::time::{Duration, Instant};
 use gonio_daemon::campaign::{AcquisitionSection, CalibrationSection, CampaignFile};
 use gonio_daemon::engine::{Control, Rig, prepare_campaign, run_campaign};
 use gonio_daemon::store::{CampaignState, PointRecord, Store};
-use gonio_instrument::{Axis, AxisRole, InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_instrument::{Axis, AxisRole, InstrumentFile};
+
+use crate::setup::SoakInstrument;
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::{Kinematics, Pose};
 use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec};
@@ -70,6 +72,8 @@ pub struct SafetySoakConfig {
     /// Random cases (campaign, interruptions, fault level).
     pub cases: u32,
     pub seed: u64,
+    /// The instrument file the cases run on (its faults replaced by each case's).
+    pub instrument: SoakInstrument,
 }
 
 /// An operator's request.
@@ -273,6 +277,7 @@ fn run_paused(
     case: &Case,
     sabotage: &Sabotage,
     limit: Duration,
+    instrument: &SoakInstrument,
 ) -> Result<Result<Outcome, String>, SoakError> {
     let dir = tempfile::tempdir().map_err(SoakError::io("temporary directory for a safety case"))?;
     let rt = tokio::runtime::Builder::new_current_thread()
@@ -281,7 +286,7 @@ fn run_paused(
         .build()
         .map_err(SoakError::io("cannot start the async runtime"))?;
     Ok(rt.block_on(async {
-        tokio::time::timeout(limit, run_case(case, dir.path(), sabotage))
+        tokio::time::timeout(limit, run_case(case, dir.path(), sabotage, instrument))
             .await
             .unwrap_or_else(|_| {
                 Err(format!(
@@ -292,40 +297,57 @@ fn run_paused(
     }))
 }
 
-/// Run one case and check it.
+/// Run one case on the ideal simulated instrument and check it.
 pub fn run_and_check(index: u32, case: &Case) -> Result<CaseResult, SoakError> {
-    Ok(match run_paused(case, &Sabotage::default(), CASE_LIMIT)? {
-        Ok(o) => check(index, case, &o),
-        Err(e) => CaseResult {
-            index,
-            faults: case.faults.any(),
-            acts: [0; 3],
-            final_state: None,
-            planned_points: 0,
-            points: 0,
-            move_commands: 0,
-            closest_motor_deg: f64::NAN,
-            closest_load_deg: f64::NAN,
-            command_margin_deg: f64::NAN,
-            trajectory_margin_deg: f64::NAN,
-            extreme_command: None,
-            estop_latencies_s: Vec::new(),
-            violations: vec![format!("case did not run: {e}")],
-            broken: vec![Rule::Other],
+    run_and_check_on(index, case, &SoakInstrument::simulated())
+}
+
+/// Run one case on `instrument` and check it.
+pub fn run_and_check_on(
+    index: u32,
+    case: &Case,
+    instrument: &SoakInstrument,
+) -> Result<CaseResult, SoakError> {
+    Ok(
+        match run_paused(case, &Sabotage::default(), CASE_LIMIT, instrument)? {
+            Ok(o) => check(index, case, &o),
+            Err(e) => CaseResult {
+                index,
+                faults: case.faults.any(),
+                acts: [0; 3],
+                final_state: None,
+                planned_points: 0,
+                points: 0,
+                move_commands: 0,
+                closest_motor_deg: f64::NAN,
+                closest_load_deg: f64::NAN,
+                command_margin_deg: f64::NAN,
+                trajectory_margin_deg: f64::NAN,
+                extreme_command: None,
+                estop_latencies_s: Vec::new(),
+                violations: vec![format!("case did not run: {e}")],
+                broken: vec![Rule::Other],
+            },
         },
-    })
+    )
 }
 
 /// Run a fixed case under `sabotage` (none: `Sabotage::default()`) and return what happened, for [`check`] and a
 /// test's own questions; a case that could not run is an error.
 pub fn run_scenario(case: &Case, sabotage: &Sabotage) -> Result<Outcome, SoakError> {
-    run_paused(case, sabotage, SCENARIO_LIMIT)?.map_err(SoakError::Setup)
+    run_paused(case, sabotage, SCENARIO_LIMIT, &SoakInstrument::simulated())?.map_err(SoakError::Setup)
 }
 
 /// Run case `index` of `seed` again and describe it for an investigation ([`describe`]).
 pub fn trace(seed: u64, index: u32, from_s: f64, to_s: f64) -> Result<String, SoakError> {
     let case = case(seed, index);
-    let o = run_paused(&case, &Sabotage::default(), CASE_LIMIT)?.map_err(SoakError::Setup)?;
+    let o = run_paused(
+        &case,
+        &Sabotage::default(),
+        CASE_LIMIT,
+        &SoakInstrument::simulated(),
+    )?
+    .map_err(SoakError::Setup)?;
     let result = check(index, &case, &o);
     Ok(describe(&case, &o, &result, from_s, to_s))
 }
@@ -472,10 +494,10 @@ impl SafetySoakReport {
 /// Run the safety soak: `cases` seeded random cases, each checked.
 pub fn run_safety_soak(cfg: &SafetySoakConfig) -> Result<SafetySoakReport, SoakError> {
     let wall = Instant::now();
-    let file = InstrumentFile::simulated();
+    let file = cfg.instrument.file()?;
     let mut cases = Vec::new();
     for i in 0..cfg.cases {
-        cases.push(run_and_check(i, &case(cfg.seed, i))?);
+        cases.push(run_and_check_on(i, &case(cfg.seed, i), &cfg.instrument)?);
     }
     Ok(SafetySoakReport {
         config: cfg.clone(),

@@ -1,4 +1,4 @@
-//! Running one case: the campaign on the simulated instrument with its interruptions and faults, the axes'
+//! Running one case: the campaign on the simulated instrument (ideal or imperfect: [`SoakInstrument`]) with its interruptions and faults, the axes'
 //! trajectories recorded for the checks.
 
 use super::*;
@@ -37,8 +37,13 @@ impl Outcome {
     }
 }
 
-pub(super) async fn run_case(case: &Case, data_dir: &Path, sabotage: &Sabotage) -> Result<Outcome, String> {
-    let mut file = InstrumentFile::simulated();
+pub(super) async fn run_case(
+    case: &Case,
+    data_dir: &Path,
+    sabotage: &Sabotage,
+    instrument: &SoakInstrument,
+) -> Result<Outcome, String> {
+    let mut file = instrument.file().map_err(|e| e.to_string())?;
     let f = &mut file.simulator.faults;
     (f.seed, f.stall_rate, f.garble_rate, f.drop_rate) = (
         case.faults.seed,
@@ -50,7 +55,7 @@ pub(super) async fn run_case(case: &Case, data_dir: &Path, sabotage: &Sabotage) 
         .map_err(|e| format!("generated campaign refused: {e}"))?;
     let mut store = Store::open(data_dir).map_err(|e| e.to_string())?;
     let id = store
-        .create_campaign(&prepared.new_campaign(&case.campaign, SIMULATED_INSTRUMENT_TOML))
+        .create_campaign(&prepared.new_campaign(&case.campaign, &instrument.text))
         .map_err(|e| e.to_string())?;
     let store = Arc::new(Mutex::new(store));
     let rig = Rig::connect_with_time_scale(&file, None, 1.0)
