@@ -13,7 +13,9 @@
 //! - the point's attributed effects, each as a magnitude and compounded (`Π(1 + |e|) - 1`): geometry (the BRDF at
 //!   the true geometry against the nominal one), the sample's non-uniformity, the source's flicker, the
 //!   photodiode's saturation, the range's gain, nonlinearity and offset, the stray light (`s / (1 - s)` of a
-//!   reading whose fraction `s` is stray), and the beam missing the field of view (`1 - intercepted_fraction`);
+//!   reading whose fraction `s` is stray), the finite band's mean of the sample's spectrum against its centre
+//!   value (`filter`), the beam's profile and true divergence (`beam`), and the beam missing the field of view
+//!   (`1 - intercepted_fraction`);
 //! - the ambient light against the light, scaled by how much it can change between the dark reading (which
 //!   subtracts the ambient light of its moment) and the point: `2v / (1 - v)` of it for a variation `v`;
 //! - the source's slow factor (warm-up and walk) against the direct-beam reading's, which no point records: the
@@ -280,7 +282,15 @@ pub fn point_allowance(
             .and_then(Value::as_f64)
     };
     let mut factor = 1.0;
-    for key in ["geometry", "sample", "source_flicker", "saturation", "meter"] {
+    for key in [
+        "geometry",
+        "sample",
+        "source_flicker",
+        "saturation",
+        "meter",
+        "filter",
+        "beam",
+    ] {
         if let Some(e) = num(["relative", key]) {
             factor *= 1.0 + e.abs();
         }

@@ -62,7 +62,8 @@ impl InstrumentPass {
              real, expected, and not data loss. A value is silently wrong only when it lies further from its \
              point's truth than 5 standard uncertainties PLUS everything the imperfections explain, from the \
              point's own attribution (`truth_effects_json`), each effect as a magnitude, compounded: geometry, \
-             sample, flicker, saturation, meter, stray light, beam outside the field; the ambient light as far as \
+             sample, flicker, saturation, meter, stray light, the finite band (filter), the beam's profile and \
+             divergence, the beam outside the field; the ambient light as far as \
              it can have changed since the dark reading that subtracted it (2v/(1-v) of it for a variation v); \
              the source's warm-up and walk as the ratio of the point's factor to the direct-beam reading's, which \
              lies between the warm-up's low and the walk's 5-sigma high; and a bound on the direct-beam reading's \
