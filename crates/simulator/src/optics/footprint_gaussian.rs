@@ -18,36 +18,13 @@ use std::f64::consts::TAU;
 use gonio_brdf::Direction;
 
 use super::footprint::Footprint;
+use super::footprint_offset::interval;
 
 /// Rays of the trapezoid rule over the beam's section.
 pub const RAYS: usize = 256;
 
 /// Below this lost fraction the footprint is not flagged as spilling (a Gaussian is never wholly inside).
 const SPILL: f64 = 1e-6;
-
-/// The interval of `t >= 0` where `|d0 + t e|^2 - ((d0 + t e) . w)^2 <= r^2`, for any (not unit) `e`.
-fn interval(d0: [f64; 2], e: [f64; 2], w: [f64; 2], r: f64) -> Option<(f64, f64)> {
-    let ew = e[0] * w[0] + e[1] * w[1];
-    let dw = d0[0] * w[0] + d0[1] * w[1];
-    let a = e[0] * e[0] + e[1] * e[1] - ew * ew;
-    let b = 2.0 * (d0[0] * e[0] + d0[1] * e[1] - dw * ew);
-    let c = d0[0] * d0[0] + d0[1] * d0[1] - dw * dw - r * r;
-    let disc = b * b - 4.0 * a * c;
-    if a.is_nan() || a <= 0.0 || disc.is_nan() || disc < 0.0 {
-        return None;
-    }
-    let s = disc.sqrt();
-    let q = -0.5 * (b + b.signum() * s);
-    let (mut t0, mut t1) = if q != 0.0 {
-        (q / a, c / q)
-    } else {
-        (-s / (2.0 * a), s / (2.0 * a))
-    };
-    if t0 > t1 {
-        std::mem::swap(&mut t0, &mut t1);
-    }
-    (t1 >= 0.0).then_some((t0.max(0.0), t1))
-}
 
 /// The intercepted fraction of a Gaussian beam (1/e^2 radius `w`) arriving from `wi` with its axis through
 /// `spot` (sample x, y; mm), a sample disc of radius `sample_radius` about the origin, and the detector's field

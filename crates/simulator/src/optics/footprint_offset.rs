@@ -23,16 +23,17 @@ use super::footprint::Footprint;
 /// Rays of the trapezoid rule.
 const RAYS: usize = 2048;
 
-/// The interval of `t >= 0` where `|d0 + t e|^2 - ((d0 + t e) . w)^2 <= r^2` (empty: None).
-fn interval(d0: [f64; 2], e: [f64; 2], w: [f64; 2], r: f64) -> Option<(f64, f64)> {
+/// The interval of `t >= 0` where `|d0 + t e|^2 - ((d0 + t e) . w)^2 <= r^2` (empty: None), for any (not
+/// necessarily unit) ray direction `e`; the Gaussian footprint's rays use it too (super::footprint_gaussian).
+pub(super) fn interval(d0: [f64; 2], e: [f64; 2], w: [f64; 2], r: f64) -> Option<(f64, f64)> {
     let ew = e[0] * w[0] + e[1] * w[1];
     let dw = d0[0] * w[0] + d0[1] * w[1];
     let de = d0[0] * e[0] + d0[1] * e[1];
-    let a = 1.0 - ew * ew;
+    let a = e[0] * e[0] + e[1] * e[1] - ew * ew;
     let b = 2.0 * (de - dw * ew);
     let c = d0[0] * d0[0] + d0[1] * d0[1] - dw * dw - r * r;
     let disc = b * b - 4.0 * a * c;
-    // a is 1 - cos^2 of an angle: > 0 unless the ray runs along a grazing cylinder (or a value is NaN).
+    // a is |e|^2 (1 - cos^2) of an angle: > 0 unless the ray runs along a grazing cylinder (or a value is NaN).
     if a.is_nan() || a <= 0.0 || disc.is_nan() || disc < 0.0 {
         return None;
     }
