@@ -204,13 +204,10 @@ pub fn markdown(variants: &[Variant], throughput: &[(&str, Throughput)], target_
          instrument: what the measurement equation, the finite aperture and the meter's noise cost by \
          themselves. Details: crates/bench/src/error_budget.rs.\n\n\
          How to read the filters' row: the direct-beam calibration passes the same filter, so what remains is \
-         the band's mean of the sample's spectrum against its value at the band's centre. Coloured plastic's \
-         spectrum is a table linear between 50 nm knots, and the demo's bands (450, 550, 650 nm) sit on knots \
-         where its slope jumps; a 10 nm three-cavity band averages over about +-2.9 nm (mean |offset|), so its \
-         mean moves by half the slope jump times that, 1-4 % of the value. A smooth spectrum through the same \
-         values would move by about a tenth of that (its curvature, about the slope jump over 50 nm, times the \
-         band's variance of 12.5 nm^2, over 2): the row is an upper bound for such a sample, and exact for a \
-         sample whose spectrum really is that table.\n\n",
+         the band's mean of the sample's spectrum against its value at the band's centre (its curvature over \
+         the band and the drawn centre offsets, times its slope), and the leakage's share of the sample's \
+         spectrum far from the band. Coloured plastic's spectrum is a 50 nm table read as a monotone cubic \
+         (crates/brdf/src/spectrum.rs).\n\n",
     );
     s.push_str("| imperfections | class | points | median | p95 | max |\n|---|---|---|---|---|---|\n");
     for v in variants {

@@ -1,4 +1,14 @@
-//! Quantities that may vary with wavelength: a single number, or a table nm -> value with linear interpolation.
+//! Quantities that may vary with wavelength: a single number, or a table nm -> value interpolated by a monotone
+//! piecewise cubic (PCHIP).
+//!
+//! Why not linear: a material's spectrum is smooth, and a table is a sampling of it, often every 50 nm. Linear
+//! interpolation puts a kink at every entry, and a finite filter band centred on one (crates/simulator, the filters
+//! group) would average that kink: a 10 nm band on coloured plastic's 550 nm entry moved by 4 %, about ten times
+//! what a smooth spectrum through the same values does. The Fritsch-Carlson monotone cubic (Fritsch & Carlson,
+//! "Monotone piecewise cubic interpolation", SIAM J. Numer. Anal. 17(2):238-246, 1980, with the Fritsch-Butland
+//! weighted harmonic mean of the neighbouring slopes at interior entries, as SciPy's `PchipInterpolator` does) has a
+//! continuous slope, passes through every entry, reproduces straight lines exactly, and never overshoots: between two
+//! entries it stays between their values, so an albedo in [0, 1] stays there and a local extremum is an entry.
 //!
 //! In TOML a spectral value is written either as a number (`albedo = 0.8`) or as an inline table whose keys are
 //! wavelengths in nanometres (`eta = { 450 = 1.509, 550 = 0.350, 650 = 0.168 }`; a fractional wavelength must be
@@ -80,7 +90,7 @@ impl Spectral {
         Ok(Spectral::Table(map.into_iter().map(|(k, v)| (k.0, v)).collect()))
     }
 
-    /// The value at a wavelength: the constant, or linear interpolation in the table.
+    /// The value at a wavelength: the constant, or the table's monotone cubic (module doc).
     pub fn at(&self, wavelength: Wavelength) -> Result<f64, SpectrumError> {
         match self {
             Spectral::Constant(v) => Ok(*v),
@@ -138,10 +148,51 @@ fn interpolate(table: &[(f64, f64)], nm: f64) -> Result<f64, SpectrumError> {
     if upper == 0 || table[upper].0 == nm {
         return Ok(table[upper].1);
     }
-    let (w0, v0) = table[upper - 1];
+    let k = upper - 1;
+    let (w0, v0) = table[k];
     let (w1, v1) = table[upper];
-    let t = (nm - w0) / (w1 - w0);
-    Ok(v0 + t * (v1 - v0))
+    let h = w1 - w0;
+    let t = (nm - w0) / h;
+    let (d0, d1) = (slope_at(table, k), slope_at(table, upper));
+    // Cubic Hermite basis on [w0, w1].
+    let (t2, t3) = (t * t, t * t * t);
+    Ok((2.0 * t3 - 3.0 * t2 + 1.0) * v0
+        + (t3 - 2.0 * t2 + t) * h * d0
+        + (-2.0 * t3 + 3.0 * t2) * v1
+        + (t3 - t2) * h * d1)
+}
+
+/// The monotone cubic's slope at entry `k` (module doc): 0 where the neighbouring secants change sign, their
+/// weighted harmonic mean elsewhere, and at the ends the shape-preserving three-point estimate.
+fn slope_at(table: &[(f64, f64)], k: usize) -> f64 {
+    let n = table.len();
+    let secant = |i: usize| (table[i + 1].1 - table[i].1) / (table[i + 1].0 - table[i].0);
+    let width = |i: usize| table[i + 1].0 - table[i].0;
+    if n == 2 {
+        return secant(0);
+    }
+    let end = |(h0, d0): (f64, f64), (h1, d1): (f64, f64)| {
+        let d = ((2.0 * h0 + h1) * d0 - h0 * d1) / (h0 + h1);
+        if d.signum() != d0.signum() || d0 == 0.0 {
+            0.0
+        } else if d0.signum() != d1.signum() && d.abs() > 3.0 * d0.abs() {
+            3.0 * d0
+        } else {
+            d
+        }
+    };
+    if k == 0 {
+        return end((width(0), secant(0)), (width(1), secant(1)));
+    }
+    if k == n - 1 {
+        return end((width(n - 2), secant(n - 2)), (width(n - 3), secant(n - 3)));
+    }
+    let (h0, h1, d0, d1) = (width(k - 1), width(k), secant(k - 1), secant(k));
+    if d0 * d1 <= 0.0 {
+        return 0.0;
+    }
+    let (a, b) = (2.0 * h1 + h0, h1 + 2.0 * h0);
+    (a + b) / (a / d0 + b / d1)
 }
 
 /// A wavelength key with a total order, so tables can be sorted and deduplicated in a BTreeMap.
@@ -226,14 +277,73 @@ mod tests {
     }
 
     #[test]
-    fn table_interpolates_linearly_and_refuses_extrapolation() {
+    fn table_passes_through_its_entries_and_refuses_extrapolation() {
         let s = Spectral::table([(650.0, 0.168), (450.0, 1.509), (550.0, 0.350)]).expect("table");
         assert_eq!(s.at(nm(550.0)), Ok(0.350));
-        assert!((s.at(nm(500.0)).expect("in range") - (1.509 + 0.350) / 2.0).abs() < 1e-15);
         assert_eq!(s.at(nm(450.0)), Ok(1.509));
         assert_eq!(s.at(nm(650.0)), Ok(0.168));
         assert!(matches!(s.at(nm(700.0)), Err(SpectrumError::OutOfRange { .. })));
         assert!(matches!(s.at(nm(449.999)), Err(SpectrumError::OutOfRange { .. })));
+    }
+
+    /// The monotone cubic, against values worked out by hand from Fritsch-Carlson's rules (module doc).
+    #[test]
+    fn the_monotone_cubic_matches_a_hand_computed_case() {
+        // (0, 0), (1, 1), (2, 0) (nm shifted by 400 to stay positive): at the start the three-point estimate
+        // ((2 h0 + h1) d0 - h0 d1) / (h0 + h1) = (3 + 1) / 2 = 2 (same sign as d0, within 3 d0); at the peak 0
+        // (the secants change sign). Hermite at t = 1/2: 0.125 h d0 + 0.5 v1 = 0.25 + 0.5 = 0.75.
+        let s = Spectral::table([(400.0, 0.0), (401.0, 1.0), (402.0, 0.0)]).expect("table");
+        assert!((s.at(nm(400.5)).expect("in") - 0.75).abs() < 1e-15);
+        assert!((s.at(nm(401.5)).expect("in") - 0.75).abs() < 1e-15, "symmetric");
+        // Interior weighted harmonic mean: (0,0), (1,1), (3,2): secants 1 and 0.5, h 1 and 2:
+        // a = 2*2 + 1 = 5, b = 2 + 2*1 = 4, slope 9 / (5/1 + 4/0.5) = 9/13 at x = 1.
+        let s = Spectral::table([(400.0, 0.0), (401.0, 1.0), (403.0, 2.0)]).expect("table");
+        let (x, h) = (402.0, 2.0);
+        let t: f64 = (x - 401.0) / h;
+        let d1 = 9.0 / 13.0;
+        // End slope at x = 3: ((2*2 + 1) 0.5 - 2 * 1) / 3 = 0.5/3, same sign as 0.5.
+        let d2 = 0.5 / 3.0;
+        let want = (2.0 * t.powi(3) - 3.0 * t * t + 1.0) * 1.0
+            + (t.powi(3) - 2.0 * t * t + t) * h * d1
+            + (-2.0 * t.powi(3) + 3.0 * t * t) * 2.0
+            + (t.powi(3) - t * t) * h * d2;
+        assert!((s.at(nm(x)).expect("in") - want).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_cubic_keeps_lines_straight_and_values_between_their_entries() {
+        let line = Spectral::table([(400.0, 0.1), (450.0, 0.2), (600.0, 0.5), (700.0, 0.7)]).expect("table");
+        for x in [410.0, 449.0, 500.0, 650.5, 699.0] {
+            let want = 0.1 + (x - 400.0) * 0.002;
+            assert!((line.at(nm(x)).expect("in") - want).abs() < 1e-14, "{x}");
+        }
+        // Coloured plastic's albedo: no value leaves the range of the two entries around it.
+        let t = [
+            (400.0, 0.35),
+            (450.0, 0.45),
+            (500.0, 0.30),
+            (550.0, 0.10),
+            (600.0, 0.05),
+            (650.0, 0.04),
+            (700.0, 0.04),
+        ];
+        let s = Spectral::table(t).expect("table");
+        for w in t.windows(2) {
+            let (lo, hi) = (w[0].1.min(w[1].1), w[0].1.max(w[1].1));
+            for i in 1..50 {
+                let x = w[0].0 + (w[1].0 - w[0].0) * f64::from(i) / 50.0;
+                let v = s.at(nm(x)).expect("in");
+                assert!(
+                    v >= lo - 1e-15 && v <= hi + 1e-15,
+                    "{x}: {v} outside [{lo}, {hi}]"
+                );
+            }
+        }
+        // The slope is continuous at an entry (no kink): left and right difference quotients agree.
+        let e = 1e-4;
+        let left = (s.at(nm(550.0)).expect("in") - s.at(nm(550.0 - e)).expect("in")) / e;
+        let right = (s.at(nm(550.0 + e)).expect("in") - s.at(nm(550.0)).expect("in")) / e;
+        assert!((left - right).abs() < 1e-5, "{left} vs {right}");
     }
 
     #[test]

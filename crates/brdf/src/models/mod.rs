@@ -46,13 +46,13 @@ impl ParamError {
     }
 }
 
-/// Checks that a spectral value lies in `[lo, hi]` at every wavelength (a table's extremes are its nodes:
-/// linear interpolation never leaves them).
 /// Largest refractive index or extinction coefficient a conductor or mirror may have: no material comes near
 /// (metals in the visible and near infrared stay below about 100), and far larger values overflow the squares in
 /// the Fresnel factor into a NaN reflectance.
 pub const MAX_OPTICAL_CONSTANT: f64 = 1000.0;
 
+/// Checks that a spectral value lies in `[lo, hi]` at every wavelength (a table's extremes are its entries: its
+/// monotone cubic never leaves the range of the two entries around a wavelength, crate::spectrum).
 pub(crate) fn check_range(
     key: &'static str,
     value: &Spectral,

@@ -209,13 +209,10 @@ impl Optics {
 
 /// The nodes over `[lo, hi]`: twelfths of a width across `centre +- 1.5 width` (where all but 0.1 % of a
 /// three-cavity band's weight lies), every 50 nm elsewhere (at least 25 nm from the passband's nodes), and both
-/// ends. At least two. Why twelfths: a tabulated spectrum is piecewise linear, and a knot inside the band is
-/// integrated with an error of about `W(knot) x slope change x h^2 / 8` for nodes `h` apart (`W` per nm). The
-/// worst seed table, construction paper, has its slope jump from 0.0002 to 0.005 per nm at 550 nm on a value of
-/// 0.07: at twelfths of a 9 nm band that is at most 5e-4 of the value (4.5e-4 measured in
-/// crates/simulator/tests/imperfections/filters.rs), at eighths 1.1e-3; smooth spectra are integrated to
-/// about 1e-7. The far nodes fall on multiples of 50 nm from the range's start, where the seed materials' tables
-/// have their knots.
+/// ends. At least two. Linear interpolation between nodes `h` apart costs about `h^2 f'' / 8` of a smooth
+/// spectrum: 4.7e-5 of a red edge's value at twelfths of a 10 nm band, and across 50 nm of the same edge 7e-4
+/// of a reading that leakage doubles (crates/simulator/tests/imperfections/filters.rs). The far nodes fall on
+/// multiples of 50 nm from the range's start, where the seed materials' tables have their entries.
 fn nodes(lo: f64, hi: f64, centre: f64, width: f64) -> Vec<f64> {
     let (band_lo, band_hi) = (centre - 1.5 * width, centre + 1.5 * width);
     let mut v: Vec<f64> = (-18..=18)

@@ -85,22 +85,19 @@ fn expected(truth: &FiltersTruth, f: &FilterTruth, spectrum: impl Fn(f64) -> f64
     (total, mean / spectrum(f.nominal_nm))
 }
 
-/// A Lambertian sample whose albedo table covers the photodiode's whole range, so that the spectrum is the
-/// table's everywhere (construction paper's table, extended flat).
-const ALBEDO: [(f64, f64); 9] = [
-    (350.0, 0.07),
-    (400.0, 0.07),
-    (450.0, 0.06),
-    (500.0, 0.06),
-    (550.0, 0.07),
-    (600.0, 0.32),
-    (650.0, 0.52),
-    (700.0, 0.58),
-    (1150.0, 0.58),
-];
+/// The coloured sample's albedo: a smooth red edge (a logistic step from 0.06 to 0.58 about 600 nm, 25 nm
+/// wide), like construction paper's.
+fn albedo(nm: f64) -> f64 {
+    0.06 + 0.52 / (1.0 + (-(nm - 600.0) / 25.0).exp())
+}
 
+/// A Lambertian sample with that albedo tabulated every nanometre over the photodiode's whole range: the
+/// material's monotone cubic then follows the smooth function to about 1e-9, so the function itself is the
+/// expected spectrum.
 fn coloured() -> Material {
-    let table: Vec<String> = ALBEDO.iter().map(|(nm, a)| format!("{nm} = {a}")).collect();
+    let table: Vec<String> = (350..=1150)
+        .map(|nm| format!("{nm} = {}", albedo(f64::from(nm))))
+        .collect();
     Material::from_document(
         &format!(
             "[material]\nmodel = \"lambertian\"\nalbedo = {{ {} }}",
@@ -207,7 +204,7 @@ fn a_coloured_sample_reads_its_spectrum_averaged_over_the_band() {
                 band_nm: Some(filter.nominal_nm),
                 transmission: filter.transmission,
             };
-            let (total, mean) = expected(&truth, filter, |nm| interpolate(&ALBEDO, nm));
+            let (total, mean) = expected(&truth, filter, albedo);
             for p in [pose(30.0, -50.0, 10.0, 20.0), pose(-60.0, 20.0, 0.0, 0.0)] {
                 let (r0, r1) = (
                     ideal.reading(&p, &band, 10.0).expect("reading"),
@@ -215,14 +212,16 @@ fn a_coloured_sample_reads_its_spectrum_averaged_over_the_band() {
                 );
                 let ratio = r1.power_w / r0.power_w;
                 let model = total * mean;
-                // The simulator interpolates the spectrum linearly between nodes a twelfth of a width apart: a
-                // table's knot inside the band costs about W x slope change x h^2 / 8, for the paper's knot at
-                // 550 nm (slope 0.0002 -> 0.005 per nm on a value of 0.07) up to 5e-4 of the value
-                // (crate::optics::spectral). Measured here: 4.5e-4 at 550 nm with the band moved off centre.
+                // The simulator interpolates the spectrum linearly between nodes (crate::optics::spectral):
+                // about h^2 f'' / 8, with h a twelfth of the width across the passband (4.7e-5 measured) and
+                // 50 nm beyond. With OD 4 leakage through the 450 nm filter the leak is as large as the band
+                // itself (the lamp and the photodiode favour the red, where this sample is bright), and the 50 nm
+                // nodes across the red edge cost 7.2e-4 of the reading; realistic.toml's OD 5 a tenth of that.
                 let error = (ratio / model - 1.0).abs();
                 worst_error = worst_error.max(error);
+                let tolerance = if what == "leakage" { 1e-3 } else { 1e-4 };
                 assert!(
-                    error < 6e-4,
+                    error < tolerance,
                     "{what}, {} nm: {ratio} vs {model} (band mean {mean}, total {total})",
                     filter.nominal_nm
                 );
@@ -236,8 +235,9 @@ fn a_coloured_sample_reads_its_spectrum_averaged_over_the_band() {
         eprintln!(
             "{what}: worst relative error against the model {worst_error:.1e}, band mean moved {worst:.1e}"
         );
-        // The paper's steep red edge at 550-650 nm: every band's mean moves visibly.
-        assert!(worst > 3e-3, "{what}: the spectrum's effect shows: {worst}");
+        // The red edge at 550-650 nm: the band's mean moves visibly (its curvature alone, about 3e-3 at 550 nm,
+        // with the nominal band; more with a shifted centre or leakage).
+        assert!(worst > 1e-3, "{what}: the spectrum's effect shows: {worst}");
     }
 }
 
