@@ -48,12 +48,12 @@ impl InstrumentPass {
              `config/instruments/{on}`: the simulated instrument with the imperfections of issue 16 (axis zero \
              offsets, sample tilt and re-seating, eccentricity, encoder error; range gains, nonlinearity, offsets, \
              saturation, amplifier noise, stray light, ambient light; source warm-up, random walk and flicker; an \
-             uneven sample), their hidden values drawn from the file's `[simulator] seed`. The faults combine \
-             with the imperfections. Rows, indices, committed rows byte for byte, pauses and every safety rule are \
-             checked exactly as on the ideal instrument: they do not depend on the instrument's errors. The safety \
-             rules are checked on the motion the controllers executed; the true arms differ from it by the axis \
-             zero offsets and encoder error (hundredths of a degree in this file), far inside the margins the \
-             summary reports.\n"
+             uneven sample; finite filter bands with leakage; a Gaussian, mispointed beam), their hidden values \
+             drawn from the file's `[simulator] seed`. The faults combine with the imperfections. Rows, indices, \
+             committed rows byte for byte, pauses and every safety rule are checked exactly as on the ideal \
+             instrument: they do not depend on the instrument's errors. The safety rules are checked on the \
+             motion the controllers executed; the true arms differ from it by the axis zero offsets and encoder \
+             error (hundredths of a degree in this file), far inside the margins the summary reports.\n"
         );
         let _ = writeln!(
             m,
