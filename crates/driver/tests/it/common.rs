@@ -29,10 +29,8 @@ use std::os::fd::AsRawFd;
 use std::sync::Arc;
 use std::time::Duration;
 
-use gonio_driver::transport::usb::{BoxFuture, UsbError, UsbPipe};
 use gonio_driver::transport::{LinePort, PortOpener, SerialSettings};
 use gonio_simulator::SimInstrument;
-use gonio_simulator::pm100::{SimUsbDevice, UsbSimError};
 use tokio::io::unix::AsyncFd;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
@@ -54,75 +52,12 @@ pub fn sim_file(f: impl FnOnce(&mut gonio_instrument::InstrumentFile), time_scal
 
 /// A port on the simulator's in-process stream for `device`; reconnecting asks the simulator again.
 pub fn sim_port(sim: &SimInstrument, device: &str) -> Arc<LinePort> {
-    let sim = sim.clone();
-    let dev = device.to_string();
-    let opener = PortOpener::Stream(Arc::new(move || {
-        sim.serial_port(&dev)
-            .map(|s| Box::new(s) as _)
-            .map_err(|e| std::io::Error::new(std::io::ErrorKind::NotConnected, e.to_string()))
-    }));
+    let opener = gonio_daemon::rig::sim_link::serial_opener(sim.clone(), device);
     Arc::new(LinePort::open(device, opener).expect("open the simulated port"))
 }
 
-/// Adapter: the simulator's USB device as a [`UsbPipe`] (the daemon needs the same adapter).
-#[derive(Debug)]
-pub struct SimPipe(pub SimUsbDevice);
-
-fn usb_err(e: UsbSimError) -> UsbError {
-    match e {
-        UsbSimError::Timeout { transferred } => UsbError::Timeout { transferred },
-        UsbSimError::Pipe { .. } => UsbError::Pipe,
-        UsbSimError::NoDevice => UsbError::NoDevice,
-        other => UsbError::Other(other.to_string()),
-    }
-}
-
-impl UsbPipe for SimPipe {
-    fn bulk_out<'a>(&'a self, data: &'a [u8], timeout: Duration) -> BoxFuture<'a, Result<usize, UsbError>> {
-        Box::pin(async move {
-            self.0
-                .bulk_out(self.0.bulk_out_endpoint(), data, timeout)
-                .await
-                .map_err(usb_err)
-        })
-    }
-    fn bulk_in(&self, max_len: usize, timeout: Duration) -> BoxFuture<'_, Result<Vec<u8>, UsbError>> {
-        Box::pin(async move {
-            self.0
-                .bulk_in(self.0.bulk_in_endpoint(), max_len, timeout)
-                .await
-                .map_err(usb_err)
-        })
-    }
-    fn control_in(
-        &self,
-        rt: u8,
-        rq: u8,
-        value: u16,
-        index: u16,
-        max_len: usize,
-        timeout: Duration,
-    ) -> BoxFuture<'_, Result<Vec<u8>, UsbError>> {
-        Box::pin(async move {
-            self.0
-                .control_in(rt, rq, value, index, max_len, timeout)
-                .await
-                .map_err(usb_err)
-        })
-    }
-    fn clear_halt(&self, endpoint: u8) -> BoxFuture<'_, Result<(), UsbError>> {
-        Box::pin(async move { self.0.clear_halt(endpoint).await.map_err(usb_err) })
-    }
-    fn bulk_out_endpoint(&self) -> u8 {
-        self.0.bulk_out_endpoint()
-    }
-    fn bulk_in_endpoint(&self) -> u8 {
-        self.0.bulk_in_endpoint()
-    }
-    fn interface_number(&self) -> u8 {
-        0
-    }
-}
+/// The simulator's USB device as a [`gonio_driver::transport::usb::UsbPipe`]: the daemon's adapter.
+pub use gonio_daemon::rig::sim_link::SimPipe;
 
 /// A pseudo-terminal whose master side is bridged to the simulator's stream for `device`. Returns the slave's
 /// path (to open with `serialport`, exactly like a real port) and the bridge task.
