@@ -445,20 +445,25 @@ mod tests {
         assert!(g.eval(&at(60.0, 60.0, PI.to_degrees() / 2.0)).is_none());
     }
 
-    #[test]
-    fn a_margin_extends_nodes_to_their_neighbourhood_only() {
+    /// theta_i, theta_o in {20, 40}, delta_phi in {0, 90, 180} of [`multilinear`], without (20, 20, 0): the
+    /// retro-reflection, not measurable, a hole.
+    fn grid_with_retro_hole() -> IsoGrid {
         let mut pts = Vec::new();
         for ti in [20.0, 40.0] {
             for to in [20.0, 40.0] {
                 for dp in [0.0, 90.0, 180.0] {
-                    // (20, 20, 0) is the retro-reflection: not measurable, a hole.
                     if !(ti == 20.0 && to == 20.0 && dp == 0.0) {
                         pts.push(iso(ti, to, dp, multilinear(ti, to, dp)));
                     }
                 }
             }
         }
-        let g = IsoGrid::build(&pts);
+        IsoGrid::build(&pts)
+    }
+
+    #[test]
+    fn a_margin_extends_nodes_to_their_neighbourhood_only() {
+        let g = grid_with_retro_hole();
         let margin = 1f64.to_radians();
         // Beside the hole, next to the measured node (20, 20, 90): strict interpolation needs the hole, the
         // margin gives the node's value; next to the hole itself there is still nothing.
@@ -484,18 +489,7 @@ mod tests {
 
     #[test]
     fn a_guard_value_is_the_nearest_measured_point_within_the_margin() {
-        let mut pts = Vec::new();
-        for ti in [20.0, 40.0] {
-            for to in [20.0, 40.0] {
-                for dp in [0.0, 90.0, 180.0] {
-                    // (20, 20, 0) is the retro-reflection: not measurable, a hole.
-                    if !(ti == 20.0 && to == 20.0 && dp == 0.0) {
-                        pts.push(iso(ti, to, dp, multilinear(ti, to, dp)));
-                    }
-                }
-            }
-        }
-        let g = IsoGrid::build(&pts);
+        let g = grid_with_retro_hole();
         let margin = 15f64.to_radians();
         // In the hole at (20, 30, 80): moving theta_o to 40 (a 10 degree step of theta_o) or delta_phi to 90
         // (at theta_o = 30 a chord of 2 sin 30 sin 5 = 0.087, against 2 sin 5 = 0.174) both reach the measured

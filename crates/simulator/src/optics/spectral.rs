@@ -119,14 +119,13 @@ impl SpectralBand {
         })
     }
 
-    /// The band's mean of a spectrum sampled at the nodes relative to its value `g_c` at the band's centre:
-    /// `Σ w_k g_k / (g_c Σ w_k)`; 1 when `g_c` is 0 (nothing to scale).
-    pub fn weighted_ratio(&self, at_nodes: impl Iterator<Item = f64>, at_centre: f64) -> f64 {
+    /// The band's mean of a spectrum relative to its value `at_centre` at the band's centre, from its weighted
+    /// sum over the nodes `Σ w_k g_k`: `Σ w_k g_k / (g_c Σ w_k)`; 1 when `g_c` is 0 (nothing to scale).
+    pub fn mean_ratio(&self, weighted_sum: f64, at_centre: f64) -> f64 {
         if at_centre == 0.0 || !at_centre.is_finite() || self.total == 0.0 {
             return 1.0;
         }
-        let sum: f64 = self.weights.iter().zip(at_nodes).map(|(w, g)| w * g).sum();
-        sum / (at_centre * self.total)
+        weighted_sum / (at_centre * self.total)
     }
 }
 
@@ -190,19 +189,24 @@ impl Optics {
                 .map(|l| l.map_or(0.0, |l| l.reflectance))
                 .map_err(|e| err(r.band_nm, e))
         };
-        let (mut f_nodes, mut d_nodes) = (Vec::with_capacity(materials.len()), Vec::new());
-        for m in materials {
-            f_nodes.push(point(m)?);
-        }
-        let d_centre = delta(centre)?;
-        if d_centre != 0.0 {
-            for m in materials {
-                d_nodes.push(delta(m)?);
+        // Per reading: the weighted sums straight from the node materials, no buffer.
+        let weighted = |at: &dyn Fn(&Resolved) -> Result<f64, OpticsError>| -> Result<f64, OpticsError> {
+            let mut sum = 0.0;
+            for (w, m) in band.weights.iter().zip(materials) {
+                sum += w * at(m)?;
             }
-        }
+            Ok(sum)
+        };
+        let (f_centre, d_centre) = (point(centre)?, delta(centre)?);
+        let regular = band.mean_ratio(weighted(&point)?, f_centre);
+        let delta_ratio = if d_centre != 0.0 {
+            band.mean_ratio(weighted(&delta)?, d_centre)
+        } else {
+            1.0
+        };
         Ok(BandRatios {
-            regular: band.weighted_ratio(f_nodes.into_iter(), point(centre)?),
-            delta: band.weighted_ratio(d_nodes.into_iter(), d_centre),
+            regular,
+            delta: delta_ratio,
         })
     }
 }
@@ -267,7 +271,13 @@ mod tests {
         // A spectrum linear in wavelength is integrated exactly by the hats: its mean over the (nearly
         // symmetric) band is close to its centre value.
         let lin = |nm: f64| 1.0 + (nm - 550.0) / 1000.0;
-        let r = band.weighted_ratio(band.nodes_nm.iter().map(|&nm| lin(nm)), lin(550.0));
+        let sum: f64 = band
+            .weights
+            .iter()
+            .zip(&band.nodes_nm)
+            .map(|(w, &nm)| w * lin(nm))
+            .sum();
+        let r = band.mean_ratio(sum, lin(550.0));
         assert!((r - 1.0).abs() < 2e-4, "{r}");
     }
 
