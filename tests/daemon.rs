@@ -329,11 +329,11 @@ fn noiseless_instrument(dir: &Path) -> std::path::PathBuf {
 
 /// The committed points of campaign 1 in a daemon's store: (index, band, geometry) with the values' bits.
 fn committed(data: &Path) -> Vec<(u64, u64, [u64; 4], Option<u64>)> {
-    let Ok(store) = gonio_daemon::store::Store::open(data) else {
+    let Ok(store) = gonio_engine::store::Store::open(data) else {
         return Vec::new();
     };
     store
-        .points(gonio_daemon::store::CampaignId(1))
+        .points(gonio_engine::store::CampaignId(1))
         .unwrap_or_default()
         .iter()
         .map(|p| {

@@ -117,13 +117,13 @@ fn realistic_with_only(dir: &Path, groups: &[&str]) -> PathBuf {
 }
 
 /// The committed points of the one campaign in the store under `out`.
-fn stored_points(out: &Path) -> Vec<gonio_daemon::store::PointRecord> {
-    let store = gonio_daemon::store::Store::open(out).expect("store");
+fn stored_points(out: &Path) -> Vec<gonio_engine::store::PointRecord> {
+    let store = gonio_engine::store::Store::open(out).expect("store");
     let id = store.campaigns().expect("campaigns")[0].id;
     store.points(id).expect("points")
 }
 
-fn effects(p: &gonio_daemon::store::PointRecord) -> serde_json::Value {
+fn effects(p: &gonio_engine::store::PointRecord) -> serde_json::Value {
     serde_json::from_str(p.truth_effects_json.as_deref().expect("attribution")).expect("JSON")
 }
 

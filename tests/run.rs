@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::Duration;
 
-use gonio_daemon::store::{PointRecord, Store};
+use gonio_engine::store::{PointRecord, Store};
 use gonio_testkit::cli::quiet_run;
 use gonio_testkit::gonio;
 use rand::{Rng, SeedableRng};

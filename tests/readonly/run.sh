@@ -3,7 +3,7 @@
 # files in the middle of a campaign, then the operator repairs it and resumes.
 #
 # The campaign runs on the real-hardware path, so that the store keeps the durability of a real campaign
-# (every commit fsync'd; a dry-run's commits are not, see crates/daemon/src/store.rs): the simulated instrument
+# (every commit fsync'd; a dry-run's commits are not, see crates/engine/src/store.rs): the simulated instrument
 # is a separate `gonio sim --link-dir` whose serial devices are pseudo-terminals and whose power meter is a
 # Unix socket, and the daemon's instrument file names those ports; the operator's calibration steps are done
 # by this script (the sample out of and back into the simulator through its stdin, each prompt confirmed).

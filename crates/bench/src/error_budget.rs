@@ -13,7 +13,7 @@
 use std::path::Path;
 
 use gonio_brdf::Direction;
-use gonio_daemon::store::PointRecord;
+use gonio_engine::store::PointRecord;
 use gonio_instrument::InstrumentFile;
 
 use crate::throughput::{self, Throughput};

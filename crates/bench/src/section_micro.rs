@@ -9,7 +9,7 @@ pub(super) fn throughput_markdown(t: &ThroughputRuns) -> String {
     let _ = writeln!(s, "## 3. End-to-end dry-run throughput\n");
     let _ = writeln!(
         s,
-        "Through the real engine (`gonio_daemon::run_campaign`), the real drivers (SMC100, Zaber, FW102C, PM100) \
+        "Through the real engine (`gonio_engine::run_campaign`), the real drivers (SMC100, Zaber, FW102C, PM100) \
          and the simulator, a stored campaign run to `completed`: an isotropic one-band grid on coloured plastic \
          (theta 0-80 at {} deg, delta phi at twice that), darks every 200 points, direct-beam references with the \
          simulated operator, every point committed to the SQLite store in its own transaction (WAL; dry-runs commit \

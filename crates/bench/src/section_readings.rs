@@ -316,7 +316,7 @@ fn apriori_markdown(a: &readings::APriori) -> String {
          horizon ({e_lo:.0} to {e_hi:.0} evaluations, {t_lo:.2} to {t_hi:.2} ms per reading) it integrates only \
          over the part above the horizon, in rows of constant elevation, so that the horizon is an edge of the \
          domain rather than a kink inside it, with the nodes gathered on a lobe narrower than the aperture \
-         (crates/simulator/src/optics/aperture/across.rs and latitude.rs); those scenes are what forces the \
+         (simulator/src/optics/aperture/across.rs and latitude.rs); those scenes are what forces the \
          fixed rule's order up. Times are wall-clock on a shared machine (see Machine): ratios between timings of the same run, not absolute \
          times, carry the verdict.\n",
         if missed.is_empty() {

@@ -12,10 +12,10 @@
 //! - Both run a stored campaign from `run_campaign` to `completed`, committing every point in its own transaction
 //!   to a SQLite store in a directory under the system temp dir (`TMPDIR`, e.g. `TMPDIR=/dev/shm` for tmpfs).
 //!   These are dry-runs, which the store commits with `synchronous = NORMAL` in WAL mode (no fsync per point;
-//!   survives `kill -9` of the process, not an OS crash: crates/daemon/src/store.rs); campaigns on the real
+//!   survives `kill -9` of the process, not an OS crash: crates/engine/src/store.rs); campaigns on the real
 //!   instrument commit with `synchronous = FULL`.
 //! - Start-up: `prepare_campaign` plans and orders the campaign before the clock starts; the engine then takes
-//!   that prepared campaign instead of ordering the stored text again (crates/daemon/src/engine.rs), so the
+//!   that prepared campaign instead of ordering the stored text again (crates/engine/src/prepare.rs), so the
 //!   overall wall time covers homing, the first calibration and the points.
 
 use std::path::{Path, PathBuf};
@@ -23,8 +23,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use gonio_campaign::{AcquisitionSection, CalibrationSection, CampaignFile};
-use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_prepared_campaign};
-use gonio_daemon::store::{CampaignState, PointRecord, Store};
+use gonio_engine::store::{CampaignState, PointRecord, Store};
+use gonio_engine::{Control, Event, Rig, prepare_campaign, run_prepared_campaign};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec};
 

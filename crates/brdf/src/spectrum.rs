@@ -2,7 +2,7 @@
 //! piecewise cubic (PCHIP).
 //!
 //! Why not linear: a material's spectrum is smooth, and a table is a sampling of it, often every 50 nm. Linear
-//! interpolation puts a kink at every entry, and a finite filter band centred on one (crates/simulator, the filters
+//! interpolation puts a kink at every entry, and a finite filter band centred on one (simulator, the filters
 //! group) averages that kink: its mean moves by half the slope's jump times the band's mean distance from its
 //! centre (2.9 nm for a 10 nm three-cavity band). On coloured plastic's 550 nm entry (slope -0.004 then -0.001
 //! per nm, value 0.10) that is 4.3 % of the value, about ten times what a smooth curve through the same values

@@ -21,8 +21,8 @@ pub mod sources;
 
 pub use error::{CampaignError, line_of};
 pub use gonio_scheduler::adaptive::{Measured, StopReason};
-pub use load::{Acquisition, CalibrationSettings, Campaign, Range, Reference, load};
-pub use materials::DEFAULT_REFERENCE_GEOMETRY_DEG;
+pub use load::{Acquisition, CalibrationSettings, Campaign, Range, load};
+pub use materials::{DEFAULT_REFERENCE_GEOMETRY_DEG, Reference};
 pub use model::{
     AcquisitionSection, CalibrationSection, CampaignFile, CampaignSection, Method, SampleSection,
 };

@@ -11,7 +11,7 @@ use gonio_scheduler::kinematics::Geometry;
 use gonio_scheduler::plan::PlanSpec;
 
 use crate::error::{CampaignError, Located};
-use crate::materials;
+use crate::materials::{self, Reference};
 use crate::model::{AcquisitionSection, CalibrationSection, CampaignFile, Method, TABLES};
 use crate::sources::{self, Resolved, Sources};
 
@@ -30,17 +30,6 @@ pub struct Acquisition {
     pub extra_settle_s: f64,
     /// Attempts per device operation after the first (transient errors only).
     pub retries: u32,
-}
-
-/// The relative method's reference sample.
-#[derive(Debug, Clone)]
-pub struct Reference {
-    /// As written in the campaign (`[calibration] reference`): a preset name or a file name.
-    pub name: String,
-    /// Its BRDF, angular shape included.
-    pub material: Material,
-    /// Where it is read: a geometry every band's reading of the reference is taken at.
-    pub geometry: Geometry,
 }
 
 /// Calibration settings, defaults applied.

@@ -10,8 +10,18 @@ use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
 
 use crate::error::{CampaignError, Located};
-use crate::load::Reference;
 use crate::sources::{self, Sources, is_preset};
+
+/// The relative method's reference sample.
+#[derive(Debug, Clone)]
+pub struct Reference {
+    /// As written in the campaign (`[calibration] reference`): a preset name or a file name.
+    pub name: String,
+    /// Its BRDF, angular shape included.
+    pub material: Material,
+    /// Where it is read: a geometry every band's reading of the reference is taken at.
+    pub geometry: Geometry,
+}
 
 /// The default reference geometry of the relative method: normal incidence, detector at 45 degrees (0/45).
 pub const DEFAULT_REFERENCE_GEOMETRY_DEG: [f64; 4] = [0.0, 0.0, 45.0, 180.0];

@@ -9,7 +9,7 @@
 //! - `GET /api/campaigns/{id}/points.csv` -> `text/csv`, the columns of `gonio run`
 //! - `POST /api/estop` -> 200
 //! - `GET /api/events` -> server-sent events, one per engine event, `data` the JSON of
-//!   [`Event`](crate::control::Event) with its `type`
+//!   [`Event`](gonio_engine::control::Event) with its `type`
 //! - `GET /` and `/assets/*`: the live status page ([`crate::status_page`]), the only routes without the token
 //!
 //! Safety of the service itself:

@@ -41,9 +41,9 @@ use std::time::Duration;
 use serde::Serialize;
 use tokio::sync::{Notify, broadcast};
 
-use crate::control::{Control, Event};
-use crate::engine::PreparedCampaign;
-use crate::store::{CampaignId, CampaignRecord, CampaignState, NewCampaign, Store, StoreError};
+use gonio_engine::PreparedCampaign;
+use gonio_engine::control::{Control, Event};
+use gonio_engine::store::{CampaignId, CampaignRecord, CampaignState, NewCampaign, Store, StoreError};
 
 /// How long a running campaign is given to reach a safe point when the daemon shuts down, by default.
 pub const DEFAULT_SHUTDOWN_GRACE: Duration = Duration::from_secs(20);
@@ -115,7 +115,7 @@ pub trait CampaignRunner: Send + Sync + 'static {
 
     /// The connected instrument, for a person who takes it ([`Service::take_instrument`]); None for a runner
     /// without one (the queue tests' fake).
-    fn rig(&self) -> Option<crate::rig::Rig> {
+    fn rig(&self) -> Option<gonio_engine::rig::Rig> {
         None
     }
 }

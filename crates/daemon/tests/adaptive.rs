@@ -6,8 +6,8 @@ mod common;
 
 use std::collections::HashSet;
 
-use gonio_daemon::engine::{Control, Event};
-use gonio_daemon::store::CampaignState;
+use gonio_engine::store::CampaignState;
+use gonio_engine::{Control, Event};
 
 /// An adaptive campaign on `material`: one band, `budget` points in passes of 20, stopping at `target`.
 fn adaptive(material: &str, budget: u32, target: f64) -> String {

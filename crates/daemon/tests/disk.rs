@@ -8,8 +8,8 @@ mod common;
 use std::sync::Arc;
 use std::time::Duration;
 
-use gonio_daemon::engine::{Control, Event, run_campaign};
-use gonio_daemon::store::{CampaignState, STORE_FILE};
+use gonio_engine::store::{CampaignState, STORE_FILE};
+use gonio_engine::{Control, Event, run_campaign};
 
 const CAMPAIGN: &str = r#"[campaign]
 id = "disk-full"

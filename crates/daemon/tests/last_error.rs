@@ -7,8 +7,8 @@ mod common;
 use std::sync::Arc;
 use std::time::Duration;
 
-use gonio_daemon::engine::{Control, run_campaign};
-use gonio_daemon::store::{CampaignState, Store};
+use gonio_engine::store::{CampaignState, Store};
+use gonio_engine::{Control, run_campaign};
 use gonio_testkit::CampaignText;
 
 fn campaign() -> String {

@@ -9,8 +9,8 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use axum::http::StatusCode;
-use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, prepare_submitted_campaign, run_campaign};
-use gonio_daemon::store::{CampaignState, Store};
+use gonio_engine::store::{CampaignState, Store};
+use gonio_engine::{Control, Event, Rig, prepare_campaign, prepare_submitted_campaign, run_campaign};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 
 const WHITE: &str = "[material]\nmodel = \"lambertian\"\nalbedo = 0.95\n";

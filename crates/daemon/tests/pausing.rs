@@ -8,8 +8,8 @@ use std::time::Duration;
 
 use axum::http::StatusCode;
 use common::next_point;
-use gonio_daemon::engine::{Control, Event};
-use gonio_daemon::store::CampaignState;
+use gonio_engine::store::CampaignState;
+use gonio_engine::{Control, Event};
 use tokio::sync::broadcast::Receiver;
 
 const CAMPAIGN: &str = r#"[campaign]

@@ -14,10 +14,10 @@ use std::time::Duration;
 
 use clap::Args;
 use gonio_daemon::api::{self, ApiConfig, DEFAULT_LISTEN};
-use gonio_daemon::control::Control;
-use gonio_daemon::rig::{DEFAULT_DRY_RUN_TIME_SCALE, Rig};
 use gonio_daemon::service::{EngineRunner, Service};
-use gonio_daemon::store::Store;
+use gonio_engine::control::Control;
+use gonio_engine::rig::{DEFAULT_DRY_RUN_TIME_SCALE, Rig};
+use gonio_engine::store::Store;
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 
 use crate::CliError;

@@ -12,8 +12,8 @@
 
 use std::path::{Path, PathBuf};
 
-use gonio_daemon::campaign::{self, Method, Range, Sources};
-use gonio_daemon::store::{CampaignRecord, STORE_FILE, Store};
+use gonio_campaign::{self as campaign, Method, Range, Sources};
+use gonio_engine::store::{CampaignRecord, STORE_FILE, Store};
 use gonio_instrument::InstrumentFile;
 use gonio_results::export::{self, ExportContext};
 use gonio_results::provenance::{ExportSetup, provenance_lines};
@@ -62,7 +62,7 @@ impl RunSource {
 
 /// The software that exports.
 pub fn exported_by() -> String {
-    gonio_daemon::engine::software_version()
+    gonio_engine::software_version()
 }
 
 fn store_err(origin: &str, e: impl std::fmt::Display) -> CliError {
@@ -70,7 +70,7 @@ fn store_err(origin: &str, e: impl std::fmt::Display) -> CliError {
 }
 
 /// A campaign of a daemon's store as a run: the same points and provenance as `gonio run` writes (both come
-/// from `gonio_daemon::export::run_record`).
+/// from `gonio_engine::export::run_record`).
 fn load_from_store(dir: &Path, campaign: &str) -> Result<Run, CliError> {
     let db = dir.join(STORE_FILE);
     if !db.is_file() {
@@ -93,7 +93,7 @@ fn load_from_store(dir: &Path, campaign: &str) -> Result<Run, CliError> {
         ))
     })?;
     let (table, provenance) =
-        gonio_daemon::export::run_record(&store, &record).map_err(|e| store_err(&origin, e))?;
+        gonio_engine::export::run_record(&store, &record).map_err(|e| store_err(&origin, e))?;
     Ok(Run::from_parts(
         format!("{origin}, campaign {}", record.id),
         record.name.clone(),

@@ -15,9 +15,9 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use gonio_daemon::engine::{self, Control, Event, Rig};
-use gonio_daemon::export;
-use gonio_daemon::store::{CampaignId, CampaignState, Store};
+use gonio_engine::export;
+use gonio_engine::store::{CampaignId, CampaignState, Store};
+use gonio_engine::{self as engine, Control, Event, Rig};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use gonio_results::points;
 

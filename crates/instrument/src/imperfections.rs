@@ -1,7 +1,7 @@
 //! `[simulator.imperfections]`: how imperfect the simulated instrument is, as MAGNITUDES.
 //!
 //! The file states the size of each error (a standard deviation or an amplitude); the simulator draws the hidden
-//! actual values from `[simulator] seed` (crates/simulator/src/imperfections/). Two instruments with the same
+//! actual values from `[simulator] seed` (simulator/src/imperfections/). Two instruments with the same
 //! magnitudes and different seeds are two instruments of the same kind; the same seed is the same instrument.
 //! Everything is zero by default: a file without the table (or with every key 0) is the ideal instrument, bit for
 //! bit.

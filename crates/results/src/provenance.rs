@@ -1,7 +1,7 @@
 //! The run record: a run's provenance, the content of `run.json`, in one typed form.
 //!
 //! `gonio run --out DIR` writes it as DIR/run.json; a campaign read from a daemon's store gets the same record
-//! from the same facts (crates/daemon/src/export.rs assembles both from the store), so the two export
+//! from the same facts (crates/engine/src/export.rs assembles both from the store), so the two export
 //! byte-identical provenance. It is therefore a function of what the store holds: the campaign row, its
 //! points, calibrations and device identities, and the prediction of its stored configuration. What one process
 //! saw and the store does not keep (the wall time of the last `gonio run`) is printed, not recorded.

@@ -17,7 +17,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use gonio_daemon::store::{CampaignState, Store};
+use gonio_engine::store::{CampaignState, Store};
 use gonio_instrument::{Faults, InstrumentFile};
 use rand::seq::SliceRandom as _;
 use rand::{Rng, SeedableRng};
@@ -187,7 +187,7 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
         instrument_with_faults(&cfg.instrument, &Faults::default())?;
     let campaign = build_campaign("crash-soak", cfg.points, cfg.seed, &file)?;
     let data = cfg.work_dir.join("data");
-    if data.join(gonio_daemon::store::STORE_FILE).exists() {
+    if data.join(gonio_engine::store::STORE_FILE).exists() {
         return Err(SoakError::Setup(format!(
             "{} already holds a store: give the crash soak an empty directory",
             data.display()

@@ -22,8 +22,8 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_campaign};
-use gonio_daemon::store::{CampaignState, STORE_FILE, Store};
+use gonio_engine::store::{CampaignState, STORE_FILE, Store};
+use gonio_engine::{Control, Event, Rig, prepare_campaign, run_campaign};
 use gonio_instrument::InstrumentFile;
 use gonio_simulator::recording::MotionCommand;
 use rand::{Rng, SeedableRng};
@@ -245,7 +245,7 @@ struct Driven {
 
 async fn drive(
     store: Arc<Mutex<Store>>,
-    id: gonio_daemon::store::CampaignId,
+    id: gonio_engine::store::CampaignId,
     file: &InstrumentFile,
     cfg: &DiskSoakConfig,
     moments: &[u64],

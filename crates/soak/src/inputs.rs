@@ -10,8 +10,8 @@ use std::path::Path;
 use std::time::Instant;
 
 use gonio_brdf::material::Material;
-use gonio_daemon::engine::prepare_campaign;
 use gonio_driver::{fw102c, pm100, smc100, usbtmc, zaber};
+use gonio_engine::prepare_campaign;
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -48,9 +48,9 @@ pub enum SoakError {
     #[error("setup: {0}")]
     Setup(String),
     #[error("engine: {0}")]
-    Engine(#[from] gonio_daemon::EngineError),
+    Engine(#[from] gonio_engine::EngineError),
     #[error("store: {0}")]
-    Store(#[from] gonio_daemon::store::StoreError),
+    Store(#[from] gonio_engine::store::StoreError),
     #[error("sqlite: {0}")]
     Sqlite(#[from] rusqlite::Error),
     #[error("{what}: {source}")]

@@ -113,6 +113,7 @@ impl LogCapture {
         Targets::new()
             .with_target("gonio_simulator", Level::INFO)
             .with_target("gonio_driver", Level::INFO)
+            .with_target("gonio_engine", Level::INFO)
             .with_target("gonio_daemon", Level::INFO)
             .with_default(Level::WARN)
     }
@@ -167,7 +168,7 @@ impl<S: Subscriber> Layer<S> for LogCapture {
             } else if warning && target.starts_with("gonio_driver") {
                 c.driver_warnings += 1;
                 *c.driver_warnings_by_message.entry(f.message.clone()).or_default() += 1;
-            } else if warning && target.starts_with("gonio_daemon") {
+            } else if warning && (target.starts_with("gonio_engine") || target.starts_with("gonio_daemon")) {
                 c.daemon_warnings += 1;
             }
             if level == Level::ERROR {

@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use gonio_daemon::store::PointRecord;
+use gonio_engine::store::PointRecord;
 use rusqlite::types::ValueRef;
 use rusqlite::{Connection, OpenFlags};
 
@@ -85,7 +85,7 @@ impl Snapshot {
     /// Read the store in `data_dir` (empty when there is none yet). Opening runs SQLite's crash recovery
     /// (rolling the write-ahead log forward to its last complete transaction), as the daemon's next start would.
     pub fn read(data_dir: &Path) -> Result<Snapshot, SoakError> {
-        let path = data_dir.join(gonio_daemon::store::STORE_FILE);
+        let path = data_dir.join(gonio_engine::store::STORE_FILE);
         if !path.exists() {
             return Ok(Snapshot::default());
         }

@@ -13,8 +13,8 @@
 
 use std::path::Path;
 
-use gonio_daemon::campaign::{AcquisitionSection, CalibrationSection, CampaignFile};
-use gonio_daemon::engine::prepare_campaign;
+use gonio_campaign::{AcquisitionSection, CalibrationSection, CampaignFile};
+use gonio_engine::prepare_campaign;
 use gonio_instrument::{Faults, InstrumentFile, Quirks, SIMULATED_INSTRUMENT_TOML};
 use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec};
 use rand::{Rng, SeedableRng};

@@ -35,7 +35,7 @@
 
 use std::collections::BTreeMap;
 
-use gonio_daemon::store::PointRecord;
+use gonio_engine::store::PointRecord;
 use gonio_instrument::InstrumentFile;
 use serde_json::Value;
 

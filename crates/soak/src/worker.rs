@@ -24,13 +24,13 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
+use gonio_campaign::CampaignFile;
 use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::campaign::CampaignFile;
-use gonio_daemon::control::{Control, Event};
-use gonio_daemon::engine::PreparedCampaign;
-use gonio_daemon::rig::Rig;
 use gonio_daemon::service::{CampaignRunner, EngineRunner, RunFuture, Service, Submission};
-use gonio_daemon::store::{CampaignId, CampaignRecord, CampaignState, Store};
+use gonio_engine::PreparedCampaign;
+use gonio_engine::control::{Control, Event};
+use gonio_engine::rig::Rig;
+use gonio_engine::store::{CampaignId, CampaignRecord, CampaignState, Store};
 use gonio_instrument::InstrumentFile;
 use tracing::field::{Field, Visit};
 use tracing::{Level, Subscriber};

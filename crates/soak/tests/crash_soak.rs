@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use gonio_daemon::store::{CampaignState, Store};
+use gonio_engine::store::{CampaignState, Store};
 use gonio_soak::crash_soak::{CrashSoakConfig, KillPlan, run_crash_soak};
 use gonio_soak::setup::SoakInstrument;
 

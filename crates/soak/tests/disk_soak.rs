@@ -1,7 +1,7 @@
 //! CI-sized disk soak: the store made full twice during one campaign; each time the campaign pauses with the
 //! store's reason, nothing moves, nothing committed changes, and after room comes back every point is stored once.
 
-use gonio_daemon::store::{CampaignState, STORE_FILE, Store};
+use gonio_engine::store::{CampaignState, STORE_FILE, Store};
 use gonio_soak::disk_soak::{DiskSoakConfig, run_disk_soak};
 use gonio_soak::setup::SoakInstrument;
 use gonio_soak::truth_check::Tolerance;

@@ -1,7 +1,7 @@
 //! CI-sized fault soak: the code path of `gonio-soak` at higher fault rates, so that every kind of fault shows up
 //! within a few hundred points.
 
-use gonio_daemon::store::{CampaignState, Store};
+use gonio_engine::store::{CampaignState, Store};
 use gonio_soak::fault_soak::{FaultSoakConfig, run_fault_soak};
 use gonio_soak::setup::SoakInstrument;
 

@@ -15,8 +15,8 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::rig::DEFAULT_DRY_RUN_TIME_SCALE;
-use gonio_daemon::store::CampaignState;
+use gonio_engine::rig::DEFAULT_DRY_RUN_TIME_SCALE;
+use gonio_engine::store::CampaignState;
 use gonio_instrument::InstrumentFile;
 use gonio_soak::http_abuse::{
     Answer, HttpAbuseConfig, LoopbackDaemon, daemon_service, exchange, read_answer, run_http_abuse,

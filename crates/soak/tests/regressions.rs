@@ -17,11 +17,11 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use gonio_daemon::rig::sim_link;
 use gonio_driver::pm100::Pm100;
 use gonio_driver::smc100::{Smc100Axis, Smc100Chain};
 use gonio_driver::transport::LinePort;
 use gonio_driver::{Axis, Detector, DetectorConfig, ErrorKind, PowerRange};
+use gonio_engine::rig::sim_link;
 use gonio_instrument::InstrumentFile;
 use gonio_simulator::SimInstrument;
 use gonio_simulator::scene::UniformScene;

@@ -14,7 +14,7 @@
 //! `GONIO_SAFETY_DEBUG` set: each random case's measures, and the arms' commands and motion of the first
 //! regression, on stderr.
 
-use gonio_daemon::store::CampaignState;
+use gonio_engine::store::CampaignState;
 use gonio_instrument::{AxisRole, InstrumentFile};
 use gonio_scheduler::kinematics::Pose;
 use gonio_simulator::recording::{CommandRecord, MotionCommand};

@@ -30,7 +30,7 @@
 //!   aperture integral of the lobe just above the switch to 4e-6 (test
 //!   `delta_cone_fraction_matches_the_lobe_just_above_the_switch`). A consumer that multiplies the delta's
 //!   reflectance by it sees an aperture power continuous across the switch on the mirror direction. The
-//!   simulator's optics (crates/simulator/src/optics/truth.rs, `aperture_truth`) does NOT do so yet: it puts
+//!   simulator's optics (simulator/src/optics/truth.rs, `aperture_truth`) does NOT do so yet: it puts
 //!   the whole delta inside (spread only by the source's divergence), so its reading at the mirror direction
 //!   still jumps by the GGX tail fraction above (3.8% at alpha 1e-3 for its 0.01 rad aperture; 4e-4 at the
 //!   1e-4 clamp). Off the mirror direction the two sides also differ in how the source's divergence enters

@@ -13,7 +13,7 @@ use serde_json::json;
 use tokio::sync::broadcast;
 
 use super::{ApiError, AppState, ORIGIN_HEADER, connections};
-use crate::store::CampaignId;
+use gonio_engine::store::CampaignId;
 
 fn parse_id(raw: &str) -> Result<CampaignId, ApiError> {
     raw.parse::<i64>().map(CampaignId).map_err(|_| {

@@ -6,10 +6,10 @@ use std::sync::{Arc, Mutex};
 use gonio_instrument::InstrumentFile;
 
 use super::{CampaignRunner, RunFuture, Submission};
-use crate::control::Control;
-use crate::engine::{PreparedCampaign, prepare_submitted_campaign, run_prepared_campaign};
-use crate::rig::Rig;
-use crate::store::{CampaignId, CampaignRecord, Store};
+use gonio_engine::control::Control;
+use gonio_engine::rig::Rig;
+use gonio_engine::store::{CampaignId, CampaignRecord, Store};
+use gonio_engine::{PreparedCampaign, prepare_submitted_campaign, run_prepared_campaign};
 
 /// The real runner: the campaign engine on one connected instrument.
 #[derive(Debug)]
@@ -64,7 +64,7 @@ impl CampaignRunner for EngineRunner {
         Box::pin(async move {
             match &prepared {
                 Some(p) => run_prepared_campaign(store, id, &rig, control, p).await,
-                None => crate::engine::run_campaign(store, id, &rig, control).await,
+                None => gonio_engine::run_campaign(store, id, &rig, control).await,
             }
             .map_err(|e| e.to_string())
         })
@@ -76,6 +76,6 @@ impl CampaignRunner for EngineRunner {
 
     fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
         let points = store.points(record.id).map_err(|e| e.to_string())?;
-        Ok(crate::export::points_csv(record, &points))
+        Ok(gonio_engine::export::points_csv(record, &points))
     }
 }

@@ -1,17 +1,17 @@
 //! One owner of the instrument at a time: the campaign queue, or a person (a console for manual control and
-//! alignment drives the same motion layer as a campaign, [`crate::motion`]).
+//! alignment drives the same motion layer as a campaign, [`gonio_engine::motion`]).
 //!
 //! [`Service::take_instrument`] hands the instrument to a person when no campaign runs on it: the queue starts
 //! nothing while the lease is held (submitted campaigns stay queued), and the lease is refused while a campaign
 //! runs (pause it first). Dropping the [`InstrumentLease`] gives the instrument back to the queue, which starts
 //! the next campaign at once. The emergency stop reaches whoever holds the instrument: the lease's motion layer
-//! listens to the service's own [`Control`](crate::control::Control).
+//! listens to the service's own [`Control`](gonio_engine::control::Control).
 
 use gonio_scheduler::timing::TimeModel;
 
 use super::{Service, ServiceError, lock};
-use crate::motion::Motion;
-use crate::rig::Rig;
+use gonio_engine::motion::Motion;
+use gonio_engine::rig::Rig;
 
 /// The instrument, held by a person until dropped (module doc).
 #[derive(Debug)]

@@ -6,8 +6,8 @@ use std::time::Duration;
 use tokio::sync::{broadcast, mpsc};
 
 use super::{ESTOP_GRACE, RunFuture, Service, ServiceError, Shutdown, lock};
-use crate::control::Event;
-use crate::store::{CampaignId, CampaignState};
+use gonio_engine::control::Event;
+use gonio_engine::store::{CampaignId, CampaignState};
 
 impl Service {
     /// The next campaign to run: an interrupted one first, else the oldest queued one. Marks it running in the

@@ -3,8 +3,8 @@
 //! straight to the store for the others.
 
 use super::{CampaignView, KEEP_PREPARED, RunState, Service, ServiceError, Submission, lock};
-use crate::control::Event;
-use crate::store::{CampaignId, CampaignRecord, CampaignState};
+use gonio_engine::control::Event;
+use gonio_engine::store::{CampaignId, CampaignRecord, CampaignState};
 
 impl Service {
     /// Validate and queue a campaign.

@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use tokio::sync::mpsc;
 
 use super::*;
-use crate::store::PointRecord;
+use gonio_engine::store::PointRecord;
 
 /// A stand-in engine: one point per simulated second, obeying pause/abort/estop at safe points like the
 /// real one, and recording which campaigns ran and how many at once.
@@ -123,7 +123,7 @@ impl CampaignRunner for FakeRunner {
 
     fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
         let points = store.points(record.id).map_err(|e| e.to_string())?;
-        Ok(crate::export::points_csv(record, &points))
+        Ok(gonio_engine::export::points_csv(record, &points))
     }
 }
 

@@ -15,11 +15,11 @@ use axum::Router;
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::control::Control;
-use gonio_daemon::engine::{Event, prepare_campaign, run_campaign};
-use gonio_daemon::rig::Rig;
 use gonio_daemon::service::{EngineRunner, Service, ShutdownTrigger};
-use gonio_daemon::store::{CampaignId, CampaignState, Store};
+use gonio_engine::control::Control;
+use gonio_engine::rig::Rig;
+use gonio_engine::store::{CampaignId, CampaignState, Store};
+use gonio_engine::{Event, prepare_campaign, run_campaign};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use http_body_util::BodyExt;
 use serde_json::Value;
@@ -167,7 +167,7 @@ impl StoredCampaign {
     pub fn spawn_run(
         &self,
         control: &Control,
-    ) -> tokio::task::JoinHandle<Result<CampaignState, gonio_daemon::engine::EngineError>> {
+    ) -> tokio::task::JoinHandle<Result<CampaignState, gonio_engine::EngineError>> {
         let (store, rig, control, id) = (
             Arc::clone(&self.store),
             self.rig.clone(),

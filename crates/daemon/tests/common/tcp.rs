@@ -6,8 +6,8 @@ use std::net::SocketAddr;
 use std::path::Path;
 
 use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::rig::Rig;
 use gonio_daemon::service::{Service, ShutdownTrigger};
+use gonio_engine::rig::Rig;
 use gonio_instrument::InstrumentFile;
 
 pub struct Server {

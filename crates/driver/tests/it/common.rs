@@ -52,12 +52,12 @@ pub fn sim_file(f: impl FnOnce(&mut gonio_instrument::InstrumentFile), time_scal
 
 /// A port on the simulator's in-process stream for `device`; reconnecting asks the simulator again.
 pub fn sim_port(sim: &SimInstrument, device: &str) -> Arc<LinePort> {
-    let opener = gonio_daemon::rig::sim_link::serial_opener(sim.clone(), device);
+    let opener = gonio_engine::rig::sim_link::serial_opener(sim.clone(), device);
     Arc::new(LinePort::open(device, opener).expect("open the simulated port"))
 }
 
 /// The simulator's USB device as a [`gonio_driver::transport::usb::UsbPipe`]: the daemon's adapter.
-pub use gonio_daemon::rig::sim_link::SimPipe;
+pub use gonio_engine::rig::sim_link::SimPipe;
 
 /// A pseudo-terminal whose master side is bridged to the simulator's stream for `device`. Returns the slave's
 /// path (to open with `serialport`, exactly like a real port) and the bridge task.

@@ -1,6 +1,6 @@
 //! `[simulator.imperfections.beam]`: what the beam really is, against the uniform, centred, collimated disc
 //! `[instrument.source]` describes (`beam_radius_mm`, `divergence_deg`). The models are documented in
-//! crates/simulator/src/imperfections/beam.rs.
+//! simulator/src/imperfections/beam.rs.
 
 use serde::{Deserialize, Serialize};
 

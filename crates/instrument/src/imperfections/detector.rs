@@ -1,5 +1,5 @@
 //! `[simulator.imperfections.detector]`: magnitudes of what the photodiode and the meter do to a reading. The
-//! models are documented in crates/simulator/src/imperfections/detector.rs.
+//! models are documented in simulator/src/imperfections/detector.rs.
 
 use serde::{Deserialize, Serialize};
 

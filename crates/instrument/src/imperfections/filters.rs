@@ -1,5 +1,5 @@
 //! `[simulator.imperfections.filters]`: the filters' finite bands. The model is documented in
-//! crates/simulator/src/imperfections/filters.rs.
+//! simulator/src/imperfections/filters.rs.
 //!
 //! On the ideal instrument a filter position is one wavelength, its `band_nm`. With this group on, each position
 //! with a `bandwidth_nm` passes a band of that full width at half maximum (its actual centre and width drawn

@@ -1,12 +1,12 @@
 //! `[simulator.imperfections.geometry]`: magnitudes of the geometric errors (the models are documented in
-//! crates/simulator/src/imperfections/geometry.rs).
+//! simulator/src/imperfections/geometry.rs).
 
 use serde::{Deserialize, Serialize};
 
 use super::ImperfectionsError;
 
 /// `[simulator.imperfections.geometry]`: magnitudes of the geometric errors (the models are documented in
-/// crates/simulator/src/imperfections/geometry.rs).
+/// simulator/src/imperfections/geometry.rs).
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct GeometryImperfections {

@@ -1,5 +1,5 @@
 //! `[simulator.imperfections.sample]`: magnitudes of the sample's non-uniformity. The model is documented in
-//! crates/simulator/src/imperfections/sample.rs.
+//! simulator/src/imperfections/sample.rs.
 
 use serde::{Deserialize, Serialize};
 

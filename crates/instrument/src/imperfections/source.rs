@@ -1,5 +1,5 @@
 //! `[simulator.imperfections.source]`: magnitudes of how the source's power really varies. The models are
-//! documented in crates/simulator/src/imperfections/source.rs; they multiply the instrument file's own smooth
+//! documented in simulator/src/imperfections/source.rs; they multiply the instrument file's own smooth
 //! drift and white noise (`[instrument.source] drift_per_hour`, `relative_noise`).
 
 use serde::{Deserialize, Serialize};

@@ -30,7 +30,7 @@ pub struct SimulatorTruth {
     pub beam: Option<BeamTruthRecord>,
 }
 
-/// The filters' actual bands (model: crates/simulator/src/imperfections/filters.rs): an N-cavity passband
+/// The filters' actual bands (model: simulator/src/imperfections/filters.rs): an N-cavity passband
 /// `1 / (1 + x^(2N))` about each actual centre with its actual width, plus the blocking's floor over the
 /// photodiode's range, weighted by a Planck source and the photodiode's responsivity.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -52,7 +52,7 @@ pub struct FilterTruthRecord {
     pub bandwidth_nm: f64,
 }
 
-/// The beam as it really is (model: crates/simulator/src/imperfections/beam.rs).
+/// The beam as it really is (model: simulator/src/imperfections/beam.rs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BeamTruthRecord {
     /// "top-hat" or "gaussian".
@@ -69,7 +69,7 @@ pub struct BeamTruthRecord {
     pub nominal_divergence_deg: f64,
 }
 
-/// The sample's non-uniformity (model: crates/simulator/src/imperfections/sample.rs): its BRDF is the
+/// The sample's non-uniformity (model: simulator/src/imperfections/sample.rs): its BRDF is the
 /// material's times `1 + (gradient_x x + gradient_y y) / R + radial (x^2 + y^2) / R^2`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SampleTruthRecord {
@@ -78,7 +78,7 @@ pub struct SampleTruthRecord {
     pub radial: f64,
 }
 
-/// The detector's imperfections (models: crates/simulator/src/imperfections/detector.rs).
+/// The detector's imperfections (models: simulator/src/imperfections/detector.rs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DetectorTruthRecord {
     /// Per range of the meter, smallest first.
@@ -107,7 +107,7 @@ pub struct RangeTruthRecord {
     pub offset_fs: f64,
 }
 
-/// The source's imperfections (models: crates/simulator/src/imperfections/source.rs). The random walk's path and
+/// The source's imperfections (models: simulator/src/imperfections/source.rs). The random walk's path and
 /// the flicker's phases are drawn from the seed; their effect on each point is in that point's truth.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SourceTruthRecord {
@@ -117,7 +117,7 @@ pub struct SourceTruthRecord {
     pub flicker_rms: f64,
 }
 
-/// The geometric imperfections (models: crates/simulator/src/imperfections/geometry.rs).
+/// The geometric imperfections (models: simulator/src/imperfections/geometry.rs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GeometryTruthRecord {
     /// Per axis, in the instrument file's order.

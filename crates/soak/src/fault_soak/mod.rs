@@ -17,8 +17,8 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use gonio_daemon::engine::{Control, Event, Rig, prepare_campaign, run_campaign};
-use gonio_daemon::store::{CampaignState, Store};
+use gonio_engine::store::{CampaignState, Store};
+use gonio_engine::{Control, Event, Rig, prepare_campaign, run_campaign};
 use gonio_instrument::{Faults, InstrumentFile};
 use gonio_simulator::FaultCounts;
 use tracing_subscriber::Layer as _;
@@ -416,7 +416,7 @@ struct Driven {
 
 async fn drive(
     store: Arc<Mutex<Store>>,
-    id: gonio_daemon::store::CampaignId,
+    id: gonio_engine::store::CampaignId,
     file: &InstrumentFile,
     max_resumes: u32,
     budget: Duration,

@@ -1,6 +1,6 @@
 use super::*;
 use crate::truth_check::Tolerance;
-use gonio_daemon::store::PointRecord;
+use gonio_engine::store::PointRecord;
 
 #[test]
 fn error_classes_follow_the_driver_messages() {

@@ -24,10 +24,10 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use gonio_daemon::api::{self, ApiConfig};
-use gonio_daemon::control::Control;
-use gonio_daemon::rig::Rig;
 use gonio_daemon::service::{EngineRunner, Service};
-use gonio_daemon::store::{CampaignState, Store};
+use gonio_engine::control::Control;
+use gonio_engine::rig::Rig;
+use gonio_engine::store::{CampaignState, Store};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;

@@ -164,7 +164,7 @@ impl Report {
             m,
             "A {}-point dry-run campaign (random geometries, two bands, darks every 100 points and direct-beam \
              readings every 600 s; `crates/soak/src/setup.rs`) through the real drivers and campaign engine \
-             (`gonio_daemon::engine::run_campaign` on a `Rig` with the in-process simulator, every device speaking \
+             (`gonio_engine::run_campaign` on a `Rig` with the in-process simulator, every device speaking \
              its wire protocol), on a paused tokio clock: the instrument takes its real time ({:.0} s of campaign \
              time, {:.0} s on the simulator's clock with start-up and homing), the wall clock {}.\n",
             f.campaign.total_points,
@@ -297,7 +297,7 @@ impl Report {
             f.final_state,
             f.last_error
                 .as_ref()
-                .filter(|_| f.final_state != gonio_daemon::store::CampaignState::Completed)
+                .filter(|_| f.final_state != gonio_engine::store::CampaignState::Completed)
                 .map(|e| format!(" ({e})"))
                 .unwrap_or_default(),
             f.committed.rows,

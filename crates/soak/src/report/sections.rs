@@ -374,7 +374,7 @@ pub(super) fn disk_row(m: &mut String, label: &str, d: &DiskSoakReport) {
     let paused = d
         .fills
         .iter()
-        .filter(|f| f.ended == gonio_daemon::store::CampaignState::Paused)
+        .filter(|f| f.ended == gonio_engine::store::CampaignState::Paused)
         .count();
     let moves: u64 = d.fills.iter().map(|f| f.moves_while_paused).sum();
     let _ = writeln!(

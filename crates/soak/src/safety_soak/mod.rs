@@ -27,9 +27,9 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use gonio_daemon::campaign::{AcquisitionSection, CalibrationSection, CampaignFile};
-use gonio_daemon::engine::{Control, Rig, prepare_campaign, run_campaign};
-use gonio_daemon::store::{CampaignState, PointRecord, Store};
+use gonio_campaign::{AcquisitionSection, CalibrationSection, CampaignFile};
+use gonio_engine::store::{CampaignState, PointRecord, Store};
+use gonio_engine::{Control, Rig, prepare_campaign, run_campaign};
 use gonio_instrument::{Axis, AxisRole, InstrumentFile};
 
 use crate::setup::SoakInstrument;

@@ -1,0 +1,142 @@
+//! The store's campaigns as results: its records turned into gonio-results' points and run record, so that the
+//! points CSV (`gonio run`'s points.csv, the API's `/api/campaigns/{id}/points.csv`) and the provenance
+//! (`gonio run`'s run.json, `gonio export --data DIR --campaign ID`) come from one place each. gonio-results
+//! owns the formats (the CSV's columns and writer, the typed run.json); this module only reads the store.
+
+use gonio_instrument::InstrumentFile;
+use gonio_results::points::{self, Point, PointsTable};
+use gonio_results::provenance::{CalibrationReading, DeviceIdentity, RunConfig, RunRecord, StoredCampaign};
+
+use crate::store::{CampaignRecord, PointRecord, Store, StoreError};
+use gonio_campaign::{self as campaign, Sources};
+
+/// The read-back axes of a stored campaign, in the CSV's column order: the axes of the instrument file stored
+/// with it (so that an export after an instrument change still names the right columns); when that no longer
+/// parses, the axes its points name, in the order first seen.
+pub fn axis_names(record: &CampaignRecord, points: &[PointRecord]) -> Vec<String> {
+    match InstrumentFile::parse(&record.instrument_toml, "<stored instrument file>") {
+        Ok(file) => file.instrument.axes.iter().map(|a| a.name.clone()).collect(),
+        Err(_) => {
+            let mut names: Vec<String> = Vec::new();
+            for p in points {
+                for (n, _) in &p.readback_deg {
+                    if !names.contains(n) {
+                        names.push(n.clone());
+                    }
+                }
+            }
+            names
+        }
+    }
+}
+
+/// One stored point as a result point: a value that is not finite (a failed reading) is missing, read-backs
+/// follow `axis_names`.
+pub fn point(p: &PointRecord, axis_names: &[String]) -> Point {
+    let finite = |v: f64| Some(v).filter(|v| v.is_finite());
+    Point {
+        index: p.index,
+        band_nm: p.band_nm,
+        theta_i_deg: p.theta_i_deg,
+        phi_i_deg: p.phi_i_deg,
+        theta_o_deg: p.theta_o_deg,
+        phi_o_deg: p.phi_o_deg,
+        signal_w: finite(p.signal_w),
+        dark_w: finite(p.dark_w),
+        incident_w: finite(p.incident_w),
+        brdf_sr: p.brdf_sr.and_then(finite),
+        brdf_u_sr: p.brdf_u_sr.and_then(finite),
+        flags: p.flags.clone(),
+        t_s: finite(p.t_s),
+        readback_deg: axis_names
+            .iter()
+            .map(|a| {
+                let v = p.readback_deg.iter().find(|(n, _)| n == a).map(|(_, v)| *v);
+                (a.clone(), v.and_then(finite))
+            })
+            .collect(),
+        truth_point_sr: p.truth_point_sr.and_then(finite),
+        truth_aperture_sr: p.truth_aperture_sr.and_then(finite),
+    }
+}
+
+/// A stored campaign's points as a table.
+pub fn points_table(record: &CampaignRecord, points: &[PointRecord]) -> PointsTable {
+    let axis_names = axis_names(record, points);
+    PointsTable {
+        points: points.iter().map(|p| point(p, &axis_names)).collect(),
+        axis_names,
+        dry_run: record.dry_run,
+    }
+}
+
+/// A stored campaign's points CSV (header included).
+pub fn points_csv(record: &CampaignRecord, points: &[PointRecord]) -> String {
+    points::write_points_csv(&points_table(record, points))
+}
+
+/// A stored campaign's points and run record, everything read from `store`: the one source of run.json for
+/// `gonio run` and of the provenance of a campaign exported from a daemon's store.
+pub fn run_record(store: &Store, record: &CampaignRecord) -> Result<(PointsTable, RunRecord), StoreError> {
+    let id = record.id;
+    let stored_points = store.points(id)?;
+    let table = points_table(record, &stored_points);
+    let calibrations: Vec<CalibrationReading> = store
+        .calibrations(id)?
+        .into_iter()
+        .map(|c| CalibrationReading {
+            kind: c.kind,
+            band_nm: c.band_nm,
+            t_s: c.t_s,
+            value_w: c.value_w,
+            u_w: c.u_w,
+        })
+        .collect();
+    // The engine records the identity of every device it connected (ordered by name in the store).
+    let devices = store
+        .devices(id)?
+        .into_iter()
+        .map(|(name, identity)| DeviceIdentity { name, identity })
+        .collect();
+    let stored = StoredCampaign {
+        id: id.0,
+        name: record.name.clone(),
+        state: record.state.to_string(),
+        last_error: record.last_error.clone(),
+        dry_run: record.dry_run,
+        total_points: record.total_points,
+        points_done: record.points_done,
+        created_unix_s: record.created_unix_s,
+        software_version: record.software_version.clone(),
+        config: RunConfig {
+            campaign_toml: record.campaign_toml.clone(),
+            instrument_toml: record.instrument_toml.clone(),
+        },
+        devices,
+        predicted_instrument_s: predicted_s(record),
+        // A function of the stored instrument file, like everything else here; absent on the ideal instrument.
+        simulator_truth: crate::rig::simulator_truth(
+            &record.instrument_toml,
+            record.dry_run,
+            calibrations.len(),
+        ),
+        calibrations,
+    };
+    let run = RunRecord::assemble(stored, &table.points);
+    Ok((table, run))
+}
+
+/// The time model's prediction for the stored configuration (as a resume rebuilds it: from the stored texts
+/// and their `[resolved]` materials, no file read); `None` when those no longer parse.
+fn predicted_s(record: &CampaignRecord) -> Option<f64> {
+    let file = InstrumentFile::parse(&record.instrument_toml, "<stored instrument file>").ok()?;
+    let prepared = campaign::load_and_prepare(
+        &record.campaign_toml,
+        "<stored campaign file>",
+        &Sources::Stored,
+        &file,
+    )
+    .ok()?;
+    // The same prediction `gonio plan` prints and the run started with (an adaptive plan: its whole budget).
+    Some(prepared.predicted_s())
+}

@@ -1,0 +1,39 @@
+//! gonio-engine: running measurement campaigns on a connected instrument, without the service around it.
+//!
+//! Module map, from the bottom up (no module uses one above it; no two files import each other):
+//! - [`store`]: the durable SQLite store (campaigns, configuration, devices, calibrations, points) and resume.
+//! - [`error`]: [`error::EngineError`], why the engine could not run a campaign.
+//! - [`rig`]: the connected instrument (drivers for every device; the in-process simulator for dry-runs). Only
+//!   the rig names the simulator.
+//! - [`control`]: the seam to whoever drives a run: [`control::Control`] requests in, [`control::Event`]s out.
+//! - [`motion`]: the axes and the supervision of every device, without a campaign or a store (safe multi-axis
+//!   moves, homing, retries and reconnection); a campaign and a person at a console drive the same layer.
+//! - [`acquisition`]: the meter's configuration, one reading with its uncertainty, the measurement equation as a
+//!   pure function.
+//! - [`calibration`]: darks and normalisation readings per band, the source's drift extrapolated in time.
+//! - [`prepare`]: a campaign file validated, planned and ordered for the store ([`prepare::PreparedCampaign`]).
+//! - `runner`: the run loop over a campaign's steps (calibration, per-point acquisition committed, faults,
+//!   resume), on `motion` and `acquisition`: [`run_campaign`], [`run_prepared_campaign`].
+//! - [`export`]: the points CSV and the run record (shared by `gonio run`, the exports and the HTTP API).
+//!
+//! The service (queue, ownership, HTTP API, status page) is `gonio-daemon`, above this crate: nothing here can
+//! reach up into it.
+
+pub mod acquisition;
+pub mod calibration;
+pub mod control;
+pub mod error;
+pub mod export;
+pub mod motion;
+pub mod prepare;
+pub mod rig;
+mod runner;
+pub mod store;
+
+pub use control::{Control, Event};
+pub use error::EngineError;
+pub use prepare::{
+    PreparedCampaign, prepare_campaign, prepare_campaign_with, prepare_submitted_campaign, software_version,
+};
+pub use rig::Rig;
+pub use runner::{run_campaign, run_prepared_campaign};

@@ -1,0 +1,214 @@
+//! The records the store reads and writes: campaign identifiers and states, a new campaign, a stored campaign,
+//! a measured point, a calibration reading, and the durability level a campaign's writes get.
+
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+
+use super::StoreError;
+
+/// Campaign identifier: a positive integer assigned by the store.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct CampaignId(pub i64);
+
+impl fmt::Display for CampaignId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// Lifecycle of a campaign.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CampaignState {
+    Queued,
+    Running,
+    Pausing,
+    Paused,
+    WaitingOperator,
+    Completed,
+    Aborted,
+    Failed,
+}
+
+impl CampaignState {
+    pub const ALL: [CampaignState; 8] = [
+        CampaignState::Queued,
+        CampaignState::Running,
+        CampaignState::Pausing,
+        CampaignState::Paused,
+        CampaignState::WaitingOperator,
+        CampaignState::Completed,
+        CampaignState::Aborted,
+        CampaignState::Failed,
+    ];
+
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            CampaignState::Queued => "queued",
+            CampaignState::Running => "running",
+            CampaignState::Pausing => "pausing",
+            CampaignState::Paused => "paused",
+            CampaignState::WaitingOperator => "waiting-operator",
+            CampaignState::Completed => "completed",
+            CampaignState::Aborted => "aborted",
+            CampaignState::Failed => "failed",
+        }
+    }
+
+    /// A finished campaign never runs again.
+    pub fn is_final(&self) -> bool {
+        matches!(
+            self,
+            CampaignState::Completed | CampaignState::Aborted | CampaignState::Failed
+        )
+    }
+
+    /// States that mean "was in the middle of running" when found after a restart.
+    pub fn was_interrupted(&self) -> bool {
+        matches!(
+            self,
+            CampaignState::Running | CampaignState::Pausing | CampaignState::WaitingOperator
+        )
+    }
+}
+
+impl fmt::Display for CampaignState {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for CampaignState {
+    type Err = StoreError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        CampaignState::ALL
+            .iter()
+            .copied()
+            .find(|st| st.as_str() == s)
+            .ok_or_else(|| StoreError::Corrupt(format!("unknown campaign state {s:?}")))
+    }
+}
+
+/// What is stored when a campaign is submitted: enough to reproduce the run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NewCampaign {
+    pub name: String,
+    /// The campaign file as submitted (TOML text).
+    pub campaign_toml: String,
+    /// The instrument file in force (TOML text).
+    pub instrument_toml: String,
+    /// Number of planned points.
+    pub total_points: u64,
+    /// True when the instrument is the simulator.
+    pub dry_run: bool,
+    pub software_version: String,
+}
+
+/// A campaign as stored.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CampaignRecord {
+    pub id: CampaignId,
+    pub name: String,
+    pub state: CampaignState,
+    pub campaign_toml: String,
+    pub instrument_toml: String,
+    pub total_points: u64,
+    pub points_done: u64,
+    pub dry_run: bool,
+    pub software_version: String,
+    pub created_unix_s: f64,
+    pub last_error: Option<String>,
+    /// Message shown while waiting for the operator.
+    pub operator_message: Option<String>,
+}
+
+/// One measured (or failed) point with everything needed to recompute it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PointRecord {
+    pub index: u64,
+    pub band_nm: f64,
+    pub theta_i_deg: f64,
+    pub phi_i_deg: f64,
+    pub theta_o_deg: f64,
+    pub phi_o_deg: f64,
+    /// Raw detector reading (W).
+    pub signal_w: f64,
+    /// Dark reading subtracted from it (W).
+    pub dark_w: f64,
+    /// Incident power from the direct-beam calibration, interpolated in time (W); or the reference signal
+    /// for the relative method.
+    pub incident_w: f64,
+    /// The BRDF (1/sr); `None` for a failed or flagged point that has no valid value.
+    pub brdf_sr: Option<f64>,
+    /// Standard uncertainty of the BRDF (1/sr).
+    pub brdf_u_sr: Option<f64>,
+    /// Empty for a valid point, else reasons (saturated, overfilled, failed: ...).
+    pub flags: Vec<String>,
+    /// Seconds since the campaign started (instrument time).
+    pub t_s: f64,
+    /// Read-back positions per axis, in the instrument file's axis order (name, physical degrees).
+    pub readback_deg: Vec<(String, f64)>,
+    /// Dry-runs only: the simulator's ground truth at the nominal geometry and averaged over the aperture.
+    pub truth_point_sr: Option<f64>,
+    pub truth_aperture_sr: Option<f64>,
+    /// Dry-runs on an imperfect simulated instrument only: what each imperfection did to this point's reading
+    /// (JSON: the simulator's `OpticsEffects` and `MeterEffects`, simulator/src/imperfections/effects.rs,
+    /// plus the relative effects derived from them; crates/engine/src/rig/dry_run.rs).
+    #[serde(default)]
+    pub truth_effects_json: Option<String>,
+}
+
+/// A committed point's geometry and BRDF only: what an adaptive planner reads back (`Store::point_values`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointValue {
+    pub index: u64,
+    pub theta_i_deg: f64,
+    pub phi_i_deg: f64,
+    pub theta_o_deg: f64,
+    pub phi_o_deg: f64,
+    /// `None` for a failed or flagged point.
+    pub brdf_sr: Option<f64>,
+}
+
+/// A calibration reading (direct beam, reference sample, dark) taken during a campaign.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationRecord {
+    /// "direct-beam", "reference" or "dark".
+    pub kind: String,
+    pub band_nm: Option<f64>,
+    pub t_s: f64,
+    pub value_w: f64,
+    pub u_w: f64,
+}
+
+/// How far a commit survives (module doc): the store picks it from the campaign written to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Durability {
+    /// `synchronous = FULL`: survives a crash of the process or the operating system and a power cut (campaigns
+    /// on the real instrument, and writes that belong to no campaign).
+    PowerLoss,
+    /// `synchronous = NORMAL` (WAL): survives a crash or `kill -9` of the process, not of the operating system
+    /// (dry-runs).
+    ProcessCrash,
+}
+
+impl Durability {
+    /// The level a campaign's writes get.
+    pub fn for_campaign(dry_run: bool) -> Durability {
+        if dry_run {
+            Durability::ProcessCrash
+        } else {
+            Durability::PowerLoss
+        }
+    }
+
+    pub(super) fn pragma(self) -> &'static str {
+        match self {
+            Durability::PowerLoss => "PRAGMA synchronous = FULL",
+            Durability::ProcessCrash => "PRAGMA synchronous = NORMAL",
+        }
+    }
+}

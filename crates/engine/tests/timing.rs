@@ -1,0 +1,106 @@
+//! The scheduler's predicted instrument time against a simulator dry-run of the same plan (issue #5: within 2%).
+//! In process, under tokio's paused clock, so the simulated instrument time is exact and the test is fast.
+//! The run's instrument time counts from the end of start-up (homing and the move to the schedule's first
+//! pose, which depend on where the devices were found) to its last record (the schedule's final calibration).
+
+use std::sync::{Arc, Mutex};
+
+use gonio_engine::store::{CampaignState, Store};
+use gonio_engine::{Control, Event, Rig, prepare_campaign, run_campaign};
+use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+
+const DEMO: &str = include_str!("../../../config/campaigns/demo.toml");
+
+/// Run `text` to completion; returns (predicted s, instrument time s at the last point or calibration record).
+async fn dry_run(text: &str) -> (f64, f64) {
+    let file = InstrumentFile::simulated();
+    let dir = tempfile::tempdir().expect("tempdir");
+    let prepared = prepare_campaign(text, "timing.toml", dir.path(), &file).expect("valid campaign");
+    let mut store = Store::open(dir.path()).expect("store");
+    let id = store
+        .create_campaign(&prepared.new_campaign(text, SIMULATED_INSTRUMENT_TOML))
+        .expect("create");
+    let store = Arc::new(Mutex::new(store));
+    let rig = Rig::connect_with_time_scale(&file, None, 1.0).await.expect("rig");
+    let control = Control::new();
+    let mut rx = control.subscribe();
+    let task = {
+        let (store, rig, control) = (Arc::clone(&store), rig.clone(), control.clone());
+        tokio::spawn(async move { run_campaign(store, id, &rig, control).await })
+    };
+    let mut last_point_s = 0.0f64;
+    let state = loop {
+        match rx.recv().await.expect("event") {
+            Event::Point { point, .. } => last_point_s = last_point_s.max(point.t_s),
+            Event::State { state, .. } if state.is_final() || state == CampaignState::Paused => break state,
+            _ => {}
+        }
+    };
+    task.await.expect("join").expect("run");
+    assert_eq!(state, CampaignState::Completed);
+    // The run ends with the schedule's final calibration, after the last point.
+    let last_cal_s = store
+        .lock()
+        .expect("store lock")
+        .calibrations(id)
+        .expect("calibrations")
+        .iter()
+        .map(|c| c.t_s)
+        .fold(0.0f64, f64::max);
+    (prepared.predicted_s, last_point_s.max(last_cal_s))
+}
+
+/// A plan exercising repeats, frequent darks and direct-beam references (operator sessions with the wheel
+/// closed), a campaign averaging and extra settle different from the instrument file's, backlash approaches.
+const BUSY: &str = r#"
+[campaign]
+id = "timing-busy"
+[sample]
+radius_mm = 12.5
+[plan]
+bands_nm = [450.0, 650.0]
+repeats = 2
+reciprocity = false
+[plan.grid]
+kind = "isotropic"
+theta_i_deg = { from = 0.0, to = 60.0, step = 20.0 }
+theta_o_deg = { from = 0.0, to = 60.0, step = 20.0 }
+delta_phi_deg = { from = 0.0, to = 180.0, step = 60.0 }
+[plan.calibration]
+dark_every_points = 25
+reference_every_points = 60
+reference_pose_deg = { light = -90.0, detector = 90.0 }
+[calibration]
+method = "absolute"
+simulate_operator = true
+[acquisition]
+averaging = 40
+settle_s = 0.2
+[material]
+preset = "spectralon"
+"#;
+
+fn assert_within_2_percent(what: &str, predicted_s: f64, actual_s: f64) {
+    let rel = (actual_s - predicted_s).abs() / predicted_s;
+    eprintln!(
+        "{what}: predicted {predicted_s:.3} s, dry-run {actual_s:.3} s ({:+.2} %)",
+        100.0 * (actual_s / predicted_s - 1.0)
+    );
+    assert!(
+        rel <= 0.02,
+        "{what}: predicted {predicted_s:.2} s, dry-run {actual_s:.2} s ({:.1} % apart)",
+        100.0 * rel
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn demo_prediction_agrees_with_dry_run_within_2_percent() {
+    let (predicted_s, actual_s) = dry_run(DEMO).await;
+    assert_within_2_percent("demo", predicted_s, actual_s);
+}
+
+#[tokio::test(start_paused = true)]
+async fn repeats_darks_and_references_agree_with_dry_run_within_2_percent() {
+    let (predicted_s, actual_s) = dry_run(BUSY).await;
+    assert_within_2_percent("busy", predicted_s, actual_s);
+}
