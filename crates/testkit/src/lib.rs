@@ -6,6 +6,8 @@
 //! - [`rng`]: a small fixed-seed generator (reproducible random searches, no dependency).
 //! - [`directions`]: hostile directions for the numerical stress suites; [`nm`]: a wavelength in a test.
 //! - [`load`]: every core kept busy ([`CpuLoad`]), for timing that must hold on a loaded machine.
+//! - [`imports`]: the import-loop check of ARCHITECTURE.md's rule ([`imports::import_loops`]), run on the
+//!   workspace by tests/no_import_loops.rs.
 //!
 //! The daemon's in-process API set-up is not here: it needs the daemon, whose own tests use it, so it lives in
 //! crates/daemon/tests/common (one copy for all the daemon's tests).
@@ -13,6 +15,7 @@
 pub mod campaign;
 pub mod cli;
 pub mod directions;
+pub mod imports;
 pub mod load;
 pub mod rng;
 

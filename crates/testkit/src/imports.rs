@@ -1,0 +1,84 @@
+//! The project's check of ARCHITECTURE.md's rule that files import in one direction only: if a.rs uses b.rs,
+//! nothing b.rs uses (directly or through others) uses a.rs. [`import_loops`] reads every source file of every
+//! crate in a workspace and returns each loop with the names that tie it; crates/testkit/tests/no_import_loops.rs
+//! runs it on this workspace.
+//!
+//! What counts as an edge from a file to another file of the same crate:
+//! - every leaf of a `use` tree (groups flattened, `pub use` and `pub(crate) use` alike) and every path written
+//!   in code, when it starts at `crate`, `self`, `super` or a child module the file declares (`mod x;` then
+//!   `x::Y`) or a module the file imported by name (`use crate::rig;` then `rig::sim_link::X`);
+//! - to the file of the path's longest prefix that is a module file, so `crate::Foo` is an edge to lib.rs: a
+//!   module using back what lib.rs re-exports from it is the loop it is.
+//!
+//! Not edges: `mod x;` itself, text in comments and literals, a file's paths to itself, paths into other crates
+//! (Cargo forbids crate cycles), and test code (`#[cfg(test)]` items and test module files, which may use their
+//! parent freely). An inline `mod x { }` counts as its file.
+//!
+//! The rule has no exception for a parent and its child: a parent that uses its child's items (`pub use
+//! child::X`, `child::f()`) while the child uses the parent's (`super::Y`, `super::*`) is a loop. The scan is
+//! lexical, not rustc's name resolution: a re-exported name is an edge to the file that re-exports it (the
+//! longest prefix), and names a glob import brings into scope do not start paths.
+//!
+//! Inside: `lexer` (source to tokens, comments and literals gone), `scan` (one file's paths and child modules),
+//! `tree` (crates and their files' module paths), `graph` (resolution and the loops, Tarjan), `report`
+//! ([`Loop`] and its `Display`), `error` ([`ImportScanError`]).
+
+mod error;
+mod graph;
+mod lexer;
+mod report;
+mod scan;
+mod tree;
+
+use std::collections::HashSet;
+use std::fs;
+use std::path::Path;
+
+pub use error::ImportScanError;
+pub use report::{Loop, Tie};
+
+/// Every import loop among the files of the crates under `workspace_root`, sorted by their files; empty when
+/// the rule holds. Errors only when a directory, manifest or source file cannot be read, or when no crate is
+/// found (a wrong root must not pass as a clean one).
+pub fn import_loops(workspace_root: &Path) -> Result<Vec<Loop>, ImportScanError> {
+    let crates = tree::find_crates(workspace_root)?;
+    if crates.is_empty() {
+        return Err(ImportScanError::NoCrates(workspace_root.to_path_buf()));
+    }
+    let mut nodes = Vec::new();
+    for (index, dir) in crates.iter().enumerate() {
+        let src = dir.join("src");
+        let mut scanned = Vec::new();
+        for (path, comps) in tree::source_files(&src)? {
+            let text = fs::read_to_string(&path).map_err(|source| ImportScanError::Read {
+                path: path.clone(),
+                source,
+            })?;
+            scanned.push((path, comps, scan::scan(&lexer::tokens(&text))));
+        }
+        // With both a lib.rs and a main.rs, a top-level module is the binary's only if main.rs declares it.
+        let has_lib = src.join("lib.rs").is_file();
+        let main_mods: HashSet<String> = scanned
+            .iter()
+            .filter(|(_, comps, _)| comps.len() == 1 && comps[0] == "main.rs")
+            .flat_map(|(_, _, scan)| scan.children.iter().filter(|c| c.inline.is_empty()))
+            .map(|c| c.name.clone())
+            .collect();
+        for (path, comps, scan) in scanned {
+            let place = tree::place(&comps, |first| !has_lib || main_mods.contains(first));
+            let rel = path.strip_prefix(workspace_root).unwrap_or(&path);
+            let rel = rel
+                .components()
+                .map(|c| c.as_os_str().to_string_lossy())
+                .collect::<Vec<_>>()
+                .join("/");
+            nodes.push(graph::Node {
+                rel,
+                unit: (index, place.root),
+                module: place.module,
+                scan,
+            });
+        }
+    }
+    Ok(graph::loops(&nodes))
+}
