@@ -7,7 +7,6 @@ use std::path::PathBuf;
 
 use gonio_brdf::material::Material;
 use gonio_instrument::InstrumentFile;
-use gonio_scheduler::kinematics::Geometry;
 use gonio_scheduler::plan::PlanSpec;
 
 use crate::error::{CampaignError, Located};

@@ -7,17 +7,21 @@
 //! - every leaf of a `use` tree (groups flattened, `pub use` and `pub(crate) use` alike) and every path written
 //!   in code, when it starts at `crate`, `self`, `super` or a child module the file declares (`mod x;` then
 //!   `x::Y`) or a module the file imported by name (`use crate::rig;` then `rig::sim_link::X`);
-//! - to the file of the path's longest prefix that is a module file, so `crate::Foo` is an edge to lib.rs: a
-//!   module using back what lib.rs re-exports from it is the loop it is.
+//! - to the file of the path's longest prefix that is a module file, so `crate::Foo` names lib.rs; a name that
+//!   file re-exports (`pub use rig::Rig;`) is followed on to where it comes from, so a module using back, through
+//!   the crate root, what another module it feeds re-exports is the loop it is, and a re-export hides none.
 //!
 //! Not edges: `mod x;` itself, text in comments and literals, a file's paths to itself, paths into other crates
-//! (Cargo forbids crate cycles), and test code (`#[cfg(test)]` items and test module files, which may use their
-//! parent freely). An inline `mod x { }` counts as its file.
+//! (Cargo forbids crate cycles), test code (`#[cfg(test)]` items and test module files, which may use their
+//! parent freely), and a path up into one of the file's own enclosing modules (`super::X`, `crate::parent::X`
+//! for an item defined there). An inline `mod x { }` counts as its file.
 //!
-//! The rule has no exception for a parent and its child: a parent that uses its child's items (`pub use
-//! child::X`, `child::f()`) while the child uses the parent's (`super::Y`, `super::*`) is a loop. The scan is
-//! lexical, not rustc's name resolution: a re-exported name is an edge to the file that re-exports it (the
-//! longest prefix), and names a glob import brings into scope do not start paths.
+//! Why a child may use its ancestors: Rust makes a module and its children one unit (a child sees its parent's
+//! private items by design, and a parent's `pub use child::X` is the module's face), so a parent file and its
+//! own sub-module files are read together. Everything else is held to the rule: siblings, cousins, and any
+//! loop that leaves the module and comes back (motion.rs -> its child supervise.rs -> rig.rs -> motion.rs).
+//! The scan is lexical, not rustc's name resolution: names a glob import brings into scope do not start
+//! paths, and a glob re-export (`pub use a::*;`) is not followed.
 //!
 //! Inside: `lexer` (source to tokens, comments and literals gone), `scan` (one file's paths and child modules),
 //! `tree` (crates and their files' module paths), `graph` (resolution and the loops, Tarjan), `report`

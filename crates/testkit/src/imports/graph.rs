@@ -11,6 +11,9 @@ use super::tree::Root;
 /// path cannot make a file loop, since Cargo forbids dependency cycles between crates.
 pub(crate) type Unit = (usize, Root);
 
+/// Re-exports followed from one path before giving up (a chain longer than this is not code anyone writes).
+const MAX_REEXPORT_HOPS: usize = 16;
+
 /// One scanned source file.
 #[derive(Debug)]
 pub(crate) struct Node {
@@ -21,7 +24,7 @@ pub(crate) struct Node {
     pub scan: FileScan,
 }
 
-pub(crate) fn loops(nodes: &[Node]) -> Vec<Loop> {
+pub(crate) fn loops<'a>(nodes: &'a [Node]) -> Vec<Loop> {
     let tests = test_modules(nodes);
     let is_test =
         |n: &Node| (0..=n.module.len()).any(|k| tests.contains(&(n.unit.clone(), n.module[..k].to_vec())));
@@ -31,39 +34,86 @@ pub(crate) fn loops(nodes: &[Node]) -> Vec<Loop> {
         files.insert((&n.unit, &n.module[..]), i);
     }
 
+    let scope_of = |n: &'a Node| Scope {
+        module: &n.module,
+        children: n
+            .scan
+            .children
+            .iter()
+            .map(|c| (&c.inline[..], c.name.as_str()))
+            .collect(),
+        aliases: HashMap::new(),
+    };
+    let mut scopes: Vec<Scope<'_>> = nodes.iter().map(scope_of).collect();
+    for (i, n) in nodes.iter().enumerate().filter(|(i, _)| live[*i]) {
+        // First the modules that `use` brings into scope by name, so that paths through them resolve below.
+        for raw in &n.scan.paths {
+            if let (Some(alias), Some(abs)) = (&raw.alias, scopes[i].absolute(raw))
+                && files.contains_key(&(&n.unit, &abs[..]))
+            {
+                scopes[i].aliases.insert((&raw.inline[..], alias.as_str()), abs);
+            }
+        }
+    }
+    // What each file re-exports (`pub use`), by the path under which the name is seen from outside: a path
+    // through the re-exporting file to that name is followed on to where the name comes from.
+    let mut reexports: HashMap<(&Unit, Vec<String>), Vec<String>> = HashMap::new();
+    for (i, n) in nodes.iter().enumerate().filter(|(i, _)| live[*i]) {
+        for raw in n.scan.paths.iter().filter(|r| r.reexport) {
+            if let (Some(alias), Some(abs)) = (&raw.alias, scopes[i].absolute(raw)) {
+                let seen_as = n
+                    .module
+                    .iter()
+                    .chain(&raw.inline)
+                    .chain([alias])
+                    .cloned()
+                    .collect();
+                reexports.insert((&n.unit, seen_as), abs);
+            }
+        }
+    }
+
     let mut edges: BTreeMap<(usize, usize), BTreeSet<String>> = BTreeMap::new();
     for (i, n) in nodes.iter().enumerate().filter(|(i, _)| live[*i]) {
         let file_of = |abs: &[String]| files.get(&(&n.unit, abs)).copied();
-        let mut scope = Scope {
-            module: &n.module,
-            children: n
-                .scan
-                .children
-                .iter()
-                .map(|c| (&c.inline[..], c.name.as_str()))
-                .collect(),
-            aliases: HashMap::new(),
-        };
-        // First the modules that `use` brings into scope by name, so that paths through them resolve below.
         for raw in &n.scan.paths {
-            if let (Some(alias), Some(abs)) = (&raw.alias, scope.absolute(raw))
-                && file_of(&abs).is_some()
-            {
-                scope.aliases.insert((&raw.inline[..], alias.as_str()), abs);
-            }
-        }
-        for raw in &n.scan.paths {
-            let Some(abs) = scope.absolute(raw) else {
+            let Some(mut abs) = scopes[i].absolute(raw) else {
                 continue;
             };
-            // The longest prefix that is a file; the root file at worst (`crate::Foo` names lib.rs).
-            let Some((k, to)) = (0..=abs.len())
-                .rev()
-                .find_map(|k| file_of(&abs[..k]).map(|t| (k, t)))
-            else {
+            // The longest prefix that is a file; the root file at worst (`crate::Foo` names lib.rs). A name
+            // that file re-exports is followed to its source (a chain of re-exports, boundedly: a hostile
+            // or cyclic chain stops at the last file reached).
+            let mut hops = 0;
+            let (k, to) = loop {
+                let Some((k, to)) = (0..=abs.len())
+                    .rev()
+                    .find_map(|k| file_of(&abs[..k]).map(|t| (k, t)))
+                else {
+                    break (0, None);
+                };
+                let redirected = (k < abs.len() && hops < MAX_REEXPORT_HOPS)
+                    .then(|| reexports.get(&(&n.unit, abs[..=k].to_vec())))
+                    .flatten()
+                    .filter(|source| **source != abs[..=k]);
+                match redirected {
+                    Some(source) => {
+                        let mut next = source.clone();
+                        next.extend(abs[k + 1..].iter().cloned());
+                        abs = next;
+                        hops += 1;
+                    }
+                    None => break (k, Some(to)),
+                }
+            };
+            let Some(to) = to else {
                 continue;
             };
-            if to != i {
+            // A file's own enclosing modules are one unit with it (Rust shows a child its parent's private
+            // items by design): a path up into an ancestor (`super::X`, `crate::parent::X` defined there) is
+            // not an import between two files. Its parent's `use child::X` still is.
+            let up_into_ancestor =
+                nodes[to].module.len() < n.module.len() && n.module.starts_with(&nodes[to].module);
+            if to != i && !up_into_ancestor {
                 let name = abs.get(k).or(abs.last()).map_or("crate", String::as_str);
                 edges.entry((i, to)).or_default().insert(name.to_string());
             }

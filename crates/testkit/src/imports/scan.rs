@@ -14,6 +14,9 @@ pub(crate) struct RawPath {
     /// For a `use` leaf, the name it brings into scope (its last segment or its `as` name): when that is a
     /// module, later paths starting at the name go through it (`use crate::rig;` then `rig::sim_link::X`).
     pub alias: Option<String>,
+    /// A leaf of a `pub use` (any visibility): the name is re-exported, so a path through this file to it is
+    /// followed on to where it comes from (`crate::Rig` with `pub use rig::Rig;` in lib.rs names rig.rs).
+    pub reexport: bool,
 }
 
 /// `mod name;` (or an inline `mod name { }` when test-only), in the inline modules it sits in.
@@ -42,6 +45,8 @@ pub(crate) fn scan(t: &[Tok]) -> FileScan {
         i: 0,
         frames: Vec::new(),
         out: FileScan::default(),
+        pending_pub: false,
+        in_pub_use: false,
     };
     s.run();
     s.out
@@ -53,6 +58,10 @@ struct Scanner<'a> {
     /// One entry per open `{`: the module's name when it opened an inline `mod name {`.
     frames: Vec<Option<String>>,
     out: FileScan,
+    /// The last item keyword seen was a visibility (`pub`, `pub(crate)`, ...).
+    pending_pub: bool,
+    /// The `use` tree being read is a `pub use`.
+    in_pub_use: bool,
 }
 
 impl Scanner<'_> {
@@ -85,19 +94,38 @@ impl Scanner<'_> {
                 }
                 Tok::Ident(w) => match w.as_str() {
                     "use" => {
+                        self.in_pub_use = std::mem::take(&mut self.pending_pub);
                         self.i += 1;
                         self.use_tree(Vec::new(), 0);
+                        self.in_pub_use = false;
                     }
-                    "mod" => self.module(),
+                    "mod" => {
+                        self.pending_pub = false;
+                        self.module();
+                    }
                     // `pub(crate)`, `pub(in crate::a)`: a visibility bound names an ancestor, not an import.
                     "pub" if self.is(self.i + 1, &Tok::Punct('(')) => {
                         self.i += 1;
                         self.skip_balanced();
+                        self.pending_pub = true;
                     }
-                    _ if self.is(self.i + 1, &Tok::PathSep) && !self.continues_path() => self.inline_path(),
-                    _ => self.i += 1,
+                    "pub" => {
+                        self.i += 1;
+                        self.pending_pub = true;
+                    }
+                    _ if self.is(self.i + 1, &Tok::PathSep) && !self.continues_path() => {
+                        self.pending_pub = false;
+                        self.inline_path();
+                    }
+                    _ => {
+                        self.pending_pub = false;
+                        self.i += 1;
+                    }
                 },
-                _ => self.i += 1,
+                _ => {
+                    self.pending_pub = false;
+                    self.i += 1;
+                }
             }
         }
     }
@@ -289,6 +317,7 @@ impl Scanner<'_> {
                 inline: self.inline(),
                 segs,
                 alias,
+                reexport: self.in_pub_use,
             });
         }
     }
@@ -333,6 +362,7 @@ impl Scanner<'_> {
             inline: self.inline(),
             segs,
             alias: None,
+            reexport: false,
         });
     }
 }
