@@ -27,9 +27,10 @@
 use gonio_brdf::{Brdf, Direction, Material, Wavelength};
 use gonio_campaign::{AcquisitionSection, CampaignFile};
 use gonio_instrument::Instrument;
-use gonio_scheduler::adaptive::{Adaptive, AdaptiveSpec, Measured};
+use gonio_scheduler::adaptive::{Adaptive, Measured};
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
+use gonio_scheduler::plan::AdaptiveSpec;
 use gonio_scheduler::plan::{self, BuildContext, Plan, PlanSpec, SampleTraits};
 use gonio_scheduler::schedule;
 use gonio_scheduler::timing::TimeModel;

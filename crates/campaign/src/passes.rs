@@ -15,8 +15,9 @@
 //! Time budget: `budget_s` is compared with the predicted instrument time of the passes placed so far (the
 //! schedules' own predictions), not with a clock, so that the decision does not depend on when a resume happened.
 
-use gonio_scheduler::adaptive::{Adaptive, AdaptiveSpec, Measured, StopReason};
+use gonio_scheduler::adaptive::{Adaptive, Measured, StopReason};
 use gonio_scheduler::kinematics::Geometry;
+use gonio_scheduler::plan::AdaptiveSpec;
 use gonio_scheduler::plan::{self, BuildContext, Plan, PlanError, PlanSpec};
 use gonio_scheduler::schedule::{self, Schedule};
 use gonio_scheduler::timing::TimeModel;

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use gonio_campaign::{AcquisitionSection, CampaignFile, Sources, load_and_prepare};
 use gonio_instrument::InstrumentFile;
-use gonio_scheduler::adaptive::AdaptiveSpec;
+use gonio_scheduler::plan::AdaptiveSpec;
 use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec};
 
 fn campaigns_dir() -> PathBuf {

@@ -7,7 +7,7 @@
 //! csv, json and astm go to stdout unless `--out` names a file; merl needs `--out` (a binary file) and writes a
 //! material file beside it (`<stem>.material.toml`, `model = "measured"`) that `gonio brdf eval --material`
 //! and the simulator's `[material]` read; zemax needs `--out` and writes one file per band; rgl needs `--out`. Every format carries
-//! the run's provenance ([`gonio_results::provenance::summary`]), with the instrument and calibration facts
+//! the run's provenance ([`gonio_results::provenance_summary`]), with the instrument and calibration facts
 //! read here from the run's stored instrument and campaign texts ([`export_setup`]).
 
 use std::path::{Path, PathBuf};
@@ -16,7 +16,7 @@ use gonio_campaign::{self as campaign, Method, Range, Sources};
 use gonio_engine::store::{CampaignRecord, STORE_FILE, Store};
 use gonio_instrument::InstrumentFile;
 use gonio_results::export::{self, ExportContext};
-use gonio_results::provenance::{ExportSetup, provenance_lines};
+use gonio_results::provenance_summary::{ExportSetup, provenance_lines};
 use gonio_results::run::Run;
 use gonio_results::{astm, merl_export, rgl, zemax};
 use serde_json::{Value, json};

@@ -26,7 +26,7 @@ use std::fmt::Write as _;
 use gonio_brdf::radiometry::{aperture_half_angle_rad, aperture_solid_angle_sr};
 
 use crate::export::CONVENTIONS;
-use crate::provenance::{ExportSetup, provenance_lines};
+use crate::provenance_summary::{ExportSetup, provenance_lines};
 use crate::run::Run;
 
 /// The columns of the table, in order.

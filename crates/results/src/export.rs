@@ -7,14 +7,14 @@
 //! table directly. JSON: one object ([`FORMAT`] version [`FORMAT_VERSION`]) with `units`, `conventions`,
 //! `provenance` (run.json as written by the run), `resolved` and `points` (one object per point, missing
 //! values as `null`, read-backs as an object axis -> degrees). Both also carry the short provenance every export
-//! has ([`crate::provenance::summary`]): `# provenance.<key> = "<value>"` lines, a `provenance_summary` object.
+//! has ([`crate::provenance_summary`]): `# provenance.<key> = "<value>"` lines, a `provenance_summary` object.
 
 use std::fmt::Write as _;
 
 use serde_json::{Map, Value, json};
 
 use crate::points::{self, Point};
-use crate::provenance::{ExportSetup, provenance_lines};
+use crate::provenance_summary::{ExportSetup, provenance_lines};
 use crate::run::Run;
 
 /// The `format` field of the JSON export.

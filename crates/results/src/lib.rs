@@ -13,7 +13,7 @@
 //!   (isotropic data resampled onto the MERL grid, uncovered cells marked -1); [`zemax`]: the BSDF Data
 //!   Interchange text of Zemax OpticStudio (about the specular direction, TIS per incidence); [`astm`]: a BRDF
 //!   table after ASTM E1392 / E2387; [`rgl`]: the RGL tensor file of Mitsuba 3's and pbrt-v4's `measured`
-//!   BSDF. Every export carries [`provenance::summary`] (files named by their SHA-256, from the `sha2` crate).
+//!   BSDF. Every export carries [`provenance_summary`] (files named by their SHA-256, from the `sha2` crate).
 //! - [`fit`]: robust, cosine- and uncertainty-weighted least squares of an analytic model, with parameter
 //!   uncertainties, written as a material file.
 //! - [`plot`]: SVG plots (plotters): in-plane polar slices, (theta_o, phi_o) heat maps, measurement against model.
@@ -32,6 +32,7 @@ pub mod merl_export;
 pub mod plot;
 pub mod points;
 pub mod provenance;
+pub mod provenance_summary;
 pub mod rgl;
 pub mod run;
 pub mod zemax;

@@ -14,14 +14,12 @@
 //! run.json is unchanged).
 
 mod simulator_truth;
-pub mod summary;
 
 pub use simulator_truth::{
     AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord,
     GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth,
     SourceTruthRecord,
 };
-pub use summary::{ExportSetup, iso8601_utc, provenance_lines};
 
 use std::collections::BTreeMap;
 

@@ -35,7 +35,7 @@ use gonio_brdf::geometry::Direction;
 use crate::error::ResultsError;
 use crate::hemispherical::{Hemispherical, covered_value, directional_hemispherical};
 use crate::iso::{IsoGrid, IsoPoint, cluster};
-use crate::provenance::{ExportSetup, provenance_lines};
+use crate::provenance_summary::{ExportSetup, provenance_lines};
 use crate::run::{BAND_TOLERANCE_NM, Run};
 
 /// Step of the scatter azimuth grid, degrees (0 to 180 inclusive).

@@ -45,7 +45,8 @@ mod spec;
 pub use build::{BuildContext, build, build_from_geometries, calibration, geometry_kind_name, plan_bands};
 pub use grid::angle_list;
 pub use spec::{
-    Calibration, CalibrationSpec, GridKind, GridSpec, Plan, PlanSpec, PlannedGeometry, SampleTraits, Served,
+    AdaptiveSpec, Calibration, CalibrationSpec, GridKind, GridSpec, Plan, PlanSpec, PlannedGeometry,
+    SampleTraits, Served,
 };
 
 /// A plan that cannot be built; the message names the key.

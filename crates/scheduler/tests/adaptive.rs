@@ -8,9 +8,10 @@ use gonio_brdf::Brdf;
 use gonio_brdf::geometry::{Direction, half_vector};
 use gonio_brdf::material::Material;
 use gonio_brdf::spectrum::Wavelength;
-use gonio_scheduler::adaptive::{Adaptive, AdaptiveSpec, Measured};
+use gonio_scheduler::adaptive::{Adaptive, Measured};
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::Geometry;
+use gonio_scheduler::plan::AdaptiveSpec;
 use gonio_scheduler::plan::{BuildContext, SampleTraits};
 
 /// A narrow GGX-like lobe over a weak diffuse base, defined here (not from the models).

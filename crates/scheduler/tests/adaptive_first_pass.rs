@@ -5,8 +5,9 @@ mod common;
 
 use common::simulated;
 use gonio_instrument::Instrument;
-use gonio_scheduler::adaptive::{Adaptive, AdaptiveSpec, MAX_FIRST_PASS_INCIDENCES};
+use gonio_scheduler::adaptive::{Adaptive, MAX_FIRST_PASS_INCIDENCES};
 use gonio_scheduler::kinematics::Geometry;
+use gonio_scheduler::plan::AdaptiveSpec;
 use gonio_scheduler::plan::{BuildContext, PlanError, SampleTraits};
 
 fn ctx(inst: &Instrument) -> BuildContext<'_> {

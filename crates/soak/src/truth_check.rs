@@ -190,9 +190,7 @@ pub fn check_points(points: &[PointRecord], tol: &Tolerance) -> PointCheck {
         };
         match (failed, p.brdf_sr, p.brdf_u_sr, p.truth_aperture_sr) {
             (Some(reason), None, _, _) => {
-                *c.failed
-                    .entry(crate::fault_soak::reason_class(reason))
-                    .or_default() += 1;
+                *c.failed.entry(reason_class(reason)).or_default() += 1;
             }
             (None, None, _, _) if !p.flags.is_empty() => {
                 for f in &p.flags {
@@ -344,6 +342,34 @@ pub fn angle_deg(theta_a_deg: f64, phi_a_deg: f64, theta_b_deg: f64, phi_b_deg: 
     ];
     let sin = (cross[0].powi(2) + cross[1].powi(2) + cross[2].powi(2)).sqrt();
     sin.atan2(dot).to_degrees()
+}
+
+/// A failure reason without its numbers, so that reasons of one kind count together.
+pub(crate) fn reason_class(reason: &str) -> String {
+    let mut out = String::new();
+    let mut in_number = false;
+    let mut chars = reason.chars().peekable();
+    while let Some(ch) = chars.next() {
+        let signed = matches!(ch, '-' | '+') && chars.peek().is_some_and(char::is_ascii_digit);
+        if ch.is_ascii_digit() || signed || (in_number && matches!(ch, '.' | 'e' | '-' | '+')) {
+            if !in_number {
+                out.push('#');
+            }
+            in_number = true;
+        } else {
+            in_number = false;
+            out.push(ch);
+        }
+    }
+    if out.len() > 160 {
+        let mut cut = 160;
+        while !out.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        out.truncate(cut);
+        out.push('…');
+    }
+    out
 }
 
 #[cfg(test)]

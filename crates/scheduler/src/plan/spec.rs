@@ -5,7 +5,6 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use super::PlanError;
-use crate::adaptive::AdaptiveSpec;
 use crate::constraints::Reason;
 use crate::kinematics::{Geometry, Pose};
 
@@ -226,4 +225,57 @@ impl Plan {
     pub fn skipped_total(&self) -> usize {
         self.skipped.values().sum()
     }
+}
+
+/// `[plan.adaptive]`.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct AdaptiveSpec {
+    /// Points to measure in all (first pass included).
+    pub budget_points: u32,
+    /// Instrument time after which to stop (s); none by default.
+    #[serde(default)]
+    pub budget_s: Option<f64>,
+    /// Points per batch after the first pass.
+    #[serde(default = "default_batch")]
+    pub batch_points: u32,
+    /// Stop when the largest local error estimate is below this (ln(1 + f) units).
+    #[serde(default = "default_target")]
+    pub target_error: f64,
+    #[serde(default = "default_first_step")]
+    pub first_pass_step_deg: f64,
+    /// Incidence angles of the first pass; default [0, 30, 60].
+    #[serde(default)]
+    pub first_pass_theta_i_deg: Option<toml::Value>,
+    /// Candidate grid step in theta (delta_phi uses twice this).
+    #[serde(default = "default_resolution")]
+    pub resolution_deg: f64,
+}
+
+impl AdaptiveSpec {
+    /// A budget of `budget_points` points with every other setting at its default.
+    pub fn with_budget(budget_points: u32) -> AdaptiveSpec {
+        AdaptiveSpec {
+            budget_points,
+            budget_s: None,
+            batch_points: default_batch(),
+            target_error: default_target(),
+            first_pass_step_deg: default_first_step(),
+            first_pass_theta_i_deg: None,
+            resolution_deg: default_resolution(),
+        }
+    }
+}
+
+fn default_batch() -> u32 {
+    40
+}
+fn default_target() -> f64 {
+    0.02
+}
+fn default_first_step() -> f64 {
+    10.0
+}
+fn default_resolution() -> f64 {
+    2.5
 }

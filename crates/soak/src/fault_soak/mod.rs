@@ -101,34 +101,6 @@ impl FaultSoakConfig {
     }
 }
 
-/// A failure reason without its numbers, so that reasons of one kind count together.
-pub(crate) fn reason_class(reason: &str) -> String {
-    let mut out = String::new();
-    let mut in_number = false;
-    let mut chars = reason.chars().peekable();
-    while let Some(ch) = chars.next() {
-        let signed = matches!(ch, '-' | '+') && chars.peek().is_some_and(char::is_ascii_digit);
-        if ch.is_ascii_digit() || signed || (in_number && matches!(ch, '.' | 'e' | '-' | '+')) {
-            if !in_number {
-                out.push('#');
-            }
-            in_number = true;
-        } else {
-            in_number = false;
-            out.push(ch);
-        }
-    }
-    if out.len() > 160 {
-        let mut cut = 160;
-        while !out.is_char_boundary(cut) {
-            cut -= 1;
-        }
-        out.truncate(cut);
-        out.push('…');
-    }
-    out
-}
-
 /// The kind of a device error, from its message (the driver error's `Display`, which the engine forwards).
 pub fn error_class(message: &str) -> &'static str {
     if message.contains("no reply to") || message.contains("did not answer") {
