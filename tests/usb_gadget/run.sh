@@ -7,9 +7,12 @@
 # unplugs the gadget, halts an endpoint and delays a reply. See README.md ("USB tier") for what it establishes.
 #
 # Run alone:  cargo build -p gonio && GONIO=target/debug/gonio tests/usb_gadget/run.sh
+# Clean up:   tests/usb_gadget/run.sh clean   (removes the cache below; .ci/run does this after the tier)
 # Needs root (apt-get installs qemu-system-x86 and busybox-static, and downloads a linux-image package from Debian's
-# archive into GONIO_USB_TIER_CACHE, default /var/tmp/gonio-usb-tier). Prints SKIPPED with the reason when it
-# cannot run. GONIO_USB_TIER_ACCEL=kvm|tcg|auto (default auto: KVM when it can boot a stock kernel, else TCG).
+# archive). The unpacked kernel package and the guest's console log (about 400 MB) are cached in
+# GONIO_USB_TIER_CACHE, default /var/tmp/gonio-usb-tier, so that a second run downloads nothing; the run says where
+# and how large it is. Prints SKIPPED with the reason when it cannot run.
+# GONIO_USB_TIER_ACCEL=kvm|tcg|auto (default auto: KVM when it can boot a stock kernel, else TCG).
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 repo=$(cd "$here/../.." && pwd)
@@ -17,6 +20,17 @@ GONIO=${GONIO:-${CARGO_TARGET_DIR:-$repo/target}/debug/gonio}
 cache=${GONIO_USB_TIER_CACHE:-/var/tmp/gonio-usb-tier}
 accel=${GONIO_USB_TIER_ACCEL:-auto}
 start=$(date +%s)
+
+if [ "${1:-}" = clean ]; then
+    if [ -d "$cache" ]; then
+        echo "removing the USB tier's cache $cache ($(du -sh "$cache" 2>/dev/null | cut -f1))"
+        rm -rf "$cache"
+    else
+        echo "no USB tier cache at $cache"
+    fi
+    exit 0
+fi
+[ $# -eq 0 ] || { echo "usage: $0 [clean]" >&2; exit 2; }
 
 skip() {
     echo "SKIPPED: $*"
@@ -157,3 +171,4 @@ if ! grep -aq '^tier: PASS' "$log"; then
     fail "the USB tier did not pass (guest ran $((end - boot)) s; whole console in $log)"
 fi
 echo "USB tier passed: guest $((end - boot)) s, whole tier $((end - start)) s (console with the driver's and kernel's USB lines: $log)"
+echo "cache: $cache holds $(du -sh "$cache" 2>/dev/null | cut -f1) (GONIO_USB_TIER_CACHE; '$0 clean' removes it)"

@@ -159,11 +159,13 @@ pub fn resolved_config(run: &Run, base_dir: &Path) -> Option<Value> {
         Err(e) => return Some(json!({ "error": e.to_string() })),
     };
     let sources = sources_for(campaign_toml, base_dir);
-    let prepared = match campaign::load_and_prepare(campaign_toml, "<run's campaign file>", &sources, &file) {
-        Ok(p) => p,
+    // Parsed, not prepared: the plan's size and the time model's prediction are the run record's, computed once
+    // when the run was recorded, not planned and ordered again here.
+    let c = match campaign::load(campaign_toml, "<run's campaign file>", &sources, &file) {
+        Ok(c) => c,
         Err(e) => return Some(json!({ "error": e.to_string() })),
     };
-    let c = &prepared.campaign;
+    let record = run.provenance.as_ref()?;
     let spec = |m: &gonio_brdf::Material| serde_json::to_value(m.spec()).unwrap_or(Value::Null);
     Some(json!({
         "campaign_id": c.id,
@@ -171,8 +173,8 @@ pub fn resolved_config(run: &Run, base_dir: &Path) -> Option<Value> {
         "instrument": file.instrument.name,
         "sample_radius_mm": c.sample_radius_mm,
         "dry_run": c.dry_run,
-        "total_points": prepared.total_points(),
-        "predicted_instrument_s": prepared.predicted_s(),
+        "total_points": record.campaign.total_points,
+        "predicted_instrument_s": record.timing.predicted_instrument_s,
         "material": c.material.as_ref().map(spec),
         "calibration": {
             "method": match c.calibration.method { Method::Absolute => "absolute", Method::Relative => "relative" },

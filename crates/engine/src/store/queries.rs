@@ -1,7 +1,9 @@
 //! Reading and writing campaigns, their states, devices, calibrations and points: one statement (or one
 //! transaction) per call, at the durability the campaign needs.
 
-use rusqlite::{OptionalExtension, params};
+use rusqlite::{OptionalExtension, named_params, params};
+
+use super::schema::{INSERT_POINT, SELECT_POINTS_FROM};
 
 use super::{
     CalibrationRecord, CampaignId, CampaignRecord, CampaignState, NewCampaign, PointRecord, PointValue,
@@ -252,33 +254,27 @@ impl Store {
         let flags = p.flags.join(";");
         self.durability_for_write(Some(id))?;
         // Prepared once per connection (SQLite's parse and plan cost as much as the insert itself).
-        let result = self.conn.prepare_cached(
-            "INSERT INTO points (campaign_id, idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg,
-             signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json, truth_point_sr,
-             truth_aperture_sr, truth_effects_json)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18)",
-        );
-        let result = result.and_then(|mut st| {
-            st.execute(params![
-                id.0,
-                to_i64(p.index),
-                p.band_nm,
-                p.theta_i_deg,
-                p.phi_i_deg,
-                p.theta_o_deg,
-                p.phi_o_deg,
-                p.signal_w,
-                p.dark_w,
-                p.incident_w,
-                p.brdf_sr,
-                p.brdf_u_sr,
-                flags,
-                p.t_s,
-                readback,
-                p.truth_point_sr,
-                p.truth_aperture_sr,
-                p.truth_effects_json
-            ])
+        let result = self.conn.prepare_cached(&INSERT_POINT).and_then(|mut st| {
+            st.execute(named_params! {
+                ":campaign_id": id.0,
+                ":idx": to_i64(p.index),
+                ":band_nm": p.band_nm,
+                ":theta_i_deg": p.theta_i_deg,
+                ":phi_i_deg": p.phi_i_deg,
+                ":theta_o_deg": p.theta_o_deg,
+                ":phi_o_deg": p.phi_o_deg,
+                ":signal_w": p.signal_w,
+                ":dark_w": p.dark_w,
+                ":incident_w": p.incident_w,
+                ":brdf_sr": p.brdf_sr,
+                ":brdf_u_sr": p.brdf_u_sr,
+                ":flags": flags,
+                ":t_s": p.t_s,
+                ":readback_json": readback,
+                ":truth_point_sr": p.truth_point_sr,
+                ":truth_aperture_sr": p.truth_aperture_sr,
+                ":truth_effects_json": p.truth_effects_json,
+            })
         });
         match result {
             Ok(_) => Ok(()),
@@ -323,14 +319,7 @@ impl Store {
 
     /// Committed points with index >= `from`, in index order.
     pub fn points_from(&self, id: CampaignId, from: u64) -> Result<Vec<PointRecord>, StoreError> {
-        let mut stmt = self
-            .conn
-            .prepare(
-                "SELECT idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg, signal_w, dark_w,
-                 incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json, truth_point_sr, truth_aperture_sr,
-                 truth_effects_json FROM points WHERE campaign_id = ?1 AND idx >= ?2 ORDER BY idx",
-            )
-            .map_err(self.read_err())?;
+        let mut stmt = self.conn.prepare(&SELECT_POINTS_FROM).map_err(self.read_err())?;
         let rows = stmt
             .query_map(params![id.0, to_i64(from)], point_from_row)
             .map_err(self.read_err())?;
@@ -421,9 +410,10 @@ fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignR
     }))
 }
 
+/// One row of [`SELECT_POINTS_FROM`], each column by its name in the schema's list.
 fn point_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<PointRecord, StoreError>> {
-    let flags: String = r.get(11)?;
-    let readback: String = r.get(13)?;
+    let flags: String = r.get("flags")?;
+    let readback: String = r.get("readback_json")?;
     let readback_deg = match serde_json::from_str(&readback) {
         Ok(v) => v,
         Err(e) => {
@@ -433,28 +423,28 @@ fn point_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<PointRecord,
         }
     };
     Ok(Ok(PointRecord {
-        index: from_i64(r.get(0)?),
-        band_nm: r.get(1)?,
-        theta_i_deg: r.get(2)?,
-        phi_i_deg: r.get(3)?,
-        theta_o_deg: r.get(4)?,
-        phi_o_deg: r.get(5)?,
+        index: from_i64(r.get("idx")?),
+        band_nm: r.get("band_nm")?,
+        theta_i_deg: r.get("theta_i_deg")?,
+        phi_i_deg: r.get("phi_i_deg")?,
+        theta_o_deg: r.get("theta_o_deg")?,
+        phi_o_deg: r.get("phi_o_deg")?,
         // NULL: no reading (a failed point), stored from NaN.
-        signal_w: r.get::<_, Option<f64>>(6)?.unwrap_or(f64::NAN),
-        dark_w: r.get::<_, Option<f64>>(7)?.unwrap_or(f64::NAN),
-        incident_w: r.get::<_, Option<f64>>(8)?.unwrap_or(f64::NAN),
-        brdf_sr: r.get(9)?,
-        brdf_u_sr: r.get(10)?,
+        signal_w: r.get::<_, Option<f64>>("signal_w")?.unwrap_or(f64::NAN),
+        dark_w: r.get::<_, Option<f64>>("dark_w")?.unwrap_or(f64::NAN),
+        incident_w: r.get::<_, Option<f64>>("incident_w")?.unwrap_or(f64::NAN),
+        brdf_sr: r.get("brdf_sr")?,
+        brdf_u_sr: r.get("brdf_u_sr")?,
         flags: if flags.is_empty() {
             Vec::new()
         } else {
             flags.split(';').map(str::to_string).collect()
         },
-        t_s: r.get(12)?,
+        t_s: r.get("t_s")?,
         readback_deg,
-        truth_point_sr: r.get(14)?,
-        truth_aperture_sr: r.get(15)?,
-        truth_effects_json: r.get(16)?,
+        truth_point_sr: r.get("truth_point_sr")?,
+        truth_aperture_sr: r.get("truth_aperture_sr")?,
+        truth_effects_json: r.get("truth_effects_json")?,
     }))
 }
 

@@ -3,34 +3,68 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::LazyLock;
 use std::time::Duration;
 
 use rusqlite::{Connection, OptionalExtension};
 
 use super::{CampaignId, Durability, SCHEMA_VERSION, STORE_FILE, Store, StoreError};
 
-/// The points table's columns: one definition for a new store and for the rebuild of a version-1 one.
-const POINTS_COLUMNS: &str = "
-                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
-                idx INTEGER NOT NULL,
-                band_nm REAL NOT NULL,
-                theta_i_deg REAL NOT NULL,
-                phi_i_deg REAL NOT NULL,
-                theta_o_deg REAL NOT NULL,
-                phi_o_deg REAL NOT NULL,
-                signal_w REAL,
-                dark_w REAL,
-                incident_w REAL,
-                brdf_sr REAL,
-                brdf_u_sr REAL,
-                flags TEXT NOT NULL,
-                t_s REAL NOT NULL,
-                readback_json TEXT NOT NULL,
-                truth_point_sr REAL,
-                truth_aperture_sr REAL,
-                truth_effects_json TEXT,
-                PRIMARY KEY (campaign_id, idx)
-";
+/// The points table, one column a line (name, declaration): the one definition of its schema. A new store's
+/// table, the rebuild of a version-1 one, the insert and the select are all written from this list, and the
+/// insert binds and the reader reads each column by its name.
+const POINT_COLUMNS: &[(&str, &str)] = &[
+    ("campaign_id", "INTEGER NOT NULL REFERENCES campaigns(id)"),
+    ("idx", "INTEGER NOT NULL"),
+    ("band_nm", "REAL NOT NULL"),
+    ("theta_i_deg", "REAL NOT NULL"),
+    ("phi_i_deg", "REAL NOT NULL"),
+    ("theta_o_deg", "REAL NOT NULL"),
+    ("phi_o_deg", "REAL NOT NULL"),
+    // NULL: no reading (a failed point), stored from NaN.
+    ("signal_w", "REAL"),
+    ("dark_w", "REAL"),
+    ("incident_w", "REAL"),
+    ("brdf_sr", "REAL"),
+    ("brdf_u_sr", "REAL"),
+    ("flags", "TEXT NOT NULL"),
+    ("t_s", "REAL NOT NULL"),
+    ("readback_json", "TEXT NOT NULL"),
+    ("truth_point_sr", "REAL"),
+    ("truth_aperture_sr", "REAL"),
+    ("truth_effects_json", "TEXT"),
+];
+
+/// The points table's body for `CREATE TABLE points (...)`.
+fn points_table_body() -> String {
+    let mut lines: Vec<String> = POINT_COLUMNS
+        .iter()
+        .map(|(name, decl)| format!("                {name} {decl}"))
+        .collect();
+    lines.push("                PRIMARY KEY (campaign_id, idx)".to_string());
+    format!("\n{}\n", lines.join(",\n"))
+}
+
+/// `INSERT INTO points` of every column, each bound by name (`:band_nm`).
+pub(super) static INSERT_POINT: LazyLock<String> = LazyLock::new(|| {
+    let names: Vec<&str> = POINT_COLUMNS.iter().map(|(n, _)| *n).collect();
+    let values: Vec<String> = names.iter().map(|n| format!(":{n}")).collect();
+    format!(
+        "INSERT INTO points ({}) VALUES ({})",
+        names.join(", "),
+        values.join(", ")
+    )
+});
+
+/// Every column of a campaign's points from an index on (`?1` the campaign, `?2` the first index), in index
+/// order; read by name.
+pub(super) static SELECT_POINTS_FROM: LazyLock<String> = LazyLock::new(|| {
+    let names: Vec<&str> = POINT_COLUMNS.iter().map(|(n, _)| *n).collect();
+    format!(
+        "SELECT {} FROM points WHERE campaign_id = ?1 AND idx >= ?2 ORDER BY idx",
+        names.join(", ")
+    )
+});
 
 impl Store {
     /// Open (creating if needed) the store in a data directory.
@@ -132,9 +166,10 @@ impl Store {
     /// SQLite cannot drop a NOT NULL constraint in place: rebuild the table, keeping every row (with no
     /// attribution: version 1 had none). This goes straight to the current version.
     fn migrate_v1(&mut self) -> Result<(), StoreError> {
+        let body = points_table_body();
         let sql = format!(
             "BEGIN;
-            CREATE TABLE points_v2 ({POINTS_COLUMNS});
+            CREATE TABLE points_v2 ({body});
             INSERT INTO points_v2 SELECT *, NULL FROM points;
             DROP TABLE points;
             ALTER TABLE points_v2 RENAME TO points;
@@ -179,6 +214,7 @@ impl Store {
                 expected: SCHEMA_VERSION,
             });
         }
+        let points = points_table_body();
         let schema = format!(
             "BEGIN;
             CREATE TABLE campaigns (
@@ -210,7 +246,7 @@ impl Store {
                 u_w REAL NOT NULL,
                 PRIMARY KEY (campaign_id, seq)
             );
-            CREATE TABLE points ({POINTS_COLUMNS});
+            CREATE TABLE points ({points});
             PRAGMA user_version = {SCHEMA_VERSION};
             COMMIT;"
         );
