@@ -10,6 +10,8 @@
 //! - `POST /api/estop` -> 200
 //! - `GET /api/events` -> server-sent events, one per engine event, `data` the JSON of
 //!   [`Event`](gonio_engine::control::Event) with its `type`
+//! - `/api/console/...`: the console (state, move, jog, home, filter, read, a live reading stream), see
+//!   [`console`]
 //! - `GET /` and `/assets/*`: the live status page ([`crate::status_page`]), the only routes without the token
 //!
 //! Safety of the service itself:
@@ -31,6 +33,7 @@
 //! routes; `server` the accept loop and the daemon's life; `connections` and `origin` the policing above.
 
 mod connections;
+mod console;
 mod handlers;
 mod origin;
 mod server;
@@ -39,6 +42,9 @@ pub use connections::ConnectionLimits;
 pub use origin::HostPolicy;
 pub use server::{run_daemon, serve, serve_with};
 
+use console::{
+    console_filter, console_home, console_jog, console_move, console_read, console_readings, console_state,
+};
 use handlers::{action, estop, events, list, method_not_allowed, not_found, points_csv, show, submit};
 
 use std::net::SocketAddr;
@@ -68,6 +74,8 @@ pub const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(10);
 pub const BODY_READ_TIMEOUT: Duration = Duration::from_secs(20);
 /// A response write blocked this long (the client stopped reading) ends the connection.
 pub const WRITE_TIMEOUT: Duration = Duration::from_secs(20);
+/// Time a console move, jog or homing may take before its request answers 408 (the motion goes on).
+pub const CONSOLE_MOTION_TIMEOUT: Duration = Duration::from_secs(600);
 /// Event streams open at most (each holds a connection for as long as its client listens).
 pub const MAX_EVENT_STREAMS: usize = 64;
 /// Request header naming the submitted file, used in validation messages.
@@ -222,11 +230,22 @@ pub fn router(service: Service, config: &ApiConfig, shutdown: Shutdown) -> Route
         .route("/api/campaigns/{id}/points.csv", get(points_csv))
         .route("/api/campaigns/{id}/{action}", post(action))
         .route("/api/estop", post(estop))
+        .route("/api/console/state", get(console_state))
+        .route("/api/console/filter", post(console_filter))
+        .route("/api/console/read", get(console_read))
         .layer(middleware::from_fn_with_state(state.clone(), request_deadline));
+    // A console move or homing takes as long as the instrument needs (every device wait has its own deadline).
+    let motion = Router::new()
+        .route("/api/console/move", post(console_move))
+        .route("/api/console/jog", post(console_jog))
+        .route("/api/console/home", post(console_home))
+        .layer(middleware::from_fn_with_state(state.clone(), motion_deadline));
     // The event stream lives as long as the client listens: no request timeout on it.
     Router::new()
         .route("/api/events", get(events))
+        .route("/api/console/readings", get(console_readings))
         .merge(timed)
+        .merge(motion)
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(middleware::from_fn_with_state(state.clone(), require_token))
@@ -308,6 +327,22 @@ async fn require_token(State(state): State<AppState>, request: Request, next: Ne
 fn bearer_token(value: &[u8]) -> Option<&[u8]> {
     let (scheme, token) = value.split_at_checked(7)?;
     scheme.eq_ignore_ascii_case(b"bearer ").then_some(token)
+}
+
+/// Console motion requests end within [`CONSOLE_MOTION_TIMEOUT`], with a JSON 408 past it (the move itself
+/// completes: it runs in its own task).
+async fn motion_deadline(request: Request, next: Next) -> Response {
+    match tokio::time::timeout(CONSOLE_MOTION_TIMEOUT, next.run(request)).await {
+        Ok(response) => response,
+        Err(_) => ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            format!(
+                "the console move took longer than {} s; it goes on: ask for the state",
+                CONSOLE_MOTION_TIMEOUT.as_secs_f64()
+            ),
+        )
+        .into_response(),
+    }
 }
 
 /// Requests (other than the event stream) end within the request timeout, with a JSON 408 past it.

@@ -18,16 +18,22 @@
 //! - One owner at a time: a person may take the instrument from the queue between campaigns
 //!   ([`Service::take_instrument`], `ownership`); the queue starts nothing until it is handed back.
 //!
+//! - The console ([`Service::console`], `console`): a person's moves, homing, wheel and meter readings, each
+//!   taking the instrument for its duration under the same rule.
+//!
 //! Parts: this file holds the types, the shared state and construction; `requests` the API's requests;
+//! `console` the console's;
 //! `queue` the queue loop and shutdown of the running campaign; `ownership` the instrument's one owner; `shutdown` the signal; `engine_runner` the
 //! runner that drives the real engine.
 
+mod console;
 mod engine_runner;
 mod ownership;
 mod queue;
 mod requests;
 mod shutdown;
 
+pub use console::{CONSOLE_RETRIES, ConsoleAction, MAX_CONSOLE_READINGS};
 pub use engine_runner::EngineRunner;
 pub use ownership::InstrumentLease;
 pub use shutdown::{Shutdown, ShutdownTrigger};
@@ -171,6 +177,8 @@ struct Shared {
     run: Mutex<RunState>,
     /// Wakes the queue loop when a campaign becomes runnable.
     wake: Notify,
+    /// Console actions, one at a time (`console`).
+    console: tokio::sync::Mutex<()>,
     shutdown_grace: Duration,
 }
 
@@ -216,6 +224,7 @@ impl Service {
                     ..RunState::default()
                 }),
                 wake: Notify::new(),
+                console: tokio::sync::Mutex::new(()),
                 shutdown_grace: DEFAULT_SHUTDOWN_GRACE,
             }),
         })

@@ -8,6 +8,8 @@
 //! - [`control`]: the seam to whoever drives a run: [`control::Control`] requests in, [`control::Event`]s out.
 //! - [`motion`]: the axes and the supervision of every device, without a campaign or a store (safe multi-axis
 //!   moves, homing, retries and reconnection); a campaign and a person at a console drive the same layer.
+//! - [`console`]: a person's hands on the instrument (state, safe moves by axis or geometry, jog, homing, the
+//!   wheel, meter readings), on `motion`.
 //! - [`acquisition`]: the meter's configuration, one reading with its uncertainty, the measurement equation as a
 //!   pure function.
 //! - [`calibration`]: darks and normalisation readings per band, the source's drift extrapolated in time.
@@ -21,6 +23,7 @@
 
 pub mod acquisition;
 pub mod calibration;
+pub mod console;
 pub mod control;
 pub mod error;
 pub mod export;

@@ -3,23 +3,21 @@
 //! A small HTTP/1.1 client on hyper (already in the binary through the daemon's server): one connection per
 //! request, a deadline on every call, and the server's `{"error": ...}` message as the command's error.
 
+mod client;
+mod console;
+
 use std::io::Write as _;
 use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::{Args, Subcommand};
-use http_body_util::{BodyExt, Full};
-use hyper::body::{Bytes, Incoming};
-use hyper::{Method, Request, Response, StatusCode, header};
-use hyper_util::rt::TokioIo;
+use http_body_util::BodyExt;
+use hyper::Method;
 use serde_json::Value;
 
 use crate::CliError;
+use client::{Client, collect, parse_sse_data, server_error};
 
-/// Deadline to connect to the daemon.
-const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
-/// Deadline for a whole request/response (everything but `watch`).
-const CALL_TIMEOUT: Duration = Duration::from_secs(60);
 /// `watch` gives up when the stream is silent this long (the daemon sends a keep-alive every 15 s).
 const WATCH_IDLE_TIMEOUT: Duration = Duration::from_secs(60);
 
@@ -59,6 +57,42 @@ pub enum CtlCommand {
         /// Write here instead of standard output.
         #[arg(long)]
         out: Option<PathBuf>,
+    },
+    /// Console: every axis's position and state, the wheel, the meter, each device's identity and health.
+    State {
+        /// Print the daemon's JSON (one object; `axes` a list with `name` and `position_deg`).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Console: move axes to physical angles in one safe move (`detector=40 tilt=2`), or to the pose that
+    /// measures a geometry (`--geometry 30,0,30,180`: theta_i, phi_i, theta_o, phi_o in degrees).
+    Move {
+        /// AXIS=DEG ...
+        #[arg(allow_hyphen_values = true)]
+        targets: Vec<String>,
+        #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+        geometry: Option<Vec<f64>>,
+    },
+    /// Console: move one axis by DELTA degrees.
+    Jog {
+        axis: String,
+        #[arg(allow_hyphen_values = true)]
+        delta_deg: f64,
+    },
+    /// Console: home one axis, or every axis (never sweeping an arm through the other).
+    Home { axis: Option<String> },
+    /// Console: turn the filter wheel to a position (`3`) or a band (`550nm`).
+    Filter { filter: String },
+    /// Console: meter readings with their time, pose, band and range.
+    Read {
+        #[arg(long, default_value_t = 1)]
+        count: usize,
+        /// Follow the daemon's live reading stream (until COUNT readings have come).
+        #[arg(long)]
+        stream: bool,
+        /// Time between streamed readings (ms).
+        #[arg(long, default_value_t = 250)]
+        interval_ms: u64,
     },
 }
 
@@ -116,6 +150,18 @@ async fn execute(client: &Client, command: CtlCommand) -> Result<(), CliError> {
             println!("emergency stop sent: the instrument is halted and queued campaigns are paused");
         }
         CtlCommand::Watch { id } => watch(client, id).await?,
+        CtlCommand::State { json } => console::state(client, json).await?,
+        CtlCommand::Move { targets, geometry } => {
+            console::move_axes(client, &targets, geometry.as_deref()).await?
+        }
+        CtlCommand::Jog { axis, delta_deg } => console::jog(client, &axis, delta_deg).await?,
+        CtlCommand::Home { axis } => console::home(client, axis.as_deref()).await?,
+        CtlCommand::Filter { filter } => console::filter(client, &filter).await?,
+        CtlCommand::Read {
+            count,
+            stream,
+            interval_ms,
+        } => console::read(client, count, stream, interval_ms).await?,
         CtlCommand::Points { id, out } => {
             let csv = client.text(&format!("/api/campaigns/{id}/points.csv")).await?;
             match out {
@@ -257,19 +303,6 @@ async fn watch(client: &Client, id: Option<i64>) -> Result<(), CliError> {
     }
 }
 
-/// The JSON in an SSE block's `data:` lines (none for comments and keep-alives).
-fn parse_sse_data(block: &str) -> Option<Value> {
-    let data: Vec<&str> = block
-        .lines()
-        .filter_map(|l| l.strip_prefix("data:"))
-        .map(|d| d.strip_prefix(' ').unwrap_or(d))
-        .collect();
-    if data.is_empty() {
-        return None;
-    }
-    serde_json::from_str(&data.join("\n")).ok()
-}
-
 /// Print one event (when it concerns the watched campaign); `Some` ends the watch with that result.
 fn print_event(event: &Value, watched: Option<i64>) -> Option<Result<(), CliError>> {
     let campaign = event.get("campaign").and_then(Value::as_i64);
@@ -329,155 +362,6 @@ fn final_outcome(id: i64, state: &str) -> Option<Result<(), CliError>> {
 
 fn bad_reply(what: &str, body: &Value) -> CliError {
     CliError::input(format!("unexpected reply from the daemon ({what}): {body}"))
-}
-
-fn server_error(status: StatusCode, body: &Bytes) -> CliError {
-    let message = serde_json::from_slice::<Value>(body)
-        .ok()
-        .and_then(|v| v.get("error").and_then(Value::as_str).map(str::to_string))
-        .unwrap_or_else(|| String::from_utf8_lossy(body).trim().to_string());
-    if message.is_empty() {
-        CliError::input(format!("the daemon answered {status}"))
-    } else {
-        CliError::input(format!("the daemon answered {status}: {message}"))
-    }
-}
-
-async fn collect(response: Response<Incoming>) -> Result<Bytes, CliError> {
-    response
-        .into_body()
-        .collect()
-        .await
-        .map(|c| c.to_bytes())
-        .map_err(|e| CliError::input(format!("cannot read the daemon's reply: {e}")))
-}
-
-/// The daemon's address and token.
-#[derive(Debug)]
-struct Client {
-    /// `host:port`.
-    authority: String,
-    token: Option<String>,
-}
-
-impl Client {
-    fn new(url: &str, token: Option<String>) -> Result<Client, CliError> {
-        let rest = url.strip_prefix("http://").ok_or_else(|| {
-            CliError::input(format!(
-                "--url {url:?}: expected http://HOST:PORT (the daemon speaks plain HTTP)"
-            ))
-        })?;
-        let authority = rest.trim_end_matches('/');
-        if authority.is_empty() || authority.contains('/') {
-            return Err(CliError::input(format!(
-                "--url {url:?}: expected http://HOST:PORT with no path"
-            )));
-        }
-        let authority = if authority
-            .rsplit_once(':')
-            .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
-        {
-            authority.to_string()
-        } else {
-            format!("{authority}:80")
-        };
-        Ok(Client { authority, token })
-    }
-
-    /// Send one request on a new connection and return the response head (the body still streaming).
-    async fn send(
-        &self,
-        method: Method,
-        path: &str,
-        body: Option<(Vec<u8>, &str, String)>,
-    ) -> Result<Response<Incoming>, CliError> {
-        let unreachable =
-            |e: std::io::Error| CliError::io(format!("cannot reach the daemon at {}", self.authority), e);
-        let stream = tokio::time::timeout(CONNECT_TIMEOUT, tokio::net::TcpStream::connect(&self.authority))
-            .await
-            .map_err(|_| {
-                unreachable(std::io::Error::new(
-                    std::io::ErrorKind::TimedOut,
-                    "connect timed out",
-                ))
-            })?
-            .map_err(unreachable)?;
-        let (mut sender, conn) = hyper::client::conn::http1::handshake(TokioIo::new(stream))
-            .await
-            .map_err(|e| CliError::input(format!("HTTP handshake with {} failed: {e}", self.authority)))?;
-        tokio::spawn(async move {
-            if let Err(e) = conn.await {
-                tracing::debug!("connection to the daemon ended: {e}");
-            }
-        });
-        let mut request = Request::builder()
-            .method(method)
-            .uri(path)
-            .header(header::HOST, &self.authority);
-        if let Some(token) = &self.token {
-            request = request.header(header::AUTHORIZATION, format!("Bearer {token}"));
-        }
-        let payload = match body {
-            Some((bytes, content_type, origin)) => {
-                request = request.header(header::CONTENT_TYPE, content_type);
-                if origin.len() <= 256 && !origin.chars().any(char::is_control) {
-                    request = request.header(gonio_daemon::api::ORIGIN_HEADER, origin);
-                }
-                Bytes::from(bytes)
-            }
-            None => Bytes::new(),
-        };
-        let request = request
-            .body(Full::new(payload))
-            .map_err(|e| CliError::input(format!("cannot build the request for {path}: {e}")))?;
-        sender
-            .send_request(request)
-            .await
-            .map_err(|e| CliError::input(format!("request {path} to {} failed: {e}", self.authority)))
-    }
-
-    /// A whole call with a deadline: status checked, body returned.
-    async fn call(
-        &self,
-        method: Method,
-        path: &str,
-        body: Option<(Vec<u8>, &str, String)>,
-    ) -> Result<Bytes, CliError> {
-        let exchange = async {
-            let response = self.send(method, path, body).await?;
-            let status = response.status();
-            let bytes = collect(response).await?;
-            if status.is_success() {
-                Ok(bytes)
-            } else {
-                Err(server_error(status, &bytes))
-            }
-        };
-        tokio::time::timeout(CALL_TIMEOUT, exchange).await.map_err(|_| {
-            CliError::input(format!(
-                "no answer from {} within {} s",
-                self.authority,
-                CALL_TIMEOUT.as_secs()
-            ))
-        })?
-    }
-
-    async fn json(
-        &self,
-        method: Method,
-        path: &str,
-        body: Option<(Vec<u8>, &str, String)>,
-    ) -> Result<Value, CliError> {
-        let bytes = self.call(method, path, body).await?;
-        serde_json::from_slice(&bytes)
-            .map_err(|e| CliError::input(format!("the daemon's reply to {path} is not JSON: {e}")))
-    }
-
-    async fn text(&self, path: &str) -> Result<String, CliError> {
-        let bytes = self.call(Method::GET, path, None).await?;
-        String::from_utf8(bytes.to_vec())
-            .map_err(|e| CliError::input(format!("the reply to {path} is not UTF-8: {e}")))
-    }
 }
 
 #[cfg(test)]

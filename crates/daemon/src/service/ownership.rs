@@ -64,8 +64,12 @@ impl Service {
     pub fn take_instrument(&self, holder: &str) -> Result<InstrumentLease, ServiceError> {
         let mut run = lock(&self.shared.run);
         if let Some(id) = run.running {
+            let what = match lock(&self.shared.store).campaign(id) {
+                Ok(c) => format!("campaign {id} ({:?}, {})", c.name, c.state.as_str()),
+                Err(_) => format!("campaign {id}"),
+            };
             return Err(ServiceError::Conflict(format!(
-                "campaign {id} is running on the instrument: pause it first, then take the instrument"
+                "{what} owns the instrument: pause it first, then take the instrument"
             )));
         }
         if let Some(other) = &run.held_by {

@@ -59,30 +59,9 @@ impl Motion<'_> {
 
     /// One planned move; `Err(PhaseBroken)` when an axis of a multi-axis phase failed (the phase is stopped).
     async fn move_once(&mut self, target: &Pose) -> Result<Result<(), MotionError>, PhaseBroken> {
-        // An axis already within its arrival tolerance of the target does not move: the read-back differs from
-        // the nominal pose by up to that tolerance after every move, and re-commanding it would cost a move,
-        // a status poll and a settle at every reading of a pose (each band, each repeat at one geometry) that
-        // the schedule rightly predicts as free.
-        let mut from = self.current;
-        for a in self.rig.axes() {
-            let r = a.config.role;
-            if (from.get(r) - target.get(r)).abs() <= a.config.tolerance_deg {
-                from.set(r, target.get(r));
-            }
-        }
-        let movement = match self.time.plan_move(&from, target) {
+        let movement = match self.safe_move(target) {
             Ok(m) => m,
-            Err(reason) => match self.separating_move(target) {
-                Some(m) => m,
-                None => {
-                    return Ok(Err(MotionError::Impossible(format!(
-                        "no safe move from {:?} to {:?}: {}",
-                        self.current,
-                        target,
-                        reason.name()
-                    ))));
-                }
-            },
+            Err(e) => return Ok(Err(e)),
         };
         let axes = self.rig.axes();
         // Where each axis finally goes in this move: its last leg in its last phase. Every other leg is a via
@@ -217,6 +196,37 @@ impl Motion<'_> {
             }
         }
         Ok(Ok(()))
+    }
+
+    /// The safe move from where the axes are to `target` (physical pose), or [`MotionError::Impossible`] when no
+    /// collision-free move exists; nothing is commanded either way. [`Motion::move_to`] executes it; a console
+    /// asks first, to refuse a request before anything moves.
+    pub fn safe_move(&self, target: &Pose) -> Result<gonio_scheduler::timing::Move, MotionError> {
+        // An axis already within its arrival tolerance of the target does not move: the read-back differs from
+        // the nominal pose by up to that tolerance after every move, and re-commanding it would cost a move,
+        // a status poll and a settle at every reading of a pose (each band, each repeat at one geometry) that
+        // the schedule rightly predicts as free.
+        let mut from = self.current;
+        for a in self.rig.axes() {
+            let r = a.config.role;
+            if (from.get(r) - target.get(r)).abs() <= a.config.tolerance_deg {
+                from.set(r, target.get(r));
+            }
+        }
+        Ok(match self.time.plan_move(&from, target) {
+            Ok(m) => m,
+            Err(reason) => match self.separating_move(target) {
+                Some(m) => m,
+                None => {
+                    return Err(MotionError::Impossible(format!(
+                        "no safe move from {:?} to {:?}: {}",
+                        self.current,
+                        target,
+                        reason.name()
+                    )));
+                }
+            },
+        })
     }
 
     /// The arms start closer than the safety separation: the pure planning is the scheduler's
