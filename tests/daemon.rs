@@ -2,111 +2,16 @@
 //! on the simulated instrument, driven through the command-line client. Every child process is killed at the
 //! end of its test, even on failure (a guard with Drop), and every wait is bounded.
 
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Output, Stdio};
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use gonio_testkit::daemon::{ctl, start_daemon, start_daemon_on};
 use gonio_testkit::{CampaignText, gonio, text};
 use rand::{Rng, SeedableRng};
 
 /// A small dry-run campaign on the simulated instrument: `points` outgoing angles.
 fn campaign(id: &str, points: usize) -> String {
     CampaignText::in_plane(id, points).to_string()
-}
-
-/// The daemon child: killed on drop.
-struct Daemon {
-    child: Child,
-    url: String,
-    stdout: mpsc::Receiver<String>,
-}
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-/// `time_scale`: simulated seconds per real second for the simulated instrument.
-fn start_daemon(data: &Path, time_scale: &str, env: &[(&str, &str)]) -> Daemon {
-    start_daemon_on(data, time_scale, env, None)
-}
-
-/// [`start_daemon`] on the instrument file `instrument` (default: the embedded simulated one).
-fn start_daemon_on(data: &Path, time_scale: &str, env: &[(&str, &str)], instrument: Option<&Path>) -> Daemon {
-    let mut cmd = gonio();
-    cmd.args(["daemon", "--listen", "127.0.0.1:0", "--data"])
-        .arg(data);
-    if let Some(file) = instrument {
-        cmd.arg("--instrument").arg(file);
-    }
-    cmd.args(["--sim-time-scale", time_scale, "--shutdown-grace-s", "5"])
-        .env_remove("GONIO_TOKEN")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null());
-    for (k, v) in env {
-        cmd.env(k, v);
-    }
-    let mut child = cmd.spawn().expect("start gonio daemon");
-    let stdout = child.stdout.take().expect("stdout");
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                break;
-            }
-        }
-    });
-    let mut daemon = Daemon {
-        child,
-        url: String::new(),
-        stdout: rx,
-    };
-    let line = daemon
-        .stdout
-        .recv_timeout(Duration::from_secs(30))
-        .expect("the daemon prints its address");
-    let addr = line
-        .strip_prefix("gonio daemon listening on ")
-        .and_then(|rest| rest.split_whitespace().next())
-        .unwrap_or_else(|| panic!("unexpected first line {line:?}"));
-    assert!(addr.starts_with("http://127.0.0.1:"), "{addr}");
-    daemon.url = addr.to_string();
-    daemon
-}
-
-/// Run `gonio ctl` with a deadline.
-fn ctl(daemon: &Daemon, args: &[&str], env: &[(&str, &str)]) -> Output {
-    let mut cmd = gonio();
-    cmd.args(["ctl", "--url", &daemon.url])
-        .args(args)
-        .env_remove("GONIO_TOKEN");
-    for (k, v) in env {
-        cmd.env(k, v);
-    }
-    let mut child = cmd
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start gonio ctl");
-    let start = Instant::now();
-    loop {
-        if child.try_wait().expect("wait").is_some() {
-            return child.wait_with_output().expect("output");
-        }
-        if start.elapsed() > Duration::from_secs(120) {
-            let _ = child.kill();
-            let out = child.wait_with_output().expect("output");
-            panic!(
-                "gonio ctl {args:?} did not finish: {}",
-                String::from_utf8_lossy(&out.stdout)
-            );
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 #[test]

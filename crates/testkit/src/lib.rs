@@ -1,7 +1,8 @@
 //! gonio-testkit: what gonio's tests share, one copy each. A dev-dependency only, never of a library's normal
 //! build.
 //!
-//! - [`cli`]: the `gonio` binary under test and dry-runs through it.
+//! - [`cli`]: the `gonio` binary under test and dry-runs through it; [`daemon`]: `gonio daemon` as a child
+//!   process and `gonio ctl` against it.
 //! - [`campaign`]: campaign texts for dry-runs on the simulated instrument.
 //! - [`rng`]: a small fixed-seed generator (reproducible random searches, no dependency).
 //! - [`directions`]: hostile directions for the numerical stress suites; [`nm`]: a wavelength in a test.
@@ -14,6 +15,7 @@
 
 pub mod campaign;
 pub mod cli;
+pub mod daemon;
 pub mod directions;
 pub mod imports;
 pub mod load;
