@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The daemon's live status page in a real headless Chromium, against `gonio daemon` running dry-runs on the
-# simulated instrument (see status_page.py for what is checked). Installs Debian's chromium package when no
+# simulated instrument (see status_page.py and console_panel.py for what is checked). Installs Debian's chromium package when no
 # chromium is found (needs root or password-less sudo), builds gonio, runs the test. Never skips: a missing
 # browser, Python or a broken page is a failure (exit 1).
 #
@@ -42,3 +42,5 @@ fi
 
 echo "== status page in headless Chromium"
 python3 tests/browser/status_page.py "$GONIO" "$chromium"
+echo "== the status page's console panel in headless Chromium"
+python3 tests/browser/console_panel.py "$GONIO" "$chromium"

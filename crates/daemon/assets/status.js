@@ -102,11 +102,13 @@
   async function api(path, options = {}) {
     const headers = {};
     if (page.token) headers.Authorization = 'Bearer ' + page.token;
+    if (options.json !== undefined) headers['Content-Type'] = 'application/json';
     let response;
     try {
       response = await fetch(path, {
         method: options.method || 'GET',
         headers,
+        body: options.json === undefined ? undefined : JSON.stringify(options.json),
         cache: 'no-store',
         signal: options.signal,
       });
@@ -840,6 +842,15 @@
     refreshCampaigns().catch((e) => log('warn', e.message));
     streamEvents();
   }
+
+  // The console panel (console.js) shares the page's API access, event-stream parser and campaigns.
+  window.gonio = {
+    api,
+    ApiError,
+    SseParser,
+    // The campaign that owns the instrument (running, pausing or waiting for its operator), or null.
+    owner: () => [...page.campaigns.values()].find((c) => ON_INSTRUMENT.includes(c.state)) || null,
+  };
 
   start();
 })();

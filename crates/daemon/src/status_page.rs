@@ -1,7 +1,10 @@
 //! The live status page at `/`: the current campaign, its state, progress and ETA, the last readings and a
-//! polar plot that fills in as points arrive, with pause/resume/abort/confirm buttons.
+//! polar plot that fills in as points arrive, with pause/resume/abort/confirm buttons; and the console panel
+//! (the axes' positions, jog buttons, homing, the filter wheel, a live trace of the meter, a big emergency
+//! stop), its controls disabled with the reason while a campaign owns the instrument.
 //!
-//! Routes: `GET /` (the page), `GET /assets/status.js`, `GET /assets/status.css`, `GET /assets/favicon.svg`.
+//! Routes: `GET /` (the page), `GET /assets/status.js`, `GET /assets/console.js`, `GET /assets/status.css`,
+//! `GET /assets/favicon.svg`.
 //! The assets are hand-written files embedded in the binary (`include_str!`): no build step, no network; the
 //! page works offline.
 //!
@@ -24,15 +27,18 @@ use axum::routing::get;
 pub const INDEX_HTML: &str = include_str!("../assets/index.html");
 /// Its script (fetches the API, parses the event stream, draws the plot).
 pub const STATUS_JS: &str = include_str!("../assets/status.js");
+/// The console panel's script (positions, jog, homing, the wheel, a live trace, the emergency stop).
+pub const CONSOLE_JS: &str = include_str!("../assets/console.js");
 /// Its style sheet.
 pub const STATUS_CSS: &str = include_str!("../assets/status.css");
 /// Its icon (without one, browsers ask for `/favicon.ico`, which the token rule may refuse).
 pub const FAVICON_SVG: &str = include_str!("../assets/favicon.svg");
 
 /// Paths of the page's files, with their content types.
-pub const ASSETS: [(&str, &str, &str); 4] = [
+pub const ASSETS: [(&str, &str, &str); 5] = [
     ("/", "text/html; charset=utf-8", INDEX_HTML),
     ("/assets/status.js", "text/javascript; charset=utf-8", STATUS_JS),
+    ("/assets/console.js", "text/javascript; charset=utf-8", CONSOLE_JS),
     ("/assets/status.css", "text/css; charset=utf-8", STATUS_CSS),
     ("/assets/favicon.svg", "image/svg+xml", FAVICON_SVG),
 ];

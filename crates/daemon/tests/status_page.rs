@@ -124,6 +124,7 @@ async fn every_asset_is_served_byte_for_byte_with_its_content_type() {
     let expected_types = [
         ("/", "text/html"),
         ("/assets/status.js", "text/javascript"),
+        ("/assets/console.js", "text/javascript"),
         ("/assets/status.css", "text/css"),
         ("/assets/favicon.svg", "image/svg+xml"),
     ];

@@ -17,7 +17,9 @@ pub use request::{
     BAND_MATCH_NM, ConsoleError, FilterChoice, axis_named, filter_position, geometry_poses, geometry_text,
     parse_filter_choice, target_pose,
 };
-pub use state::{AxisPosition, AxisState, ConsoleReading, DeviceHealth, InstrumentState, WheelState};
+pub use state::{
+    AxisPosition, AxisState, ConsoleReading, DeviceHealth, FilterSlot, InstrumentState, WheelState,
+};
 
 use std::time::UNIX_EPOCH;
 
@@ -83,6 +85,16 @@ impl<'r> Console<'r> {
                 },
             });
         }
+        let filters: Vec<FilterSlot> = file
+            .instrument
+            .filter_wheel
+            .iter()
+            .flat_map(|w| &w.positions)
+            .map(|f| FilterSlot {
+                position: f.position,
+                band_nm: f.band_nm,
+            })
+            .collect();
         let wheel = match rig.wheel() {
             None => None,
             Some(w) => Some(match w.position().await {
@@ -90,11 +102,13 @@ impl<'r> Console<'r> {
                     position: Some(p),
                     band_nm: self.band_at(p),
                     fault: None,
+                    filters,
                 },
                 Err(e) => WheelState {
                     position: None,
                     band_nm: None,
                     fault: Some(format!("no position: {e}")),
+                    filters,
                 },
             }),
         };

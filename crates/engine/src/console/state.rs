@@ -29,6 +29,16 @@ pub struct WheelState {
     /// The band of the filter there (None: the blank, or unknown).
     pub band_nm: Option<f64>,
     pub fault: Option<String>,
+    /// Every position of the wheel as the instrument file lists it.
+    pub filters: Vec<FilterSlot>,
+}
+
+/// One position of the filter wheel.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FilterSlot {
+    pub position: u8,
+    /// Centre wavelength (nm); None for the blank.
+    pub band_nm: Option<f64>,
 }
 
 /// One device's identity and whether it answered.
