@@ -1,8 +1,9 @@
 //! Newport SMC100CC/PP motion controllers on one daisy-chained RS-232 port, written from the SMC100 user manual.
 //!
 //! Split by job: [`protocol`] (reply parsing, states, error codes), [`chain`] (the port: paced exchanges,
-//! queries, set commands, stop), [`axis`] (one axis: status, homing, moves with verified arrival), `wait`
-//! (polling a controller until a state).
+//! queries, set commands, stop), `controller` (one controller as axis and wait see it: confirmation of alarming
+//! states, agreement of two reads), `wait` (polling a controller until a state), [`axis`] (one axis: status,
+//! homing, moves with verified arrival).
 //!
 //! Wire format: `<addr><CC><arg>\r\n`. Queries answer `<addr><CC><value>\r\n`; set commands are silent, so every
 //! set command is followed, in the same exchange, by `<addr>TE` (last command error, `@` = none). Status `TS`
@@ -13,7 +14,7 @@
 //! Replies carry no checksum, so a position the driver acts on is read twice in one exchange and the two reads
 //! must agree within the encoder resolution ([`Smc100Axis::verified_position`]). Several queries share one
 //! exchange (one command per line, as the manual requires): a move is `TP TP PA TE`, then `PT TS` (plus `TP TP`
-//! once the move should be over) on a [`PollSchedule`](crate::motion::PollSchedule).
+//! once the move should be over) on a [`PollSchedule`](crate::poll::PollSchedule).
 //!
 //! Protocol notes, and where each comes from:
 //! - Pacing: host drivers written against real controllers pace their commands (the widely copied Python SMC100
@@ -35,6 +36,7 @@
 
 mod axis;
 mod chain;
+mod controller;
 mod protocol;
 mod wait;
 
