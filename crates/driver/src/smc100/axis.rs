@@ -182,24 +182,10 @@ impl Smc100Axis {
             _ => Err(refused),
         }
     }
-}
-
-impl AxisDriver for Smc100Axis {
-    fn core(&self) -> &AxisCore {
-        &self.core
-    }
-
-    fn device(&self) -> String {
-        self.ctl.device.clone()
-    }
-
-    fn line_port(&self) -> &Arc<LinePort> {
-        &self.ctl.chain.port
-    }
 
     /// Home: NOT REFERENCED -> `OR` and wait for READY; DISABLE -> `MM1` back to READY (reference kept);
     /// READY -> nothing to do. `OR` is sent once, never retried blindly.
-    async fn home_axis(&self) -> Result<(), DriverError> {
+    async fn home_from_state(&self) -> Result<(), DriverError> {
         let ctl = &self.ctl;
         let ts = ctl.chain.ts(ctl.addr).await?;
         match ts.state {
@@ -243,6 +229,28 @@ impl AxisDriver for Smc100Axis {
                 reason: format!("cannot home in state {}", other.describe()),
             }),
         }
+    }
+}
+
+impl AxisDriver for Smc100Axis {
+    fn core(&self) -> &AxisCore {
+        &self.core
+    }
+
+    fn device(&self) -> String {
+        self.ctl.device.clone()
+    }
+
+    fn line_port(&self) -> &Arc<LinePort> {
+        &self.ctl.chain.port
+    }
+
+    /// Home (see `home_from_state`), then report at info the first TSs the controller left unanswered on the way, as real
+    /// controllers are recorded to (after power-up, after homing): expected, so counted rather than warned.
+    async fn home_axis(&self) -> Result<(), DriverError> {
+        let homed = self.home_from_state().await;
+        self.ctl.chain.report_first_ts(self.ctl.addr);
+        homed
     }
 
     /// Send `PA` for a physical target (idempotent, retried when its TE is lost).
@@ -374,6 +382,8 @@ impl AxisDriver for Smc100Axis {
     /// J). Reconnecting means "ready to be commanded again": leave DISABLE with MM1, which keeps the reference,
     /// so that the caller's retry of an absolute move is not refused.
     async fn re_enable(&self) -> Result<(), DriverError> {
+        // The port was just opened again: a first TS may go unanswered as after power-up.
+        self.ctl.chain.port_reopened();
         let ts = self.ctl.chain.ts(self.ctl.addr).await?;
         if let State::Disable(_) = ts.state {
             tracing::warn!(axis = %self.ctl.device, reason = %ts_reason(&ts), "controller in DISABLE after a fault; re-enabling");

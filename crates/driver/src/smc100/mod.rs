@@ -26,7 +26,9 @@
 //!   to its query by address and command code (a late one is dropped as stale). The stop on the priority path
 //!   goes out at once and again after the pause.
 //! - A `TS` may get no reply at all right after power-up or right after homing completes (a real-hardware
-//!   driver reports it as undocumented): every query is retried, so a lost TS costs one reply timeout.
+//!   driver reports it as undocumented): every query is retried, so a lost TS costs one reply timeout. That
+//!   loss is expected, so it is logged at debug and counted at info once the axis is homed; any other lost
+//!   reply stays a warning (`first_ts`).
 //! - `TP` prints up to 10 decimals and `VE` looks like `1VE SMC_CC - Controller-driver version  3. 1. 2`
 //!   (real-controller replies): numbers are parsed whatever their length; `VE` is not used.
 //! - In READY, `TP` equals the set-point within the encoder resolution (manual): the encoder is on the motor,
@@ -37,6 +39,7 @@
 mod axis;
 mod chain;
 mod controller;
+mod first_ts;
 mod protocol;
 mod wait;
 
