@@ -121,6 +121,12 @@ impl Smc100Chain {
         self.first_ts.port_opened();
     }
 
+    /// Whether the latest exchange with `addr` went without a TS reply that real controllers are recorded to
+    /// leave unanswered (see [`FirstTs`]): a caller that sees the value missing then asks again quietly.
+    pub(super) fn lost_first_ts(&self, addr: u8) -> bool {
+        self.first_ts.lost_in_last_exchange(addr)
+    }
+
     /// Log at info, once, how many first TSs controller `addr` left unanswered since the last report: the count
     /// an operator may want, without a warning for what real controllers are recorded to do.
     pub(super) fn report_first_ts(&self, addr: u8) {
@@ -160,6 +166,7 @@ impl Smc100Chain {
         addr: u8,
         expect: &[&str],
     ) -> Result<Vec<Option<String>>, Failed> {
+        self.first_ts.exchange_begins(addr);
         let mut s = self.port.session().await;
         s.discard_stale().await?;
         let mut values: Vec<Option<String>> = vec![None; expect.len()];

@@ -21,6 +21,9 @@ struct Inner {
     settled: BTreeMap<u8, bool>,
     /// Expected losses per controller since the last report.
     count: BTreeMap<u8, u32>,
+    /// Controllers whose latest exchange lost the expected TS (a TS inside a longer exchange, whose loss the
+    /// caller sees as a missing value).
+    lost_last: BTreeMap<u8, bool>,
 }
 
 impl FirstTs {
@@ -49,6 +52,13 @@ impl FirstTs {
         }
     }
 
+    /// An exchange with `addr` begins.
+    pub(super) fn exchange_begins(&self, addr: u8) {
+        if let Ok(mut g) = self.inner.lock() {
+            g.lost_last.remove(&addr);
+        }
+    }
+
     /// A TS to `addr` got no reply: whether that is the expected loss (then counted, and used up).
     pub(super) fn unanswered(&self, addr: u8) -> bool {
         let Ok(mut g) = self.inner.lock() else {
@@ -60,7 +70,16 @@ impl FirstTs {
         }
         *settled = true;
         *g.count.entry(addr).or_insert(0) += 1;
+        g.lost_last.insert(addr, true);
         true
+    }
+
+    /// Whether the latest exchange with `addr` lost the expected TS.
+    pub(super) fn lost_in_last_exchange(&self, addr: u8) -> bool {
+        self.inner
+            .lock()
+            .ok()
+            .is_some_and(|g| g.lost_last.get(&addr).copied().unwrap_or(false))
     }
 
     /// The expected losses of `addr` since the last call.
@@ -81,8 +100,12 @@ mod tests {
     fn one_expected_loss_per_power_up_or_homing_and_none_otherwise() {
         let f = FirstTs::default();
         // Power-up: the first TS of each controller may be lost, once.
+        f.exchange_begins(1);
         assert!(f.unanswered(1));
+        assert!(f.lost_in_last_exchange(1));
+        f.exchange_begins(1);
         assert!(!f.unanswered(1), "a second loss is not the recorded one");
+        assert!(!f.lost_in_last_exchange(1));
         assert!(f.unanswered(2));
         // An answered TS uses the allowance up.
         f.port_opened();

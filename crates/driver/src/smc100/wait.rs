@@ -100,7 +100,11 @@ pub(super) async fn wait_state(
                 (confirmed, read)
             }
             None => {
-                tracing::warn!(axis = %ctl.device, replies = ?r, "malformed TS reply; asking again");
+                if r.get(at).is_some_and(Option::is_none) && ctl.chain.lost_first_ts(ctl.addr) {
+                    tracing::debug!(axis = %ctl.device, replies = ?r, "first TS unanswered, as recorded for real SMC100s; asking again");
+                } else {
+                    tracing::warn!(axis = %ctl.device, replies = ?r, "malformed TS reply; asking again");
+                }
                 (ctl.confirmed(ctl.chain.ts(ctl.addr).await?, false).await?, None)
             }
         };

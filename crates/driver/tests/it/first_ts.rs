@@ -13,7 +13,8 @@ use crate::logcap::capture;
 
 const COUNT: &str = "first TS after power-up or homing went unanswered";
 
-/// Home both arms (from power-up) and move each once, under the quirks and faults `f` sets.
+/// Read both arms' status at power-up (as the engine does before homing), home them and move each once, under
+/// the quirks and faults `f` sets.
 async fn home_and_move(
     f: impl FnOnce(&mut gonio_instrument::InstrumentFile),
 ) -> Vec<Result<f64, gonio_driver::DriverError>> {
@@ -23,6 +24,10 @@ async fn home_and_move(
     let detector = Smc100Axis::new(chain, sim_axis("detector"));
     let mut results = Vec::new();
     for (axis, target) in [(&light, 20.0), (&detector, -30.0)] {
+        if let Err(e) = axis.status().await {
+            results.push(Err(e));
+            continue;
+        }
         match axis.home().await {
             Ok(()) => results.push(axis.move_to(target).await),
             Err(e) => results.push(Err(e)),
