@@ -1,8 +1,7 @@
-//! Motion arithmetic shared by the axis drivers: move durations (deadlines) and the backlash approach.
+//! Motion arithmetic shared by the axis drivers: move durations (deadlines) and the backlash approach. When to
+//! ask whether a move is over is [`crate::poll`].
 
 use std::time::Duration;
-
-use tokio::time::Instant;
 
 use crate::error::DriverError;
 
@@ -27,52 +26,6 @@ pub fn move_deadline(distance: f64, speed: f64, accel: f64) -> Duration {
     let t = trapezoid_time_s(distance, speed, accel);
     let secs = if t.is_finite() { 2.0 * t + 2.0 } else { 600.0 };
     Duration::from_secs_f64(secs.min(600.0))
-}
-
-/// When to ask a controller again whether a move is over.
-///
-/// The first question goes out at once (a move that is already over, or a fault at the start, is seen without
-/// any wait). While the move is predicted to run, the pause is up to the predicted end but never longer than
-/// `max_gap`: a stall or a limit is noticed within `max_gap`, which matters when another axis is moving in the
-/// same phase and must be stopped. From the predicted end on, the pause starts at `min_gap` and doubles up to
-/// `max_gap`, so a move that ends on time is seen within `min_gap` of its end and one that runs late costs a
-/// handful of questions, not a flood. `min_gap` is the shortest pause between two status questions to one
-/// controller: no schedule asks faster than the controller answers.
-#[derive(Debug, Clone)]
-pub struct PollSchedule {
-    predicted_end: Instant,
-    min_gap: Duration,
-    max_gap: Duration,
-    /// The pause after the predicted end, doubling.
-    late_gap: Duration,
-}
-
-impl PollSchedule {
-    /// A schedule for a move predicted to end at `predicted_end`. `max_gap` is raised to `min_gap` if below.
-    pub fn new(predicted_end: Instant, min_gap: Duration, max_gap: Duration) -> PollSchedule {
-        let max_gap = max_gap.max(min_gap);
-        PollSchedule {
-            predicted_end,
-            min_gap,
-            max_gap,
-            late_gap: min_gap,
-        }
-    }
-
-    /// The pause before the next question, asked at `now` after an answer "still moving".
-    pub fn next_pause(&mut self, now: Instant) -> Duration {
-        if now < self.predicted_end {
-            return (self.predicted_end - now).clamp(self.min_gap, self.max_gap);
-        }
-        let pause = self.late_gap;
-        self.late_gap = (self.late_gap * 2).min(self.max_gap);
-        pause
-    }
-
-    /// Whether the move is predicted to be over at `now` (a question then also asks for the read-back).
-    pub fn expect_over(&self, now: Instant) -> bool {
-        now >= self.predicted_end
-    }
 }
 
 /// The positions to command to reach `target` from `current` so that the last approach is from below by more
@@ -161,28 +114,6 @@ mod tests {
     fn deadline_is_bounded_and_has_margin() {
         assert_eq!(move_deadline(45.0, 20.0, 80.0), Duration::from_secs_f64(7.0));
         assert_eq!(move_deadline(1.0, f64::NAN, 1.0), Duration::from_secs(600));
-    }
-
-    #[test]
-    fn polls_reach_the_predicted_end_in_capped_steps_then_back_off() {
-        let t0 = Instant::now();
-        let ms = Duration::from_millis;
-        let mut p = PollSchedule::new(t0 + ms(120), ms(10), ms(50));
-        assert!(!p.expect_over(t0));
-        // During the move: at most the cap, and exactly up to the predicted end for the last step.
-        assert_eq!(p.next_pause(t0), ms(50));
-        assert_eq!(p.next_pause(t0 + ms(50)), ms(50));
-        assert_eq!(p.next_pause(t0 + ms(100)), ms(20));
-        // Never shorter than the minimum gap, even just before the end.
-        assert_eq!(p.next_pause(t0 + ms(118)), ms(10));
-        // Late: 10, 20, 40, then capped at 50.
-        assert!(p.expect_over(t0 + ms(120)));
-        let late: Vec<Duration> = (0..5).map(|i| p.next_pause(t0 + ms(120 + i))).collect();
-        assert_eq!(late, vec![ms(10), ms(20), ms(40), ms(50), ms(50)]);
-        // A cap below the minimum gap is raised to it.
-        let mut q = PollSchedule::new(t0, ms(10), ms(1));
-        assert_eq!(q.next_pause(t0 + ms(1)), ms(10));
-        assert_eq!(q.next_pause(t0 + ms(2)), ms(10));
     }
 
     #[test]

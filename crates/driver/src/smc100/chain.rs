@@ -6,10 +6,28 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
+use super::first_ts::FirstTs;
 use super::protocol::{Ts, describe_te, parse_number, parse_reply, parse_te, parse_ts};
 use super::{ATTEMPTS, MAX_SET_GAP, REPLY_TIMEOUT, SET_GAP};
 use crate::error::DriverError;
 use crate::transport::{LinePort, TransportError, escape_bytes};
+
+/// An exchange that failed, and whether its failure was a controller not answering its first TS (see
+/// [`FirstTs`]): expected, so not a warning.
+#[derive(Debug)]
+struct Failed {
+    error: TransportError,
+    first_ts: bool,
+}
+
+impl From<TransportError> for Failed {
+    fn from(error: TransportError) -> Failed {
+        Failed {
+            error,
+            first_ts: false,
+        }
+    }
+}
 
 /// When the next command to each controller may go out, and the pause a set command needs.
 #[derive(Debug)]
@@ -27,6 +45,7 @@ pub struct Smc100Chain {
     pub(super) name: String,
     pub(super) port: Arc<LinePort>,
     pacing: Mutex<Pacing>,
+    first_ts: FirstTs,
 }
 
 impl Smc100Chain {
@@ -47,6 +66,7 @@ impl Smc100Chain {
                 gap,
                 base: gap,
             }),
+            first_ts: FirstTs::default(),
         })
     }
 
@@ -96,6 +116,26 @@ impl Smc100Chain {
         format!("{}/{}", self.name, addr)
     }
 
+    /// The port was opened again: every controller's next TS may go unanswered (see [`FirstTs`]).
+    pub(super) fn port_reopened(&self) {
+        self.first_ts.port_opened();
+    }
+
+    /// Whether the latest exchange with `addr` went without a TS reply that real controllers are recorded to
+    /// leave unanswered (see [`FirstTs`]): a caller that sees the value missing then asks again quietly.
+    pub(super) fn lost_first_ts(&self, addr: u8) -> bool {
+        self.first_ts.lost_in_last_exchange(addr)
+    }
+
+    /// Log at info, once, how many first TSs controller `addr` left unanswered since the last report: the count
+    /// an operator may want, without a warning for what real controllers are recorded to do.
+    pub(super) fn report_first_ts(&self, addr: u8) {
+        let n = self.first_ts.take_count(addr);
+        if n > 0 {
+            tracing::info!(device = %self.dev(addr), unanswered = n, "first TS after power-up or homing went unanswered, as recorded for real SMC100s; retried");
+        }
+    }
+
     fn transport_error(&self, addr: u8, request: &str, e: TransportError) -> DriverError {
         match e {
             TransportError::Timeout => DriverError::Timeout {
@@ -125,7 +165,8 @@ impl Smc100Chain {
         lines: &[String],
         addr: u8,
         expect: &[&str],
-    ) -> Result<Vec<Option<String>>, TransportError> {
+    ) -> Result<Vec<Option<String>>, Failed> {
+        self.first_ts.exchange_begins(addr);
         let mut s = self.port.session().await;
         s.discard_stale().await?;
         let mut values: Vec<Option<String>> = vec![None; expect.len()];
@@ -151,11 +192,19 @@ impl Smc100Chain {
             s.send(format!("{line}\r\n").as_bytes(), deadline).await?;
             if !query {
                 self.sent_set(addr);
+                if matches!(code, "OR" | "RS") {
+                    self.first_ts.reset(addr);
+                }
                 after_set = true;
                 continue;
             }
             match read_reply(&mut s, addr, code, deadline).await {
                 Ok(v) => {
+                    if code == "TS"
+                        && let Some(ts) = parse_ts(&v)
+                    {
+                        self.first_ts.answered(addr, ts.state);
+                    }
                     if let Some(cell) = values.get_mut(next) {
                         *cell = Some(v);
                     }
@@ -164,12 +213,16 @@ impl Smc100Chain {
                     if after_set {
                         self.widen_gap();
                     }
+                    let first_ts = code == "TS" && self.first_ts.unanswered(addr);
                     if next + 1 >= expect.len() {
-                        return Err(TransportError::Timeout);
+                        return Err(Failed {
+                            error: TransportError::Timeout,
+                            first_ts,
+                        });
                     }
-                    tracing::debug!(chain = %self.name, %line, "no reply; going on with the exchange");
+                    tracing::debug!(chain = %self.name, %line, first_ts, "no reply; going on with the exchange");
                 }
-                Err(e) => return Err(e),
+                Err(e) => return Err(e.into()),
             }
             after_set = false;
             next += 1;
@@ -195,12 +248,24 @@ impl Smc100Chain {
         for attempt in 1..=ATTEMPTS {
             match self.exchange(&lines, addr, &expect).await {
                 Ok(v) => return Ok(v),
-                Err(TransportError::Disconnected(d)) => {
+                Err(Failed {
+                    error: TransportError::Disconnected(d),
+                    ..
+                }) => {
                     return Err(self.transport_error(addr, &request, TransportError::Disconnected(d)));
                 }
-                Err(e) => {
-                    tracing::warn!(device = %self.dev(addr), %request, attempt, error = %e, "query failed; retrying");
-                    last = Some(e);
+                // Real controllers are recorded to leave this TS unanswered: counted, reported at info by the
+                // axis once homed (`report_first_ts`), and asked again.
+                Err(Failed {
+                    error,
+                    first_ts: true,
+                }) => {
+                    tracing::debug!(device = %self.dev(addr), %request, attempt, error = %error, "first TS unanswered, as recorded for real SMC100s; asking again");
+                    last = Some(error);
+                }
+                Err(Failed { error, .. }) => {
+                    tracing::warn!(device = %self.dev(addr), %request, attempt, error = %error, "query failed; retrying");
+                    last = Some(error);
                 }
             }
         }
@@ -250,7 +315,7 @@ impl Smc100Chain {
         let mut last = TransportError::Timeout;
         let mut refused = None;
         for attempt in 1..=attempts {
-            match self.exchange(&lines, addr, &expect).await {
+            match self.exchange(&lines, addr, &expect).await.map_err(|f| f.error) {
                 Ok(mut values) => {
                     let v = values.pop().flatten().unwrap_or_default();
                     // A code the controller does not have is a garbled reply, not a refusal.

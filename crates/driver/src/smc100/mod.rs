@@ -1,8 +1,9 @@
 //! Newport SMC100CC/PP motion controllers on one daisy-chained RS-232 port, written from the SMC100 user manual.
 //!
 //! Split by job: [`protocol`] (reply parsing, states, error codes), [`chain`] (the port: paced exchanges,
-//! queries, set commands, stop), [`axis`] (one axis: status, homing, moves with verified arrival), `wait`
-//! (polling a controller until a state).
+//! queries, set commands, stop), `controller` (one controller as axis and wait see it: confirmation of alarming
+//! states, agreement of two reads), `wait` (polling a controller until a state), [`axis`] (one axis: status,
+//! homing, moves with verified arrival).
 //!
 //! Wire format: `<addr><CC><arg>\r\n`. Queries answer `<addr><CC><value>\r\n`; set commands are silent, so every
 //! set command is followed, in the same exchange, by `<addr>TE` (last command error, `@` = none). Status `TS`
@@ -13,7 +14,7 @@
 //! Replies carry no checksum, so a position the driver acts on is read twice in one exchange and the two reads
 //! must agree within the encoder resolution ([`Smc100Axis::verified_position`]). Several queries share one
 //! exchange (one command per line, as the manual requires): a move is `TP TP PA TE`, then `PT TS` (plus `TP TP`
-//! once the move should be over) on a [`PollSchedule`](crate::motion::PollSchedule).
+//! once the move should be over) on a [`PollSchedule`](crate::poll::PollSchedule).
 //!
 //! Protocol notes, and where each comes from:
 //! - Pacing: host drivers written against real controllers pace their commands (the widely copied Python SMC100
@@ -25,7 +26,9 @@
 //!   to its query by address and command code (a late one is dropped as stale). The stop on the priority path
 //!   goes out at once and again after the pause.
 //! - A `TS` may get no reply at all right after power-up or right after homing completes (a real-hardware
-//!   driver reports it as undocumented): every query is retried, so a lost TS costs one reply timeout.
+//!   driver reports it as undocumented): every query is retried, so a lost TS costs one reply timeout. That
+//!   loss is expected, so it is logged at debug and counted at info once the axis is homed; any other lost
+//!   reply stays a warning (`first_ts`).
 //! - `TP` prints up to 10 decimals and `VE` looks like `1VE SMC_CC - Controller-driver version  3. 1. 2`
 //!   (real-controller replies): numbers are parsed whatever their length; `VE` is not used.
 //! - In READY, `TP` equals the set-point within the encoder resolution (manual): the encoder is on the motor,
@@ -35,6 +38,8 @@
 
 mod axis;
 mod chain;
+mod controller;
+mod first_ts;
 mod protocol;
 mod wait;
 

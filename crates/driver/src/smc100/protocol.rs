@@ -189,6 +189,31 @@ pub(super) fn wire_number(x: f64) -> String {
     if s == "-0.000000" { "0.000000".into() } else { s }
 }
 
+/// The number in reply `i` of an exchange, if it came and parses.
+pub(super) fn number_at(replies: &[Option<String>], i: usize) -> Option<f64> {
+    replies.get(i)?.as_deref().and_then(parse_number)
+}
+
+/// States in which the axis moves by itself.
+pub(super) fn is_moving(state: State) -> bool {
+    matches!(state, State::Moving | State::Homing(_) | State::Jogging(_))
+}
+
+/// A TS reading in words: the state, and the positioner error bits when any are set.
+pub(super) fn ts_reason(ts: &Ts) -> String {
+    let bits = describe_error_bits(ts.errors);
+    if bits.is_empty() {
+        ts.state.describe()
+    } else {
+        format!(
+            "{}; positioner errors {:04X}: {}",
+            ts.state.describe(),
+            ts.errors,
+            bits.join(", ")
+        )
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,6 +1,7 @@
 //! One Zaber rotary axis: verified positions, status, homing, moves with the backlash approach.
+//! [`Axis`](crate::Axis) comes from [`AxisDriver`], shared with the other axis drivers.
 
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::time::Instant;
@@ -8,10 +9,12 @@ use tokio::time::Instant;
 use super::chain::ZaberChain;
 use super::protocol::{Flag, Reply, describe_warning, encode_command, is_warning, parse_int};
 use super::{ACCEL_UNIT, ATTEMPTS, POLL_MAX, POLL_MIN, REPLY_TIMEOUT, SPEED_UNIT};
+use crate::axis_driver::{AxisCore, AxisDriver};
 use crate::error::DriverError;
-use crate::motion::{PollSchedule, approach_waypoints, check_speed, move_deadline, trapezoid_time_s};
-use crate::traits::{Axis, AxisLimits, AxisStatus};
-use crate::transport::BoxFuture;
+use crate::motion::move_deadline;
+use crate::poll::Poll;
+use crate::traits::AxisStatus;
+use crate::transport::LinePort;
 
 /// The data of a `warnings` reply: a count, then that many flags. Never panics.
 fn parse_warnings(data: &str) -> Option<Vec<String>> {
@@ -31,9 +34,7 @@ pub struct ZaberAxis {
     device: u8,
     axis: u8,
     microstep_deg: f64,
-    cfg: gonio_instrument::Axis,
-    motion: Mutex<(f64, f64)>,
-    last_start: Mutex<Option<f64>>,
+    core: AxisCore,
 }
 
 impl ZaberAxis {
@@ -49,31 +50,32 @@ impl ZaberAxis {
                 min: 0.0,
                 max: f64::INFINITY,
             })?;
-        let motion = Mutex::new((cfg.max_speed_deg_s, cfg.accel_deg_s2));
         Ok(ZaberAxis {
             device: cfg.address,
             axis: cfg.zaber_axis,
             chain,
             microstep_deg,
-            cfg,
-            motion,
-            last_start: Mutex::new(None),
+            core: AxisCore::new(cfg),
         })
     }
 
     fn dev(&self) -> String {
         format!(
             "{} ({}/{}.{})",
-            self.cfg.name, self.chain.name, self.device, self.axis
+            self.core.cfg().name,
+            self.chain.name,
+            self.device,
+            self.axis
         )
     }
 
     fn steps_from_deg(&self, physical_deg: f64) -> i64 {
-        (self.cfg.controller_from_physical_deg(physical_deg) / self.microstep_deg).round() as i64
+        (self.core.cfg().controller_from_physical_deg(physical_deg) / self.microstep_deg).round() as i64
     }
 
     fn deg_from_steps(&self, steps: i64) -> f64 {
-        self.cfg
+        self.core
+            .cfg()
             .physical_from_controller_deg(steps as f64 * self.microstep_deg)
     }
 
@@ -121,7 +123,7 @@ impl ZaberAxis {
     /// resolution. (A busy axis's position decides nothing; only its busy flag and warning do, which a single
     /// garbled byte cannot turn into another valid value.) Bounded; a typed Protocol error otherwise.
     async fn get_pos(&self) -> Result<(i64, bool, Option<String>), DriverError> {
-        let tolerance_steps = (self.cfg.encoder_resolution_deg / self.microstep_deg)
+        let tolerance_steps = (self.core.cfg().encoder_resolution_deg / self.microstep_deg)
             .round()
             .clamp(0.0, 1e9) as i64;
         let mut seen = Vec::new();
@@ -186,32 +188,59 @@ impl ZaberAxis {
         })
     }
 
-    pub async fn do_home(&self) -> Result<(), DriverError> {
+    /// The fault flags when any is set, in words; cleared afterwards so that the next move is not refused.
+    async fn clear_faults(&self, seen: Option<&str>) -> Option<String> {
+        let flags = self
+            .warnings()
+            .await
+            .unwrap_or_else(|_| seen.map(str::to_string).into_iter().collect());
+        let _ = self.ok("warnings clear", true).await;
+        (!flags.is_empty()).then(|| {
+            flags
+                .iter()
+                .map(|f| describe_warning(f))
+                .collect::<Vec<_>>()
+                .join(", ")
+        })
+    }
+
+    /// Stop this axis now on the priority path.
+    pub async fn stop_now(&self) -> Result<(), DriverError> {
+        let line = encode_command(self.device, self.axis, None, "stop");
+        self.chain
+            .port
+            .send_priority(line.as_bytes(), Instant::now() + REPLY_TIMEOUT)
+            .await
+            .map_err(|e| self.chain.transport_error(self.device, self.axis, "stop", e))
+    }
+}
+
+impl AxisDriver for ZaberAxis {
+    fn core(&self) -> &AxisCore {
+        &self.core
+    }
+
+    fn device(&self) -> String {
+        self.dev()
+    }
+
+    fn line_port(&self) -> &Arc<LinePort> {
+        &self.chain.port
+    }
+
+    async fn home_axis(&self) -> Result<(), DriverError> {
         tracing::info!(axis = %self.dev(), "homing");
         // Sent once: a lost reply is resolved by polling, not by homing again.
         match self.ok("home", false).await {
             Ok(_) | Err(DriverError::Timeout { .. }) => {}
             Err(e) => return Err(e),
         }
-        let (v, a) = self.speed_accel();
-        let span = self.cfg.max_deg - self.cfg.min_deg;
-        let deadline = Instant::now() + move_deadline(span, v, a) + Duration::from_secs(5);
-        let mut schedule = PollSchedule::new(Instant::now(), POLL_MIN, POLL_MAX);
-        loop {
-            let (_, busy, _) = self.get_pos().await?;
-            if !busy {
-                break;
-            }
-            let now = Instant::now();
-            if now >= deadline {
-                let _ = self.ok("stop", true).await;
-                return Err(DriverError::Timeout {
-                    device: self.dev(),
-                    request: "home".into(),
-                    timeout: move_deadline(span, v, a),
-                });
-            }
-            tokio::time::sleep(schedule.next_pause(now).min(deadline - now)).await;
+        let (v, a) = self.core.speed_accel();
+        let span = self.core.cfg().max_deg - self.core.cfg().min_deg;
+        let timeout = move_deadline(span, v, a) + Duration::from_secs(5);
+        let mut poll = Poll::new(self.dev(), "home", timeout, Duration::ZERO, POLL_MIN, POLL_MAX);
+        while self.get_pos().await?.1 {
+            poll.pause(|| self.ok("stop", true)).await?;
         }
         let flags = self.warnings().await?;
         if let Some(f) = flags.iter().find(|f| f.starts_with('F')) {
@@ -231,32 +260,9 @@ impl ZaberAxis {
         Ok(())
     }
 
-    fn speed_accel(&self) -> (f64, f64) {
-        self.motion
-            .lock()
-            .map(|g| *g)
-            .unwrap_or((self.cfg.max_speed_deg_s, self.cfg.accel_deg_s2))
-    }
-
-    fn check_limits(&self, target_deg: f64) -> Result<(), DriverError> {
-        if !(target_deg.is_finite() && target_deg >= self.cfg.min_deg && target_deg <= self.cfg.max_deg) {
-            return Err(DriverError::OutOfRange {
-                device: self.dev(),
-                what: "target (deg)".into(),
-                value: target_deg,
-                min: self.cfg.min_deg,
-                max: self.cfg.max_deg,
-            });
-        }
-        Ok(())
-    }
-
-    pub async fn do_start_move(&self, target_deg: f64) -> Result<(), DriverError> {
-        self.check_limits(target_deg)?;
+    async fn command_move(&self, target_deg: f64) -> Result<(), DriverError> {
         let (start, _, _) = self.get_pos().await?;
-        if let Ok(mut g) = self.last_start.lock() {
-            *g = Some(self.deg_from_steps(start));
-        }
+        self.core.set_start(Some(start as f64 * self.microstep_deg));
         let steps = self.steps_from_deg(target_deg);
         tracing::info!(axis = %self.dev(), target_deg, steps, "move abs");
         let r = self.ok(&format!("move abs {steps}"), true).await?;
@@ -267,86 +273,46 @@ impl ZaberAxis {
         Ok(())
     }
 
-    pub async fn do_wait_arrived(&self, target_deg: f64) -> Result<f64, DriverError> {
-        self.wait_arrived_within(target_deg, self.cfg.tolerance_deg).await
-    }
-
     /// Wait for the move to end; arrived when the read-back is within `tolerance_deg` of the target.
-    async fn wait_arrived_within(&self, target_deg: f64, tolerance_deg: f64) -> Result<f64, DriverError> {
-        let (v, a) = self.speed_accel();
-        let start = self.last_start.lock().ok().and_then(|g| *g);
-        let distance = start
-            .map(|s| (target_deg - s).abs())
-            .unwrap_or(self.cfg.max_deg - self.cfg.min_deg);
-        let timeout = move_deadline(distance, v, a);
-        let predicted = trapezoid_time_s(distance, v, a);
-        let now = Instant::now();
-        let deadline = now + timeout;
+    async fn wait_within(&self, target_deg: f64, tolerance_deg: f64) -> Result<f64, DriverError> {
+        let plan = self.core.plan(target_deg, Duration::ZERO);
         // The first question at once (the reply to `get pos` says busy or idle and where, in one exchange).
-        let mut schedule = PollSchedule::new(
-            now + Duration::from_secs_f64(if predicted.is_finite() {
-                predicted.clamp(0.0, 600.0)
-            } else {
-                0.0
-            }),
+        let mut poll = Poll::new(
+            self.dev(),
+            format!("move to {target_deg} deg"),
+            plan.timeout,
+            plan.predicted,
             POLL_MIN,
             POLL_MAX,
         );
-        let (mut steps, mut warning);
-        loop {
-            let (s, busy, w) = self.get_pos().await?;
-            steps = s;
-            warning = w;
+        let (steps, warning) = loop {
+            let (steps, busy, warning) = self.get_pos().await?;
             if let Some(f) = warning.as_deref().filter(|w| w.starts_with('F')) {
-                let flags = self.warnings().await.unwrap_or_else(|_| vec![f.to_string()]);
-                let _ = self.ok("warnings clear", true).await;
+                let why = self
+                    .clear_faults(Some(f))
+                    .await
+                    .unwrap_or_else(|| describe_warning(f));
                 return Err(DriverError::MotionFault {
                     device: self.dev(),
                     target_deg,
-                    reason: format!(
-                        "{}; stopped at {} deg",
-                        flags
-                            .iter()
-                            .map(|f| describe_warning(f))
-                            .collect::<Vec<_>>()
-                            .join(", "),
-                        self.deg_from_steps(steps)
-                    ),
+                    reason: format!("{why}; stopped at {} deg", self.deg_from_steps(steps)),
                 });
             }
             if !busy {
-                break;
+                break (steps, warning);
             }
-            let now = Instant::now();
-            if now >= deadline {
-                tracing::warn!(axis = %self.dev(), "deadline passed while moving; stopping the axis");
-                let _ = self.ok("stop", true).await;
-                return Err(DriverError::Timeout {
-                    device: self.dev(),
-                    request: format!("move to {target_deg} deg"),
-                    timeout,
-                });
-            }
-            tokio::time::sleep(schedule.next_pause(now).min(deadline - now)).await;
-        }
+            poll.pause(|| self.ok("stop", true)).await?;
+        };
         let read = self.deg_from_steps(steps);
         if (read - target_deg).abs() <= tolerance_deg.max(self.microstep_deg) {
             tracing::info!(axis = %self.dev(), target_deg, read_back_deg = read, "arrived");
             return Ok(read);
         }
-        let flags = self.warnings().await.unwrap_or_default();
-        let why = if flags.is_empty() {
+        let why = self.clear_faults(None).await.unwrap_or_else(|| {
             warning
                 .map(|w| describe_warning(&w))
                 .unwrap_or_else(|| "no warning flag".into())
-        } else {
-            flags
-                .iter()
-                .map(|f| describe_warning(f))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        let _ = self.ok("warnings clear", true).await;
+        });
         Err(DriverError::MotionFault {
             device: self.dev(),
             target_deg,
@@ -357,101 +323,28 @@ impl ZaberAxis {
         })
     }
 
-    pub async fn do_move_to(&self, target_deg: f64) -> Result<f64, DriverError> {
-        self.check_limits(target_deg)?;
-        let (steps, _, _) = self.get_pos().await?;
-        let current_c = steps as f64 * self.microstep_deg;
-        let mut read = f64::NAN;
-        for (step_deg, tolerance) in approach_waypoints(&self.cfg, current_c, target_deg) {
-            self.do_start_move(step_deg).await?;
-            read = self.wait_arrived_within(step_deg, tolerance).await?;
-        }
-        Ok(read)
+    async fn controller_position(&self) -> Result<f64, DriverError> {
+        Ok(self.get_pos().await?.0 as f64 * self.microstep_deg)
     }
 
-    pub async fn do_set_speed(&self, speed_deg_s: f64, accel_deg_s2: f64) -> Result<(), DriverError> {
-        check_speed(self.dev(), speed_deg_s, accel_deg_s2)?;
+    fn axis_status(&self) -> impl Future<Output = Result<AxisStatus, DriverError>> + Send {
+        self.read_status()
+    }
+
+    fn stop_axis(&self) -> impl Future<Output = Result<(), DriverError>> + Send {
+        self.stop_now()
+    }
+
+    async fn write_speed(&self, speed_deg_s: f64, accel_deg_s2: f64) -> Result<(), DriverError> {
         let speed = (speed_deg_s / self.microstep_deg * SPEED_UNIT).round().max(1.0) as i64;
         let accel = (accel_deg_s2 / self.microstep_deg * ACCEL_UNIT).round().max(1.0) as i64;
         self.ok(&format!("set maxspeed {speed}"), true).await?;
-        self.ok(&format!("set accel {accel}"), true).await?;
-        if let Ok(mut g) = self.motion.lock() {
-            *g = (speed_deg_s, accel_deg_s2);
-        }
+        self.ok(&format!("set accel {accel}"), true).await.map(|_| ())
+    }
+
+    /// Nothing to leave: a Zaber device takes moves again once its fault flags are cleared, which the wait
+    /// that saw them did.
+    async fn re_enable(&self) -> Result<(), DriverError> {
         Ok(())
-    }
-
-    pub async fn do_reconnect(&self) -> Result<AxisStatus, DriverError> {
-        self.chain
-            .port
-            .reconnect()
-            .await
-            .map_err(|e| DriverError::Unavailable {
-                device: self.dev(),
-                detail: e.to_string(),
-            })?;
-        let status = self.read_status().await?;
-        if !status.referenced {
-            return Err(DriverError::NotReferenced {
-                device: self.dev(),
-                state: status.raw,
-            });
-        }
-        tracing::info!(axis = %self.dev(), position_deg = status.position_deg, "re-verified after reconnect");
-        Ok(status)
-    }
-
-    /// Stop this axis now on the priority path.
-    pub async fn stop_now(&self) -> Result<(), DriverError> {
-        let line = encode_command(self.device, self.axis, None, "stop");
-        self.chain
-            .port
-            .send_priority(line.as_bytes(), Instant::now() + REPLY_TIMEOUT)
-            .await
-            .map_err(|e| self.chain.transport_error(self.device, self.axis, "stop", e))
-    }
-}
-
-impl Axis for ZaberAxis {
-    fn name(&self) -> &str {
-        &self.cfg.name
-    }
-    fn limits(&self) -> AxisLimits {
-        AxisLimits {
-            min_deg: self.cfg.min_deg,
-            max_deg: self.cfg.max_deg,
-            max_speed_deg_s: self.cfg.max_speed_deg_s,
-            accel_deg_s2: self.cfg.accel_deg_s2,
-        }
-    }
-    fn home(&self) -> BoxFuture<'_, Result<(), DriverError>> {
-        Box::pin(self.do_home())
-    }
-    fn move_to(&self, target_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>> {
-        Box::pin(self.do_move_to(target_deg))
-    }
-    fn start_move(&self, target_deg: f64) -> BoxFuture<'_, Result<(), DriverError>> {
-        Box::pin(self.do_start_move(target_deg))
-    }
-    fn wait_arrived(&self, target_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>> {
-        Box::pin(self.do_wait_arrived(target_deg))
-    }
-    fn wait_passed_via(&self, via_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>> {
-        Box::pin(self.wait_arrived_within(via_deg, crate::motion::via_point_tolerance_deg(&self.cfg)))
-    }
-    fn position_deg(&self) -> BoxFuture<'_, Result<f64, DriverError>> {
-        Box::pin(async move { self.get_pos().await.map(|(s, _, _)| self.deg_from_steps(s)) })
-    }
-    fn status(&self) -> BoxFuture<'_, Result<AxisStatus, DriverError>> {
-        Box::pin(self.read_status())
-    }
-    fn stop(&self) -> BoxFuture<'_, Result<(), DriverError>> {
-        Box::pin(self.stop_now())
-    }
-    fn set_speed(&self, speed_deg_s: f64, accel_deg_s2: f64) -> BoxFuture<'_, Result<(), DriverError>> {
-        Box::pin(self.do_set_speed(speed_deg_s, accel_deg_s2))
-    }
-    fn reconnect(&self) -> BoxFuture<'_, Result<AxisStatus, DriverError>> {
-        Box::pin(self.do_reconnect())
     }
 }

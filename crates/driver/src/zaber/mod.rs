@@ -8,7 +8,7 @@
 //! reply or info line ending in `\` continues in the next `#... cont` info line. `move abs`, `get`, `stop` and
 //! `warnings` are idempotent and retried (bounded); `home` is sent once. Positions are integer microsteps,
 //! converted to degrees with the axis's `microstep_deg`. A wait for a move asks at once, then on a
-//! [`PollSchedule`](crate::motion::PollSchedule).
+//! [`PollSchedule`](crate::poll::PollSchedule).
 //!
 //! Split by job: [`protocol`] (checksums, command lines, reply parsing, warning flags), [`chain`] (the port:
 //! requests, message ids, reply checksums, stop), [`axis`] (one axis: status, homing, verified moves).

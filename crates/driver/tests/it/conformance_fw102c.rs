@@ -108,11 +108,35 @@ async fn slow_mode_deadline_follows_the_configured_speed() {
     let took = t0.elapsed().as_secs_f64();
     assert!((6.0..7.0).contains(&took), "{took} s");
     // And at speed 1 with the vendor's 1 s a position.
-    let sim = sim_file(|_| {}, 1.0);
+    let sim = sim_file(|f| f.simulator.quirks.fw102c_noise_at_open = true, 1.0);
     let wheel = Fw102c::new("wheel", sim_port(&sim, "wheel"), 1.0).with_speed(1);
     let t0 = tokio::time::Instant::now();
     wheel.go_to(4).await.expect("half a turn in fast mode");
     let took = t0.elapsed().as_secs_f64();
     assert!((3.0..4.0).contains(&took), "{took} s");
     assert_eq!(wheel.position().await.expect("pos"), 4);
+}
+
+#[tokio::test(start_paused = true)]
+async fn turns_with_and_without_noise_at_open_and_after_reopening() {
+    trace();
+    for noise in [false, true] {
+        let sim = sim_file(|f| f.simulator.quirks.fw102c_noise_at_open = noise, 1.0);
+        let wheel = Fw102c::new("wheel", sim_port(&sim, "wheel"), 1.0).with_speed(1);
+        wheel
+            .go_to(4)
+            .await
+            .unwrap_or_else(|e| panic!("noise {noise}: {e}"));
+        assert_eq!(wheel.position().await.expect("pos"), 4, "noise {noise}");
+        // A reopened port starts with the noise again (when the wheel makes it): still read past.
+        wheel
+            .reconnect()
+            .await
+            .unwrap_or_else(|e| panic!("noise {noise}: reopen: {e}"));
+        wheel
+            .go_to(2)
+            .await
+            .unwrap_or_else(|e| panic!("noise {noise}: after reopening: {e}"));
+        assert_eq!(wheel.position().await.expect("pos"), 2, "noise {noise}");
+    }
 }

@@ -112,27 +112,47 @@ async fn both_arms_work_at(
 #[tokio::test(start_paused = true)]
 async fn correct_under_every_simulator_variant() {
     trace();
-    // The manual's controller, the recorded one (the default), and one needing a longer pause than ours.
-    both_arms_work(|f| {
-        f.simulator.quirks.smc100_min_command_gap_ms = 0.0;
-        f.simulator.quirks.smc100_drop_first_ts = false;
-    })
-    .await;
-    both_arms_work(|_| {}).await;
-    let chain = both_arms_work(|f| f.simulator.quirks.smc100_min_command_gap_ms = 200.0).await;
-    assert!(
-        chain.set_gap() >= Duration::from_millis(200),
-        "the pause widened to what the controller needs: {:?}",
-        chain.set_gap()
-    );
+    // Every combination, each set explicitly: the manual's controller (no pause needed, every TS answered), the
+    // recorded one (60 ms, the first TS lost), one needing a longer pause than ours (200 ms), and each with and
+    // without the lost first TS.
+    for gap_ms in [0.0, 60.0, 200.0] {
+        for drop_first_ts in [false, true] {
+            let chain = both_arms_work(|f| {
+                f.simulator.quirks.smc100_min_command_gap_ms = gap_ms;
+                f.simulator.quirks.smc100_drop_first_ts = drop_first_ts;
+            })
+            .await;
+            let gap = chain.set_gap();
+            if gap_ms > SET_GAP.as_millis() as f64 {
+                assert!(
+                    gap >= Duration::from_millis(200),
+                    "gap {gap_ms} ms, drop {drop_first_ts}: the pause widened to what the controller needs: {gap:?}"
+                );
+            } else {
+                assert_eq!(
+                    gap, SET_GAP,
+                    "gap {gap_ms} ms, drop {drop_first_ts}: no need to widen"
+                );
+            }
+        }
+    }
     // The same controller 40 times faster: the pause widens in the controller's time, not to real
     // milliseconds (which would be 40 times what it needs).
-    let chain = both_arms_work_at(|f| f.simulator.quirks.smc100_min_command_gap_ms = 200.0, 40.0).await;
-    assert!(
-        chain.set_gap() >= Duration::from_millis(5) && chain.set_gap() <= MAX_SET_GAP.div_f64(40.0),
-        "widened within the scaled bounds: {:?}",
-        chain.set_gap()
-    );
+    for drop_first_ts in [false, true] {
+        let chain = both_arms_work_at(
+            |f| {
+                f.simulator.quirks.smc100_min_command_gap_ms = 200.0;
+                f.simulator.quirks.smc100_drop_first_ts = drop_first_ts;
+            },
+            40.0,
+        )
+        .await;
+        assert!(
+            chain.set_gap() >= Duration::from_millis(5) && chain.set_gap() <= MAX_SET_GAP.div_f64(40.0),
+            "widened within the scaled bounds: {:?}",
+            chain.set_gap()
+        );
+    }
 }
 
 #[test]
@@ -161,7 +181,14 @@ fn paced_exchanges_hold_at_large_time_scales_under_load() {
             .build()
             .expect("runtime");
         rt.block_on(async {
-            let sim = sim_file(|_| {}, scale);
+            // The recorded controller (60 ms pause, first TS lost), set explicitly.
+            let sim = sim_file(
+                |f| {
+                    f.simulator.quirks.smc100_min_command_gap_ms = 60.0;
+                    f.simulator.quirks.smc100_drop_first_ts = true;
+                },
+                scale,
+            );
             let chain = Smc100Chain::with_set_gap("arms", sim_port(&sim, "arms"), SET_GAP.div_f64(scale));
             let light = Smc100Axis::new(Arc::clone(&chain), sim_axis("light"));
             let detector = Smc100Axis::new(Arc::clone(&chain), sim_axis("detector"));

@@ -9,7 +9,7 @@ use gonio_driver::zaber::{Flag, ZaberAxis, ZaberChain};
 use gonio_driver::{Axis, ErrorKind};
 use gonio_instrument::ZaberBadChecksum;
 
-use crate::common::{sim_axis, sim_file, sim_port, trace};
+use crate::common::{demanding_quirks, manual_quirks, sim_axis, sim_file, sim_port, trace};
 use crate::scripted::{peer, zparse, zreply};
 
 #[tokio::test(start_paused = true)]
@@ -92,8 +92,21 @@ async fn unhomed_moves_are_not_referenced_even_behind_a_higher_priority_flag() {
 #[tokio::test(start_paused = true)]
 async fn correct_under_both_bad_checksum_variants() {
     trace();
-    for variant in [ZaberBadChecksum::RejectAll, ZaberBadChecksum::Ignore] {
-        let sim = sim_file(|f| f.simulator.quirks.zaber_bad_checksum = variant, 1.0);
+    // Both answers the manual gives, each set explicitly, with the other devices as the manuals describe them
+    // and as recorded.
+    for (variant, others) in [
+        (ZaberBadChecksum::RejectAll, manual_quirks()),
+        (ZaberBadChecksum::Ignore, manual_quirks()),
+        (ZaberBadChecksum::RejectAll, demanding_quirks()),
+        (ZaberBadChecksum::Ignore, demanding_quirks()),
+    ] {
+        let sim = sim_file(
+            |f| {
+                f.simulator.quirks = others;
+                f.simulator.quirks.zaber_bad_checksum = variant;
+            },
+            1.0,
+        );
         let chain = ZaberChain::new("stage", sim_port(&sim, "stage"));
         let tilt = ZaberAxis::new(Arc::clone(&chain), sim_axis("tilt")).expect("tilt");
         let err = tilt.start_move(5.0).await.expect_err("unhomed");

@@ -7,6 +7,7 @@
 //! - `garbled`: a digit garbled inside a well-formed number never becomes a wrong position (issue 8).
 //! - `conformance_*`: each device's recorded real-device behaviour (issue 17), byte-level with the exchanges
 //!   quoted from vendor references and real-device reports, and against every simulator variant.
+//! - `first_ts`: the SMC100's recorded first-TS loss logged at debug with a count at info; faults still warn.
 //! - `sim`: every driver against the simulator's emulators, in process and through pseudo-terminals.
 
 mod common;
@@ -14,8 +15,10 @@ mod conformance_fw102c;
 mod conformance_pm100;
 mod conformance_smc100;
 mod conformance_zaber;
+mod first_ts;
 mod fuzz;
 mod garbled;
+mod logcap;
 mod scripted;
 mod sim;
 mod usbtmc;
