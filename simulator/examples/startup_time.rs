@@ -38,7 +38,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 radius_mm: file.instrument.sample_holder.max_sample_radius_mm,
                 orientation_deg: 0.0,
             };
-            let optics = Optics::new(&file.instrument, sample, file.simulator.seed)?.with_hidden_truth(hidden.as_ref());
+            let optics = Optics::new(&file.instrument, sample, file.simulator.seed)?
+                .with_hidden_truth(hidden.as_ref());
             let t2 = Instant::now();
             let sim = SimInstrument::new(&file, Arc::new(UniformScene { power_w: 1e-4 }), 1.0)?;
             let t3 = Instant::now();

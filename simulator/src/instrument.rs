@@ -17,9 +17,9 @@ use crate::motion::{AxisMotion, AxisParams};
 use crate::pm100::{Pm100, SimUsbDevice};
 use crate::recording::MotionRecord;
 use crate::scene::{Band, Pose, Scene};
-use crate::world::World;
 use crate::session::{self, SerialStream, SharedEmulator};
 use crate::smc100::Smc100Chain;
+use crate::world::World;
 use crate::zaber::ZaberChain;
 
 /// Why the simulated instrument could not be built or a device not reached.

@@ -254,7 +254,11 @@ async fn first_ts_after_power_up_and_after_homing_gets_no_reply() {
 async fn on_the_ideal_instrument_every_line_is_taken_and_every_ts_answered() {
     let sim = sim();
     let mut p = Port::open(&sim, "arms");
-    assert_eq!(p.query("1TS\r\n").await.as_deref(), Some("1TS00000A\r\n"), "first TS after power-up");
+    assert_eq!(
+        p.query("1TS\r\n").await.as_deref(),
+        Some("1TS00000A\r\n"),
+        "first TS after power-up"
+    );
     // A set command and the query after it in one write, then two queries in one write.
     p.send(b"1PA10\r\n1TE\r\n").await;
     assert_eq!(p.line().await.as_deref(), Some("1TEH\r\n"));
@@ -266,7 +270,11 @@ async fn on_the_ideal_instrument_every_line_is_taken_and_every_ts_answered() {
     p.send(b"1OR\r\n1TS\r\n").await;
     assert_eq!(p.line().await.as_deref(), Some("1TS00001E\r\n"));
     sim.clock().sleep_s(5.0).await;
-    assert_eq!(p.query("1TS\r\n").await.as_deref(), Some("1TS000032\r\n"), "first TS after homing");
+    assert_eq!(
+        p.query("1TS\r\n").await.as_deref(),
+        Some("1TS000032\r\n"),
+        "first TS after homing"
+    );
     // A move and its position query at once.
     p.send(b"1PA10\r\n1TE\r\n").await;
     assert_eq!(p.line().await.as_deref(), Some("1TE@\r\n"));
@@ -280,10 +288,16 @@ async fn under_the_recorded_variants_the_same_host_loses_those_replies() {
     let sim = sim_with(recorded_quirks);
     let mut p = Port::open(&sim, "arms");
     p.send(b"1TS\r\n").await;
-    assert!(p.silent_for(Duration::from_millis(300)).await, "first TS after power-up: no reply");
+    assert!(
+        p.silent_for(Duration::from_millis(300)).await,
+        "first TS after power-up: no reply"
+    );
     assert_eq!(p.query("1TS\r\n").await.as_deref(), Some("1TS00000A\r\n"));
     sim.clock().sleep_s(0.1).await;
     p.send(b"1PA10\r\n1TE\r\n").await;
-    assert!(p.silent_for(Duration::from_millis(300)).await, "TE right after the set command: lost");
+    assert!(
+        p.silent_for(Duration::from_millis(300)).await,
+        "TE right after the set command: lost"
+    );
     assert_eq!(sim.lost_input_lines(), 1);
 }

@@ -22,8 +22,8 @@ use gonio_instrument::SourceImperfections;
 use serde::Serialize;
 
 use super::draw::Draws;
-use super::walk::Walk;
 pub use super::walk::WALK_STEP_S;
+use super::walk::Walk;
 
 /// Sinusoids in the flicker (log-spaced over three decades, 0.01-10 Hz).
 pub const FLICKER_LINES: usize = 31;
@@ -56,7 +56,8 @@ pub struct SourceTruth {
 impl SourceTruth {
     pub fn draw(settings: &SourceImperfections, seed: u64) -> SourceTruth {
         let draws = Draws::new(seed);
-        let walk = (settings.random_walk_per_rthour > 0.0).then(|| Walk::new(settings.random_walk_per_rthour, seed));
+        let walk =
+            (settings.random_walk_per_rthour > 0.0).then(|| Walk::new(settings.random_walk_per_rthour, seed));
         let flicker = if settings.flicker_rms > 0.0 {
             let amplitude = settings.flicker_rms * (2.0 / FLICKER_LINES as f64).sqrt();
             (0..FLICKER_LINES)

@@ -71,7 +71,10 @@ impl Walk {
         for level in (1..=LEVELS).rev() {
             let half_sd = 0.5 * self.step_sd * f64::from(1u32 << level).sqrt();
             // The key joins level and node index; node < MAX_BLOCKS 2^(LEVELS - level) < 2^32 fits beside it.
-            let z = self.draws.normal_pair(LABEL_SPLIT, (node << 5) | u64::from(level)).0;
+            let z = self
+                .draws
+                .normal_pair(LABEL_SPLIT, (node << 5) | u64::from(level))
+                .0;
             let left = 0.5 * total + half_sd * z;
             if (n >> (level - 1)) & 1 == 0 {
                 total = left;
@@ -112,7 +115,20 @@ mod tests {
         let sigma2 = s * s * WALK_STEP_S / 3600.0;
         let block = 1u64 << LEVELS;
         // Knots where the deepest splits and the block boundary meet, and some in between.
-        let knots = [0, 1, 2, 3, 511, 512, 513, block / 2 - 1, block / 2, block - 1, block, block + 1];
+        let knots = [
+            0,
+            1,
+            2,
+            3,
+            511,
+            512,
+            513,
+            block / 2 - 1,
+            block / 2,
+            block - 1,
+            block,
+            block + 1,
+        ];
         let seeds = 2000u64;
         let (mut sum2, mut cross, mut count) = (0.0, 0.0, 0.0);
         for seed in 0..seeds {
@@ -139,7 +155,10 @@ mod tests {
         let s = 1e-3;
         let seeds = 2000u64;
         for t_s in [4.0 * 3600.0, 1.5 * 3600.0 * f64::from(1u32 << LEVELS) / 60.0] {
-            let var = (0..seeds).map(|seed| Walk::new(s, seed).at(t_s).powi(2)).sum::<f64>() / seeds as f64;
+            let var = (0..seeds)
+                .map(|seed| Walk::new(s, seed).at(t_s).powi(2))
+                .sum::<f64>()
+                / seeds as f64;
             let ratio = var / (s * s * t_s / 3600.0);
             // 2000 dof: +-6.3 % at 2 sigma.
             assert!((ratio - 1.0).abs() < 0.1, "t {t_s} s: variance ratio {ratio}");

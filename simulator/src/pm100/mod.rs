@@ -1,8 +1,9 @@
 //! Thorlabs PM100USB optical power meter: SCPI over USBTMC, as a USB device with bulk and control pipes.
 //!
 //! Split by job: [`usbtmc`] (the USB side: bulk and control pipes, framing), [`scpi`] (header matching,
-//! number formats), `function` (the measurement function both of those speak), [`commands`] (the command set: IEEE 488.2 common commands, status registers, sense
-//! settings, measurement functions), [`physics`] (photocurrent, noise, ranges).
+//! number formats), `function` (the measurement function the command tree and the command set both speak),
+//! [`commands`] (the command set: IEEE 488.2 common commands, status registers, sense settings, measurement
+//! functions), [`physics`] (photocurrent, noise, ranges).
 //!
 //! USBTMC (USB Test & Measurement Class 1.0) framing on the device side:
 //! - Bulk-OUT transfers start with a 12-byte header: MsgID (1 DEV_DEP_MSG_OUT, 2 REQUEST_DEV_DEP_MSG_IN), bTag,
