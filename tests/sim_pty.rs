@@ -32,7 +32,7 @@ fn read_until(port: &mut std::fs::File, end: &[u8], deadline: Duration) -> Vec<u
 
 /// Ask the FW102C for its position on a fresh connection and expect `pos?\r1\r> `, after at most the port
 /// noise real wheels send ahead of their first answer (NUL bytes and a `CMD_NOT_DEFINED`, which the simulator
-/// reproduces by default).
+/// reproduces under realistic.toml's recorded variants; the ideal instrument sends none).
 fn expect_wheel_position_answer(wheel: &mut std::fs::File) {
     wheel.write_all(b"pos?\r").expect("write");
     let got =
@@ -91,8 +91,9 @@ fn gonio_sim_serves_devices_on_pseudo_terminals_and_exits_cleanly_on_sigterm() {
     assert!(meter["path"].is_null());
 
     // SMC100: status of controller 1 after power-up is NOT REFERENCED from reset; home it and watch it become READY.
-    // Real controllers may leave the first TS after power-up unanswered (the simulator does by default), and
-    // drop a command that arrives while they are still busy with the previous one: ask again, and pace.
+    // Real controllers may leave the first TS after power-up unanswered (realistic.toml's simulator does; the
+    // ideal one answers), and drop a command that arrives while they are still busy with the previous one: ask
+    // again, and pace.
     let mut arms = open_port(&path_of("smc100"));
     arms.write_all(b"1TS\r\n").expect("write");
     let first = read_until(&mut arms, b"\r\n", Duration::from_millis(500));

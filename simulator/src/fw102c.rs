@@ -15,8 +15,9 @@
 //!   wheel is idle and add stray light to the detector; real-hardware drivers set `sensors=0` at start-up for
 //!   that reason. The stray photocurrent here ([`SENSOR_STRAY_A`]) is an unconfirmed magnitude.
 //! - Right after the port opens, NUL bytes and a `Command error CMD_NOT_DEFINED` (then the prompt) can arrive
-//!   (reported by users of real wheels): `[simulator.quirks] fw102c_noise_at_open`, default on; here they come
-//!   just ahead of the first answer on each connection. Unconfirmed: how many NUL bytes (here three) and
+//!   (reported by users of real wheels): `[simulator.quirks] fw102c_noise_at_open`, off by default (the manual
+//!   describes none), on in config/instruments/realistic.toml; here they come just ahead of the first answer on
+//!   each connection. Unconfirmed: how many NUL bytes (here three) and
 //!   whether the prompt follows.
 
 use gonio_instrument::FilterWheel;

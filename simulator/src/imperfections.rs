@@ -12,8 +12,8 @@
 //! lives: [`geometry`] (axis zero offsets and periodic encoder error, sample tilt and re-seating, the arms'
 //! eccentricity; crate::optics), [`detector`] (range gains, nonlinearity and offsets, saturation, amplifier
 //! noise and ambient light in the power meter, crate::pm100::physics; stray light by pose in crate::optics),
-//! [`source`] (warm-up, random walk, flicker; crate::optics::source), [`sample`] (reflectance varying over the
-//! sample's area; crate::optics), [`filters`] (finite bands and out-of-band leakage; crate::optics::spectral),
+//! [`source`] (warm-up, random walk drawn where asked for by [`walk`], flicker; crate::optics::source),
+//! [`sample`] (reflectance varying over the sample's area; crate::optics), [`filters`] (finite bands and out-of-band leakage; crate::optics::spectral),
 //! [`beam`] (profile, pointing, divergence; crate::optics).
 //!
 //! An all-zero table is the ideal instrument bit for bit: [`HiddenTruth::draw`] returns `None` for a group that
@@ -27,6 +27,7 @@ pub mod filters;
 pub mod geometry;
 pub mod sample;
 pub mod source;
+pub mod walk;
 
 use gonio_instrument::{AxisRole, InstrumentFile};
 use serde::Serialize;

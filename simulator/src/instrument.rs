@@ -8,7 +8,7 @@
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
-use gonio_instrument::{Axis, AxisRole, InstrumentFile, Protocol};
+use gonio_instrument::{Axis, InstrumentFile, Protocol};
 
 use crate::clock::SimClock;
 use crate::faults::{FaultCounts, FaultInjector};
@@ -19,6 +19,7 @@ use crate::recording::MotionRecord;
 use crate::scene::{Band, Pose, Scene};
 use crate::session::{self, SerialStream, SharedEmulator};
 use crate::smc100::Smc100Chain;
+use crate::world::World;
 use crate::zaber::ZaberChain;
 
 /// Why the simulated instrument could not be built or a device not reached.
@@ -61,50 +62,6 @@ struct Inner {
     meters: BTreeMap<String, Arc<Pm100>>,
     /// The hidden imperfections drawn from the file's magnitudes and seed; `None` on the ideal instrument.
     hidden: Option<crate::imperfections::HiddenTruth>,
-}
-
-/// The physical state every device shares: the clock, the axes, what is in the beam, and the optics.
-#[derive(Debug)]
-pub(crate) struct World {
-    pub clock: SimClock,
-    pub scene: Arc<dyn Scene>,
-    axes: Vec<(Axis, Arc<Mutex<AxisMotion>>)>,
-    wheel: Option<Arc<Mutex<Fw102c>>>,
-    /// The band when there is no filter wheel.
-    fixed_band: Band,
-}
-
-impl World {
-    pub fn pose(&self, t_s: f64) -> Pose {
-        let mut pose = Pose::default();
-        for (axis, motion) in &self.axes {
-            let controller_deg = motion.lock().unwrap_or_else(|e| e.into_inner()).load_deg(t_s);
-            let physical = axis.physical_from_controller_deg(controller_deg);
-            match axis.role {
-                AxisRole::LightArm => pose.light_deg = physical,
-                AxisRole::DetectorArm => pose.detector_deg = physical,
-                AxisRole::SampleTilt => pose.tilt_deg = physical,
-                AxisRole::SampleRotation => pose.rotation_deg = physical,
-            }
-        }
-        pose
-    }
-
-    pub fn band(&self, t_s: f64) -> Band {
-        match &self.wheel {
-            Some(w) => w.lock().unwrap_or_else(|e| e.into_inner()).band_at(t_s),
-            None => self.fixed_band,
-        }
-    }
-
-    /// Stray photocurrent at the detector at `t_s` that no optics explain (A): the filter wheel's lit position
-    /// sensors.
-    pub fn stray_a(&self, t_s: f64) -> f64 {
-        match &self.wheel {
-            Some(w) => w.lock().unwrap_or_else(|e| e.into_inner()).stray_a(t_s),
-            None => 0.0,
-        }
-    }
 }
 
 impl SimInstrument {
@@ -360,7 +317,9 @@ impl SimInstrument {
     }
 
     /// Command lines the serial devices lost so far because they came while the device could not take them
-    /// (`[simulator.quirks] smc100_min_command_gap_ms`): zero for a host that paces its commands as it should.
+    /// (`[simulator.quirks] smc100_min_command_gap_ms`): always zero on the ideal instrument, which takes every
+    /// line as the manual describes; under the recorded pacing (config/instruments/realistic.toml), zero for a
+    /// host that paces its commands as it should.
     pub fn lost_input_lines(&self) -> u64 {
         self.lost_input_by_command().values().sum()
     }

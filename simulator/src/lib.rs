@@ -9,8 +9,10 @@
 //!   values drawn from the seed) and the true geometry they make; never visible to the engine.
 //! - [`instrument`]: [`SimInstrument`], the whole simulated instrument and its in-process API (serial streams,
 //!   the USB power meter, pose/band/clock/faults for tests and the daemon).
+//! - `world`: the physical state every device shares (clock, axes, filter wheel, scene).
 //! - [`clock`]: the simulated clock (tokio time x time scale).
 //! - [`motion`]: per-axis motion physics (trapezoidal profiles, backlash, limits, encoder, stalls).
+//! - [`move_end`]: why an axis's last move ended (arrived, stopped, stalled, at a limit).
 //! - [`recording`]: what each axis was commanded and its exact trajectory, for safety audits.
 //! - [`smc100`], [`zaber`], [`fw102c`], [`pm100`]: the device emulators, speaking the real wire protocols.
 //! - [`pty`]: a serial device served on a real pseudo-terminal ([`pty::PtyDevice`]).
@@ -28,6 +30,7 @@ pub mod imperfections;
 pub mod instrument;
 pub mod kinematics;
 pub mod motion;
+pub mod move_end;
 pub mod optics;
 pub mod pm100;
 pub mod pty;
@@ -37,6 +40,7 @@ pub mod scene;
 pub mod session;
 pub mod smc100;
 pub mod usb_socket;
+pub(crate) mod world;
 pub mod zaber;
 
 pub use faults::FaultCounts;

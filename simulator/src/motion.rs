@@ -12,6 +12,7 @@
 //! - A new move during a move first decelerates to rest, then starts the new profile (a conservative controller).
 //! - Optionally, every command and profile change is recorded ([`crate::recording`]) for safety audits.
 
+use crate::move_end::MoveEnd;
 use crate::recording::{
     ChangeKind, CommandRecord, MotionCommand, MotionRecord, ProfileChange, ProfileSegment,
 };
@@ -24,22 +25,6 @@ pub struct AxisParams {
     pub hw_max_deg: f64,
     pub backlash_deg: f64,
     pub encoder_resolution_deg: f64,
-}
-
-/// Why the last move ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum MoveEnd {
-    /// Reached its target.
-    Arrived,
-    /// Decelerated to rest on request (stop).
-    Stopped,
-    /// Stopped instantly on request (emergency stop).
-    Halted,
-    /// Stopped short: stall (following error).
-    Stalled,
-    /// Ran into the negative or positive limit switch.
-    LimitNegative,
-    LimitPositive,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -49,9 +49,10 @@
 //!
 //! # Where the code is
 //! Here: the public types, the optics' construction and settings, the source's power. One reading, at rest then at
-//! an instant: `reading.rs`. The ground truth and the aperture integral behind the power: `truth.rs`, which takes
-//! its integration plan from `strategy.rs` and the material per band, in its own frame, from `resolved.rs`. The
-//! physics they use: [`source`], [`footprint`], [`aperture`], [`cap`].
+//! an instant: `reading.rs`, on the pose's geometry as `geometry.rs` holds it. The ground truth and the aperture
+//! integral behind the power: `truth.rs`, which takes its integration plan from `strategy.rs` and the material per
+//! band, in its own frame, from `resolved.rs`. The physics they use: [`source`], [`footprint`], [`aperture`],
+//! [`cap`].
 
 pub mod aperture;
 mod beam;
@@ -59,6 +60,7 @@ pub mod cap;
 pub mod footprint;
 pub mod footprint_gaussian;
 pub mod footprint_offset;
+mod geometry;
 mod imperfect;
 mod reading;
 mod resolved;

@@ -348,12 +348,10 @@ mod tests {
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn the_wheel_answers_on_its_terminal_opened_by_path() {
-        let sim = SimInstrument::new(
-            &gonio_instrument::InstrumentFile::simulated(),
-            Arc::new(Dark),
-            1.0,
-        )
-        .expect("sim");
+        // The recorded noise at open switched on, so the terminal is shown to carry it as the wheel sends it.
+        let mut file = gonio_instrument::InstrumentFile::simulated();
+        file.simulator.quirks.fw102c_noise_at_open = true;
+        let sim = SimInstrument::new(&file, Arc::new(Dark), 1.0).expect("sim");
         let pty = PtyDevice::serve(&sim, "wheel").expect("serve");
         assert_eq!(pty.device(), "wheel");
         let path = pty.path().to_path_buf();
@@ -378,7 +376,7 @@ mod tests {
             .expect("the wheel answered in time")
             .expect("client");
         let text = String::from_utf8_lossy(&reply);
-        // The noise of a freshly opened port (a recorded real-wheel quirk, on by default), then echo and CR, the
+        // The noise of a freshly opened port (a recorded real-wheel quirk, switched on here), then echo and CR, the
         // answer (position 1 at power-up) and CR, then the prompt (FW102C manual).
         assert_eq!(text, "\0\0\0Command error CMD_NOT_DEFINED\r> pos?\r1\r> ");
         assert_eq!(

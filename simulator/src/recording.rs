@@ -13,7 +13,7 @@
 
 use gonio_instrument::Axis;
 
-use crate::motion::MoveEnd;
+use crate::move_end::MoveEnd;
 
 /// Records kept per axis at most; further entries are dropped and the record says it is truncated.
 pub const MAX_RECORDS_PER_AXIS: usize = 1_000_000;

@@ -1,12 +1,14 @@
 //! SMC100 conformance beyond the manual's motion subset: the whole command list (TB, parameters, ZT, SE, RS##),
-//! the replies real controllers were recorded giving (VE, TP decimals), input pacing, and the TS that gets no
-//! reply after power-up and after homing.
+//! the replies real controllers were recorded giving (VE, TP decimals), and both variants of the recorded quirks:
+//! on the ideal instrument (the manual's behaviour, the defaults) every line is taken and every TS answered; under
+//! the recorded variants (config/instruments/realistic.toml) input sent too soon is lost and the TS after power-up
+//! and after homing gets no reply.
 
 mod common;
 
 use std::time::Duration;
 
-use common::{Port, sim_scaled, sim_with};
+use common::{Port, recorded_quirks, sim, sim_scaled, sim_with};
 
 /// The manual's controller (no pacing, every TS answered), for the command-list checks.
 fn manual() -> gonio_simulator::SimInstrument {
@@ -156,7 +158,10 @@ async fn ve_and_tp_look_like_a_real_controller() {
 
 #[tokio::test(start_paused = true)]
 async fn commands_sent_in_a_burst_are_lost_and_paced_ones_are_taken() {
-    let sim = sim_with(|f| f.simulator.quirks.smc100_drop_first_ts = false);
+    let sim = sim_with(|f| {
+        recorded_quirks(f);
+        f.simulator.quirks.smc100_drop_first_ts = false;
+    });
     let mut p = Port::open(&sim, "arms");
     // Two queries to one controller in one write: the second arrives while the first's reply is still on
     // the line. To two controllers: each has its own processor, both answer.
@@ -192,7 +197,13 @@ async fn commands_sent_in_a_burst_are_lost_and_paced_ones_are_taken() {
 /// command still keeps its controller busy for its 60 ms.
 #[tokio::test(start_paused = true)]
 async fn at_a_large_time_scale_a_host_waiting_for_each_reply_loses_nothing() {
-    let sim = sim_scaled(|f| f.simulator.quirks.smc100_drop_first_ts = false, 1000.0);
+    let sim = sim_scaled(
+        |f| {
+            recorded_quirks(f);
+            f.simulator.quirks.smc100_drop_first_ts = false;
+        },
+        1000.0,
+    );
     let mut p = Port::open(&sim, "arms");
     for _ in 0..20 {
         assert_eq!(p.query("1TS\r\n").await.as_deref(), Some("1TS00000A\r\n"));
@@ -212,7 +223,10 @@ async fn at_a_large_time_scale_a_host_waiting_for_each_reply_loses_nothing() {
 
 #[tokio::test(start_paused = true)]
 async fn first_ts_after_power_up_and_after_homing_gets_no_reply() {
-    let sim = sim_with(|f| f.simulator.quirks.smc100_min_command_gap_ms = 0.0);
+    let sim = sim_with(|f| {
+        recorded_quirks(f);
+        f.simulator.quirks.smc100_min_command_gap_ms = 0.0;
+    });
     let mut p = Port::open(&sim, "arms");
     p.send(b"1TS\r\n").await;
     assert!(
@@ -231,4 +245,59 @@ async fn first_ts_after_power_up_and_after_homing_gets_no_reply() {
     assert_eq!(p.query("1TS\r\n").await.as_deref(), Some("1TS000032\r\n"));
     // Only the first: the next ones are answered.
     assert_eq!(p.query("1TS\r\n").await.as_deref(), Some("1TS000032\r\n"));
+}
+
+/// The ideal instrument, as config/instruments/simulated.toml and the defaults make it: a host that queries
+/// right after a set command, sends queries in a burst, or asks TS first after power-up and after homing (as
+/// QuTech's QMI driver and a host following the manual do) gets every reply, and no line is lost.
+#[tokio::test(start_paused = true)]
+async fn on_the_ideal_instrument_every_line_is_taken_and_every_ts_answered() {
+    let sim = sim();
+    let mut p = Port::open(&sim, "arms");
+    assert_eq!(
+        p.query("1TS\r\n").await.as_deref(),
+        Some("1TS00000A\r\n"),
+        "first TS after power-up"
+    );
+    // A set command and the query after it in one write, then two queries in one write.
+    p.send(b"1PA10\r\n1TE\r\n").await;
+    assert_eq!(p.line().await.as_deref(), Some("1TEH\r\n"));
+    p.send(b"1TS\r\n1TS\r\n2TS\r\n").await;
+    assert_eq!(p.line().await.as_deref(), Some("1TS00000A\r\n"));
+    assert_eq!(p.line().await.as_deref(), Some("1TS00000A\r\n"));
+    assert_eq!(p.line().await.as_deref(), Some("2TS00000A\r\n"));
+    // Homing, then TS the moment it is done.
+    p.send(b"1OR\r\n1TS\r\n").await;
+    assert_eq!(p.line().await.as_deref(), Some("1TS00001E\r\n"));
+    sim.clock().sleep_s(5.0).await;
+    assert_eq!(
+        p.query("1TS\r\n").await.as_deref(),
+        Some("1TS000032\r\n"),
+        "first TS after homing"
+    );
+    // A move and its position query at once.
+    p.send(b"1PA10\r\n1TE\r\n").await;
+    assert_eq!(p.line().await.as_deref(), Some("1TE@\r\n"));
+    assert_eq!(sim.lost_input_lines(), 0);
+}
+
+/// The same host on the recorded variants (config/instruments/realistic.toml): the first TS after power-up and
+/// the query right after a set command get no reply, and the lost line is counted.
+#[tokio::test(start_paused = true)]
+async fn under_the_recorded_variants_the_same_host_loses_those_replies() {
+    let sim = sim_with(recorded_quirks);
+    let mut p = Port::open(&sim, "arms");
+    p.send(b"1TS\r\n").await;
+    assert!(
+        p.silent_for(Duration::from_millis(300)).await,
+        "first TS after power-up: no reply"
+    );
+    assert_eq!(p.query("1TS\r\n").await.as_deref(), Some("1TS00000A\r\n"));
+    sim.clock().sleep_s(0.1).await;
+    p.send(b"1PA10\r\n1TE\r\n").await;
+    assert!(
+        p.silent_for(Duration::from_millis(300)).await,
+        "TE right after the set command: lost"
+    );
+    assert_eq!(sim.lost_input_lines(), 1);
 }

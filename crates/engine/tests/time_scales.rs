@@ -1,6 +1,7 @@
 //! Dry-runs on a real clock at the time scales the daemon runs them (40 in the daemon's end-to-end tests, 200
-//! for `gonio run`), with every core busy and the simulated instrument's recorded real-device quirks on (the
-//! defaults: SMC100 input pacing and the unanswered TS, the slow wheel and its noise at open, Zaber rejections):
+//! for `gonio run`), with every core busy and the simulated instrument's recorded real-device quirks on (those
+//! config/instruments/realistic.toml takes, set here explicitly on the ideal instrument, whose defaults are the
+//! manuals' behaviour: SMC100 input pacing and the unanswered TS, the wheel's noise at open, Zaber rejections):
 //! a campaign completes with every point, no line is lost to the SMC100's input pacing, and no status read or
 //! set command needs a second try beyond what the unanswered TS costs.
 //!
@@ -89,7 +90,13 @@ fn ts_quirk(w: &str) -> bool {
 
 /// Run the campaign at `time_scale` on a real clock; returns (state, points committed, points planned).
 async fn dry_run(time_scale: f64) -> (CampaignState, usize, u64, Vec<String>, u64) {
-    let file = InstrumentFile::simulated();
+    let mut file = InstrumentFile::simulated();
+    let realistic =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/instruments/realistic.toml");
+    file.simulator.quirks = InstrumentFile::load(&realistic)
+        .expect("realistic.toml")
+        .simulator
+        .quirks;
     assert!(
         file.simulator.quirks.smc100_min_command_gap_ms >= 60.0 && file.simulator.quirks.smc100_drop_first_ts
     );

@@ -8,8 +8,11 @@
 //! The instrument is a [`SoakInstrument`]: `config/instruments/simulated.toml` (the ideal one, embedded) or
 //! `config/instruments/realistic.toml` (the imperfect one of issue 16, embedded too), or any instrument file,
 //! with keys appended to its `[simulator.faults]` table, so that the stored instrument text keeps the file's
-//! comments and units, its `[simulator.quirks]` (the recorded real-device variants, each the most demanding for
-//! a host) and its `[simulator.imperfections]`.
+//! comments and units, its `[simulator.quirks]` and its `[simulator.imperfections]`. Every soak runs under the
+//! recorded real-device variants, each the one that demands the most of a host: realistic.toml takes them, and
+//! the ideal file, whose own quirks are the manuals' behaviour, gets them written into its `[simulator.quirks]`
+//! table ([`recorded_quirks`]), so the soaks keep testing the drivers against what real devices were recorded
+//! doing.
 
 use std::path::Path;
 
@@ -41,11 +44,12 @@ impl Default for SoakInstrument {
 }
 
 impl SoakInstrument {
-    /// The ideal simulated instrument, `config/instruments/simulated.toml`.
+    /// The ideal simulated instrument, `config/instruments/simulated.toml`, under the recorded real-device
+    /// variants ([`recorded_quirks`]).
     pub fn simulated() -> SoakInstrument {
         SoakInstrument {
             name: "simulated.toml".into(),
-            text: SIMULATED_INSTRUMENT_TOML.into(),
+            text: with_quirks_table(SIMULATED_INSTRUMENT_TOML, &recorded_quirks()),
         }
     }
 
@@ -249,6 +253,39 @@ pub fn instrument_with_faults(
     Ok((file, text))
 }
 
+/// The recorded real-device variants the soaks run under, each the one that demands the most of a host: the
+/// same as config/instruments/realistic.toml's `[simulator.quirks]` (a unit test holds them equal), where each
+/// is justified by the report it comes from.
+pub fn recorded_quirks() -> Quirks {
+    Quirks {
+        smc100_min_command_gap_ms: 60.0,
+        smc100_drop_first_ts: true,
+        fw102c_noise_at_open: true,
+        ..Quirks::default()
+    }
+}
+
+/// `text` (an instrument file) with its `[simulator.quirks]` table's body replaced by `quirks`; the table is
+/// appended when the file has none.
+fn with_quirks_table(text: &str, quirks: &Quirks) -> String {
+    let header = "[simulator.quirks]";
+    let body = format!(
+        "\n# Written by gonio-soak (crates/soak/src/setup.rs): the recorded real-device variants.\n{}",
+        quirks_toml(quirks)
+    );
+    match text.find(header) {
+        Some(at) => {
+            let start = at + header.len();
+            // The table ends where the next one starts (or with the file).
+            let end = text[start..].find("\n[").map_or(text.len(), |i| start + i + 1);
+            let tail = &text[end..];
+            let sep = if tail.is_empty() { "" } else { "\n" };
+            format!("{}{body}{sep}{tail}", &text[..start])
+        }
+        None => format!("{text}\n{header}{body}"),
+    }
+}
+
 /// The `[simulator.quirks]` table in force, one `key = value` line each, as TOML writes them.
 pub fn quirks_toml(q: &Quirks) -> String {
     let value = toml::Value::try_from(q).map_err(|e| e.to_string());
@@ -331,6 +368,34 @@ mod tests {
             realistic.file().expect("valid").simulator.imperfections
         );
         assert!(text.contains("[simulator.imperfections.detector]"), "{text}");
+    }
+
+    /// Every soak runs under the recorded variants: realistic.toml's own, and the same written into the ideal
+    /// file, whose other settings stay as they are.
+    #[test]
+    fn both_soak_instruments_run_under_the_recorded_variants() {
+        let realistic = SoakInstrument::realistic().file().expect("valid");
+        assert_eq!(realistic.simulator.quirks, recorded_quirks());
+        let ideal = SoakInstrument::simulated().file().expect("valid");
+        assert_eq!(ideal.simulator.quirks, recorded_quirks());
+        assert_ne!(InstrumentFile::simulated().simulator.quirks, recorded_quirks());
+        let mut expected = InstrumentFile::simulated();
+        expected.simulator.quirks = recorded_quirks();
+        assert_eq!(ideal, expected);
+        // A file without the table gets it appended; the table's body is replaced wherever it stands.
+        let text = with_quirks_table("[simulator]\nseed = 1\n", &recorded_quirks());
+        assert!(
+            text.contains("[simulator.quirks]\n# Written by gonio-soak"),
+            "{text}"
+        );
+        let text = with_quirks_table(
+            "[a]\n[simulator.quirks]\nsmc100_drop_first_ts = false\n\n[b]\nx = 1\n",
+            &recorded_quirks(),
+        );
+        assert!(
+            !text.contains("smc100_drop_first_ts = false") && text.ends_with("\n[b]\nx = 1\n"),
+            "{text}"
+        );
     }
 
     #[test]

@@ -5,10 +5,11 @@
 //! - **Warm-up**: `1 - w exp(-t / tau)`: a lamp or LED settling thermally after switch-on, approaching its settled
 //!   power from below with one time constant.
 //! - **Random walk**: a relative Brownian wander `W(t)`, `W(0) = 0`, `Var W(t) = s^2 t / 1 h`: the slow,
-//!   unpredictable part of a real source's drift. Its path is drawn from the seed on knots every
-//!   [`WALK_STEP_S`] (independent normal steps) and interpolated linearly between them; within a step that
-//!   misses a Brownian bridge of standard deviation `s sqrt(step / 1 h) / 2` at most, 0.1 % of `s` for the
-//!   minute step. The path covers [`WALK_SPAN_S`] (a week) and holds its last value after that.
+//!   unpredictable part of a real source's drift. Its knots every [`WALK_STEP_S`] are independent normal steps
+//!   from the seed, interpolated linearly between them; within a step that misses a Brownian bridge of standard
+//!   deviation `s sqrt(step / 1 h) / 2` at most, 0.1 % of `s` for the minute step. The walk is drawn where it is
+//!   asked for, as a pure function of the seed and the instant (crate::imperfections::walk), so nothing of it is
+//!   drawn at start-up.
 //! - **Flicker**: a relative fluctuation with a 1/f spectrum between 0.01 and 10 Hz: [`FLICKER_LINES`]
 //!   sinusoids at log-spaced frequencies (equal power per log-frequency interval, which is what 1/f means), each
 //!   of amplitude `r sqrt(2 / N)` so that the total rms is `r`, with drawn phases. It changes from one 3 ms
@@ -21,11 +22,9 @@ use gonio_instrument::SourceImperfections;
 use serde::Serialize;
 
 use super::draw::Draws;
+pub use super::walk::WALK_STEP_S;
+use super::walk::Walk;
 
-/// Knot spacing of the random walk (s).
-pub const WALK_STEP_S: f64 = 60.0;
-/// How long the drawn walk lasts (s): a week.
-pub const WALK_SPAN_S: f64 = 7.0 * 86_400.0;
 /// Sinusoids in the flicker (log-spaced over three decades, 0.01-10 Hz).
 pub const FLICKER_LINES: usize = 31;
 const FLICKER_LOW_HZ: f64 = 0.01;
@@ -47,9 +46,9 @@ pub struct SourceTruth {
     pub warmup_time_s: f64,
     pub random_walk_per_rthour: f64,
     pub flicker_rms: f64,
-    /// The walk's value at each knot (knot k at `k WALK_STEP_S`); empty when the walk is off.
+    /// The walk; `None` when it is off.
     #[serde(skip)]
-    walk: Vec<f64>,
+    walk: Option<Walk>,
     #[serde(skip)]
     flicker: Vec<FlickerLine>,
 }
@@ -57,20 +56,8 @@ pub struct SourceTruth {
 impl SourceTruth {
     pub fn draw(settings: &SourceImperfections, seed: u64) -> SourceTruth {
         let draws = Draws::new(seed);
-        let walk = if settings.random_walk_per_rthour > 0.0 {
-            let knots = (WALK_SPAN_S / WALK_STEP_S) as u64;
-            let step_sd = settings.random_walk_per_rthour * (WALK_STEP_S / 3600.0).sqrt();
-            let mut w = Vec::with_capacity(knots as usize + 1);
-            let mut value = 0.0;
-            w.push(value);
-            for k in 0..knots {
-                value += step_sd * draws.normal_pair("source-walk", k).0;
-                w.push(value);
-            }
-            w
-        } else {
-            Vec::new()
-        };
+        let walk =
+            (settings.random_walk_per_rthour > 0.0).then(|| Walk::new(settings.random_walk_per_rthour, seed));
         let flicker = if settings.flicker_rms > 0.0 {
             let amplitude = settings.flicker_rms * (2.0 / FLICKER_LINES as f64).sqrt();
             (0..FLICKER_LINES)
@@ -96,16 +83,7 @@ impl SourceTruth {
 
     /// The walk's relative value at `t_s`.
     pub fn walk_at(&self, t_s: f64) -> f64 {
-        let (Some(&last), true) = (self.walk.last(), t_s > 0.0) else {
-            return 0.0;
-        };
-        let x = t_s / WALK_STEP_S;
-        let k = x.floor();
-        let i = k as usize;
-        match (self.walk.get(i), self.walk.get(i + 1)) {
-            (Some(a), Some(b)) => a + (x - k) * (b - a),
-            _ => last,
-        }
+        self.walk.as_ref().map_or(0.0, |w| w.at(t_s))
     }
 
     /// The slow factor at `t_s`: warm-up times random walk.
@@ -135,7 +113,7 @@ impl SourceTruth {
     }
 
     pub fn is_ideal(&self) -> bool {
-        self.warmup_fraction == 0.0 && self.walk.is_empty() && self.flicker.is_empty()
+        self.warmup_fraction == 0.0 && self.walk.is_none() && self.flicker.is_empty()
     }
 }
 

@@ -7,7 +7,7 @@ use crate::imperfections::BeamTruth;
 use crate::imperfections::beam::gaussian_in_disc;
 use crate::kinematics::{LabVector, dot};
 
-use super::imperfect::Geometry;
+use super::geometry::Geometry;
 use super::{Optics, cap};
 
 /// What the optics precompute from the beam's truth.

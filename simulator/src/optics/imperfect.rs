@@ -11,23 +11,7 @@ use crate::kinematics::{self, LabVector, PoseGeometry};
 use crate::scene::Pose;
 
 use super::Optics;
-
-/// One pose as the optics compute with it.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct Geometry {
-    /// Directions from the spot, in the (true) sample frame.
-    pub pose: PoseGeometry,
-    /// The detector arm's own direction (for the direct beam, with no sample), lab.
-    pub detector_arm_lab: LabVector,
-    /// The beam's centre on the sample (sample x, y; mm).
-    pub spot_mm: [f64; 2],
-    /// The centre of the detector's field of view on the sample (sample x, y; mm).
-    pub field_centre_mm: [f64; 2],
-    /// The beam's centre on the sample plane, lab (mm): the origin unless the geometry or the beam moves it.
-    pub spot_lab: LabVector,
-    /// Where the arms' axis crosses the horizontal plane through the sample centre, lab (mm).
-    pub axis_lab: LabVector,
-}
+use super::geometry::Geometry;
 
 /// The sample's current mounting: its index (0 the first) and its tilt.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

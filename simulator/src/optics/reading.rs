@@ -9,7 +9,7 @@ use gonio_brdf::Brdf;
 use crate::kinematics;
 use crate::scene::{Band, Pose, Scene};
 
-use super::imperfect::Geometry;
+use super::geometry::Geometry;
 use super::{OpticalReading, Optics, OpticsError};
 
 /// A reading without its instant: [`Optics::at_rest`].

@@ -4,6 +4,7 @@
 
 use gonio_instrument::Pm100Overrange;
 
+use super::function::Function;
 use super::scpi::{Cmd, Num, match_header, parse_num, query_limit, sci};
 use super::{MeterState, OVERLOAD_W, Pm100, QUES_POWER_OVERRANGE, SAMPLE_S};
 
@@ -15,46 +16,6 @@ const BEAM_MM: (f64, f64) = (0.01, 100.0);
 const MAX_AVERAGING: f64 = 1_000_000.0;
 /// Wavelength at power-up and for `DEF` (nm).
 const DEFAULT_WAVELENGTH_NM: f64 = 633.0;
-
-/// The measurement function chosen by `CONFigure` or `MEASure`, read by `READ?` and `FETCh?`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Function {
-    Power,
-    Current,
-    PowerDensity,
-    Frequency,
-    Voltage,
-    Energy,
-    EnergyDensity,
-    Resistance,
-    Temperature,
-}
-
-impl Function {
-    /// The name `CONF?` answers.
-    fn name(self) -> &'static str {
-        match self {
-            Function::Power => "POW",
-            Function::Current => "CURR",
-            Function::PowerDensity => "PDEN",
-            Function::Frequency => "FREQ",
-            Function::Voltage => "VOLT",
-            Function::Energy => "ENER",
-            Function::EnergyDensity => "EDEN",
-            Function::Resistance => "RES",
-            Function::Temperature => "TEMP",
-        }
-    }
-
-    /// Can a photodiode head measure it? (Voltage is a thermopile's, energy a pyroelectric head's,
-    /// resistance and temperature a thermistor's.)
-    fn photodiode(self) -> bool {
-        matches!(
-            self,
-            Function::Power | Function::Current | Function::PowerDensity | Function::Frequency
-        )
-    }
-}
 
 /// A query's response and when it is ready (simulated seconds), or nothing; or an SCPI error.
 type Reply = Result<Option<(String, f64)>, (i32, &'static str)>;

@@ -1,8 +1,9 @@
 //! Thorlabs PM100USB optical power meter: SCPI over USBTMC, as a USB device with bulk and control pipes.
 //!
 //! Split by job: [`usbtmc`] (the USB side: bulk and control pipes, framing), [`scpi`] (header matching,
-//! number formats), [`commands`] (the command set: IEEE 488.2 common commands, status registers, sense
-//! settings, measurement functions), [`physics`] (photocurrent, noise, ranges).
+//! number formats), `function` (the measurement function the command tree and the command set both speak),
+//! [`commands`] (the command set: IEEE 488.2 common commands, status registers, sense settings, measurement
+//! functions), [`physics`] (photocurrent, noise, ranges).
 //!
 //! USBTMC (USB Test & Measurement Class 1.0) framing on the device side:
 //! - Bulk-OUT transfers start with a 12-byte header: MsgID (1 DEV_DEP_MSG_OUT, 2 REQUEST_DEV_DEP_MSG_IN), bTag,
@@ -58,9 +59,10 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::faults::DeviceFaults;
-use crate::instrument::World;
+use crate::world::World;
 
 mod commands;
+mod function;
 mod physics;
 mod scpi;
 mod usbtmc;
@@ -126,7 +128,7 @@ struct Settings {
     averaging: u32,
     /// Beam diameter for power density (mm).
     beam_mm: f64,
-    function: commands::Function,
+    function: function::Function,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -250,7 +252,7 @@ impl Pm100 {
             unit_dbm: false,
             averaging: detector.averaging.max(1),
             beam_mm: commands::DEFAULT_BEAM_MM,
-            function: commands::Function::Power,
+            function: function::Function::Power,
         }
     }
 

@@ -1,7 +1,7 @@
 //! SCPI program headers and data: matching a header against the command tree (short and long forms,
 //! optional nodes, numeric suffix 1), the `MIN`/`MAX` numeric arguments, and the NR3 number format.
 
-use super::commands::Function;
+use super::function::Function;
 
 /// SCPI commands the meter knows (the common `*` commands are matched apart).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -7,7 +7,8 @@ use std::sync::{Arc, Mutex};
 use gonio_instrument::Axis;
 
 use crate::faults::DeviceFaults;
-use crate::motion::{AxisMotion, MoveEnd};
+use crate::motion::AxisMotion;
+use crate::move_end::MoveEnd;
 
 /// Controller states as `TS` reports them (second part of the reply, two hex digits).
 pub mod state {

@@ -27,14 +27,17 @@
 //! - Input pacing: host drivers written against real controllers pace their commands (the widely copied
 //!   Python SMC100 driver waits 60 ms after each set command, "arrived at by trial and error"; others up to
 //!   0.5 s) and report late replies landing in the next read. Emulated (`[simulator.quirks]
-//!   smc100_min_command_gap_ms`, default 60): a set command keeps its controller busy for that long from when
-//!   the host sent it, a query until its reply has crossed the line (never after the host has the reply); a
+//!   smc100_min_command_gap_ms`: 0 by default, every line taken as the manual describes; 60 in
+//!   config/instruments/realistic.toml): a set command keeps its controller busy for that long from when the
+//!   host sent it, a query until its reply has crossed the line (never after the host has the reply); a
 //!   command line sent while the controller it addresses is busy is lost. Both are judged on the host's
 //!   timeline (the session stamps each write), so scheduling delays of the simulator's own task, which a large
-//!   time scale multiplies, cannot make a paced host lose a line. Each controller on the chain has its own processor: one busy controller does not make the others
-//!   lose input (unconfirmed: whether the first controller, which relays the RS-485 chain, does).
+//!   time scale multiplies, cannot make a paced host lose a line. Each controller on the chain has its own
+//!   processor: one busy controller does not make the others lose input (unconfirmed: whether the first
+//!   controller, which relays the RS-485 chain, does).
 //! - The first `TS` after power-up or reset, and the first right after a homing completes, may get no reply
-//!   at all (reported by a real-hardware driver as undocumented): `smc100_drop_first_ts`, default on.
+//!   at all (reported by a real-hardware driver as undocumented): `smc100_drop_first_ts`, off by default (the
+//!   manual answers every `TS`), on in config/instruments/realistic.toml.
 
 mod commands;
 mod machine;
@@ -285,7 +288,9 @@ mod tests {
     use crate::session::{Output, SharedEmulator};
 
     fn arms() -> SharedEmulator {
+        // The recorded pacing (config/instruments/realistic.toml), which these tests are about; every TS answered.
         let mut file = gonio_instrument::InstrumentFile::simulated();
+        file.simulator.quirks.smc100_min_command_gap_ms = 60.0;
         file.simulator.quirks.smc100_drop_first_ts = false;
         let sim = SimInstrument::new(&file, Arc::new(UniformScene { power_w: 1e-4 }), 1.0).expect("sim");
         sim.serial_emulator("arms").expect("arms").1

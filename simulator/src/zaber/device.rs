@@ -6,7 +6,8 @@ use std::sync::{Arc, Mutex};
 use gonio_instrument::Axis;
 
 use crate::faults::DeviceFaults;
-use crate::motion::{AxisMotion, MoveEnd};
+use crate::motion::AxisMotion;
+use crate::move_end::MoveEnd;
 
 #[derive(Debug)]
 pub(super) struct ZAxis {

@@ -32,6 +32,14 @@ pub fn sim() -> SimInstrument {
     sim_with(|_| {})
 }
 
+/// Give `file` the recorded real-device variants that config/instruments/realistic.toml takes (input pacing,
+/// the unanswered first TS, the wheel's noise at open, ...), read from that file so the tests follow it.
+pub fn recorded_quirks(file: &mut InstrumentFile) {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/instruments/realistic.toml");
+    let realistic = InstrumentFile::load(&path).expect("config/instruments/realistic.toml");
+    file.simulator.quirks = realistic.simulator.quirks;
+}
+
 /// A host's view of a serial port.
 pub struct Port {
     pub io: SerialStream,

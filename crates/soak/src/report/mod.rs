@@ -179,8 +179,9 @@ impl Report {
         );
         let _ = writeln!(
             m,
-            "and the file's recorded real-device variants (each the most demanding one for a host; every soak runs \
-             with them):\n\n```toml\n[simulator.quirks]\n{}```\n",
+            "and the recorded real-device variants, each the one that demands the most of a host (the ideal file's own \
+             quirks are the manuals' behaviour; every soak runs with these, which config/instruments/realistic.toml \
+             takes and justifies):\n\n```toml\n[simulator.quirks]\n{}```\n",
             f.quirks_toml
         );
         let lost: u64 = f.lost_to_pacing.values().sum();

@@ -54,9 +54,11 @@ use running::run_case;
 /// Longest time from an emergency-stop request to the stop command at every axis (simulated seconds): one
 /// pause of the SMC100 driver after a set command ([`SET_GAP`], 65 ms) and one tokio timer tick (1 ms). The
 /// engine sends the stop at once (its own latency is well under a millisecond); but the simulated SMC100s lose
-/// input for 60 ms after a set command (`[simulator.quirks] smc100_min_command_gap_ms`, the most demanding
-/// reading of the pacing real-hardware drivers use), so a stop requested just after a move was sent cannot
-/// reach that controller before the 60 ms are over: the driver sends it again the moment its pause is over.
+/// input for 60 ms after a set command (`[simulator.quirks] smc100_min_command_gap_ms`: the recorded variant,
+/// the most demanding reading of the pacing real-hardware drivers use, which every soak sets explicitly
+/// ([`crate::setup::recorded_quirks`]); the ideal instrument's default takes every line), so a stop requested
+/// just after a move was sent cannot reach that controller before the 60 ms are over: the driver sends it again
+/// the moment its pause is over.
 /// (The deadline was 50 ms before the controllers lost input; no host can beat 60 ms in that case.)
 ///
 /// [`SET_GAP`]: gonio_driver::smc100::SET_GAP
