@@ -11,8 +11,7 @@ use rusqlite::types::ValueRef;
 use rusqlite::{Connection, OpenFlags};
 
 use crate::SoakError;
-use crate::fault_soak::{PointCheck, check_points};
-use crate::truth_check::Tolerance;
+use crate::truth_check::{PointCheck, Tolerance, check_points};
 
 /// A campaign's committed points against its plan.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -29,7 +29,6 @@ use crate::logcap::{LogCapture, LogCounts, runtime_logging_to};
 use crate::rows::RowSummary;
 use crate::setup::{SoakCampaign, SoakInstrument, build_campaign, instrument_with_faults};
 use crate::truth_check::Tolerance;
-pub use crate::truth_check::{PointCheck, check_points};
 
 /// What to run.
 #[derive(Debug, Clone, PartialEq)]

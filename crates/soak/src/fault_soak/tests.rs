@@ -1,5 +1,5 @@
 use super::*;
-use crate::truth_check::{Tolerance, reason_class};
+use crate::truth_check::{Tolerance, check_points, reason_class};
 use gonio_engine::store::PointRecord;
 
 #[test]

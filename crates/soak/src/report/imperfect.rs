@@ -1,7 +1,7 @@
 //! The report's section on the soaks run again on an imperfect instrument (`config/instruments/realistic.toml`).
 
 use super::*;
-use crate::fault_soak::PointCheck;
+use crate::truth_check::PointCheck;
 
 /// The fault, crash, disk and safety soaks on one instrument file.
 #[derive(Debug, Clone)]
