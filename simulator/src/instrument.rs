@@ -80,7 +80,9 @@ impl SimInstrument {
         FaultInjector::validate(&file.simulator.faults).map_err(SimError::Invalid)?;
         file.simulator.imperfections.validate()?;
         let hidden = crate::imperfections::HiddenTruth::draw(file);
-        let inst = &file.instrument;
+        // The devices are the hardware as it really is (`[simulator.actual]`); the engine plans with the file.
+        let actual = file.actual_instrument();
+        let inst = &actual;
         let clock = SimClock::new(time_scale);
         let faults = Arc::new(FaultInjector::new(file.simulator.faults.clone()));
 
@@ -96,7 +98,8 @@ impl SimInstrument {
             };
             // Power-up position: the counter's zero, or the nearest end of travel if zero is outside it.
             let start = 0.0f64.clamp(params.hw_min_deg, params.hw_max_deg);
-            axes.push((axis.clone(), Arc::new(Mutex::new(AxisMotion::new(params, start)))));
+            let motion = AxisMotion::new(params, start).with_mechanical_limits(axis.max_speed_deg_s, axis.accel_deg_s2);
+            axes.push((axis.clone(), Arc::new(Mutex::new(motion))));
         }
 
         let mut serial: BTreeMap<String, (Protocol, SharedEmulator)> = BTreeMap::new();

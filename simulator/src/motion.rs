@@ -152,6 +152,10 @@ pub struct AxisMotion {
     last_t_s: f64,
     /// What the axis was told and how its profile changed, while recording.
     record: Option<Box<MotionRecord>>,
+    /// The fastest the mechanics really move and accelerate (controller deg/s, deg/s^2), whatever the
+    /// controller is told (`[simulator.actual]`); infinite unless set.
+    max_speed_deg_s: f64,
+    max_accel_deg_s2: f64,
 }
 
 impl AxisMotion {
@@ -165,7 +169,21 @@ impl AxisMotion {
             load_deg: position_deg,
             last_t_s: 0.0,
             record: None,
+            max_speed_deg_s: f64::INFINITY,
+            max_accel_deg_s2: f64::INFINITY,
         }
+    }
+
+    /// The mechanics' real limits (controller deg/s and deg/s^2, finite and > 0): a commanded speed or
+    /// acceleration above them is not reached (`[simulator.actual]`: an axis slower than its file claims).
+    pub fn with_mechanical_limits(mut self, max_speed_deg_s: f64, max_accel_deg_s2: f64) -> AxisMotion {
+        if max_speed_deg_s.is_finite() && max_speed_deg_s > 0.0 {
+            self.max_speed_deg_s = max_speed_deg_s;
+        }
+        if max_accel_deg_s2.is_finite() && max_accel_deg_s2 > 0.0 {
+            self.max_accel_deg_s2 = max_accel_deg_s2;
+        }
+        self
     }
 
     /// Start recording commands and profile changes from `t_s` (an earlier record is discarded).
@@ -317,6 +335,8 @@ impl AxisMotion {
         stall_fraction: Option<f64>,
     ) -> f64 {
         self.advance(t_s);
+        let v_deg_s = v_deg_s.min(self.max_speed_deg_s);
+        let a_deg_s2 = a_deg_s2.min(self.max_accel_deg_s2);
         let (t_start, p_start) = self.decelerate_segments(t_s, a_deg_s2);
         let mut segs = self.segments.clone();
         segs.extend(trapezoid_segments(
@@ -367,7 +387,7 @@ impl AxisMotion {
         if self.segments.is_empty() {
             return t_s;
         }
-        self.decelerate_segments(t_s, a_deg_s2);
+        self.decelerate_segments(t_s, a_deg_s2.min(self.max_accel_deg_s2));
         self.end = MoveEnd::Stopped;
         self.target_deg = self
             .segments
@@ -548,6 +568,17 @@ mod tests {
         let end = m.start_move(0.0, 50.0, 20.0, 80.0, Some(0.5));
         assert!((m.motor_deg(end + 1.0) - 25.0).abs() < 1e-9);
         assert_eq!(m.end_reason(), MoveEnd::Stalled);
+    }
+
+    #[test]
+    fn mechanics_slower_than_commanded_move_at_their_own_limits() {
+        let mut m = AxisMotion::new(params(), 0.0).with_mechanical_limits(10.0, 40.0);
+        // Commanded 20 deg/s and 80 deg/s^2; the mechanics give 10 and 40: 0.25 s ramps, 2.5 deg each.
+        let end = m.start_move(0.0, 40.0, 20.0, 80.0, None);
+        assert!((end - trapezoid_time_s(40.0, 10.0, 40.0)).abs() < 1e-12, "{end}");
+        assert!((m.velocity_deg_s(1.0) - 10.0).abs() < 1e-12);
+        let mut free = AxisMotion::new(params(), 0.0);
+        assert!(free.start_move(0.0, 40.0, 20.0, 80.0, None) < end);
     }
 
     #[test]

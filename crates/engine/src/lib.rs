@@ -16,6 +16,8 @@
 //! - [`prepare`]: a campaign file validated, planned and ordered for the store ([`prepare::PreparedCampaign`]).
 //! - `runner`: the run loop over a campaign's steps (calibration, per-point acquisition committed, faults,
 //!   resume), on `motion` and `acquisition`: [`run_campaign`], [`run_prepared_campaign`].
+//! - [`selftest`]: what the instrument file claims measured on the hardware (speeds, accelerations, the
+//!   wheel's time, latencies, the meter's dark and noise), on `motion`.
 //! - [`export`]: the points CSV and the run record (shared by `gonio run`, the exports and the HTTP API).
 //!
 //! The service (queue, ownership, HTTP API, status page) is `gonio-daemon`, above this crate: nothing here can
@@ -31,6 +33,7 @@ pub mod motion;
 pub mod prepare;
 pub mod rig;
 mod runner;
+pub mod selftest;
 pub mod store;
 
 pub use control::{Control, Event};

@@ -14,6 +14,7 @@ mod fit;
 mod plan;
 mod plot;
 mod run;
+mod selftest;
 mod sim;
 
 use std::process::ExitCode;
@@ -42,9 +43,13 @@ enum Command {
     Sim(sim::SimArgs),
     /// Run one campaign in the foreground (resuming it if interrupted), then write points.csv and run.json.
     Run(run::RunArgs),
+    /// Hold the instrument file against the hardware: identify and exercise every device, measure speeds,
+    /// accelerations, the wheel's time, latencies and the meter's dark and noise; exit 1 naming wrong keys.
+    Selftest(selftest::SelftestArgs),
     /// Run the acquisition service: campaign queue and HTTP/JSON control API (loopback unless given a token).
     Daemon(daemon::DaemonArgs),
-    /// Control a running daemon: submit, status, pause, resume, abort, confirm, estop, watch, points.
+    /// Control a running daemon: campaigns (submit, status, pause, resume, abort, confirm, estop, watch, points)
+    /// and the console (state, move, jog, home, filter, read).
     Ctl(ctl::CtlArgs),
     /// Export a run as CSV or JSON (units and full provenance) or as a MERL binary (resampled, for renderers).
     Export(export::ExportArgs),
@@ -70,6 +75,7 @@ fn main() -> ExitCode {
         Command::Brdf(BrdfCommand::Check(args)) => brdf_check::run(args),
         Command::Sim(args) => sim::run(args),
         Command::Run(args) => run::run(args),
+        Command::Selftest(args) => selftest::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Plan(args) => plan::run(args),
         Command::Daemon(args) => daemon::run(args),

@@ -25,6 +25,7 @@
 //!
 //! The records and loading are here; [`Instrument::validate`]'s rules in `validate`.
 
+mod actual;
 pub mod imperfections;
 mod validate;
 
@@ -38,6 +39,7 @@ pub use imperfections::{
 use serde::{Deserialize, Serialize};
 
 mod quirks;
+pub use actual::{Actual, ActualAxis, ActualWheel};
 pub use quirks::{Pm100Overrange, Quirks, ZaberBadChecksum};
 
 /// A whole instrument file: `[instrument]`, and for simulated instruments `[simulator]`.
@@ -355,6 +357,9 @@ pub struct SimulatorSettings {
     /// Which of the devices' recorded variants the simulator shows (see [`Quirks`]).
     #[serde(default)]
     pub quirks: Quirks,
+    /// The hardware as it really is where it differs from the file's claims (see [`Actual`]).
+    #[serde(default)]
+    pub actual: Actual,
 }
 
 /// Fault injection; everything off by default.
@@ -442,6 +447,13 @@ impl InstrumentFile {
             .map_err(|e| InstrumentError::Invalid {
                 path: origin.to_string(),
                 message: e.to_string(),
+            })?;
+        file.simulator
+            .actual
+            .validate(&file.instrument)
+            .map_err(|message| InstrumentError::Invalid {
+                path: origin.to_string(),
+                message,
             })?;
         Ok(file)
     }

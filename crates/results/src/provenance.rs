@@ -16,7 +16,7 @@
 mod simulator_truth;
 
 pub use simulator_truth::{
-    AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord,
+    ActualAxisRecord, ActualHardwareRecord, AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord,
     GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth,
     SourceTruthRecord,
 };
@@ -462,6 +462,16 @@ pub(crate) mod tests {
                 source_distance_mm: 500.0,
                 divergence_deg: 0.055,
                 nominal_divergence_deg: 0.05,
+            }),
+            actual: Some(ActualHardwareRecord {
+                wheel_seconds_per_position: Some(2.0),
+                axes: vec![ActualAxisRecord {
+                    name: "detector".into(),
+                    max_speed_deg_s: Some(10.0),
+                    accel_deg_s2: None,
+                    settle_s: None,
+                    backlash_deg: None,
+                }],
             }),
         });
         let text = r.to_json_text();

@@ -2,9 +2,9 @@
 //! from the stored instrument file and its seed. It goes to the run record and nowhere else: the engine, the
 //! drivers and the calibration never see it (crates/engine/tests/layering.rs keeps the simulator inside the rig).
 
-use gonio_instrument::InstrumentFile;
+use gonio_instrument::{Actual, InstrumentFile};
 use gonio_results::provenance::{
-    AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord,
+    ActualAxisRecord, ActualHardwareRecord, AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord,
     GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth,
     SourceTruthRecord,
 };
@@ -18,12 +18,49 @@ pub fn simulator_truth(instrument_toml: &str, dry_run: bool, mountings: usize) -
         return None;
     }
     let file = InstrumentFile::parse(instrument_toml, "<stored instrument file>").ok()?;
-    let hidden = HiddenTruth::draw(&file)?;
-    Some(record(&hidden, mountings))
+    let actual = actual_record(&file.simulator.actual);
+    match HiddenTruth::draw(&file) {
+        Some(hidden) => Some(SimulatorTruth {
+            actual,
+            ..record(&hidden, mountings)
+        }),
+        None => actual.map(|actual| SimulatorTruth {
+            seed: file.simulator.seed,
+            geometry: None,
+            detector: None,
+            source: None,
+            sample: None,
+            filters: None,
+            beam: None,
+            actual: Some(actual),
+        }),
+    }
+}
+
+/// `[simulator.actual]` for run.json; None when the hardware is as the file says.
+fn actual_record(actual: &Actual) -> Option<ActualHardwareRecord> {
+    if actual.is_empty() {
+        return None;
+    }
+    Some(ActualHardwareRecord {
+        wheel_seconds_per_position: actual.filter_wheel.as_ref().and_then(|w| w.seconds_per_position),
+        axes: actual
+            .axes
+            .iter()
+            .map(|(name, a)| ActualAxisRecord {
+                name: name.clone(),
+                max_speed_deg_s: a.max_speed_deg_s,
+                accel_deg_s2: a.accel_deg_s2,
+                settle_s: a.settle_s,
+                backlash_deg: a.backlash_deg,
+            })
+            .collect(),
+    })
 }
 
 fn record(hidden: &HiddenTruth, mountings: usize) -> SimulatorTruth {
     SimulatorTruth {
+        actual: None,
         seed: hidden.seed,
         geometry: hidden.geometry.as_ref().map(|g| GeometryTruthRecord {
             axes: g

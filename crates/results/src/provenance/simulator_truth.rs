@@ -28,6 +28,35 @@ pub struct SimulatorTruth {
     /// Beam; absent when that group is off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub beam: Option<BeamTruthRecord>,
+    /// The hardware as it really is where it differs from the instrument file (`[simulator.actual]`); absent
+    /// when nothing differs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub actual: Option<ActualHardwareRecord>,
+}
+
+/// What the simulated hardware really does where the instrument file claims otherwise.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ActualHardwareRecord {
+    /// The wheel's real time per position (s); absent when as claimed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wheel_seconds_per_position: Option<f64>,
+    /// The axes that differ, each with only the keys that do.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub axes: Vec<ActualAxisRecord>,
+}
+
+/// One axis's real limits where they differ from the file (deg/s, deg/s^2, s, deg).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ActualAxisRecord {
+    pub name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_speed_deg_s: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accel_deg_s2: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub settle_s: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub backlash_deg: Option<f64>,
 }
 
 /// The filters' actual bands (model: simulator/src/imperfections/filters.rs): an N-cavity passband

@@ -1,0 +1,320 @@
+//! The self-test: each device identified and exercised, and what the instrument file claims about the hardware
+//! measured on it (each axis's top speed and acceleration, the wheel's time per position, each device's reply
+//! latency, the meter's dark and noise per range), every figure against the file's value with a verdict.
+//!
+//! How each figure is measured (the fits are pure: `fit`):
+//! - An axis's top speed and acceleration: a long move of that axis alone (the arms parked apart, in the order
+//!   they have after homing), its read-back sampled as fast as the controller answers. The slope of position
+//!   against time over the middle of the move is the top speed; the first ramp, where `|p - p0| = a t^2 / 2`,
+//!   gives the acceleration. The move is commanded at the file's own speed and acceleration: hardware slower
+//!   than the file shows, hardware faster does not (the file's value is then what it runs at, and passes).
+//! - The wheel's time per position: one step against half a turn, timed from command to verified arrival (the
+//!   fixed cost of each turn cancels), after a full turn through every position.
+//! - Reply latency: ten position queries of each device, timed.
+//! - Dark and noise: the blank in the beam, the meter fixed on each of its ranges in turn, readings' mean and
+//!   spread.
+//!
+//! Not measured yet: `settle_s` and `backlash_deg` (the meter must see the arm's vibration or the load's lag,
+//! which needs a target with a sharp edge in the beam); the report says so.
+
+mod fit;
+mod report;
+
+pub use report::{Check, SelftestReport, Verdict, against, info};
+
+use gonio_driver::{DetectorConfig, PowerRange};
+use gonio_instrument::AxisRole;
+use gonio_scheduler::kinematics::Pose;
+
+use crate::motion::{Device, Motion, MotionError};
+use crate::rig::RigAxis;
+use fit::{Sample, cruise_speed, mean_std, ramp_acceleration};
+
+/// Relative tolerance of a measured figure against the file's, unless told otherwise.
+pub const DEFAULT_TOLERANCE: f64 = 0.10;
+/// Readings per meter range for its dark and noise.
+const READINGS_PER_RANGE: usize = 20;
+/// Position queries per device for its latency.
+const LATENCY_QUERIES: usize = 10;
+/// The measured moves stay this far (deg) inside each axis's travel and beyond the arms' safety separation.
+const MARGIN_DEG: f64 = 5.0;
+
+/// Run the self-test on the instrument under `motion` (module doc). `tolerance`: relative, e.g. 0.1.
+pub async fn run_selftest(motion: &mut Motion<'_>, tolerance: f64) -> Result<SelftestReport, MotionError> {
+    let rig = motion.rig();
+    let clock = motion.clock();
+    let t0 = clock.now_s();
+    let file = rig.file().clone();
+    let devices = rig.identities().await;
+    tracing::info!("self-test: referencing the axes");
+    motion.reference_all().await?;
+    let mut checks = Vec::new();
+    let mut not_measured = Vec::new();
+
+    for a in rig.axes() {
+        match measure_axis(motion, a).await? {
+            Some((speed, accel)) => {
+                let key = |k: &str| format!("axes.{}.{k}", a.config.name);
+                checks.push(against(key("max_speed_deg_s"), "top speed", "deg/s", a.config.max_speed_deg_s, speed, tolerance));
+                checks.push(against(key("accel_deg_s2"), "acceleration", "deg/s^2", a.config.accel_deg_s2, accel, tolerance));
+            }
+            None => not_measured.push(format!(
+                "axes.{}: its travel leaves no room for a move long enough to cruise",
+                a.config.name
+            )),
+        }
+        not_measured.push(format!(
+            "axes.{}.settle_s and backlash_deg: not measured yet (they need the meter to see the load's \
+             vibration and lag on a sharp edge in the beam)",
+            a.config.name
+        ));
+    }
+    if let Some(sps) = measure_wheel(motion).await? {
+        if let Some(w) = &file.instrument.filter_wheel {
+            checks.push(against(
+                "filter_wheel.seconds_per_position".into(),
+                "wheel time per position",
+                "s",
+                w.seconds_per_position,
+                sps,
+                tolerance,
+            ));
+        }
+    }
+    checks.extend(measure_latency(motion).await?);
+    let (meter, missing) = measure_meter(motion).await?;
+    checks.extend(meter);
+    not_measured.extend(missing);
+    Ok(SelftestReport {
+        instrument: file.instrument.name.clone(),
+        dry_run: rig.is_dry_run(),
+        tolerance,
+        devices,
+        checks,
+        not_measured,
+        instrument_s: clock.now_s() - t0,
+    })
+}
+
+/// The span (deg) an axis's measured move covers, with every other axis parked where the move is safe:
+/// (pose at the start, end of the move), or None when the travel is too short.
+fn measured_move(motion: &Motion<'_>, a: &RigAxis) -> Option<(Pose, f64)> {
+    let file = motion.rig().file();
+    let inst = &file.instrument;
+    let sep = inst.safety.min_arm_separation_deg + MARGIN_DEG;
+    let here = *motion.current();
+    // The arms' order as homing left them (detector above the light arm when they are together).
+    let order = if here.detector_deg >= here.light_deg { 1.0 } else { -1.0 };
+    let role_axis = |r: AxisRole| inst.axis(r);
+    let mut start = here;
+    let (lo, hi) = (a.config.min_deg + MARGIN_DEG, a.config.max_deg - MARGIN_DEG);
+    let (from, to) = match a.config.role {
+        AxisRole::DetectorArm => {
+            // The light arm parked at the end of its travel away from the detector.
+            let light = role_axis(AxisRole::LightArm);
+            let park = light.map(|l| if order > 0.0 { l.min_deg + MARGIN_DEG } else { l.max_deg - MARGIN_DEG });
+            if let Some(p) = park {
+                start.light_deg = p;
+            }
+            match (park, order > 0.0) {
+                (Some(p), true) => ((p + sep).max(lo), hi),
+                (Some(p), false) => ((p - sep).min(hi), lo),
+                (None, _) => (lo, hi),
+            }
+        }
+        AxisRole::LightArm => {
+            let detector = role_axis(AxisRole::DetectorArm);
+            let park = detector.map(|d| if order > 0.0 { d.max_deg - MARGIN_DEG } else { d.min_deg + MARGIN_DEG });
+            if let Some(p) = park {
+                start.detector_deg = p;
+            }
+            match (park, order > 0.0) {
+                (Some(p), true) => (lo, (p - sep).min(hi)),
+                (Some(p), false) => (hi, (p + sep).max(lo)),
+                (None, _) => (lo, hi),
+            }
+        }
+        _ => (lo, hi),
+    };
+    // Long enough to cruise: twice the ramp at the file's speed and acceleration, and a cruise as long again.
+    let ramp = a.config.max_speed_deg_s.powi(2) / a.config.accel_deg_s2;
+    if !((to - from).abs() > 2.0 * ramp && (to - from).abs() > 10.0) {
+        return None;
+    }
+    start.set(a.config.role, from);
+    Some((start, to))
+}
+
+/// Top speed and acceleration of one axis (module doc), or None when its travel is too short.
+async fn measure_axis(motion: &mut Motion<'_>, a: &RigAxis) -> Result<Option<(f64, f64)>, MotionError> {
+    let Some((start, to)) = measured_move(motion, a) else {
+        return Ok(None);
+    };
+    let name = &a.config.name;
+    tracing::info!(axis = %name, "self-test: measuring top speed and acceleration");
+    motion.move_to(&start).await?;
+    let from = start.get(a.config.role);
+    let (v, acc) = (a.config.max_speed_deg_s, a.config.accel_deg_s2);
+    motion
+        .device(Device::Axis(a), &format!("set the speed of {name}"), || a.driver.set_speed(v, acc))
+        .await?;
+    let samples = sample_move(motion, a, to).await?;
+    motion.read_positions().await?;
+    // Back to the start the other way, which also exercises the axis in both directions.
+    motion.move_to(&start).await?;
+    let Some(speed) = cruise_speed(&samples, from, to) else {
+        return Ok(None);
+    };
+    Ok(ramp_acceleration(&samples, from, speed).map(|accel| (speed, accel)))
+}
+
+/// Command `a` to `to_deg` and read its position back as fast as it answers until it arrives.
+async fn sample_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<Vec<Sample>, MotionError> {
+    let clock = motion.clock();
+    let name = &a.config.name;
+    motion
+        .device(Device::Axis(a), &format!("start {name} to {to_deg:.3} deg"), || a.driver.start_move(to_deg))
+        .await?;
+    let mut samples = Vec::new();
+    loop {
+        let t_before = clock.now_s();
+        // One attempt per sample: a lost reply is a missing sample, not a failed test.
+        let Ok(p) = a.driver.position_deg().await else {
+            continue_if_room(&samples)?;
+            continue;
+        };
+        let t = 0.5 * (t_before + clock.now_s());
+        samples.push((t, p));
+        if (p - to_deg).abs() <= a.config.tolerance_deg || samples.len() > 100_000 {
+            break;
+        }
+    }
+    motion
+        .device(Device::Axis(a), &format!("{name} arrives at {to_deg:.3} deg"), || a.driver.wait_arrived(to_deg))
+        .await?;
+    Ok(samples)
+}
+
+/// A sampling loop that keeps failing gives up (every hardware wait has a deadline).
+fn continue_if_room(samples: &[Sample]) -> Result<(), MotionError> {
+    if samples.len() > 100_000 {
+        return Err(MotionError::Device("the axis's read-back failed while it moved".into()));
+    }
+    Ok(())
+}
+
+/// The wheel's seconds per position (module doc); None without a wheel of at least 4 positions.
+async fn measure_wheel(motion: &Motion<'_>) -> Result<Option<f64>, MotionError> {
+    let Some(wheel) = motion.rig().wheel() else {
+        return Ok(None);
+    };
+    let n = motion.device(Device::Wheel, "wheel position count", || wheel.position_count()).await?;
+    if n < 4 {
+        return Ok(None);
+    }
+    tracing::info!(positions = n, "self-test: a full turn of the wheel, then its time per position");
+    for p in (1..=n).chain(std::iter::once(1)) {
+        motion.device(Device::Wheel, &format!("turn the wheel to {p}"), || wheel.go_to(p)).await?;
+    }
+    let clock = motion.clock();
+    let half = n / 2;
+    let mut timed = |to: u8| async move {
+        let t = clock.now_s();
+        motion.device(Device::Wheel, &format!("turn the wheel to {to}"), || wheel.go_to(to)).await?;
+        Ok::<f64, MotionError>(clock.now_s() - t)
+    };
+    let one = timed(2).await?;
+    let back = timed(1).await?;
+    let far = timed(1 + half).await?;
+    let step = 0.5 * (one + back);
+    Ok(Some((far - step) / f64::from(half - 1)))
+}
+
+/// Each device's reply latency (ms), for the record.
+async fn measure_latency(motion: &Motion<'_>) -> Result<Vec<Check>, MotionError> {
+    let rig = motion.rig();
+    let clock = motion.clock();
+    let mut out = Vec::new();
+    let mut seen = std::collections::BTreeSet::new();
+    for a in rig.axes() {
+        if !seen.insert(a.config.device.clone()) {
+            continue;
+        }
+        let mut times = Vec::new();
+        for _ in 0..LATENCY_QUERIES {
+            let t = clock.now_s();
+            motion.device(Device::Axis(a), "position query", || a.driver.position_deg()).await?;
+            times.push(1e3 * (clock.now_s() - t));
+        }
+        if let Some((mean, _)) = mean_std(&times) {
+            out.push(info(format!("latency.{}", a.config.device), "reply to a position query", "ms", mean));
+        }
+    }
+    if let Some(w) = rig.wheel() {
+        let mut times = Vec::new();
+        for _ in 0..LATENCY_QUERIES {
+            let t = clock.now_s();
+            motion.device(Device::Wheel, "wheel position query", || w.position()).await?;
+            times.push(1e3 * (clock.now_s() - t));
+        }
+        if let (Some((mean, _)), Some(cfg)) = (mean_std(&times), &rig.file().instrument.filter_wheel) {
+            out.push(info(format!("latency.{}", cfg.device), "reply to a position query", "ms", mean));
+        }
+    }
+    let det = rig.detector();
+    let mut times = Vec::new();
+    for _ in 0..LATENCY_QUERIES {
+        let t = clock.now_s();
+        motion.device(Device::Detector, "meter identification", || det.identify()).await?;
+        times.push(1e3 * (clock.now_s() - t));
+    }
+    if let Some((mean, _)) = mean_std(&times) {
+        let name = &rig.file().instrument.detector.device;
+        out.push(info(format!("latency.{name}"), "reply to *IDN?", "ms", mean));
+    }
+    Ok(out)
+}
+
+/// The meter's dark and noise on each range, with the blank in the beam.
+async fn measure_meter(motion: &Motion<'_>) -> Result<(Vec<Check>, Vec<String>), MotionError> {
+    let rig = motion.rig();
+    let inst = &rig.file().instrument;
+    let mut missing = Vec::new();
+    let blank = inst
+        .filter_wheel
+        .as_ref()
+        .and_then(|w| w.positions.iter().find(|p| p.blank))
+        .map(|p| p.position);
+    match (rig.wheel(), blank) {
+        (Some(w), Some(p)) => {
+            motion.device(Device::Wheel, "the blank into the beam", || w.go_to(p)).await?;
+        }
+        _ => missing.push(
+            "detector dark: no blank on the wheel, so the readings below include whatever light reaches the meter"
+                .to_string(),
+        ),
+    }
+    let nm = inst.bands_nm().first().copied().unwrap_or(550.0);
+    let det = rig.detector();
+    let mut out = Vec::new();
+    for (i, range_w) in inst.detector.ranges_w.iter().enumerate() {
+        let config = DetectorConfig {
+            wavelength_nm: nm,
+            averaging: inst.detector.averaging,
+            range: PowerRange::Fixed {
+                full_scale_w: *range_w,
+            },
+        };
+        motion.device(Device::Detector, "configure the meter's range", || det.configure(config)).await?;
+        let mut values = Vec::new();
+        for _ in 0..READINGS_PER_RANGE {
+            let r = motion.device(Device::Detector, "read the meter", || det.read_power()).await?;
+            values.push(r.power_w);
+        }
+        if let Some((mean, std)) = mean_std(&values) {
+            out.push(info(format!("detector.ranges_w[{i}].dark_w"), &format!("dark on the {range_w:e} W range"), "W", mean));
+            out.push(info(format!("detector.ranges_w[{i}].noise_w"), &format!("noise (1 sigma) on the {range_w:e} W range"), "W", std));
+        }
+    }
+    Ok((out, missing))
+}

@@ -1,0 +1,222 @@
+//! `gonio selftest [--instrument FILE] [--json REPORT.json] [--write FILE]`: the instrument file held against
+//! the hardware (`gonio_engine::selftest`). Prints each figure measured against configured with a verdict,
+//! exits 1 naming each key the hardware contradicts, and with `--write` writes the instrument file with the
+//! measured values (and a comment of when they were measured).
+
+use std::path::PathBuf;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use gonio_engine::selftest::{DEFAULT_TOLERANCE, SelftestReport, Verdict, run_selftest};
+use gonio_engine::{Control, Rig};
+use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_scheduler::timing::TimeModel;
+
+use crate::CliError;
+
+/// Device operations are retried this many times during the self-test.
+const RETRIES: u32 = 2;
+
+#[derive(Debug, clap::Args)]
+pub struct SelftestArgs {
+    /// Instrument file (default: the embedded simulated instrument).
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Write the report as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write the instrument file with the measured values here.
+    #[arg(long)]
+    pub write: Option<PathBuf>,
+    /// Relative tolerance of a measured figure against the file's (0.1 = 10 %).
+    #[arg(long, default_value_t = DEFAULT_TOLERANCE)]
+    pub tolerance: f64,
+}
+
+pub fn run(args: SelftestArgs) -> Result<(), CliError> {
+    if !(args.tolerance.is_finite() && args.tolerance > 0.0) {
+        return Err(CliError::input(format!("--tolerance {}: must be > 0", args.tolerance)));
+    }
+    let (text, origin) = match &args.instrument {
+        Some(p) => (
+            std::fs::read_to_string(p)
+                .map_err(|e| CliError::io(format!("cannot read instrument file {}", p.display()), e))?,
+            p.display().to_string(),
+        ),
+        None => (SIMULATED_INSTRUMENT_TOML.to_string(), "<embedded simulated instrument>".to_string()),
+    };
+    let file = InstrumentFile::parse(&text, &origin).map_err(|e| CliError::input(e.to_string()))?;
+    let simulated = file.instrument.devices.iter().all(|d| d.is_simulated());
+    // A dry-run takes the simulated instrument's time on a paused clock (no wall time), as `gonio run` does.
+    let runtime = if simulated {
+        tokio::runtime::Builder::new_current_thread().enable_time().start_paused(true).build()
+    } else {
+        tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()
+    }
+    .map_err(|e| CliError::io("cannot start the async runtime", e))?;
+    let report = runtime.block_on(async {
+        let rig = if simulated {
+            Rig::connect_with_time_scale(&file, None, 1.0).await
+        } else {
+            Rig::connect(&file, None).await
+        }
+        .map_err(|e| CliError::input(e.to_string()))?;
+        let mut motion = gonio_engine::motion::Motion::new(
+            &rig,
+            TimeModel::new(&file.instrument),
+            RETRIES,
+            Control::new(),
+        );
+        run_selftest(&mut motion, args.tolerance)
+            .await
+            .map_err(|e| CliError::input(format!("self-test stopped: {e}")))
+    })?;
+    runtime.shutdown_timeout(std::time::Duration::from_millis(200));
+    print!("{}", report_text(&report));
+    if let Some(path) = &args.json {
+        let json = serde_json::to_string_pretty(&report)
+            .map_err(|e| CliError::input(format!("cannot encode the report: {e}")))?;
+        std::fs::write(path, json).map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
+    }
+    if let Some(path) = &args.write {
+        let written = measured_file(&text, &report).map_err(CliError::input)?;
+        std::fs::write(path, written).map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
+        eprintln!("wrote the measured instrument file to {}", path.display());
+    }
+    let failed = report.failed_keys();
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        Err(CliError::CheckFailed(format!(
+            "the hardware contradicts the instrument file beyond {:.0} %: {}",
+            100.0 * report.tolerance,
+            failed.join(", ")
+        )))
+    }
+}
+
+/// The report for a person: one line per figure.
+pub fn report_text(r: &SelftestReport) -> String {
+    let mut s = format!(
+        "self-test of {}{} ({:.1} s of instrument time)\n",
+        r.instrument,
+        if r.dry_run { " (simulated)" } else { "" },
+        r.instrument_s
+    );
+    for (name, id) in &r.devices {
+        s.push_str(&format!("  device {name:<8} {id}\n"));
+    }
+    s.push_str(&format!("  {:<44} {:>14} {:>14}  verdict\n", "key", "configured", "measured"));
+    for c in &r.checks {
+        let configured = c.configured.map(|v| format!("{v:.4}")).unwrap_or_else(|| "-".into());
+        let verdict = match c.verdict {
+            Verdict::Pass => "ok",
+            Verdict::Fail => "FAIL",
+            Verdict::Info => "",
+        };
+        s.push_str(&format!(
+            "  {:<44} {configured:>14} {:>14} {} {verdict}\n",
+            c.key,
+            format_value(c.measured),
+            c.unit
+        ));
+    }
+    for m in &r.not_measured {
+        s.push_str(&format!("  not measured: {m}\n"));
+    }
+    s
+}
+
+fn format_value(v: f64) -> String {
+    if v != 0.0 && (v.abs() < 1e-3 || v.abs() >= 1e5) {
+        format!("{v:.4e}")
+    } else {
+        format!("{v:.4}")
+    }
+}
+
+/// The instrument file `text` with every pass/fail key set to its measured value, and a header saying when.
+fn measured_file(text: &str, r: &SelftestReport) -> Result<String, String> {
+    let mut doc: toml::Table = toml::from_str(text).map_err(|e| format!("the instrument file: {e}"))?;
+    let mut written = Vec::new();
+    for c in r.checks.iter().filter(|c| c.configured.is_some()) {
+        if set_key(&mut doc, &c.key, c.measured) {
+            written.push(c.key.clone());
+        }
+    }
+    let body = toml::to_string_pretty(&doc).map_err(|e| format!("cannot write TOML: {e}"))?;
+    let when = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    Ok(format!(
+        "# Written by gonio selftest {} at {} UTC: measured values for {}.\n\
+         # (The original file's comments are not kept: compare with it before replacing it.)\n\n{body}",
+        env!("CARGO_PKG_VERSION"),
+        utc_text(when),
+        if written.is_empty() { "no key".to_string() } else { written.join(", ") }
+    ))
+}
+
+/// Set `axes.<name>.<key>` (in `[[instrument.axes]]`) or `<table>.<key>` under `[instrument]`.
+fn set_key(doc: &mut toml::Table, key: &str, value: f64) -> bool {
+    let Some(instrument) = doc.get_mut("instrument").and_then(toml::Value::as_table_mut) else {
+        return false;
+    };
+    let parts: Vec<&str> = key.split('.').collect();
+    match parts.as_slice() {
+        ["axes", name, field] => instrument
+            .get_mut("axes")
+            .and_then(toml::Value::as_array_mut)
+            .and_then(|axes| {
+                axes.iter_mut()
+                    .filter_map(toml::Value::as_table_mut)
+                    .find(|a| a.get("name").and_then(toml::Value::as_str) == Some(name))
+            })
+            .map(|a| a.insert((*field).to_string(), toml::Value::Float(value)))
+            .is_some(),
+        [table, field] => instrument
+            .get_mut(*table)
+            .and_then(toml::Value::as_table_mut)
+            .map(|t| t.insert((*field).to_string(), toml::Value::Float(value)))
+            .is_some(),
+        _ => false,
+    }
+}
+
+/// `YYYY-MM-DD HH:MM:SS` of Unix seconds (proleptic Gregorian, H. Hinnant's days-from-civil inverse).
+fn utc_text(unix_s: u64) -> String {
+    let days = (unix_s / 86_400) as i64;
+    let secs = unix_s % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!("{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02}", secs / 3600, secs / 60 % 60, secs % 60)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unix_seconds_read_as_a_utc_date() {
+        assert_eq!(utc_text(0), "1970-01-01 00:00:00");
+        assert_eq!(utc_text(951_782_400), "2000-02-29 00:00:00");
+        assert_eq!(utc_text(1_796_330_096), "2026-12-03 19:14:56");
+    }
+
+    #[test]
+    fn measured_keys_are_written_where_the_file_has_them() {
+        let mut doc: toml::Table = toml::from_str(SIMULATED_INSTRUMENT_TOML).expect("toml");
+        assert!(set_key(&mut doc, "axes.detector.max_speed_deg_s", 9.5));
+        assert!(set_key(&mut doc, "filter_wheel.seconds_per_position", 1.25));
+        assert!(!set_key(&mut doc, "axes.elbow.max_speed_deg_s", 1.0));
+        let text = toml::to_string(&doc).expect("toml");
+        let file = InstrumentFile::parse(&text, "written").expect("still a valid instrument file");
+        let det = file.instrument.axes.iter().find(|a| a.name == "detector").expect("detector");
+        assert_eq!(det.max_speed_deg_s, 9.5);
+        assert_eq!(file.instrument.filter_wheel.map(|w| w.seconds_per_position), Some(1.25));
+    }
+}
