@@ -98,7 +98,8 @@ impl SimInstrument {
             };
             // Power-up position: the counter's zero, or the nearest end of travel if zero is outside it.
             let start = 0.0f64.clamp(params.hw_min_deg, params.hw_max_deg);
-            let motion = AxisMotion::new(params, start).with_mechanical_limits(axis.max_speed_deg_s, axis.accel_deg_s2);
+            let motion = AxisMotion::new(params, start)
+                .with_mechanical_limits(axis.max_speed_deg_s, axis.accel_deg_s2);
             axes.push((axis.clone(), Arc::new(Mutex::new(motion))));
         }
 

@@ -55,8 +55,22 @@ pub async fn run_selftest(motion: &mut Motion<'_>, tolerance: f64) -> Result<Sel
         match measure_axis(motion, a).await? {
             Some((speed, accel)) => {
                 let key = |k: &str| format!("axes.{}.{k}", a.config.name);
-                checks.push(against(key("max_speed_deg_s"), "top speed", "deg/s", a.config.max_speed_deg_s, speed, tolerance));
-                checks.push(against(key("accel_deg_s2"), "acceleration", "deg/s^2", a.config.accel_deg_s2, accel, tolerance));
+                checks.push(against(
+                    key("max_speed_deg_s"),
+                    "top speed",
+                    "deg/s",
+                    a.config.max_speed_deg_s,
+                    speed,
+                    tolerance,
+                ));
+                checks.push(against(
+                    key("accel_deg_s2"),
+                    "acceleration",
+                    "deg/s^2",
+                    a.config.accel_deg_s2,
+                    accel,
+                    tolerance,
+                ));
             }
             None => not_measured.push(format!(
                 "axes.{}: its travel leaves no room for a move long enough to cruise",
@@ -104,7 +118,11 @@ fn measured_move(motion: &Motion<'_>, a: &RigAxis) -> Option<(Pose, f64)> {
     let sep = inst.safety.min_arm_separation_deg + MARGIN_DEG;
     let here = *motion.current();
     // The arms' order as homing left them (detector above the light arm when they are together).
-    let order = if here.detector_deg >= here.light_deg { 1.0 } else { -1.0 };
+    let order = if here.detector_deg >= here.light_deg {
+        1.0
+    } else {
+        -1.0
+    };
     let role_axis = |r: AxisRole| inst.axis(r);
     let mut start = here;
     let (lo, hi) = (a.config.min_deg + MARGIN_DEG, a.config.max_deg - MARGIN_DEG);
@@ -112,7 +130,13 @@ fn measured_move(motion: &Motion<'_>, a: &RigAxis) -> Option<(Pose, f64)> {
         AxisRole::DetectorArm => {
             // The light arm parked at the end of its travel away from the detector.
             let light = role_axis(AxisRole::LightArm);
-            let park = light.map(|l| if order > 0.0 { l.min_deg + MARGIN_DEG } else { l.max_deg - MARGIN_DEG });
+            let park = light.map(|l| {
+                if order > 0.0 {
+                    l.min_deg + MARGIN_DEG
+                } else {
+                    l.max_deg - MARGIN_DEG
+                }
+            });
             if let Some(p) = park {
                 start.light_deg = p;
             }
@@ -124,7 +148,13 @@ fn measured_move(motion: &Motion<'_>, a: &RigAxis) -> Option<(Pose, f64)> {
         }
         AxisRole::LightArm => {
             let detector = role_axis(AxisRole::DetectorArm);
-            let park = detector.map(|d| if order > 0.0 { d.max_deg - MARGIN_DEG } else { d.min_deg + MARGIN_DEG });
+            let park = detector.map(|d| {
+                if order > 0.0 {
+                    d.max_deg - MARGIN_DEG
+                } else {
+                    d.min_deg + MARGIN_DEG
+                }
+            });
             if let Some(p) = park {
                 start.detector_deg = p;
             }
@@ -156,7 +186,9 @@ async fn measure_axis(motion: &mut Motion<'_>, a: &RigAxis) -> Result<Option<(f6
     let from = start.get(a.config.role);
     let (v, acc) = (a.config.max_speed_deg_s, a.config.accel_deg_s2);
     motion
-        .device(Device::Axis(a), &format!("set the speed of {name}"), || a.driver.set_speed(v, acc))
+        .device(Device::Axis(a), &format!("set the speed of {name}"), || {
+            a.driver.set_speed(v, acc)
+        })
         .await?;
     let samples = sample_move(motion, a, to).await?;
     motion.read_positions().await?;
@@ -173,7 +205,11 @@ async fn sample_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<Ve
     let clock = motion.clock();
     let name = &a.config.name;
     motion
-        .device(Device::Axis(a), &format!("start {name} to {to_deg:.3} deg"), || a.driver.start_move(to_deg))
+        .device(
+            Device::Axis(a),
+            &format!("start {name} to {to_deg:.3} deg"),
+            || a.driver.start_move(to_deg),
+        )
         .await?;
     let mut samples = Vec::new();
     loop {
@@ -190,7 +226,11 @@ async fn sample_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<Ve
         }
     }
     motion
-        .device(Device::Axis(a), &format!("{name} arrives at {to_deg:.3} deg"), || a.driver.wait_arrived(to_deg))
+        .device(
+            Device::Axis(a),
+            &format!("{name} arrives at {to_deg:.3} deg"),
+            || a.driver.wait_arrived(to_deg),
+        )
         .await?;
     Ok(samples)
 }
@@ -198,7 +238,9 @@ async fn sample_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<Ve
 /// A sampling loop that keeps failing gives up (every hardware wait has a deadline).
 fn continue_if_room(samples: &[Sample]) -> Result<(), MotionError> {
     if samples.len() > 100_000 {
-        return Err(MotionError::Device("the axis's read-back failed while it moved".into()));
+        return Err(MotionError::Device(
+            "the axis's read-back failed while it moved".into(),
+        ));
     }
     Ok(())
 }
@@ -208,19 +250,32 @@ async fn measure_wheel(motion: &Motion<'_>) -> Result<Option<f64>, MotionError> 
     let Some(wheel) = motion.rig().wheel() else {
         return Ok(None);
     };
-    let n = motion.device(Device::Wheel, "wheel position count", || wheel.position_count()).await?;
+    let n = motion
+        .device(Device::Wheel, "wheel position count", || wheel.position_count())
+        .await?;
     if n < 4 {
         return Ok(None);
     }
-    tracing::info!(positions = n, "self-test: a full turn of the wheel, then its time per position");
+    tracing::info!(
+        positions = n,
+        "self-test: a full turn of the wheel, then its time per position"
+    );
     for p in (1..=n).chain(std::iter::once(1)) {
-        motion.device(Device::Wheel, &format!("turn the wheel to {p}"), || wheel.go_to(p)).await?;
+        motion
+            .device(Device::Wheel, &format!("turn the wheel to {p}"), || {
+                wheel.go_to(p)
+            })
+            .await?;
     }
     let clock = motion.clock();
     let half = n / 2;
-    let mut timed = |to: u8| async move {
+    let timed = |to: u8| async move {
         let t = clock.now_s();
-        motion.device(Device::Wheel, &format!("turn the wheel to {to}"), || wheel.go_to(to)).await?;
+        motion
+            .device(Device::Wheel, &format!("turn the wheel to {to}"), || {
+                wheel.go_to(to)
+            })
+            .await?;
         Ok::<f64, MotionError>(clock.now_s() - t)
     };
     let one = timed(2).await?;
@@ -243,29 +298,45 @@ async fn measure_latency(motion: &Motion<'_>) -> Result<Vec<Check>, MotionError>
         let mut times = Vec::new();
         for _ in 0..LATENCY_QUERIES {
             let t = clock.now_s();
-            motion.device(Device::Axis(a), "position query", || a.driver.position_deg()).await?;
+            motion
+                .device(Device::Axis(a), "position query", || a.driver.position_deg())
+                .await?;
             times.push(1e3 * (clock.now_s() - t));
         }
         if let Some((mean, _)) = mean_std(&times) {
-            out.push(info(format!("latency.{}", a.config.device), "reply to a position query", "ms", mean));
+            out.push(info(
+                format!("latency.{}", a.config.device),
+                "reply to a position query",
+                "ms",
+                mean,
+            ));
         }
     }
     if let Some(w) = rig.wheel() {
         let mut times = Vec::new();
         for _ in 0..LATENCY_QUERIES {
             let t = clock.now_s();
-            motion.device(Device::Wheel, "wheel position query", || w.position()).await?;
+            motion
+                .device(Device::Wheel, "wheel position query", || w.position())
+                .await?;
             times.push(1e3 * (clock.now_s() - t));
         }
         if let (Some((mean, _)), Some(cfg)) = (mean_std(&times), &rig.file().instrument.filter_wheel) {
-            out.push(info(format!("latency.{}", cfg.device), "reply to a position query", "ms", mean));
+            out.push(info(
+                format!("latency.{}", cfg.device),
+                "reply to a position query",
+                "ms",
+                mean,
+            ));
         }
     }
     let det = rig.detector();
     let mut times = Vec::new();
     for _ in 0..LATENCY_QUERIES {
         let t = clock.now_s();
-        motion.device(Device::Detector, "meter identification", || det.identify()).await?;
+        motion
+            .device(Device::Detector, "meter identification", || det.identify())
+            .await?;
         times.push(1e3 * (clock.now_s() - t));
     }
     if let Some((mean, _)) = mean_std(&times) {
@@ -305,15 +376,31 @@ async fn measure_meter(motion: &Motion<'_>) -> Result<(Vec<Check>, Vec<String>),
                 full_scale_w: *range_w,
             },
         };
-        motion.device(Device::Detector, "configure the meter's range", || det.configure(config)).await?;
+        motion
+            .device(Device::Detector, "configure the meter's range", || {
+                det.configure(config)
+            })
+            .await?;
         let mut values = Vec::new();
         for _ in 0..READINGS_PER_RANGE {
-            let r = motion.device(Device::Detector, "read the meter", || det.read_power()).await?;
+            let r = motion
+                .device(Device::Detector, "read the meter", || det.read_power())
+                .await?;
             values.push(r.power_w);
         }
         if let Some((mean, std)) = mean_std(&values) {
-            out.push(info(format!("detector.ranges_w[{i}].dark_w"), &format!("dark on the {range_w:e} W range"), "W", mean));
-            out.push(info(format!("detector.ranges_w[{i}].noise_w"), &format!("noise (1 sigma) on the {range_w:e} W range"), "W", std));
+            out.push(info(
+                format!("detector.ranges_w[{i}].dark_w"),
+                &format!("dark on the {range_w:e} W range"),
+                "W",
+                mean,
+            ));
+            out.push(info(
+                format!("detector.ranges_w[{i}].noise_w"),
+                &format!("noise (1 sigma) on the {range_w:e} W range"),
+                "W",
+                std,
+            ));
         }
     }
     Ok((out, missing))

@@ -20,7 +20,11 @@ fn with_actual(extra: &str) -> InstrumentFile {
 }
 
 fn measured(r: &SelftestReport, key: &str) -> f64 {
-    r.checks.iter().find(|c| c.key == key).unwrap_or_else(|| panic!("no {key} in {:#?}", r.checks)).measured
+    r.checks
+        .iter()
+        .find(|c| c.key == key)
+        .unwrap_or_else(|| panic!("no {key} in {:#?}", r.checks))
+        .measured
 }
 
 #[tokio::test(start_paused = true)]
@@ -31,25 +35,57 @@ async fn the_ideal_instrument_measures_as_its_file_says() {
     for a in &file.instrument.axes {
         let speed = measured(&r, &format!("axes.{}.max_speed_deg_s", a.name));
         let accel = measured(&r, &format!("axes.{}.accel_deg_s2", a.name));
-        assert!((speed / a.max_speed_deg_s - 1.0).abs() < 0.02, "{}: {speed} deg/s", a.name);
-        assert!((accel / a.accel_deg_s2 - 1.0).abs() < 0.05, "{}: {accel} deg/s^2", a.name);
+        assert!(
+            (speed / a.max_speed_deg_s - 1.0).abs() < 0.02,
+            "{}: {speed} deg/s",
+            a.name
+        );
+        assert!(
+            (accel / a.accel_deg_s2 - 1.0).abs() < 0.05,
+            "{}: {accel} deg/s^2",
+            a.name
+        );
     }
     let wheel = file.instrument.filter_wheel.as_ref().expect("wheel");
     let sps = measured(&r, "filter_wheel.seconds_per_position");
-    assert!((sps / wheel.seconds_per_position - 1.0).abs() < 0.02, "{sps} s per position");
-    assert!(r.checks.iter().any(|c| c.key.starts_with("latency.") && c.measured > 0.0), "{:#?}", r.checks);
+    assert!(
+        (sps / wheel.seconds_per_position - 1.0).abs() < 0.02,
+        "{sps} s per position"
+    );
+    assert!(
+        r.checks
+            .iter()
+            .any(|c| c.key.starts_with("latency.") && c.measured > 0.0),
+        "{:#?}",
+        r.checks
+    );
     let ranges = file.instrument.detector.ranges_w.len();
-    assert_eq!(r.checks.iter().filter(|c| c.key.ends_with(".noise_w")).count(), ranges);
-    assert!(r.not_measured.iter().any(|m| m.contains("settle_s")), "the report says what it cannot measure");
+    assert_eq!(
+        r.checks.iter().filter(|c| c.key.ends_with(".noise_w")).count(),
+        ranges
+    );
+    assert!(
+        r.not_measured.iter().any(|m| m.contains("settle_s")),
+        "the report says what it cannot measure"
+    );
     assert!(r.dry_run && r.devices.len() == file.instrument.devices.len());
 }
 
 #[tokio::test(start_paused = true)]
 async fn hardware_slower_than_its_file_fails_naming_the_key() {
     for (extra, key) in [
-        ("[simulator.actual.filter_wheel]\nseconds_per_position = 2.0\n", "filter_wheel.seconds_per_position"),
-        ("[simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\n", "axes.detector.max_speed_deg_s"),
-        ("[simulator.actual.axes.tilt]\naccel_deg_s2 = 20.0\n", "axes.tilt.accel_deg_s2"),
+        (
+            "[simulator.actual.filter_wheel]\nseconds_per_position = 2.0\n",
+            "filter_wheel.seconds_per_position",
+        ),
+        (
+            "[simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\n",
+            "axes.detector.max_speed_deg_s",
+        ),
+        (
+            "[simulator.actual.axes.tilt]\naccel_deg_s2 = 20.0\n",
+            "axes.tilt.accel_deg_s2",
+        ),
     ] {
         let r = selftest_of(&with_actual(extra)).await;
         assert_eq!(r.failed_keys(), vec![key], "{extra}: {:#?}", r.checks);
@@ -57,14 +93,20 @@ async fn hardware_slower_than_its_file_fails_naming_the_key() {
         assert_eq!(c.verdict, Verdict::Fail);
     }
     // The detector arm at half its speed measures as such.
-    let r = selftest_of(&with_actual("[simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\n")).await;
+    let r = selftest_of(&with_actual(
+        "[simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\n",
+    ))
+    .await;
     let speed = measured(&r, "axes.detector.max_speed_deg_s");
     assert!((speed - 10.0).abs() < 0.2, "{speed}");
 }
 
 #[tokio::test(start_paused = true)]
 async fn the_realistic_instrument_passes() {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../config/instruments/realistic.toml");
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../config/instruments/realistic.toml"
+    );
     let file = InstrumentFile::load(std::path::Path::new(path)).expect("realistic.toml");
     let r = selftest_of(&file).await;
     assert!(r.failed_keys().is_empty(), "{:#?}", r.checks);

@@ -34,7 +34,10 @@ pub struct SelftestArgs {
 
 pub fn run(args: SelftestArgs) -> Result<(), CliError> {
     if !(args.tolerance.is_finite() && args.tolerance > 0.0) {
-        return Err(CliError::input(format!("--tolerance {}: must be > 0", args.tolerance)));
+        return Err(CliError::input(format!(
+            "--tolerance {}: must be > 0",
+            args.tolerance
+        )));
     }
     let (text, origin) = match &args.instrument {
         Some(p) => (
@@ -42,15 +45,24 @@ pub fn run(args: SelftestArgs) -> Result<(), CliError> {
                 .map_err(|e| CliError::io(format!("cannot read instrument file {}", p.display()), e))?,
             p.display().to_string(),
         ),
-        None => (SIMULATED_INSTRUMENT_TOML.to_string(), "<embedded simulated instrument>".to_string()),
+        None => (
+            SIMULATED_INSTRUMENT_TOML.to_string(),
+            "<embedded simulated instrument>".to_string(),
+        ),
     };
     let file = InstrumentFile::parse(&text, &origin).map_err(|e| CliError::input(e.to_string()))?;
     let simulated = file.instrument.devices.iter().all(|d| d.is_simulated());
     // A dry-run takes the simulated instrument's time on a paused clock (no wall time), as `gonio run` does.
     let runtime = if simulated {
-        tokio::runtime::Builder::new_current_thread().enable_time().start_paused(true).build()
+        tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .start_paused(true)
+            .build()
     } else {
-        tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
     }
     .map_err(|e| CliError::io("cannot start the async runtime", e))?;
     let report = runtime.block_on(async {
@@ -75,11 +87,13 @@ pub fn run(args: SelftestArgs) -> Result<(), CliError> {
     if let Some(path) = &args.json {
         let json = serde_json::to_string_pretty(&report)
             .map_err(|e| CliError::input(format!("cannot encode the report: {e}")))?;
-        std::fs::write(path, json).map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
+        std::fs::write(path, json)
+            .map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
     }
     if let Some(path) = &args.write {
         let written = measured_file(&text, &report).map_err(CliError::input)?;
-        std::fs::write(path, written).map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
+        std::fs::write(path, written)
+            .map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
         eprintln!("wrote the measured instrument file to {}", path.display());
     }
     let failed = report.failed_keys();
@@ -105,9 +119,15 @@ pub fn report_text(r: &SelftestReport) -> String {
     for (name, id) in &r.devices {
         s.push_str(&format!("  device {name:<8} {id}\n"));
     }
-    s.push_str(&format!("  {:<44} {:>14} {:>14}  verdict\n", "key", "configured", "measured"));
+    s.push_str(&format!(
+        "  {:<44} {:>14} {:>14}  verdict\n",
+        "key", "configured", "measured"
+    ));
     for c in &r.checks {
-        let configured = c.configured.map(|v| format!("{v:.4}")).unwrap_or_else(|| "-".into());
+        let configured = c
+            .configured
+            .map(|v| format!("{v:.4}"))
+            .unwrap_or_else(|| "-".into());
         let verdict = match c.verdict {
             Verdict::Pass => "ok",
             Verdict::Fail => "FAIL",
@@ -144,13 +164,20 @@ fn measured_file(text: &str, r: &SelftestReport) -> Result<String, String> {
         }
     }
     let body = toml::to_string_pretty(&doc).map_err(|e| format!("cannot write TOML: {e}"))?;
-    let when = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    let when = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
     Ok(format!(
         "# Written by gonio selftest {} at {} UTC: measured values for {}.\n\
          # (The original file's comments are not kept: compare with it before replacing it.)\n\n{body}",
         env!("CARGO_PKG_VERSION"),
         utc_text(when),
-        if written.is_empty() { "no key".to_string() } else { written.join(", ") }
+        if written.is_empty() {
+            "no key".to_string()
+        } else {
+            written.join(", ")
+        }
     ))
 }
 
@@ -193,7 +220,12 @@ fn utc_text(unix_s: u64) -> String {
     let d = doy - (153 * mp + 2) / 5 + 1;
     let m = if mp < 10 { mp + 3 } else { mp - 9 };
     let y = yoe + era * 400 + i64::from(m <= 2);
-    format!("{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02}", secs / 3600, secs / 60 % 60, secs % 60)
+    format!(
+        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02}",
+        secs / 3600,
+        secs / 60 % 60,
+        secs % 60
+    )
 }
 
 #[cfg(test)]
@@ -215,8 +247,16 @@ mod tests {
         assert!(!set_key(&mut doc, "axes.elbow.max_speed_deg_s", 1.0));
         let text = toml::to_string(&doc).expect("toml");
         let file = InstrumentFile::parse(&text, "written").expect("still a valid instrument file");
-        let det = file.instrument.axes.iter().find(|a| a.name == "detector").expect("detector");
+        let det = file
+            .instrument
+            .axes
+            .iter()
+            .find(|a| a.name == "detector")
+            .expect("detector");
         assert_eq!(det.max_speed_deg_s, 9.5);
-        assert_eq!(file.instrument.filter_wheel.map(|w| w.seconds_per_position), Some(1.25));
+        assert_eq!(
+            file.instrument.filter_wheel.map(|w| w.seconds_per_position),
+            Some(1.25)
+        );
     }
 }

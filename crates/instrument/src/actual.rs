@@ -60,7 +60,9 @@ pub struct ActualAxis {
 impl Actual {
     /// True when nothing differs from the file.
     pub fn is_empty(&self) -> bool {
-        self.filter_wheel.as_ref().is_none_or(|w| w.seconds_per_position.is_none())
+        self.filter_wheel
+            .as_ref()
+            .is_none_or(|w| w.seconds_per_position.is_none())
             && self.axes.values().all(|a| a == &ActualAxis::default())
     }
 
@@ -153,11 +155,26 @@ mod tests {
         )
         .expect("valid");
         let actual = file.actual_instrument();
-        assert_eq!(actual.filter_wheel.as_ref().map(|w| w.seconds_per_position), Some(2.0));
-        let det = actual.axes.iter().find(|a| a.name == "detector").expect("detector");
+        assert_eq!(
+            actual.filter_wheel.as_ref().map(|w| w.seconds_per_position),
+            Some(2.0)
+        );
+        let det = actual
+            .axes
+            .iter()
+            .find(|a| a.name == "detector")
+            .expect("detector");
         assert_eq!((det.max_speed_deg_s, det.settle_s), (10.0, 0.4));
-        let claimed = file.instrument.axes.iter().find(|a| a.name == "detector").expect("detector");
-        assert_eq!(det.accel_deg_s2, claimed.accel_deg_s2, "what is not listed stays as claimed");
+        let claimed = file
+            .instrument
+            .axes
+            .iter()
+            .find(|a| a.name == "detector")
+            .expect("detector");
+        assert_eq!(
+            det.accel_deg_s2, claimed.accel_deg_s2,
+            "what is not listed stays as claimed"
+        );
         assert_ne!(file.instrument, actual, "the file itself keeps its claims");
         assert!(!file.simulator.actual.is_empty());
         let plain = InstrumentFile::simulated();
@@ -168,10 +185,22 @@ mod tests {
     #[test]
     fn wrong_actual_tables_are_refused_naming_the_key() {
         for (extra, says) in [
-            ("[simulator.actual.axes.elbow]\nsettle_s = 1.0\n", "no axis named \"elbow\""),
-            ("[simulator.actual.axes.light]\nmax_speed_deg_s = 0.0\n", "simulator.actual.axes.light.max_speed_deg_s"),
-            ("[simulator.actual.axes.light]\nsettle_s = -1.0\n", "simulator.actual.axes.light.settle_s"),
-            ("[simulator.actual.filter_wheel]\nseconds_per_position = nan\n", "seconds_per_position"),
+            (
+                "[simulator.actual.axes.elbow]\nsettle_s = 1.0\n",
+                "no axis named \"elbow\"",
+            ),
+            (
+                "[simulator.actual.axes.light]\nmax_speed_deg_s = 0.0\n",
+                "simulator.actual.axes.light.max_speed_deg_s",
+            ),
+            (
+                "[simulator.actual.axes.light]\nsettle_s = -1.0\n",
+                "simulator.actual.axes.light.settle_s",
+            ),
+            (
+                "[simulator.actual.filter_wheel]\nseconds_per_position = nan\n",
+                "seconds_per_position",
+            ),
             ("[simulator.actual.axes.light]\ntop_speed = 3.0\n", "top_speed"),
         ] {
             let e = simulated_with(extra).expect_err(extra).to_string();

@@ -16,9 +16,9 @@
 mod simulator_truth;
 
 pub use simulator_truth::{
-    ActualAxisRecord, ActualHardwareRecord, AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord,
-    GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth,
-    SourceTruthRecord,
+    ActualAxisRecord, ActualHardwareRecord, AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord,
+    FilterTruthRecord, FiltersTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
+    SeatingRecord, SimulatorTruth, SourceTruthRecord,
 };
 
 use std::collections::BTreeMap;

@@ -4,9 +4,9 @@
 
 use gonio_instrument::{Actual, InstrumentFile};
 use gonio_results::provenance::{
-    ActualAxisRecord, ActualHardwareRecord, AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord, FilterTruthRecord, FiltersTruthRecord,
-    GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord, SeatingRecord, SimulatorTruth,
-    SourceTruthRecord,
+    ActualAxisRecord, ActualHardwareRecord, AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord,
+    FilterTruthRecord, FiltersTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
+    SeatingRecord, SimulatorTruth, SourceTruthRecord,
 };
 use gonio_simulator::imperfections::HiddenTruth;
 

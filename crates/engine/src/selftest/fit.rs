@@ -14,7 +14,7 @@ pub fn line(points: &[(f64, f64)]) -> Option<(f64, f64)> {
     let my = points.iter().map(|p| p.1).sum::<f64>() / n;
     let sxx: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
     let sxy: f64 = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
-    if !(sxx > 0.0) {
+    if sxx.is_nan() || sxx <= 0.0 {
         return None;
     }
     let slope = sxy / sxx;
@@ -63,13 +63,24 @@ pub fn ramp_acceleration(samples: &[Sample], start_deg: f64, speed_deg_s: f64) -
         let (slope, _) = line(&ramp)?;
         (slope > 0.0).then_some(slope * slope)
     };
-    // First pass: the first samples of the move, well inside any ramp that reaches `speed_deg_s` within the
-    // move's first tenth.
+    // First pass: the first samples of the move, inside any ramp that reaches `speed_deg_s` within the move's
+    // first fiftieth; a ramp shorter than that makes this estimate low, and each further pass, on 80 % of the
+    // ramp the estimate implies, comes closer: once the estimate is within 20 % of the truth, the pass sees ramp
+    // samples only and gives the acceleration itself.
     let first_guess = samples.iter().map(|(_, p)| moved(*p)).fold(0.0, f64::max) * 0.02;
-    let a0 = fit(first_guess.max(1e-3))?;
-    // Second pass: 80 % of the ramp the first estimate implies.
-    let ramp_deg = speed_deg_s * speed_deg_s / (2.0 * a0);
-    fit(0.8 * ramp_deg).or(Some(a0))
+    let mut a = fit(first_guess.max(1e-3))?;
+    for _ in 0..8 {
+        let ramp_deg = speed_deg_s * speed_deg_s / (2.0 * a);
+        let Some(next) = fit(0.8 * ramp_deg) else {
+            break;
+        };
+        let settled = (next - a).abs() <= 1e-4 * a;
+        a = next;
+        if settled {
+            break;
+        }
+    }
+    Some(a)
 }
 
 #[cfg(test)]
@@ -102,7 +113,12 @@ mod tests {
 
     #[test]
     fn a_sampled_trapezoid_gives_back_its_speed_and_acceleration() {
-        for (v, a, dt) in [(20.0, 80.0, 0.004), (10.0, 40.0, 0.007), (5.0, 200.0, 0.002)] {
+        for (v, a, dt) in [
+            (20.0, 80.0, 0.004),
+            (10.0, 40.0, 0.007),
+            (5.0, 200.0, 0.002),
+            (10.0, 80.0, 0.004),
+        ] {
             let s = trapezoid(120.0, v, a, 1.3, dt);
             let speed = cruise_speed(&s, -40.0, 80.0).expect("speed");
             assert!((speed - v).abs() < 1e-9 * v, "{speed} for {v}");
