@@ -111,3 +111,26 @@ async fn the_realistic_instrument_passes() {
     let r = selftest_of(&file).await;
     assert!(r.failed_keys().is_empty(), "{:#?}", r.checks);
 }
+
+#[test]
+fn the_actual_hardware_is_hidden_truth_in_run_json() {
+    let text =
+        format!("{SIMULATED_INSTRUMENT_TOML}\n[simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\n");
+    let truth =
+        gonio_engine::rig::simulator_truth(&text, true, 0).expect("a dry-run with a difference has a truth");
+    let actual = truth.actual.expect("the actual hardware listed");
+    assert_eq!(actual.axes.len(), 1);
+    assert_eq!(
+        (actual.axes[0].name.as_str(), actual.axes[0].max_speed_deg_s),
+        ("detector", Some(10.0))
+    );
+    assert_eq!(actual.wheel_seconds_per_position, None);
+    assert!(
+        gonio_engine::rig::simulator_truth(&text, false, 0).is_none(),
+        "never for a run on hardware"
+    );
+    assert!(
+        gonio_engine::rig::simulator_truth(SIMULATED_INSTRUMENT_TOML, true, 0).is_none(),
+        "nothing hidden on the ideal instrument"
+    );
+}
