@@ -27,6 +27,7 @@ pub mod filters;
 pub mod geometry;
 pub mod sample;
 pub mod source;
+pub mod timing;
 pub mod walk;
 
 use gonio_instrument::{AxisRole, InstrumentFile};
@@ -39,6 +40,7 @@ pub use filters::{FilterTruth, FiltersTruth};
 pub use geometry::{AxisTruth, GeometryTruth, Tilt, TrueGeometry};
 pub use sample::SampleTruth;
 pub use source::SourceTruth;
+pub use timing::{AxisTiming, TimingTruth};
 
 /// The hidden values of one simulated instrument: what each imperfection actually is.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -63,6 +65,9 @@ pub struct HiddenTruth {
     /// `None` when the beam is the ideal one (top hat, no pointing or divergence error).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub beam: Option<BeamTruth>,
+    /// `None` when the hardware's timing is as the file claims.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub timing: Option<TimingTruth>,
 }
 
 impl HiddenTruth {
@@ -93,7 +98,11 @@ impl HiddenTruth {
         let beam = (!settings.beam.is_ideal())
             .then(|| BeamTruth::draw(&settings.beam, file.instrument.source.divergence_deg, seed))
             .filter(|b| !b.is_ideal());
+        let timing = (!settings.timing.is_ideal())
+            .then(|| TimingTruth::draw(&settings.timing, &file.instrument, seed))
+            .filter(|t| !t.is_ideal());
         let any = geometry.is_some()
+            || timing.is_some()
             || detector.is_some()
             || source.is_some()
             || sample.is_some()
@@ -107,7 +116,22 @@ impl HiddenTruth {
             sample,
             filters,
             beam,
+            timing,
         })
+    }
+
+    /// The hardware as it really is: the file's instrument with the hidden timing applied, then the values
+    /// `[simulator.actual]` states (which win). What the simulated devices are built from.
+    pub fn real_instrument(
+        file: &InstrumentFile,
+        hidden: Option<&HiddenTruth>,
+    ) -> gonio_instrument::Instrument {
+        let mut inst = file.instrument.clone();
+        if let Some(t) = hidden.and_then(|h| h.timing.as_ref()) {
+            t.apply(&mut inst);
+        }
+        file.simulator.actual.apply_to(&mut inst);
+        inst
     }
 
     /// The values as JSON (for run.json and reports).

@@ -80,8 +80,9 @@ impl SimInstrument {
         FaultInjector::validate(&file.simulator.faults).map_err(SimError::Invalid)?;
         file.simulator.imperfections.validate()?;
         let hidden = crate::imperfections::HiddenTruth::draw(file);
-        // The devices are the hardware as it really is (`[simulator.actual]`); the engine plans with the file.
-        let actual = file.actual_instrument();
+        // The devices are the hardware as it really is (hidden timing, `[simulator.actual]`); the engine plans
+        // with the file.
+        let actual = crate::imperfections::HiddenTruth::real_instrument(file, hidden.as_ref());
         let inst = &actual;
         let clock = SimClock::new(time_scale);
         let faults = Arc::new(FaultInjector::new(file.simulator.faults.clone()));

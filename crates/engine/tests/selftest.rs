@@ -134,3 +134,84 @@ fn the_actual_hardware_is_hidden_truth_in_run_json() {
         "nothing hidden on the ideal instrument"
     );
 }
+
+/// realistic.toml with another `[simulator] seed`.
+fn realistic_with_seed(seed: u64) -> String {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../config/instruments/realistic.toml"
+    );
+    let text = std::fs::read_to_string(path).expect("realistic.toml");
+    let mut out = String::new();
+    let mut in_simulator = false;
+    for line in text.lines() {
+        let t = line.trim();
+        if t.starts_with('[') {
+            in_simulator = t == "[simulator]";
+        }
+        if in_simulator && t.starts_with("seed") {
+            out.push_str(&format!("seed = {seed}\n"));
+        } else {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    out
+}
+
+#[tokio::test(start_paused = true)]
+async fn on_realistic_instruments_the_hidden_timing_is_found_within_ten_percent() {
+    for seed in [3u64, 11, 29, 404, 9001] {
+        let text = realistic_with_seed(seed);
+        let file = InstrumentFile::parse(&text, "realistic.toml").expect("valid");
+        let truth = gonio_engine::rig::simulator_truth(&text, true, 0)
+            .and_then(|t| t.actual)
+            .expect("hidden timing drawn");
+        let r = selftest_of(&file).await;
+        // What the hardware really does: its drawn value, but never faster than the claim it is commanded at.
+        let real = |name: &str, field: &str, claimed: f64| {
+            let drawn = truth
+                .axes
+                .iter()
+                .find(|a| a.name == name)
+                .and_then(|a| match field {
+                    "max_speed_deg_s" => a.max_speed_deg_s,
+                    _ => a.accel_deg_s2,
+                });
+            drawn.unwrap_or(claimed).min(claimed)
+        };
+        for a in &file.instrument.axes {
+            for (field, claimed) in [
+                ("max_speed_deg_s", a.max_speed_deg_s),
+                ("accel_deg_s2", a.accel_deg_s2),
+            ] {
+                let want = real(&a.name, field, claimed);
+                let got = measured(&r, &format!("axes.{}.{field}", a.name));
+                assert!(
+                    (got / want - 1.0).abs() < 0.10,
+                    "seed {seed} {} {field}: {got} for {want}",
+                    a.name
+                );
+                assert!(
+                    (got / want - 1.0).abs() < 0.03,
+                    "seed {seed} {} {field}: {got} for {want}",
+                    a.name
+                );
+            }
+        }
+        let claimed = file
+            .instrument
+            .filter_wheel
+            .as_ref()
+            .map(|w| w.seconds_per_position)
+            .expect("wheel");
+        let want = truth.wheel_seconds_per_position.unwrap_or(claimed);
+        let got = measured(&r, "filter_wheel.seconds_per_position");
+        assert!(
+            (got / want - 1.0).abs() < 0.01,
+            "seed {seed} wheel: {got} for {want}"
+        );
+        // A few percent is within the tolerance: the instrument passes.
+        assert!(r.failed_keys().is_empty(), "seed {seed}: {:?}", r.failed_keys());
+    }
+}

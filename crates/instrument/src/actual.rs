@@ -111,7 +111,16 @@ impl InstrumentFile {
     /// applied (module doc). Equal to `self.instrument` when nothing differs.
     pub fn actual_instrument(&self) -> Instrument {
         let mut inst = self.instrument.clone();
-        let actual = &self.simulator.actual;
+        self.simulator.actual.apply_to(&mut inst);
+        inst
+    }
+}
+
+impl Actual {
+    /// Set every value this table states on `inst` (the simulator applies it after the hidden timing draws:
+    /// a stated value is the hardware's, whatever was drawn).
+    pub fn apply_to(&self, inst: &mut Instrument) {
+        let actual = self;
         if let (Some(w), Some(a)) = (inst.filter_wheel.as_mut(), actual.filter_wheel.as_ref())
             && let Some(s) = a.seconds_per_position
         {
@@ -134,7 +143,6 @@ impl InstrumentFile {
                 axis.backlash_deg = v;
             }
         }
-        inst
     }
 }
 

@@ -8,7 +8,7 @@
 //!
 //! One sub-table per group of effects, each a struct with `Default` = off and a `validate` that names its keys:
 //! [`geometry`], [`detector`], [`source`], [`sample`], [`filters`], [`beam`]: the groups of
-//! issue 16.
+//! issue 16; [`timing`]: the hardware's speeds against the file's (issue 28).
 
 pub mod beam;
 pub mod detector;
@@ -16,6 +16,7 @@ pub mod filters;
 pub mod geometry;
 pub mod sample;
 pub mod source;
+pub mod timing;
 
 use serde::{Deserialize, Serialize};
 
@@ -25,6 +26,7 @@ pub use filters::FilterImperfections;
 pub use geometry::GeometryImperfections;
 pub use sample::SampleImperfections;
 pub use source::SourceImperfections;
+pub use timing::TimingImperfections;
 
 /// `[simulator.imperfections]`: every group off by default.
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
@@ -49,6 +51,9 @@ pub struct Imperfections {
     /// What the beam really is (profile, pointing, divergence).
     #[serde(default)]
     pub beam: BeamImperfections,
+    /// How fast the axes and the wheel really are, against the file's claims.
+    #[serde(default)]
+    pub timing: TimingImperfections,
 }
 
 /// Why `[simulator.imperfections]` was refused: the key (full TOML path) and the value.
@@ -141,6 +146,7 @@ impl Imperfections {
             && self.sample.is_ideal()
             && self.filters.is_ideal()
             && self.beam.is_ideal()
+            && self.timing.is_ideal()
     }
 
     pub fn validate(&self) -> Result<(), ImperfectionsError> {
@@ -149,6 +155,7 @@ impl Imperfections {
         self.source.validate()?;
         self.sample.validate()?;
         self.filters.validate()?;
-        self.beam.validate()
+        self.beam.validate()?;
+        self.timing.validate()
     }
 }

@@ -33,7 +33,7 @@ use std::path::Path;
 
 pub use imperfections::{
     BeamImperfections, BeamProfile, DetectorImperfections, FilterImperfections, GeometryImperfections,
-    Imperfections, ImperfectionsError, SampleImperfections, SourceImperfections,
+    Imperfections, ImperfectionsError, SampleImperfections, SourceImperfections, TimingImperfections,
 };
 
 use serde::{Deserialize, Serialize};

@@ -2,7 +2,7 @@
 //! from the stored instrument file and its seed. It goes to the run record and nowhere else: the engine, the
 //! drivers and the calibration never see it (crates/engine/tests/layering.rs keeps the simulator inside the rig).
 
-use gonio_instrument::{Actual, InstrumentFile};
+use gonio_instrument::{Instrument, InstrumentFile};
 use gonio_results::provenance::{
     ActualAxisRecord, ActualHardwareRecord, AxisTruthRecord, BeamTruthRecord, DetectorTruthRecord,
     FilterTruthRecord, FiltersTruthRecord, GeometryTruthRecord, RangeTruthRecord, SampleTruthRecord,
@@ -18,8 +18,10 @@ pub fn simulator_truth(instrument_toml: &str, dry_run: bool, mountings: usize) -
         return None;
     }
     let file = InstrumentFile::parse(instrument_toml, "<stored instrument file>").ok()?;
-    let actual = actual_record(&file.simulator.actual);
-    match HiddenTruth::draw(&file) {
+    let hidden = HiddenTruth::draw(&file);
+    let real = HiddenTruth::real_instrument(&file, hidden.as_ref());
+    let actual = actual_record(&file.instrument, &real);
+    match hidden {
         Some(hidden) => Some(SimulatorTruth {
             actual,
             ..record(&hidden, mountings)
@@ -37,24 +39,35 @@ pub fn simulator_truth(instrument_toml: &str, dry_run: bool, mountings: usize) -
     }
 }
 
-/// `[simulator.actual]` for run.json; None when the hardware is as the file says.
-fn actual_record(actual: &Actual) -> Option<ActualHardwareRecord> {
-    if actual.is_empty() {
-        return None;
-    }
-    Some(ActualHardwareRecord {
-        wheel_seconds_per_position: actual.filter_wheel.as_ref().and_then(|w| w.seconds_per_position),
-        axes: actual
-            .axes
-            .iter()
-            .map(|(name, a)| ActualAxisRecord {
-                name: name.clone(),
-                max_speed_deg_s: a.max_speed_deg_s,
-                accel_deg_s2: a.accel_deg_s2,
-                settle_s: a.settle_s,
-                backlash_deg: a.backlash_deg,
-            })
-            .collect(),
+/// Where the real hardware differs from what the file claims (the hidden timing draws and `[simulator.actual]`
+/// together), for run.json; None when nothing does.
+fn actual_record(claimed: &Instrument, real: &Instrument) -> Option<ActualHardwareRecord> {
+    let differs = |a: f64, b: f64| (a != b).then_some(b);
+    let wheel_seconds_per_position = match (&claimed.filter_wheel, &real.filter_wheel) {
+        (Some(c), Some(r)) => differs(c.seconds_per_position, r.seconds_per_position),
+        _ => None,
+    };
+    let axes: Vec<ActualAxisRecord> = claimed
+        .axes
+        .iter()
+        .zip(&real.axes)
+        .map(|(c, r)| ActualAxisRecord {
+            name: c.name.clone(),
+            max_speed_deg_s: differs(c.max_speed_deg_s, r.max_speed_deg_s),
+            accel_deg_s2: differs(c.accel_deg_s2, r.accel_deg_s2),
+            settle_s: differs(c.settle_s, r.settle_s),
+            backlash_deg: differs(c.backlash_deg, r.backlash_deg),
+        })
+        .filter(|a| {
+            a.max_speed_deg_s.is_some()
+                || a.accel_deg_s2.is_some()
+                || a.settle_s.is_some()
+                || a.backlash_deg.is_some()
+        })
+        .collect();
+    (wheel_seconds_per_position.is_some() || !axes.is_empty()).then_some(ActualHardwareRecord {
+        wheel_seconds_per_position,
+        axes,
     })
 }
 

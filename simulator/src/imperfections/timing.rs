@@ -1,0 +1,132 @@
+//! The hardware's real timing: each axis's top speed and acceleration and the wheel's time per position, drawn
+//! about what the instrument file claims.
+//!
+//! # Model (magnitudes from `[simulator.imperfections.timing]`)
+//! Each axis's real top speed is `max_speed_deg_s (1 + speed_sd z)`, its acceleration `accel_deg_s2 (1 +
+//! accel_sd z')`, the wheel's time per position `seconds_per_position (1 + wheel_sd z'')`, each `z ~ N(0, 1)`
+//! drawn from the seed, clamped to within three standard deviations. A real speed above the claimed one is never
+//! seen (the drivers command the claimed value); one below it is: the mechanics do not follow. The real
+//! instrument these make ([`TimingTruth::apply`]) is what the simulated devices are built from; stated values
+//! in `[simulator.actual]` then win over the draws.
+
+use gonio_instrument::{Instrument, TimingImperfections};
+use serde::Serialize;
+
+use super::draw::Draws;
+
+/// One axis's real timing factors (real / claimed).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AxisTiming {
+    pub name: String,
+    pub speed_factor: f64,
+    pub accel_factor: f64,
+}
+
+/// The hidden timing of the hardware (module doc).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TimingTruth {
+    pub axes: Vec<AxisTiming>,
+    /// The wheel's real time per position over the claimed one.
+    pub wheel_factor: f64,
+}
+
+/// `1 + sd z`, z clamped to three standard deviations.
+fn factor(sd: f64, z: f64) -> f64 {
+    1.0 + sd * z.clamp(-3.0, 3.0)
+}
+
+impl TimingTruth {
+    pub fn draw(settings: &TimingImperfections, instrument: &Instrument, seed: u64) -> TimingTruth {
+        let draws = Draws::new(seed);
+        let axes = instrument
+            .axes
+            .iter()
+            .enumerate()
+            .map(|(i, a)| {
+                let (zs, za) = draws.normal_pair("timing-axis", i as u64);
+                AxisTiming {
+                    name: a.name.clone(),
+                    speed_factor: factor(settings.speed_sd, zs),
+                    accel_factor: factor(settings.accel_sd, za),
+                }
+            })
+            .collect();
+        let (zw, _) = draws.normal_pair("timing-wheel", 0);
+        TimingTruth {
+            axes,
+            wheel_factor: factor(settings.wheel_sd, zw),
+        }
+    }
+
+    pub fn is_ideal(&self) -> bool {
+        self.wheel_factor == 1.0
+            && self
+                .axes
+                .iter()
+                .all(|a| a.speed_factor == 1.0 && a.accel_factor == 1.0)
+    }
+
+    /// The real hardware: `inst` with the drawn factors applied.
+    pub fn apply(&self, inst: &mut Instrument) {
+        for a in &mut inst.axes {
+            if let Some(t) = self.axes.iter().find(|t| t.name == a.name) {
+                a.max_speed_deg_s *= t.speed_factor;
+                a.accel_deg_s2 *= t.accel_factor;
+            }
+        }
+        if let Some(w) = inst.filter_wheel.as_mut() {
+            w.seconds_per_position *= self.wheel_factor;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gonio_instrument::InstrumentFile;
+
+    #[test]
+    fn the_factors_follow_their_magnitudes_and_the_seed() {
+        let file = InstrumentFile::simulated();
+        let settings = TimingImperfections {
+            speed_sd: 0.02,
+            accel_sd: 0.03,
+            wheel_sd: 0.05,
+        };
+        let a = TimingTruth::draw(&settings, &file.instrument, 7);
+        assert_eq!(
+            a,
+            TimingTruth::draw(&settings, &file.instrument, 7),
+            "the same seed, the same hardware"
+        );
+        assert_ne!(a, TimingTruth::draw(&settings, &file.instrument, 8));
+        assert_eq!(a.axes.len(), file.instrument.axes.len());
+        for t in &a.axes {
+            assert!(
+                (t.speed_factor - 1.0).abs() <= 0.06 + 1e-12 && (t.accel_factor - 1.0).abs() <= 0.09 + 1e-12
+            );
+        }
+        let off = TimingTruth::draw(&TimingImperfections::default(), &file.instrument, 7);
+        assert!(off.is_ideal());
+        // Over many seeds the spread is the magnitude's.
+        let z: Vec<f64> = (0..4000)
+            .map(|s| TimingTruth::draw(&settings, &file.instrument, s).wheel_factor - 1.0)
+            .collect();
+        let sd = (z.iter().map(|v| v * v).sum::<f64>() / z.len() as f64).sqrt();
+        assert!((sd / 0.05 - 1.0).abs() < 0.05, "wheel spread {sd}");
+        let mut inst = file.instrument.clone();
+        a.apply(&mut inst);
+        let w = inst
+            .filter_wheel
+            .as_ref()
+            .map(|w| w.seconds_per_position)
+            .unwrap_or_default();
+        let claimed = file
+            .instrument
+            .filter_wheel
+            .as_ref()
+            .map(|w| w.seconds_per_position)
+            .unwrap_or_default();
+        assert!((w - claimed * a.wheel_factor).abs() < 1e-12);
+    }
+}
