@@ -113,7 +113,8 @@ pub fn run_record(store: &Store, record: &CampaignRecord) -> Result<(PointsTable
             instrument_toml: record.instrument_toml.clone(),
         },
         devices,
-        predicted_instrument_s: predicted_s(record),
+        // Recorded when the campaign was prepared; campaigns stored before that are prepared once more here.
+        predicted_instrument_s: record.predicted_instrument_s.or_else(|| predicted_s(record)),
         // A function of the stored instrument file, like everything else here; absent on the ideal instrument.
         simulator_truth: crate::rig::simulator_truth(
             &record.instrument_toml,
@@ -126,7 +127,7 @@ pub fn run_record(store: &Store, record: &CampaignRecord) -> Result<(PointsTable
     Ok((table, run))
 }
 
-/// The time model's prediction for the stored configuration (as a resume rebuilds it: from the stored texts
+/// The time model's prediction for a campaign stored before its prediction was (as a resume rebuilds it: from the stored texts
 /// and their `[resolved]` materials, no file read); `None` when those no longer parse.
 fn predicted_s(record: &CampaignRecord) -> Option<f64> {
     let file = InstrumentFile::parse(&record.instrument_toml, "<stored instrument file>").ok()?;

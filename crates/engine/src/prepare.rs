@@ -59,6 +59,7 @@ impl PreparedCampaign {
             total_points: self.total_points,
             dry_run: self.dry_run,
             software_version: software_version(),
+            predicted_instrument_s: Some(self.predicted_s),
         }
     }
 

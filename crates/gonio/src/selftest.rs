@@ -236,7 +236,9 @@ mod tests {
     fn unix_seconds_read_as_a_utc_date() {
         assert_eq!(utc_text(0), "1970-01-01 00:00:00");
         assert_eq!(utc_text(951_782_400), "2000-02-29 00:00:00");
-        assert_eq!(utc_text(1_796_330_096), "2026-12-03 19:14:56");
+        // Checked against GNU date: `date -u -d @1796330096`.
+        assert_eq!(utc_text(1_796_330_096), "2026-12-03 20:34:56");
+        assert_eq!(utc_text(4_102_444_799), "2099-12-31 23:59:59");
     }
 
     #[test]

@@ -53,6 +53,7 @@ impl CampaignRunner for FakeRunner {
                 total_points: points,
                 dry_run: true,
                 software_version: "test".into(),
+                predicted_instrument_s: None,
             },
             prepared: None,
         })
@@ -312,6 +313,7 @@ async fn interrupted_campaigns_are_resumed_first_from_their_first_missing_point(
         total_points: n,
         dry_run: true,
         software_version: "test".into(),
+        predicted_instrument_s: None,
     };
     let mut ids = Vec::new();
     let h = start_with(dir, |store| {

@@ -21,7 +21,8 @@ impl Store {
         self.conn
             .execute(
                 "INSERT INTO campaigns (name, state, campaign_toml, instrument_toml, total_points, dry_run,
-                 software_version, created_unix_s) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                 software_version, created_unix_s, predicted_instrument_s)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
                 params![
                     new.name,
                     CampaignState::Queued.as_str(),
@@ -30,7 +31,8 @@ impl Store {
                     to_i64(new.total_points),
                     new.dry_run,
                     new.software_version,
-                    now
+                    now,
+                    new.predicted_instrument_s
                 ],
             )
             .map_err(self.write_err())?;
@@ -372,7 +374,7 @@ impl Store {
 
 const CAMPAIGN_SELECT: &str = "SELECT c.id, c.name, c.state, c.campaign_toml, c.instrument_toml, c.total_points,
     (SELECT COUNT(*) FROM points p WHERE p.campaign_id = c.id), c.dry_run, c.software_version, c.created_unix_s,
-    c.last_error, c.operator_message FROM campaigns c";
+    c.last_error, c.operator_message, c.predicted_instrument_s FROM campaigns c";
 
 fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignRecord, StoreError>> {
     let state: String = r.get(2)?;
@@ -391,6 +393,7 @@ fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignR
         created_unix_s: 0.0,
         last_error: None,
         operator_message: None,
+        predicted_instrument_s: None,
     };
     let state = match state.parse::<CampaignState>() {
         Ok(s) => s,
@@ -406,6 +409,7 @@ fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignR
         created_unix_s: r.get(9)?,
         last_error: r.get(10)?,
         operator_message: r.get(11)?,
+        predicted_instrument_s: r.get(12)?,
         ..record(state)
     }))
 }

@@ -105,6 +105,9 @@ pub struct NewCampaign {
     /// True when the instrument is the simulator.
     pub dry_run: bool,
     pub software_version: String,
+    /// The time model's prediction of the campaign's instrument time (s), made once when it was prepared (an
+    /// adaptive plan: its whole budget).
+    pub predicted_instrument_s: Option<f64>,
 }
 
 /// A campaign as stored.
@@ -123,6 +126,8 @@ pub struct CampaignRecord {
     pub last_error: Option<String>,
     /// Message shown while waiting for the operator.
     pub operator_message: Option<String>,
+    /// The prediction made when the campaign was prepared (s); None for campaigns stored before version 4.
+    pub predicted_instrument_s: Option<f64>,
 }
 
 /// One measured (or failed) point with everything needed to recompute it.

@@ -162,9 +162,20 @@ impl Store {
             })
     }
 
+    /// One migration step: `sql`, then the schema version `to`, in one transaction.
+    fn step(&mut self, sql: &str, to: i64) -> Result<(), StoreError> {
+        let batch = format!("BEGIN; {sql} PRAGMA user_version = {to}; COMMIT;");
+        self.conn
+            .execute_batch(&batch)
+            .map_err(|source| StoreError::Write {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
     /// Version 1 declared the readings NOT NULL, so a failed point (NaN reading) could not be committed.
     /// SQLite cannot drop a NOT NULL constraint in place: rebuild the table, keeping every row (with no
-    /// attribution: version 1 had none). This goes straight to the current version.
+    /// attribution: version 1 had none). This goes to version 3 (the points as they are now).
     fn migrate_v1(&mut self) -> Result<(), StoreError> {
         let body = points_table_body();
         let sql = format!(
@@ -173,7 +184,7 @@ impl Store {
             INSERT INTO points_v2 SELECT *, NULL FROM points;
             DROP TABLE points;
             ALTER TABLE points_v2 RENAME TO points;
-            PRAGMA user_version = {SCHEMA_VERSION};
+            PRAGMA user_version = 3;
             COMMIT;"
         );
         self.conn.execute_batch(&sql).map_err(|source| StoreError::Write {
@@ -193,19 +204,21 @@ impl Store {
         if version == SCHEMA_VERSION {
             return Ok(());
         }
+        // Older stores are brought forward one version at a time.
+        let mut version = version;
         if version == 1 {
-            return self.migrate_v1();
+            self.migrate_v1()?;
+            version = 3;
         }
         if version == 2 {
-            // Version 3 only adds a nullable column.
-            let sql = format!(
-                "BEGIN; ALTER TABLE points ADD COLUMN truth_effects_json TEXT; \
-                 PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
-            );
-            return self.conn.execute_batch(&sql).map_err(|source| StoreError::Write {
-                path: self.path.clone(),
-                source,
-            });
+            // Version 3 only adds a nullable column to the points.
+            self.step("ALTER TABLE points ADD COLUMN truth_effects_json TEXT;", 3)?;
+            version = 3;
+        }
+        if version == 3 {
+            // Version 4 records the time model's prediction with each campaign (absent for older campaigns).
+            self.step("ALTER TABLE campaigns ADD COLUMN predicted_instrument_s REAL;", 4)?;
+            return Ok(());
         }
         if version != 0 {
             return Err(StoreError::SchemaVersion {
@@ -228,7 +241,8 @@ impl Store {
                 software_version TEXT NOT NULL,
                 created_unix_s REAL NOT NULL,
                 last_error TEXT,
-                operator_message TEXT
+                operator_message TEXT,
+                predicted_instrument_s REAL
             );
             CREATE TABLE devices (
                 campaign_id INTEGER NOT NULL REFERENCES campaigns(id),

@@ -10,6 +10,7 @@ fn new_campaign(total: u64) -> NewCampaign {
         total_points: total,
         dry_run: true,
         software_version: "0.1.0".into(),
+        predicted_instrument_s: Some(12.5),
     }
 }
 
@@ -140,7 +141,8 @@ fn a_version_1_store_is_migrated_keeping_its_points() {
         "{v1_table}; INSERT INTO points_v1 SELECT campaign_id, idx, band_nm, theta_i_deg, phi_i_deg, theta_o_deg,
              phi_o_deg, signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json,
              truth_point_sr, truth_aperture_sr FROM points; DROP TABLE points;
-             ALTER TABLE points_v1 RENAME TO points; PRAGMA user_version = 1;"
+             ALTER TABLE points_v1 RENAME TO points;
+             ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; PRAGMA user_version = 1;"
     ))
     .expect("downgrade");
     drop(conn);
@@ -159,8 +161,11 @@ fn a_version_2_store_gains_the_attribution_column() {
     let id = store_with_one_point(dir.path());
     // Version 2: no truth_effects_json column.
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE points DROP COLUMN truth_effects_json; PRAGMA user_version = 2;")
-        .expect("downgrade");
+    conn.execute_batch(
+        "ALTER TABLE points DROP COLUMN truth_effects_json;
+         ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; PRAGMA user_version = 2;",
+    )
+    .expect("downgrade");
     drop(conn);
     let mut store = Store::open(dir.path()).expect("migrates");
     assert_eq!(store.points(id).expect("points"), vec![point(0)]);
@@ -168,6 +173,37 @@ fn a_version_2_store_gains_the_attribution_column() {
     attributed.truth_effects_json = Some("{\"relative\":{\"meter\":0.001}}".into());
     store.commit_point(id, &attributed).expect("commit");
     assert_eq!(store.points(id).expect("points")[1], attributed);
+}
+
+#[test]
+fn a_version_3_store_gains_the_prediction_and_keeps_its_campaigns() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let id = store_with_one_point(dir.path());
+    assert_eq!(
+        Store::open(dir.path())
+            .expect("open")
+            .campaign(id)
+            .expect("campaign")
+            .predicted_instrument_s,
+        Some(12.5),
+        "the prediction is stored with the campaign"
+    );
+    let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
+    conn.execute_batch("ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; PRAGMA user_version = 3;")
+        .expect("downgrade");
+    drop(conn);
+    let mut store = Store::open(dir.path()).expect("migrates");
+    let old = store.campaign(id).expect("campaign");
+    assert_eq!(
+        (old.predicted_instrument_s, old.points_done),
+        (None, 1),
+        "an older campaign has no prediction"
+    );
+    let new = store.create_campaign(&new_campaign(2)).expect("create");
+    assert_eq!(
+        store.campaign(new).expect("campaign").predicted_instrument_s,
+        Some(12.5)
+    );
 }
 
 #[test]
