@@ -93,12 +93,13 @@ fn main() -> ExitCode {
     }
 }
 
-/// Logs go to stderr; `RUST_LOG` selects them (default: warnings only, so stdout stays clean for data). Colour
+/// Logs go to stderr; `RUST_LOG` selects them (default: warnings only, so stdout stays clean for data, and the
+/// daemon's record of console actions, who sent each, at info: the operator's log of who moved what). Colour
 /// only on a terminal: a log file or a pipe gets plain text that grep and a lab's log viewer read as written.
 fn init_tracing() {
     use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,gonio_daemon::service::console=info"));
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
