@@ -200,10 +200,17 @@ async fn measure_axis(motion: &mut Motion<'_>, a: &RigAxis) -> Result<Option<(f6
     Ok(ramp_acceleration(&samples, from, speed).map(|accel| (speed, accel)))
 }
 
-/// Command `a` to `to_deg` and read its position back as fast as it answers until it arrives.
+/// Command `a` to `to_deg` and read its position back as fast as it answers until it arrives, within a
+/// deadline of three times the move's predicted duration and ten seconds more.
 async fn sample_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<Vec<Sample>, MotionError> {
     let clock = motion.clock();
     let name = &a.config.name;
+    let from = motion.current().get(a.config.role);
+    let predicted_s = gonio_driver::motion::trapezoid_time_s(
+        (to_deg - from).abs(),
+        a.config.max_speed_deg_s,
+        a.config.accel_deg_s2,
+    );
     motion
         .device(
             Device::Axis(a),
@@ -211,17 +218,24 @@ async fn sample_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<Ve
             || a.driver.start_move(to_deg),
         )
         .await?;
+    let deadline_s = clock.now_s() + 3.0 * predicted_s + 10.0;
     let mut samples = Vec::new();
     loop {
+        if clock.now_s() > deadline_s {
+            let _ = a.driver.stop().await;
+            return Err(MotionError::Device(format!(
+                "{name} did not reach {to_deg:.3} deg within {:.1} s (predicted {predicted_s:.1} s)",
+                3.0 * predicted_s + 10.0
+            )));
+        }
         let t_before = clock.now_s();
-        // One attempt per sample: a lost reply is a missing sample, not a failed test.
+        // One attempt per sample: a lost reply is a missing sample, not a failed test (the deadline bounds it).
         let Ok(p) = a.driver.position_deg().await else {
-            continue_if_room(&samples)?;
             continue;
         };
         let t = 0.5 * (t_before + clock.now_s());
         samples.push((t, p));
-        if (p - to_deg).abs() <= a.config.tolerance_deg || samples.len() > 100_000 {
+        if (p - to_deg).abs() <= a.config.tolerance_deg {
             break;
         }
     }
@@ -233,16 +247,6 @@ async fn sample_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<Ve
         )
         .await?;
     Ok(samples)
-}
-
-/// A sampling loop that keeps failing gives up (every hardware wait has a deadline).
-fn continue_if_room(samples: &[Sample]) -> Result<(), MotionError> {
-    if samples.len() > 100_000 {
-        return Err(MotionError::Device(
-            "the axis's read-back failed while it moved".into(),
-        ));
-    }
-    Ok(())
 }
 
 /// The wheel's seconds per position (module doc); None without a wheel of at least 4 positions.
