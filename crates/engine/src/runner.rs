@@ -70,7 +70,11 @@ const MAX_FAILED_IN_ROW: u32 = 3;
 /// Why the loop stopped before the end.
 #[derive(Debug)]
 enum Interrupt {
+    /// Something a person must see to: pause with the reason (logged as a warning).
     Pause(String),
+    /// A person asked for the pause: pause with this message (logged at info: nothing went wrong).
+    PauseRequested(&'static str),
+    /// A person asked for the abort.
     Abort,
     Estop,
     /// Store write failure (disk full, read-only): pause with the reason.
@@ -363,7 +367,7 @@ impl<'a> Run<'a> {
             return Err(Interrupt::Abort);
         }
         if self.control.pause_requested() {
-            return Err(Interrupt::Pause("paused by request".into()));
+            return Err(Interrupt::PauseRequested("paused by request"));
         }
         Ok(())
     }
@@ -516,11 +520,15 @@ impl<'a> Run<'a> {
                 Err(_) => tracing::warn!("closing the beam: the filter wheel did not answer in 10 s"),
             }
         }
+        // What a person asked for (an abort, a pause) is news, not a warning; everything else, the emergency stop
+        // included, is for an operator to look at.
+        let requested = matches!(outcome, Err(Interrupt::Abort | Interrupt::PauseRequested(_)));
         let (state, message) = match outcome {
             Ok(()) => (CampaignState::Completed, None),
             Err(Interrupt::Abort) => (CampaignState::Aborted, Some("aborted by request".to_string())),
             Err(Interrupt::Estop) => (CampaignState::Paused, Some("emergency stop".to_string())),
             Err(Interrupt::Pause(reason)) => (CampaignState::Paused, Some(reason)),
+            Err(Interrupt::PauseRequested(m)) => (CampaignState::Paused, Some(m.to_string())),
             Err(Interrupt::StoreWrite(reason)) => (
                 CampaignState::Paused,
                 Some(format!(
@@ -537,7 +545,11 @@ impl<'a> Run<'a> {
             }
         };
         if let Some(m) = &message {
-            tracing::warn!(campaign = %self.id, state = %state, "{m}");
+            if requested {
+                tracing::info!(campaign = %self.id, state = %state, "{m}");
+            } else {
+                tracing::warn!(campaign = %self.id, state = %state, "{m}");
+            }
         }
         {
             let mut s = lock(&self.store);

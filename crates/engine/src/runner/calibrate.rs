@@ -66,7 +66,7 @@ impl<'a> Run<'a> {
                     return Err(Interrupt::Abort);
                 }
                 if self.control.pause_requested() {
-                    return Err(Interrupt::Pause("paused while waiting for the operator".into()));
+                    return Err(Interrupt::PauseRequested("paused while waiting for the operator"));
                 }
                 n.await;
             }
