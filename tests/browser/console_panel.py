@@ -16,14 +16,12 @@ Against `gonio daemon` on the simulated instrument, with the HTTP API as the ind
 Exits 0 when every check passes, 1 with a message otherwise.
 """
 
-import json
 import os
-import shutil
 import sys
-import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import status_page  # noqa: E402
 from status_page import TOKEN, Browser, Daemon, Fail, Tab, campaign_toml  # noqa: E402
 
 
@@ -143,23 +141,5 @@ def run(gonio, chromium, workdir):
     print(f"PASS: console panel, {time.monotonic() - started:.1f} s")
 
 
-def main():
-    if len(sys.argv) not in (2, 3):
-        print(__doc__, file=sys.stderr)
-        return 2
-    gonio = sys.argv[1]
-    chromium = sys.argv[2] if len(sys.argv) == 3 else (shutil.which("chromium") or shutil.which("chromium-browser"))
-    if not chromium:
-        print("FAIL: no chromium binary (install Debian's chromium package)", file=sys.stderr)
-        return 1
-    with tempfile.TemporaryDirectory(prefix="gonio-console-") as workdir:
-        try:
-            run(gonio, chromium, workdir)
-        except Fail as e:
-            print(f"FAIL: {e}", file=sys.stderr)
-            return 1
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(status_page.main(run, __doc__, "gonio-console-"))

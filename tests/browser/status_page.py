@@ -619,7 +619,7 @@ def run(gonio, chromium, workdir):
                 raise Fail(f"Abort did not abort the campaign: {daemon.campaign(second)}")
             time.sleep(0.05)
         tab.wait_for("'aborted' on the page with the buttons off", """document.getElementById('c-state')
-            .textContent === 'aborted' && [...document.querySelectorAll('.buttons button')].every((b) => b.disabled)""")
+            .textContent === 'aborted' && [...document.querySelectorAll('#campaign .buttons button')].every((b) => b.disabled)""")
         rows = daemon.points(second)
         tab.wait_for("the second campaign's points only",
                      f"document.querySelectorAll('#polar circle.pt').length === {len(rows)}")
@@ -639,18 +639,22 @@ def run(gonio, chromium, workdir):
     print(f"PASS: status page in {version.get('product')}, {time.monotonic() - started:.1f} s")
 
 
-def main():
+def main(run_checks=None, doc=None, prefix="gonio-browser-"):
+    """Run `run_checks(gonio, chromium, workdir)` (default: this file's `run`) with the command line's binaries
+    in a fresh temporary directory; the exit code of the checks. console_panel.py runs its own checks through
+    this too."""
+    run_checks = run_checks or run
     if len(sys.argv) not in (2, 3):
-        print(__doc__, file=sys.stderr)
+        print(doc or __doc__, file=sys.stderr)
         return 2
     gonio = sys.argv[1]
     chromium = sys.argv[2] if len(sys.argv) == 3 else (shutil.which("chromium") or shutil.which("chromium-browser"))
     if not chromium:
         print("FAIL: no chromium binary (install Debian's chromium package)", file=sys.stderr)
         return 1
-    with tempfile.TemporaryDirectory(prefix="gonio-browser-") as workdir:
+    with tempfile.TemporaryDirectory(prefix=prefix) as workdir:
         try:
-            run(gonio, chromium, workdir)
+            run_checks(gonio, chromium, workdir)
         except Fail as e:
             print(f"FAIL: {e}", file=sys.stderr)
             return 1

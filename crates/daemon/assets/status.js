@@ -475,7 +475,7 @@
     const c = page.campaigns.get(page.currentId);
     const stateEl = $('c-state');
     if (!c) {
-      for (const b of document.querySelectorAll('.buttons button')) b.disabled = true;
+      for (const b of document.querySelectorAll('#campaign .buttons button')) b.disabled = true;
       return;
     }
     $('c-name').textContent = c.name;
@@ -816,7 +816,7 @@
   function start() {
     takeTokenFromUrl();
     $('token-form').addEventListener('submit', onTokenForm);
-    for (const button of document.querySelectorAll('.buttons button')) {
+    for (const button of document.querySelectorAll('#campaign .buttons button')) {
       button.addEventListener('click', () => act(button.dataset.action));
     }
     $('follow').addEventListener('change', (e) => {

@@ -212,6 +212,22 @@ struct AppState {
     shutdown: Shutdown,
 }
 
+impl AppState {
+    /// One of the bounded event-stream permits (the events, the console's readings): each stream holds a
+    /// connection for as long as its client listens, so streams cannot take every connection. 503 beyond.
+    fn event_stream_permit(&self) -> Result<tokio::sync::OwnedSemaphorePermit, ApiError> {
+        Arc::clone(&self.event_streams).try_acquire_owned().map_err(|_| {
+            ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!(
+                    "{} event streams are open, the most this daemon serves: close one and retry",
+                    self.max_event_streams
+                ),
+            )
+        })
+    }
+}
+
 /// The API's routes with their middleware (token check, timeouts).
 pub fn router(service: Service, config: &ApiConfig, shutdown: Shutdown) -> Router {
     let state = AppState {

@@ -126,21 +126,7 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
     // threads, and auto-advance would fire read timeouts while bytes are in flight. Those dry-runs run the
     // simulator on the real clock, sped up instead.
     let paused_clock = record.dry_run && !file.instrument.devices.iter().any(|d| d.is_sim_pty());
-    let runtime = if paused_clock {
-        // Timers only: every device is in process, and polling an I/O driver at each step of the simulated clock
-        // cost about a fifth of an in-process dry-run's time (0.43 against 0.34 ms per point, measured with
-        // gonio-bench). Signals are watched on a thread of their own (`watch_signals`).
-        tokio::runtime::Builder::new_current_thread()
-            .enable_time()
-            .start_paused(true)
-            .build()
-    } else {
-        tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-    }
-    .map_err(|e| CliError::io("cannot start the async runtime", e))?;
+    let runtime = instrument_runtime(paused_clock)?;
 
     let outcome = if record.state == CampaignState::Completed {
         Ok((CampaignState::Completed, false))
@@ -187,6 +173,27 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
             Err(CliError::Interrupted(format!("{head}; {how}")))
         }
     }
+}
+
+/// The runtime a command drives the instrument on: with `paused_clock` (a dry-run, every device in process) a
+/// paused current-thread clock, where the simulated instrument takes its real time and no wall time; else a
+/// multi-threaded runtime with I/O on the real clock.
+pub(crate) fn instrument_runtime(paused_clock: bool) -> Result<tokio::runtime::Runtime, CliError> {
+    if paused_clock {
+        // Timers only: every device is in process, and polling an I/O driver at each step of the simulated clock
+        // cost about a fifth of an in-process dry-run's time (0.43 against 0.34 ms per point, measured with
+        // gonio-bench). Signals are watched on a thread of their own (`watch_signals`).
+        tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .start_paused(true)
+            .build()
+    } else {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+    }
+    .map_err(|e| CliError::io("cannot start the async runtime", e))
 }
 
 fn lock(store: &Arc<Mutex<Store>>) -> std::sync::MutexGuard<'_, Store> {

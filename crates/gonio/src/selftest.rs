@@ -9,6 +9,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use gonio_engine::selftest::{DEFAULT_TOLERANCE, SelftestReport, Verdict, run_selftest};
 use gonio_engine::{Control, Rig};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_results::provenance_summary::iso8601_utc;
 use gonio_scheduler::timing::TimeModel;
 
 use crate::CliError;
@@ -51,20 +52,11 @@ pub fn run(args: SelftestArgs) -> Result<(), CliError> {
         ),
     };
     let file = InstrumentFile::parse(&text, &origin).map_err(|e| CliError::input(e.to_string()))?;
-    let simulated = file.instrument.devices.iter().all(|d| d.is_simulated());
-    // A dry-run takes the simulated instrument's time on a paused clock (no wall time), as `gonio run` does.
-    let runtime = if simulated {
-        tokio::runtime::Builder::new_current_thread()
-            .enable_time()
-            .start_paused(true)
-            .build()
-    } else {
-        tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-    }
-    .map_err(|e| CliError::io("cannot start the async runtime", e))?;
+    // A dry-run takes the simulated instrument's time on a paused clock (no wall time), as `gonio run` does;
+    // simulated devices on pseudo-terminals need the real clock (see `gonio run`).
+    let devices = &file.instrument.devices;
+    let simulated = devices.iter().all(|d| d.is_simulated()) && !devices.iter().any(|d| d.is_sim_pty());
+    let runtime = crate::run::instrument_runtime(simulated)?;
     let report = runtime.block_on(async {
         let rig = if simulated {
             Rig::connect_with_time_scale(&file, None, 1.0).await
@@ -166,13 +158,13 @@ fn measured_file(text: &str, r: &SelftestReport) -> Result<String, String> {
     let body = toml::to_string_pretty(&doc).map_err(|e| format!("cannot write TOML: {e}"))?;
     let when = SystemTime::now()
         .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0);
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(f64::NAN);
     Ok(format!(
-        "# Written by gonio selftest {} at {} UTC: measured values for {}.\n\
+        "# Written by gonio selftest {} at {}: measured values for {}.\n\
          # (The original file's comments are not kept: compare with it before replacing it.)\n\n{body}",
         env!("CARGO_PKG_VERSION"),
-        utc_text(when),
+        iso8601_utc(when),
         if written.is_empty() {
             "no key".to_string()
         } else {
@@ -207,39 +199,9 @@ fn set_key(doc: &mut toml::Table, key: &str, value: f64) -> bool {
     }
 }
 
-/// `YYYY-MM-DD HH:MM:SS` of Unix seconds (proleptic Gregorian, H. Hinnant's days-from-civil inverse).
-fn utc_text(unix_s: u64) -> String {
-    let days = (unix_s / 86_400) as i64;
-    let secs = unix_s % 86_400;
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!(
-        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02}",
-        secs / 3600,
-        secs / 60 % 60,
-        secs % 60
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn unix_seconds_read_as_a_utc_date() {
-        assert_eq!(utc_text(0), "1970-01-01 00:00:00");
-        assert_eq!(utc_text(951_782_400), "2000-02-29 00:00:00");
-        // Checked against GNU date: `date -u -d @1796330096`.
-        assert_eq!(utc_text(1_796_330_096), "2026-12-03 20:34:56");
-        assert_eq!(utc_text(4_102_444_799), "2099-12-31 23:59:59");
-    }
 
     #[test]
     fn measured_keys_are_written_where_the_file_has_them() {

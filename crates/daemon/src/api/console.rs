@@ -15,7 +15,6 @@
 
 use std::collections::BTreeMap;
 use std::convert::Infallible;
-use std::sync::Arc;
 use std::time::Duration;
 
 use axum::body::Bytes;
@@ -176,17 +175,7 @@ pub(super) async fn console_readings(
     State(state): State<AppState>,
     Query(q): Query<StreamQuery>,
 ) -> Result<Sse<impl futures_util::Stream<Item = Result<SseEvent, Infallible>>>, ApiError> {
-    let permit = Arc::clone(&state.event_streams)
-        .try_acquire_owned()
-        .map_err(|_| {
-            ApiError::new(
-                StatusCode::SERVICE_UNAVAILABLE,
-                format!(
-                    "{} event streams are open, the most this daemon serves: close one and retry",
-                    state.max_event_streams
-                ),
-            )
-        })?;
+    let permit = state.event_stream_permit()?;
     let interval = Duration::from_millis(
         q.interval_ms
             .unwrap_or(DEFAULT_STREAM_INTERVAL_MS)

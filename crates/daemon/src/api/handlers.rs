@@ -2,7 +2,6 @@
 //! emergency stop, the event stream, and the JSON answers for unknown routes and methods.
 
 use std::convert::Infallible;
-use std::sync::Arc;
 use std::time::Duration;
 
 use axum::extract::{Path, Request, State};
@@ -179,17 +178,7 @@ pub(super) async fn events(
 ) -> Result<Sse<impl futures_util::Stream<Item = Result<SseEvent, Infallible>>>, ApiError> {
     // Each stream holds a connection as long as its client listens: bounded, so that streams cannot take every
     // connection.
-    let permit = Arc::clone(&state.event_streams)
-        .try_acquire_owned()
-        .map_err(|_| {
-            ApiError::new(
-                StatusCode::SERVICE_UNAVAILABLE,
-                format!(
-                    "{} event streams are open, the most this daemon serves: close one and retry",
-                    state.max_event_streams
-                ),
-            )
-        })?;
+    let permit = state.event_stream_permit()?;
     let rx = state.service.subscribe();
     let start = (rx, state.shutdown, permit);
     let stream = futures_util::stream::unfold(start, |(mut rx, mut shutdown, permit)| async move {
