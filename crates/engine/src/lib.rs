@@ -24,6 +24,7 @@
 //! reach up into it.
 
 pub mod acquisition;
+pub mod align;
 pub mod calibration;
 pub mod console;
 pub mod control;

@@ -3,6 +3,7 @@
 //!
 //! One module per subcommand family; each exposes `run(args) -> Result<(), CliError>`.
 
+mod align;
 mod brdf_check;
 mod brdf_eval;
 mod ctl;
@@ -46,6 +47,9 @@ enum Command {
     /// Hold the instrument file against the hardware: identify and exercise every device, measure speeds,
     /// accelerations, the wheel's time, latencies and the meter's dark and noise; exit 1 naming wrong keys.
     Selftest(selftest::SelftestArgs),
+    /// Align the instrument: scans through the direct beam and a mirror's reflection, the geometric errors
+    /// fitted with their uncertainties, written as a dated calibration file.
+    Align(align::AlignArgs),
     /// Run the acquisition service: campaign queue and HTTP/JSON control API (loopback unless given a token).
     Daemon(daemon::DaemonArgs),
     /// Control a running daemon: campaigns (submit, status, pause, resume, abort, confirm, estop, watch, points)
@@ -76,6 +80,7 @@ fn main() -> ExitCode {
         Command::Sim(args) => sim::run(args),
         Command::Run(args) => run::run(args),
         Command::Selftest(args) => selftest::run(args),
+        Command::Align(args) => align::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Plan(args) => plan::run(args),
         Command::Daemon(args) => daemon::run(args),

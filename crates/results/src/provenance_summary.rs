@@ -154,7 +154,7 @@ mod tests {
     }
 }
 /// The SHA-256 digest of `data` as 64 lowercase hex digits (names a configuration file exactly).
-fn sha256_hex(data: &[u8]) -> String {
+pub fn sha256_hex(data: &[u8]) -> String {
     use sha2::Digest;
     sha2::Sha256::digest(data)
         .iter()

@@ -1,0 +1,220 @@
+//! `gonio align [--instrument FILE] --out CAL.toml [--json REPORT.json] [--material M]`: the alignment
+//! (`gonio_engine::align`) on the instrument, a short report per fitted value, and a dated calibration file: every
+//! value with its standard uncertainty, how it was measured, and the instrument file it belongs to (name and
+//! SHA-256) with the software version. On the simulated instrument the operator's steps (empty the holder, mount
+//! the mirror) are done by the simulated operator; on hardware each is prompted and waits for Enter.
+
+use std::io::{BufRead, Write};
+use std::path::PathBuf;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use gonio_brdf::material::Material;
+use gonio_engine::align::{AlignmentReport, Placement, run_alignment};
+use gonio_engine::rig::Held;
+use gonio_engine::{Control, Rig};
+use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_results::provenance_summary::{iso8601_utc, sha256_hex};
+use gonio_scheduler::timing::TimeModel;
+use serde::Serialize;
+
+use crate::CliError;
+
+/// Device operations are retried this many times during the alignment.
+const RETRIES: u32 = 2;
+/// The simulated alignment mirror's radius (mm).
+const MIRROR_RADIUS_MM: f64 = 25.0;
+
+#[derive(Debug, clap::Args)]
+pub struct AlignArgs {
+    /// Instrument file (default: the embedded simulated instrument).
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Write the calibration file here.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Write the whole report (every scan, every estimate, the covariance) as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Dry-runs: the material the simulated operator mounts as the alignment mirror (a preset name).
+    #[arg(long, default_value = "mirror")]
+    pub material: String,
+}
+
+/// The calibration file's contents.
+#[derive(Debug, Serialize)]
+struct CalibrationFile {
+    calibration: Header,
+    values: Vec<Value>,
+    unobservable: Vec<String>,
+}
+
+#[derive(Debug, Serialize)]
+struct Header {
+    instrument: String,
+    instrument_sha256: String,
+    software: String,
+    created_utc: String,
+    dry_run: bool,
+    method: String,
+}
+
+#[derive(Debug, Serialize)]
+struct Value {
+    name: String,
+    value: f64,
+    u: f64,
+    unit: String,
+    observable: bool,
+}
+
+pub fn run(args: AlignArgs) -> Result<(), CliError> {
+    let (text, origin) = match &args.instrument {
+        Some(p) => (
+            std::fs::read_to_string(p)
+                .map_err(|e| CliError::io(format!("cannot read instrument file {}", p.display()), e))?,
+            p.display().to_string(),
+        ),
+        None => (
+            SIMULATED_INSTRUMENT_TOML.to_string(),
+            "<embedded simulated instrument>".to_string(),
+        ),
+    };
+    let file = InstrumentFile::parse(&text, &origin).map_err(|e| CliError::input(e.to_string()))?;
+    let mirror = Material::preset(&args.material)
+        .map_err(|e| CliError::input(format!("--material {}: {e}", args.material)))?;
+    let devices = &file.instrument.devices;
+    let simulated = devices.iter().all(|d| d.is_simulated()) && !devices.iter().any(|d| d.is_sim_pty());
+    let runtime = crate::run::instrument_runtime(simulated)?;
+    let report = runtime.block_on(async {
+        let rig = if simulated {
+            Rig::connect_with_time_scale(&file, None, 1.0).await
+        } else {
+            Rig::connect(&file, None).await
+        }
+        .map_err(|e| CliError::input(e.to_string()))?;
+        let holder = rig
+            .sample_holder(&mirror, None, MIRROR_RADIUS_MM)
+            .map_err(|e| CliError::input(e.to_string()))?;
+        let operator = |p: Placement| -> Result<(), String> {
+            match &holder {
+                Some(h) => {
+                    eprintln!("simulated operator: {}", p.instruction());
+                    h.hold(match p {
+                        Placement::Empty => Held::Empty,
+                        Placement::Mirror => Held::Sample,
+                    });
+                    Ok(())
+                }
+                None => prompt(p),
+            }
+        };
+        let mut motion = gonio_engine::motion::Motion::new(
+            &rig,
+            TimeModel::new(&file.instrument),
+            RETRIES,
+            Control::new(),
+        );
+        run_alignment(&mut motion, &operator)
+            .await
+            .map_err(|e| CliError::input(format!("alignment stopped: {e}")))
+    })?;
+    runtime.shutdown_timeout(std::time::Duration::from_millis(200));
+    print!("{}", report_text(&report));
+    if let Some(path) = &args.json {
+        let json = serde_json::to_string_pretty(&report)
+            .map_err(|e| CliError::input(format!("cannot encode the report: {e}")))?;
+        std::fs::write(path, json)
+            .map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
+    }
+    let toml = calibration_toml(&report, &text)?;
+    std::fs::write(&args.out, toml)
+        .map_err(|e| CliError::io(format!("cannot write {}", args.out.display()), e))?;
+    eprintln!("wrote the calibration to {}", args.out.display());
+    Ok(())
+}
+
+/// Ask the operator to make `placement` and wait for Enter (hardware).
+fn prompt(placement: Placement) -> Result<(), String> {
+    eprint!("operator: {}; press Enter when done: ", placement.instruction());
+    std::io::stderr().flush().ok();
+    let mut line = String::new();
+    match std::io::stdin().lock().read_line(&mut line) {
+        Ok(0) => Err(format!("{} (standard input closed)", placement.instruction())),
+        Ok(_) => Ok(()),
+        Err(e) => Err(format!("{}: {e}", placement.instruction())),
+    }
+}
+
+/// The report for a person: one line per value.
+pub fn report_text(r: &AlignmentReport) -> String {
+    let mut s = format!(
+        "alignment of {}{} at {} nm: {} scans, {:.0} s of instrument time, reduced chi2 {:.3}\n",
+        r.instrument,
+        if r.dry_run { " (simulated)" } else { "" },
+        r.band_nm,
+        r.scans.len(),
+        r.instrument_s,
+        r.reduced_chi2
+    );
+    for e in &r.estimates {
+        s.push_str(&format!(
+            "  {:<28} {:>11.5} +- {:<9.5} {:<4} {}\n",
+            e.name,
+            e.value,
+            e.u,
+            e.unit,
+            if e.observable { "" } else { "(not observable)" }
+        ));
+    }
+    for (name, at) in [
+        ("detector error at 30 deg", 30.0),
+        ("detector error at 90 deg", 90.0),
+    ] {
+        let (v, u) = r.detector_error_deg(at);
+        s.push_str(&format!(
+            "  {name:<28} {v:>11.5} +- {u:<9.5} deg (zero and encoder together)\n"
+        ));
+    }
+    for m in &r.unobservable {
+        s.push_str(&format!("  not observable: {m}\n"));
+    }
+    s
+}
+
+fn calibration_toml(r: &AlignmentReport, instrument_text: &str) -> Result<String, CliError> {
+    let now = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(f64::NAN);
+    let cal = CalibrationFile {
+        calibration: Header {
+            instrument: r.instrument.clone(),
+            instrument_sha256: sha256_hex(instrument_text.as_bytes()),
+            software: format!("gonio {}", env!("CARGO_PKG_VERSION")),
+            created_utc: iso8601_utc(now),
+            dry_run: r.dry_run,
+            method:
+                "scans through the direct beam and a mirror's reflection (edge mid-points), fitted with the \
+                     geometric model of gonio_engine::align::model; u is the standard uncertainty"
+                    .into(),
+        },
+        values: r
+            .estimates
+            .iter()
+            .map(|e| Value {
+                name: e.name.clone(),
+                value: e.value,
+                u: e.u,
+                unit: e.unit.clone(),
+                observable: e.observable,
+            })
+            .collect(),
+        unobservable: r.unobservable.clone(),
+    };
+    let body =
+        toml::to_string(&cal).map_err(|e| CliError::input(format!("cannot encode the calibration: {e}")))?;
+    Ok(format!(
+        "# Alignment of instrument {} by `gonio align` at {}. Not yet applied by `gonio run` (issue 27 goes on).\n{body}",
+        r.instrument, cal.calibration.created_utc
+    ))
+}
