@@ -78,3 +78,116 @@ fn align_writes_a_calibration_that_names_its_instrument() {
         "a refused alignment writes nothing"
     );
 }
+
+/// realistic.toml with only its geometric imperfections (every other `[simulator.imperfections.*]` group
+/// removed), the variant the table calls "geometry effects only".
+fn geometry_only() -> String {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../config/instruments/realistic.toml"
+    ))
+    .expect("realistic.toml");
+    let mut out = String::new();
+    let mut keep = true;
+    for line in text.lines() {
+        if line.starts_with('[') {
+            keep = !line.starts_with("[simulator.imperfections.")
+                || line == "[simulator.imperfections.geometry]";
+        }
+        if keep {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    out
+}
+
+/// Median and 95th percentile of |value / truth - 1| over a run's points.csv.
+fn errors(points_csv: &std::path::Path) -> (f64, f64) {
+    let text = std::fs::read_to_string(points_csv).expect("points.csv");
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).expect(name);
+    let (v, t) = (col("brdf_sr"), col("brdf_true_sr"));
+    let mut e: Vec<f64> = lines
+        .filter_map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            let (v, t) = (f.get(v)?.parse::<f64>().ok()?, f.get(t)?.parse::<f64>().ok()?);
+            (t > 0.0).then(|| (v / t - 1.0).abs())
+        })
+        .collect();
+    e.sort_by(f64::total_cmp);
+    assert!(e.len() > 100, "{} points", e.len());
+    (e[e.len() / 2], e[(e.len() * 95) / 100])
+}
+
+/// The demo campaign on the geometry-only realistic instrument, with its own alignment applied and without:
+/// the alignment takes out most of the geometric error; run.json records the alignment applied; a calibration
+/// made for another instrument file is refused.
+#[test]
+fn run_with_the_alignment_applied_takes_out_the_geometric_error() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let instrument = dir.path().join("geometry.toml");
+    std::fs::write(&instrument, geometry_only()).expect("write");
+    let cal = dir.path().join("cal.toml");
+    let out = gonio()
+        .args(["align", "--instrument"])
+        .arg(&instrument)
+        .arg("--out")
+        .arg(&cal)
+        .stdin(Stdio::null())
+        .output()
+        .expect("align");
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let demo = concat!(env!("CARGO_MANIFEST_DIR"), "/../../config/campaigns/demo.toml");
+    let run = |out_dir: &std::path::Path, calibration: Option<&std::path::Path>| {
+        let mut cmd = gonio();
+        cmd.args(["run", demo, "--quiet", "--instrument"])
+            .arg(&instrument)
+            .arg("--out")
+            .arg(out_dir);
+        if let Some(c) = calibration {
+            cmd.arg("--calibration").arg(c);
+        }
+        let out = cmd.output().expect("run");
+        assert!(out.status.success(), "{}", text(&out.stderr));
+    };
+    let (plain, aligned) = (dir.path().join("plain"), dir.path().join("aligned"));
+    run(&plain, None);
+    run(&aligned, Some(&cal));
+    let (m0, p0) = errors(&plain.join("points.csv"));
+    let (m1, p1) = errors(&aligned.join("points.csv"));
+    eprintln!("uncorrected median {m0:.5} p95 {p0:.5}; aligned median {m1:.5} p95 {p1:.5}");
+    assert!(m1 * 5.0 <= m0, "median {m0} -> {m1}");
+    assert!(p1 * 3.0 <= p0, "p95 {p0} -> {p1}");
+
+    let record: Value =
+        serde_json::from_str(&std::fs::read_to_string(aligned.join("run.json")).expect("run.json"))
+            .expect("json");
+    let applied = record["config"]["alignment_toml"]
+        .as_str()
+        .expect("alignment recorded");
+    assert_eq!(applied, std::fs::read_to_string(&cal).expect("cal"));
+    let record: Value =
+        serde_json::from_str(&std::fs::read_to_string(plain.join("run.json")).expect("run.json"))
+            .expect("json");
+    assert!(
+        record["config"]["alignment_toml"].is_null(),
+        "{}",
+        record["config"]
+    );
+
+    let out = gonio()
+        .args(["run", demo, "--quiet", "--calibration"])
+        .arg(&cal)
+        .arg("--out")
+        .arg(dir.path().join("other"))
+        .output()
+        .expect("run");
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("was made for instrument file"),
+        "{}",
+        text(&out.stderr)
+    );
+}

@@ -20,6 +20,8 @@
 //! and the detector's characterisation (range gains, nonlinearity, the instrument signature, the source's drift).
 
 pub mod centre;
+pub mod correction;
+pub mod file;
 pub mod fit;
 pub mod model;
 mod scan;

@@ -111,6 +111,7 @@ pub fn run_record(store: &Store, record: &CampaignRecord) -> Result<(PointsTable
         config: RunConfig {
             campaign_toml: record.campaign_toml.clone(),
             instrument_toml: record.instrument_toml.clone(),
+            alignment_toml: record.alignment_toml.clone(),
         },
         devices,
         // Recorded when the campaign was prepared; campaigns stored before that are prepared once more here.

@@ -60,6 +60,7 @@ impl PreparedCampaign {
             dry_run: self.dry_run,
             software_version: software_version(),
             predicted_instrument_s: Some(self.predicted_s),
+            alignment_toml: None,
         }
     }
 

@@ -48,6 +48,8 @@ mod calibrate;
 mod passes;
 mod reference;
 
+use crate::align::correction::PoseCorrection;
+use crate::align::file::CalibrationFile;
 use std::sync::{Arc, Mutex};
 
 use gonio_brdf::measurement::Reading;
@@ -126,6 +128,8 @@ struct Run<'a> {
     /// Dry-runs: the sample holder the (simulated) operator works, with the sample's ground truth.
     holder: Option<Arc<dyn SampleHolder>>,
     reference: Option<ReferenceRun>,
+    /// The stored alignment calibration applied to every point's pose (crate::align::correction).
+    correction: Option<PoseCorrection>,
     done: u64,
     total: u64,
     /// The pass being measured: its predicted duration, the index after its last point, and the predicted
@@ -222,6 +226,18 @@ pub(crate) async fn run(
         transfer: Transfer::new(r.material.clone(), &r.geometry),
         geometry: r.geometry,
     });
+    // The alignment stored with the campaign: the same on every resume, and only for the instrument file it was
+    // made for.
+    let correction = match &rec.alignment_toml {
+        Some(text) => {
+            let origin = format!("<alignment stored with campaign {id}>");
+            let cal = CalibrationFile::parse(text, &origin)
+                .and_then(|cal| cal.check_instrument(&rec.instrument_toml, &origin).map(|()| cal))
+                .map_err(|e| not_runnable(e.to_string()))?;
+            Some(PoseCorrection::new(&file.instrument, cal.params()))
+        }
+        None => None,
+    };
     let faults_to = control.clone();
     let motion = Motion::new(
         rig,
@@ -271,6 +287,7 @@ pub(crate) async fn run(
         failed_in_row: 0,
         holder,
         reference,
+        correction,
         done,
         total,
         pass_total_s: 0.0,

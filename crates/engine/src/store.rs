@@ -56,7 +56,7 @@ pub const STORE_FILE: &str = "gonio.sqlite";
 /// Version 2: `signal_w`, `dark_w` and `incident_w` may be NULL (a failed point has no reading; SQLite cannot
 /// store NaN and turns it into NULL).
 /// Version 3: `truth_effects_json` (a dry-run's per-point attribution of its imperfections).
-const SCHEMA_VERSION: i64 = 4;
+const SCHEMA_VERSION: i64 = 5;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

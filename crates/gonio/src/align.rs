@@ -9,13 +9,12 @@ use std::path::PathBuf;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use gonio_brdf::material::Material;
+use gonio_engine::align::file::CalibrationFile;
 use gonio_engine::align::{AlignmentReport, Placement, run_alignment};
 use gonio_engine::rig::Held;
 use gonio_engine::{Control, Rig};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
-use gonio_results::provenance_summary::{iso8601_utc, sha256_hex};
 use gonio_scheduler::timing::TimeModel;
-use serde::Serialize;
 
 use crate::CliError;
 
@@ -38,33 +37,6 @@ pub struct AlignArgs {
     /// Dry-runs: the material the simulated operator mounts as the alignment mirror (a preset name).
     #[arg(long, default_value = "mirror")]
     pub material: String,
-}
-
-/// The calibration file's contents.
-#[derive(Debug, Serialize)]
-struct CalibrationFile {
-    calibration: Header,
-    values: Vec<Value>,
-    unobservable: Vec<String>,
-}
-
-#[derive(Debug, Serialize)]
-struct Header {
-    instrument: String,
-    instrument_sha256: String,
-    software: String,
-    created_utc: String,
-    dry_run: bool,
-    method: String,
-}
-
-#[derive(Debug, Serialize)]
-struct Value {
-    name: String,
-    value: f64,
-    u: f64,
-    unit: String,
-    observable: bool,
 }
 
 pub fn run(args: AlignArgs) -> Result<(), CliError> {
@@ -186,35 +158,7 @@ fn calibration_toml(r: &AlignmentReport, instrument_text: &str) -> Result<String
         .duration_since(UNIX_EPOCH)
         .map(|d| d.as_secs_f64())
         .unwrap_or(f64::NAN);
-    let cal = CalibrationFile {
-        calibration: Header {
-            instrument: r.instrument.clone(),
-            instrument_sha256: sha256_hex(instrument_text.as_bytes()),
-            software: format!("gonio {}", env!("CARGO_PKG_VERSION")),
-            created_utc: iso8601_utc(now),
-            dry_run: r.dry_run,
-            method:
-                "scans through the direct beam and a mirror's reflection (edge mid-points), fitted with the \
-                     geometric model of gonio_engine::align::model; u is the standard uncertainty"
-                    .into(),
-        },
-        values: r
-            .estimates
-            .iter()
-            .map(|e| Value {
-                name: e.name.clone(),
-                value: e.value,
-                u: e.u,
-                unit: e.unit.clone(),
-                observable: e.observable,
-            })
-            .collect(),
-        unobservable: r.unobservable.clone(),
-    };
-    let body =
-        toml::to_string(&cal).map_err(|e| CliError::input(format!("cannot encode the calibration: {e}")))?;
-    Ok(format!(
-        "# Alignment of instrument {} by `gonio align` at {}. Not yet applied by `gonio run` (issue 27 goes on).\n{body}",
-        r.instrument, cal.calibration.created_utc
-    ))
+    CalibrationFile::from_report(r, instrument_text, now)
+        .to_toml()
+        .map_err(|e| CliError::input(format!("cannot encode the calibration: {e}")))
 }

@@ -15,8 +15,9 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
+use gonio_engine::align::file::CalibrationFile;
 use gonio_engine::export;
-use gonio_engine::store::{CampaignId, CampaignState, Store};
+use gonio_engine::store::{CampaignId, CampaignState, NewCampaign, Store};
 use gonio_engine::{self as engine, Control, Event, Rig};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use gonio_results::points;
@@ -36,6 +37,10 @@ pub struct RunArgs {
     /// No progress bar (for logs and tests).
     #[arg(long)]
     pub quiet: bool,
+    /// Calibration file from `gonio align` for this instrument file: every point's pose is corrected with it
+    /// (refused when it was made for another instrument file).
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
 }
 
 pub fn run(args: RunArgs) -> Result<(), CliError> {
@@ -56,6 +61,22 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
     };
     let file = InstrumentFile::parse(&instrument_text, &instrument_origin)
         .map_err(|e| CliError::input(e.to_string()))?;
+    let alignment_toml = match &args.calibration {
+        Some(p) => {
+            let origin = p.display().to_string();
+            let text = std::fs::read_to_string(p)
+                .map_err(|e| CliError::io(format!("cannot read calibration file {origin}"), e))?;
+            let cal = CalibrationFile::parse(&text, &origin).map_err(|e| CliError::input(e.to_string()))?;
+            cal.check_instrument(&instrument_text, &origin)
+                .map_err(|e| CliError::input(e.to_string()))?;
+            eprintln!(
+                "gonio: applying calibration {origin} (instrument {}, made {})",
+                cal.calibration.instrument, cal.calibration.created_utc
+            );
+            Some(text)
+        }
+        None => None,
+    };
     let base_dir = args.campaign.parent().map(Path::to_path_buf).unwrap_or_default();
     let prepared = engine::prepare_campaign(&text, &origin, &base_dir, &file)
         .map_err(|e| CliError::input(e.to_string()))?;
@@ -93,6 +114,17 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
                     }
                 );
             }
+            if c.alignment_toml != alignment_toml {
+                eprintln!(
+                    "gonio: note: {}",
+                    if c.alignment_toml.is_some() {
+                        "the campaign started with another alignment calibration, stored with it: resuming with that one"
+                    } else {
+                        "the campaign started without an alignment calibration: resuming without one (use another \
+                         --out directory to run it aligned)"
+                    }
+                );
+            }
             eprintln!(
                 "gonio: resuming campaign {} ({}) in {} at point {} of {}",
                 c.name,
@@ -113,7 +145,10 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
             )));
         }
         None => store
-            .create_campaign(&prepared.new_campaign(&text, &instrument_text))
+            .create_campaign(&NewCampaign {
+                alignment_toml: alignment_toml.clone(),
+                ..prepared.new_campaign(&text, &instrument_text)
+            })
             .map_err(|e| CliError::input(e.to_string()))?,
     };
     let record = store.campaign(id).map_err(|e| CliError::input(e.to_string()))?;

@@ -74,6 +74,10 @@ pub struct CampaignSummary {
 pub struct RunConfig {
     pub campaign_toml: String,
     pub instrument_toml: String,
+    /// The alignment calibration applied to every point's pose (`gonio align`'s file, verbatim); null when none
+    /// was (absent from run.json files written before it was recorded).
+    #[serde(default)]
+    pub alignment_toml: Option<String>,
 }
 
 /// A device and the identity string it reported (e.g. `*IDN?`).
@@ -302,6 +306,7 @@ pub(crate) mod tests {
             config: RunConfig {
                 campaign_toml: "[campaign]\nid = \"t\"\n".into(),
                 instrument_toml: "[instrument]\n".into(),
+                alignment_toml: None,
             },
             devices: vec![DeviceIdentity {
                 name: "meter".into(),

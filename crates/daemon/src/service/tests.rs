@@ -54,6 +54,7 @@ impl CampaignRunner for FakeRunner {
                 dry_run: true,
                 software_version: "test".into(),
                 predicted_instrument_s: None,
+                alignment_toml: None,
             },
             prepared: None,
         })
@@ -314,6 +315,7 @@ async fn interrupted_campaigns_are_resumed_first_from_their_first_missing_point(
         dry_run: true,
         software_version: "test".into(),
         predicted_instrument_s: None,
+        alignment_toml: None,
     };
     let mut ids = Vec::new();
     let h = start_with(dir, |store| {

@@ -71,7 +71,13 @@ impl<'a> Run<'a> {
             .or(self.file.instrument.source.wavelength_nm)
             .unwrap_or(f64::NAN);
         let acquired = async {
-            self.motion.move_to(&step.pose).await?;
+            // A calibrated instrument: the pose at which the beam and the detector truly make the planned
+            // directions (crate::align::correction); the point keeps its planned geometry.
+            let pose = match &self.correction {
+                Some(c) => c.correct(&step.pose),
+                None => step.pose,
+            };
+            self.motion.move_to(&pose).await?;
             if let Some(p) = step.wheel_position {
                 self.wheel_to(p).await?;
             }

@@ -21,8 +21,8 @@ impl Store {
         self.conn
             .execute(
                 "INSERT INTO campaigns (name, state, campaign_toml, instrument_toml, total_points, dry_run,
-                 software_version, created_unix_s, predicted_instrument_s)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+                 software_version, created_unix_s, predicted_instrument_s, alignment_toml)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
                 params![
                     new.name,
                     CampaignState::Queued.as_str(),
@@ -32,7 +32,8 @@ impl Store {
                     new.dry_run,
                     new.software_version,
                     now,
-                    new.predicted_instrument_s
+                    new.predicted_instrument_s,
+                    new.alignment_toml
                 ],
             )
             .map_err(self.write_err())?;
@@ -374,7 +375,7 @@ impl Store {
 
 const CAMPAIGN_SELECT: &str = "SELECT c.id, c.name, c.state, c.campaign_toml, c.instrument_toml, c.total_points,
     (SELECT COUNT(*) FROM points p WHERE p.campaign_id = c.id), c.dry_run, c.software_version, c.created_unix_s,
-    c.last_error, c.operator_message, c.predicted_instrument_s FROM campaigns c";
+    c.last_error, c.operator_message, c.predicted_instrument_s, c.alignment_toml FROM campaigns c";
 
 fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignRecord, StoreError>> {
     let state: String = r.get(2)?;
@@ -394,6 +395,7 @@ fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignR
         last_error: None,
         operator_message: None,
         predicted_instrument_s: None,
+        alignment_toml: None,
     };
     let state = match state.parse::<CampaignState>() {
         Ok(s) => s,
@@ -410,6 +412,7 @@ fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignR
         last_error: r.get(10)?,
         operator_message: r.get(11)?,
         predicted_instrument_s: r.get(12)?,
+        alignment_toml: r.get(13)?,
         ..record(state)
     }))
 }

@@ -108,6 +108,9 @@ pub struct NewCampaign {
     /// The time model's prediction of the campaign's instrument time (s), made once when it was prepared (an
     /// adaptive plan: its whole budget).
     pub predicted_instrument_s: Option<f64>,
+    /// The alignment calibration applied to every point's pose (a `gonio align` file's text), if any: stored so
+    /// that a resumed run applies the same one.
+    pub alignment_toml: Option<String>,
 }
 
 /// A campaign as stored.
@@ -128,6 +131,9 @@ pub struct CampaignRecord {
     pub operator_message: Option<String>,
     /// The prediction made when the campaign was prepared (s); None for campaigns stored before version 4.
     pub predicted_instrument_s: Option<f64>,
+    /// The alignment calibration applied (a `gonio align` file's text); None when none was (and for campaigns
+    /// stored before version 5).
+    pub alignment_toml: Option<String>,
 }
 
 /// One measured (or failed) point with everything needed to recompute it.

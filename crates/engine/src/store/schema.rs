@@ -218,6 +218,11 @@ impl Store {
         if version == 3 {
             // Version 4 records the time model's prediction with each campaign (absent for older campaigns).
             self.step("ALTER TABLE campaigns ADD COLUMN predicted_instrument_s REAL;", 4)?;
+            version = 4;
+        }
+        if version == 4 {
+            // Version 5 records the alignment calibration applied to a campaign (absent for older ones).
+            self.step("ALTER TABLE campaigns ADD COLUMN alignment_toml TEXT;", 5)?;
             return Ok(());
         }
         if version != 0 {
@@ -242,7 +247,8 @@ impl Store {
                 created_unix_s REAL NOT NULL,
                 last_error TEXT,
                 operator_message TEXT,
-                predicted_instrument_s REAL
+                predicted_instrument_s REAL,
+                alignment_toml TEXT
             );
             CREATE TABLE devices (
                 campaign_id INTEGER NOT NULL REFERENCES campaigns(id),

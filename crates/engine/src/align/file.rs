@@ -1,0 +1,153 @@
+//! The calibration file `gonio align` writes and `gonio run --calibration` reads: a header naming the
+//! instrument file it belongs to (name and SHA-256), the software and the time, then every fitted value with its
+//! standard uncertainty, and what could not be observed.
+
+use gonio_results::provenance_summary::{iso8601_utc, sha256_hex};
+use serde::{Deserialize, Serialize};
+
+use super::AlignmentReport;
+use super::model::{GeometryParams, N_PARAMS, PARAM_NAMES};
+
+/// The calibration file's contents.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationFile {
+    pub calibration: Header,
+    pub values: Vec<Value>,
+    #[serde(default)]
+    pub unobservable: Vec<String>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Header {
+    pub instrument: String,
+    pub instrument_sha256: String,
+    pub software: String,
+    pub created_utc: String,
+    pub dry_run: bool,
+    pub method: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Value {
+    pub name: String,
+    pub value: f64,
+    pub u: f64,
+    pub unit: String,
+    pub observable: bool,
+}
+
+/// Why a calibration file cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationFileError {
+    #[error("{origin}: not a calibration file: {source}")]
+    Parse {
+        origin: String,
+        #[source]
+        source: toml::de::Error,
+    },
+    #[error("{origin}: value {name} is not finite ({value})")]
+    NotFinite {
+        origin: String,
+        name: String,
+        value: f64,
+    },
+    #[error(
+        "{origin} was made for instrument file {made_for:?} with SHA-256 {expected}, not this one ({actual}): align this \
+         instrument (`gonio align`) or use its own calibration"
+    )]
+    OtherInstrument {
+        origin: String,
+        made_for: String,
+        expected: String,
+        actual: String,
+    },
+}
+
+impl CalibrationFile {
+    /// The file for `report`, made with `instrument_text` at unix time `now_s`.
+    pub fn from_report(r: &AlignmentReport, instrument_text: &str, now_s: f64) -> CalibrationFile {
+        CalibrationFile {
+            calibration: Header {
+                instrument: r.instrument.clone(),
+                instrument_sha256: sha256_hex(instrument_text.as_bytes()),
+                software: format!("gonio {}", env!("CARGO_PKG_VERSION")),
+                created_utc: iso8601_utc(now_s),
+                dry_run: r.dry_run,
+                method: "scans through the direct beam and a mirror's reflection (edge mid-points), fitted with the \
+                         geometric model of gonio_engine::align::model; u is the standard uncertainty"
+                    .into(),
+            },
+            values: r
+                .estimates
+                .iter()
+                .map(|e| Value {
+                    name: e.name.clone(),
+                    value: e.value,
+                    u: e.u,
+                    unit: e.unit.clone(),
+                    observable: e.observable,
+                })
+                .collect(),
+            unobservable: r.unobservable.clone(),
+        }
+    }
+
+    /// The file as TOML, with a comment line first.
+    pub fn to_toml(&self) -> Result<String, toml::ser::Error> {
+        Ok(format!(
+            "# Alignment of instrument {} by `gonio align` at {}. Apply with `gonio run --calibration FILE`.\n{}",
+            self.calibration.instrument,
+            self.calibration.created_utc,
+            toml::to_string(self)?
+        ))
+    }
+
+    /// Read a calibration file (`origin` names it in errors).
+    pub fn parse(text: &str, origin: &str) -> Result<CalibrationFile, CalibrationFileError> {
+        let file: CalibrationFile = toml::from_str(text).map_err(|source| CalibrationFileError::Parse {
+            origin: origin.to_string(),
+            source,
+        })?;
+        if let Some(v) = file
+            .values
+            .iter()
+            .find(|v| !(v.value.is_finite() && v.u.is_finite()))
+        {
+            return Err(CalibrationFileError::NotFinite {
+                origin: origin.to_string(),
+                name: v.name.clone(),
+                value: v.value,
+            });
+        }
+        Ok(file)
+    }
+
+    /// Refuse a calibration made for another instrument file than `instrument_text`.
+    pub fn check_instrument(&self, instrument_text: &str, origin: &str) -> Result<(), CalibrationFileError> {
+        let actual = sha256_hex(instrument_text.as_bytes());
+        if actual == self.calibration.instrument_sha256 {
+            Ok(())
+        } else {
+            Err(CalibrationFileError::OtherInstrument {
+                origin: origin.to_string(),
+                made_for: self.calibration.instrument.clone(),
+                expected: self.calibration.instrument_sha256.clone(),
+                actual,
+            })
+        }
+    }
+
+    /// The geometric model's parameters (a value the file does not give is 0).
+    pub fn params(&self) -> GeometryParams {
+        let mut x = [0.0; N_PARAMS];
+        for (k, (name, _)) in PARAM_NAMES.iter().enumerate() {
+            if let Some(v) = self.values.iter().find(|v| v.name == *name) {
+                x[k] = v.value;
+            }
+        }
+        GeometryParams::from_slice(&x)
+    }
+}
