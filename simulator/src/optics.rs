@@ -209,6 +209,9 @@ pub struct Optics {
     last_effects: std::sync::Mutex<Option<crate::imperfections::OpticsEffects>>,
     /// The sample's current mounting (re-seating draws a new tilt each time it goes back).
     seating: RwLock<Seating>,
+    /// Which object on the holder this is, for its seatings (crate::imperfections::GeometryTruth's
+    /// `object_seating_tilt`): 0 the sample, [`Optics::ALIGNMENT_MIRROR`] the alignment mirror.
+    object: u64,
     /// Distance from the arms' axis to the detector's aperture (mm): eccentricity moves the viewing direction.
     detector_distance_mm: f64,
     material: Material,
@@ -261,6 +264,7 @@ impl Optics {
             signature: None,
             last_effects: std::sync::Mutex::new(None),
             seating: RwLock::new(Seating::default()),
+            object: 0,
             detector_distance_mm: det.distance_mm,
             material: sample.material,
             bands: RwLock::new(Vec::new()),

@@ -383,18 +383,21 @@ impl Rig {
     /// `seed`, its source is the very source of every other sample's optics (same drift, same noise at the same
     /// instant): swapping samples changes the sample, not the lamp.
     pub fn build_optics(&self, sample: SampleSpec, seed: u64) -> Result<Arc<Optics>, EngineError> {
+        self.unshared_optics(sample, seed).map(Arc::new)
+    }
+
+    /// [`Rig::build_optics`] before it is shared (to be made into an alignment mirror).
+    pub(crate) fn unshared_optics(&self, sample: SampleSpec, seed: u64) -> Result<Optics, EngineError> {
         if self.inner.sim.is_none() {
             return Err(EngineError::Instrument(
                 "a simulated sample needs the simulated instrument (no device is simulated)".into(),
             ));
         }
         let hidden = self.inner.sim.as_ref().and_then(|s| s.hidden_truth());
-        Ok(Arc::new(
-            Optics::new(&self.inner.file.instrument, sample, seed)
-                .map_err(|e| EngineError::Instrument(format!("simulated optics: {e}")))?
-                // The instrument's hidden imperfections stay inside the simulator's optics.
-                .with_hidden_truth(hidden),
-        ))
+        Ok(Optics::new(&self.inner.file.instrument, sample, seed)
+            .map_err(|e| EngineError::Instrument(format!("simulated optics: {e}")))?
+            // The instrument's hidden imperfections stay inside the simulator's optics.
+            .with_hidden_truth(hidden))
     }
 
     /// Put already built optics in the simulated sample holder (the simulated operator's swap).

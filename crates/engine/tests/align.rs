@@ -22,7 +22,7 @@ async fn align(file: &InstrumentFile) -> (AlignmentReport, [f64; 2]) {
     let rig = Rig::connect_with_time_scale(file, None, 1.0).await.expect("rig");
     let mirror = Material::preset("mirror").expect("mirror");
     let holder = rig
-        .sample_holder(&mirror, None, 25.0)
+        .alignment_holder(&mirror, 25.0)
         .expect("holder")
         .expect("dry-run");
     let operator = |p: Placement| {
@@ -141,10 +141,7 @@ async fn a_step_that_cannot_see_what_it_needs_refuses_with_the_cause() {
 async fn try_align(file: &InstrumentFile, material: &str) -> Result<AlignmentReport, String> {
     let rig = Rig::connect_with_time_scale(file, None, 1.0).await.expect("rig");
     let m = Material::preset(material).expect("preset");
-    let holder = rig
-        .sample_holder(&m, None, 25.0)
-        .expect("holder")
-        .expect("dry-run");
+    let holder = rig.alignment_holder(&m, 25.0).expect("holder").expect("dry-run");
     let operator = |p: Placement| {
         holder.hold(match p {
             Placement::Empty => Held::Empty,

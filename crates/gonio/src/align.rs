@@ -65,7 +65,7 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
         }
         .map_err(|e| CliError::input(e.to_string()))?;
         let holder = rig
-            .sample_holder(&mirror, None, MIRROR_RADIUS_MM)
+            .alignment_holder(&mirror, MIRROR_RADIUS_MM)
             .map_err(|e| CliError::input(e.to_string()))?;
         let operator = |p: Placement| -> Result<(), String> {
             match &holder {

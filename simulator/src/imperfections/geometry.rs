@@ -171,10 +171,17 @@ impl GeometryTruth {
 
     /// The extra tilt of the sample's `k`-th mounting (0: the first).
     pub fn seating_tilt(&self, k: u64) -> Tilt {
+        self.object_seating_tilt(0, k)
+    }
+
+    /// The extra tilt of the `k`-th mounting of holder object `object`: 0 the sample (and its reference), 1
+    /// the alignment mirror. Each object seats in its own way: a mirror's mountings are not the sample's.
+    pub fn object_seating_tilt(&self, object: u64, k: u64) -> Tilt {
         if self.reseat_tilt_sd_deg == 0.0 {
             return Tilt::default();
         }
-        let (a, b) = self.draws.normal_pair("seating", k);
+        // Object 0 keeps the draws it always had; another object's draws are its own.
+        let (a, b) = self.draws.normal_pair("seating", (object << 40) ^ k);
         Tilt {
             x_deg: self.reseat_tilt_sd_deg * a,
             y_deg: self.reseat_tilt_sd_deg * b,

@@ -50,6 +50,18 @@ impl Optics {
         self
     }
 
+    /// The holder object of an alignment mirror: its mountings seat it in their own way.
+    pub const ALIGNMENT_MIRROR: u64 = 1;
+
+    /// Make these optics the alignment mirror, a different object on the holder from the sample (its own
+    /// seatings), starting in its first mounting.
+    pub fn as_alignment_mirror(mut self) -> Optics {
+        self.object = Optics::ALIGNMENT_MIRROR;
+        let tilt = self.seating_tilt(0);
+        *self.seating.get_mut().unwrap_or_else(|e| e.into_inner()) = Seating { index: 0, tilt };
+        self
+    }
+
     /// The hidden truth these optics compute with (for tests and run.json; never for a measurement).
     pub fn hidden_truth(&self) -> Option<&HiddenTruth> {
         self.hidden.as_deref()
@@ -73,7 +85,7 @@ impl Optics {
         self.hidden
             .as_ref()
             .and_then(|h| h.geometry.as_ref())
-            .map(|g| g.seating_tilt(index))
+            .map(|g| g.object_seating_tilt(self.object, index))
             .unwrap_or_default()
     }
 

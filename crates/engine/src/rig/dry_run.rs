@@ -220,4 +220,32 @@ impl Rig {
             reference,
         })))
     }
+
+    /// A dry-run's holder for the alignment: `mirror` (radius `radius_mm`) is the alignment mirror, an object of
+    /// its own on the holder (its seatings are not the sample's: crate::align cannot learn the sample's from
+    /// it). None on an instrument with real devices.
+    pub fn alignment_holder(
+        &self,
+        mirror: &Material,
+        radius_mm: f64,
+    ) -> Result<Option<Arc<dyn SampleHolder>>, EngineError> {
+        if !self.is_dry_run() {
+            return Ok(None);
+        }
+        let spec = SampleSpec {
+            material: mirror.clone(),
+            radius_mm,
+            orientation_deg: 0.0,
+        };
+        let optics = Arc::new(
+            self.unshared_optics(spec, self.file().simulator.seed)?
+                .as_alignment_mirror(),
+        );
+        self.show_optics(Arc::clone(&optics));
+        Ok(Some(Arc::new(SimulatedHolder {
+            rig: self.clone(),
+            sample: optics,
+            reference: None,
+        })))
+    }
 }
