@@ -124,8 +124,8 @@ async fn alignment_finds_the_hidden_geometry_on_several_seeds() {
     );
 }
 
-/// A run-off step refuses with the cause: no beam (the source dark), and a sample with no mirror reflection
-/// asked to stand in for the mirror.
+/// A step that cannot succeed refuses with the cause: no beam (the source dark), a sample with no mirror
+/// reflection asked to stand in for the mirror, a detector saturated by the direct beam.
 #[tokio::test(start_paused = true)]
 async fn a_step_that_cannot_see_what_it_needs_refuses_with_the_cause() {
     let dark = REALISTIC.replace("power_w = 1.0e-3", "power_w = 1.0e-15");
@@ -136,6 +136,11 @@ async fn a_step_that_cannot_see_what_it_needs_refuses_with_the_cause() {
         .await
         .expect_err("no mirror reflection");
     assert!(err.contains("mirror, detector scan"), "{err}");
+    // 10 W on a meter whose largest range is 5 mW.
+    let bright = REALISTIC.replace("power_w = 1.0e-3", "power_w = 10.0");
+    let file = InstrumentFile::parse(&bright, "bright.toml").expect("valid");
+    let err = try_align(&file, "mirror").await.expect_err("saturated");
+    assert!(err.contains("direct beam") && err.contains("saturated"), "{err}");
 }
 
 async fn try_align(file: &InstrumentFile, material: &str) -> Result<AlignmentReport, String> {
