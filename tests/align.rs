@@ -53,6 +53,19 @@ fn align_writes_a_calibration_that_names_its_instrument() {
 
     let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("parse");
     assert!(report["scans"].as_array().expect("scans").len() >= 10, "{report}");
+    let detector = &report["estimated"]["geometry"]["axes"][0];
+    assert_eq!(detector["role"], "detector-arm", "{report}");
+    assert!(
+        detector["zero_offset_deg_u"].as_f64().expect("K_u") > 0.0,
+        "{detector}"
+    );
+    assert!(
+        report["estimated"]["unobservable"]
+            .as_array()
+            .expect("list")
+            .len()
+            >= 2
+    );
 
     let out = gonio()
         .args([

@@ -23,6 +23,7 @@ pub mod centre;
 pub mod correction;
 pub mod file;
 pub mod fit;
+mod keys;
 pub mod model;
 mod scan;
 

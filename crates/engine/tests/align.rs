@@ -73,7 +73,18 @@ fn compared(
         let (v, u) = r.detector_error_deg(at);
         out.push((name, v, u, axis(AxisRole::DetectorArm).true_deg(at) - at));
     }
-    let (v, u) = est("tilt_zero_deg");
+    // The tilt's zero read from the report under simulator_truth's keys (axes by role, K and K_u).
+    let keyed = r.estimated();
+    let tilt = keyed["geometry"]["axes"]
+        .as_array()
+        .expect("axes")
+        .iter()
+        .find(|a| a["role"] == "sample-tilt")
+        .expect("sample-tilt");
+    let (v, u) = (
+        tilt["zero_offset_deg"].as_f64().expect("K"),
+        tilt["zero_offset_deg_u"].as_f64().expect("K_u"),
+    );
     out.push(("tilt_zero_deg", v, u, axis(AxisRole::SampleTilt).true_deg(0.0)));
     let (v, u) = est("sample_tilt_x_deg");
     out.push(("sample_tilt_x_deg", v, u, g.sample_tilt.x_deg + seat[0]));

@@ -93,7 +93,13 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
     runtime.shutdown_timeout(std::time::Duration::from_millis(200));
     print!("{}", report_text(&report));
     if let Some(path) = &args.json {
-        let json = serde_json::to_string_pretty(&report)
+        // The whole report, and the estimates under run.json's `simulator_truth` keys (`estimated`).
+        let mut value = serde_json::to_value(&report)
+            .map_err(|e| CliError::input(format!("cannot encode the report: {e}")))?;
+        if let Some(map) = value.as_object_mut() {
+            map.insert("estimated".into(), report.estimated());
+        }
+        let json = serde_json::to_string_pretty(&value)
             .map_err(|e| CliError::input(format!("cannot encode the report: {e}")))?;
         std::fs::write(path, json)
             .map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
