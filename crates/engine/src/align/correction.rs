@@ -46,8 +46,8 @@ impl PoseCorrection {
         &self.model.p
     }
 
-    /// The pose to command for `planned` (module doc); `planned` itself when the model has no answer near it or
-    /// the correction would exceed [`MAX_CORRECTION_DEG`] on some axis.
+    /// The pose to command for `planned` (module doc); `planned` itself, with a warning in the log, when the model
+    /// has no answer near it or the correction would exceed [`MAX_CORRECTION_DEG`] on some axis.
     pub fn correct(&self, planned: &Pose) -> Pose {
         let (wi, wo) = self.kinematics.forward(planned);
         let target = [wi.x(), wi.y(), wi.z(), wo.x(), wo.y(), wo.z()];
@@ -63,7 +63,7 @@ impl PoseCorrection {
         let mut pose = *planned;
         for _ in 0..6 {
             let Some(r0) = residual(&pose) else {
-                return *planned;
+                return uncorrected(planned);
             };
             if r0.iter().all(|v| v.abs() < 1e-12) {
                 break;
@@ -75,7 +75,7 @@ impl PoseCorrection {
                 let mut q = pose;
                 q.set(role, pose.get(role) + h);
                 let Some(r1) = residual(&q) else {
-                    return *planned;
+                    return uncorrected(planned);
                 };
                 let mut col = [0.0; 6];
                 for k in 0..6 {
@@ -93,7 +93,7 @@ impl PoseCorrection {
                 g[i] = (0..6).map(|k| jac[i][k] * r0[k]).sum();
             }
             let Some(l) = gonio_results::fit::lm::cholesky(&a) else {
-                return *planned;
+                return uncorrected(planned);
             };
             let step = gonio_results::fit::lm::cholesky_solve(&l, &g);
             for (i, &role) in self.roles.iter().enumerate() {
@@ -104,8 +104,24 @@ impl PoseCorrection {
             let d = (pose.get(r) - planned.get(r)).abs();
             d.is_nan() || d > MAX_CORRECTION_DEG
         });
-        if too_far { *planned } else { pose }
+        if too_far {
+            tracing::warn!(
+                "alignment: the correction of pose {planned:?} would exceed {MAX_CORRECTION_DEG} deg on an axis \
+                 ({pose:?}); the planned pose is used"
+            );
+            *planned
+        } else {
+            pose
+        }
     }
+}
+
+/// The planned pose, when the model has no answer near it (logged: the point is then measured uncorrected).
+fn uncorrected(planned: &Pose) -> Pose {
+    tracing::warn!(
+        "alignment: no corrected pose near {planned:?} (the model has no answer there); the planned pose is used"
+    );
+    *planned
 }
 
 #[cfg(test)]
