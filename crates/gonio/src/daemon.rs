@@ -47,6 +47,10 @@ pub struct DaemonArgs {
     /// rebinding; loopback names and addresses, and the listening address, are always allowed.
     #[arg(long = "allow-host", value_name = "NAME")]
     pub allow_hosts: Vec<String>,
+    /// Calibration file from `gonio align` for this instrument file: stored with, and applied to, every campaign
+    /// submitted to this daemon (refused when it was made for another instrument file).
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
 }
 
 pub fn run(args: DaemonArgs) -> Result<(), CliError> {
@@ -75,6 +79,11 @@ pub fn run(args: DaemonArgs) -> Result<(), CliError> {
         }
         None => (InstrumentFile::simulated(), SIMULATED_INSTRUMENT_TOML.to_string()),
     };
+    let alignment_toml = args
+        .calibration
+        .as_deref()
+        .map(|p| crate::align::read_calibration(p, &instrument_toml))
+        .transpose()?;
     // Submitted campaigns may name material files inside the data directory only (issue #8: paths in configs).
     let base_dir = args.data.clone();
     let store = Store::open(&args.data).map_err(|e| CliError::input(e.to_string()))?;
@@ -86,7 +95,9 @@ pub fn run(args: DaemonArgs) -> Result<(), CliError> {
         let rig = Rig::connect_with_time_scale(&instrument, None, args.sim_time_scale)
             .await
             .map_err(|e| CliError::input(format!("cannot connect the instrument: {e}")))?;
-        let runner = Arc::new(EngineRunner::new(instrument, instrument_toml, base_dir, rig));
+        let runner = Arc::new(
+            EngineRunner::new(instrument, instrument_toml, base_dir, rig).with_alignment(alignment_toml),
+        );
         let service = Service::new(store, runner, Control::new())
             .map_err(|e| CliError::input(e.to_string()))?
             .with_shutdown_grace(Duration::from_secs_f64(args.shutdown_grace_s));

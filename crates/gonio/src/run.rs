@@ -15,7 +15,6 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use gonio_engine::align::file::CalibrationFile;
 use gonio_engine::export;
 use gonio_engine::store::{CampaignId, CampaignState, NewCampaign, Store};
 use gonio_engine::{self as engine, Control, Event, Rig};
@@ -61,22 +60,11 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
     };
     let file = InstrumentFile::parse(&instrument_text, &instrument_origin)
         .map_err(|e| CliError::input(e.to_string()))?;
-    let alignment_toml = match &args.calibration {
-        Some(p) => {
-            let origin = p.display().to_string();
-            let text = std::fs::read_to_string(p)
-                .map_err(|e| CliError::io(format!("cannot read calibration file {origin}"), e))?;
-            let cal = CalibrationFile::parse(&text, &origin).map_err(|e| CliError::input(e.to_string()))?;
-            cal.check_instrument(&instrument_text, &origin)
-                .map_err(|e| CliError::input(e.to_string()))?;
-            eprintln!(
-                "gonio: applying calibration {origin} (instrument {}, made {})",
-                cal.calibration.instrument, cal.calibration.created_utc
-            );
-            Some(text)
-        }
-        None => None,
-    };
+    let alignment_toml = args
+        .calibration
+        .as_deref()
+        .map(|p| crate::align::read_calibration(p, &instrument_text))
+        .transpose()?;
     let base_dir = args.campaign.parent().map(Path::to_path_buf).unwrap_or_default();
     let prepared = engine::prepare_campaign(&text, &origin, &base_dir, &file)
         .map_err(|e| CliError::input(e.to_string()))?;

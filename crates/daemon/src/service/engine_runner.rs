@@ -20,6 +20,8 @@ pub struct EngineRunner {
     /// relative names resolve against it.
     base_dir: PathBuf,
     rig: Rig,
+    /// The alignment calibration stored with (and applied to) every campaign submitted from now on.
+    alignment_toml: Option<String>,
 }
 
 impl EngineRunner {
@@ -35,7 +37,15 @@ impl EngineRunner {
             instrument_toml,
             base_dir,
             rig,
+            alignment_toml: None,
         }
+    }
+
+    /// Apply the alignment calibration `text` (a `gonio align` file, already checked against this instrument
+    /// file) to every campaign submitted from now on: it is stored with each.
+    pub fn with_alignment(mut self, text: Option<String>) -> EngineRunner {
+        self.alignment_toml = text;
+        self
     }
 
     pub fn rig(&self) -> &Rig {
@@ -48,7 +58,10 @@ impl CampaignRunner for EngineRunner {
         let p = prepare_submitted_campaign(campaign_toml, origin, &self.base_dir, &self.instrument)
             .map_err(|e| e.to_string())?;
         Ok(Submission {
-            campaign: p.new_campaign(campaign_toml, &self.instrument_toml),
+            campaign: gonio_engine::store::NewCampaign {
+                alignment_toml: self.alignment_toml.clone(),
+                ..p.new_campaign(campaign_toml, &self.instrument_toml)
+            },
             prepared: Some(Arc::new(p)),
         })
     }
