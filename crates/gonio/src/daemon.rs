@@ -82,7 +82,7 @@ pub fn run(args: DaemonArgs) -> Result<(), CliError> {
     let alignment_toml = args
         .calibration
         .as_deref()
-        .map(|p| crate::align::read_calibration(p, &instrument_toml))
+        .map(|p| crate::calibration::read_calibration(p, &instrument_toml))
         .transpose()?;
     // Submitted campaigns may name material files inside the data directory only (issue #8: paths in configs).
     let base_dir = args.data.clone();

@@ -6,6 +6,7 @@
 mod align;
 mod brdf_check;
 mod brdf_eval;
+mod calibration;
 mod ctl;
 mod daemon;
 mod devices;

@@ -63,7 +63,7 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
     let alignment_toml = args
         .calibration
         .as_deref()
-        .map(|p| crate::align::read_calibration(p, &instrument_text))
+        .map(|p| crate::calibration::read_calibration(p, &instrument_text))
         .transpose()?;
     let base_dir = args.campaign.parent().map(Path::to_path_buf).unwrap_or_default();
     let prepared = engine::prepare_campaign(&text, &origin, &base_dir, &file)
