@@ -124,6 +124,12 @@ pub trait CampaignRunner: Send + Sync + 'static {
     fn rig(&self) -> Option<gonio_engine::rig::Rig> {
         None
     }
+
+    /// The alignment calibration the daemon applies (campaigns and the console's moves by geometry); None
+    /// without one.
+    fn pose_correction(&self) -> Option<gonio_engine::align::correction::PoseCorrection> {
+        None
+    }
 }
 
 /// A campaign as the API shows it: the stored record without the (long) configuration texts, plus the ETA.

@@ -26,6 +26,7 @@ use std::time::UNIX_EPOCH;
 use gonio_driver::{DetectorConfig, PowerRange};
 use gonio_scheduler::kinematics::{Geometry, Pose};
 
+use crate::align::correction::PoseCorrection;
 use crate::motion::{Device, Motion, MotionError};
 
 /// The meter's correction wavelength when no band filter is in the beam (nm): mid-visible.
@@ -45,6 +46,8 @@ pub struct Console<'r> {
     motion: Motion<'r>,
     /// The wavelength the meter was last configured for by this console (nm).
     configured_nm: Option<f64>,
+    /// The alignment calibration moves by geometry go through (crate::align::correction); None: nominal.
+    correction: Option<PoseCorrection>,
 }
 
 impl<'r> Console<'r> {
@@ -52,7 +55,14 @@ impl<'r> Console<'r> {
         Console {
             motion,
             configured_nm: None,
+            correction: None,
         }
+    }
+
+    /// Moves by geometry go through `correction` (the alignment applied to campaigns) when there is one.
+    pub fn with_correction(mut self, correction: Option<PoseCorrection>) -> Console<'r> {
+        self.correction = correction;
+        self
     }
 
     /// Every device asked once, without retries (a state must come back quickly and say what is wrong).
@@ -170,15 +180,21 @@ impl<'r> Console<'r> {
         self.move_to(&target).await
     }
 
-    /// Move to the pose that measures `geometry` (degrees; the instrument's kinematics, nominal zeros: the
-    /// instrument file's `zero_offset_deg` of each axis): the nearest such pose a safe path reaches.
+    /// Move to the pose that measures `geometry` (degrees; the instrument's kinematics with the instrument
+    /// file's `zero_offset_deg` of each axis, then the alignment calibration when the console has one): the
+    /// nearest such pose a safe path reaches.
     pub async fn move_geometry(&mut self, geometry: &Geometry) -> Result<Vec<AxisPosition>, ConsoleError> {
         self.motion.read_positions().await?;
-        let poses = geometry_poses(
+        let mut poses = geometry_poses(
             &self.motion.rig().file().instrument,
             self.motion.current(),
             geometry,
         )?;
+        if let Some(c) = &self.correction {
+            for p in &mut poses {
+                *p = c.correct(p);
+            }
+        }
         match poses.iter().find(|p| self.motion.safe_move(p).is_ok()) {
             Some(target) => self.move_to(target).await,
             None => Err(ConsoleError::Refused {

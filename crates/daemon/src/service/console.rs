@@ -89,7 +89,7 @@ impl Service {
                 "this daemon has no instrument of its own".into(),
             ));
         };
-        let mut console = Console::new(motion);
+        let mut console = Console::new(motion).with_correction(self.shared.runner.pose_correction());
         let answer = match action {
             ConsoleAction::State => to_json(console.state().await),
             ConsoleAction::Move(targets) => to_json(console.move_axes(&targets).await?),

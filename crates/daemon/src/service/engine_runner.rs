@@ -6,6 +6,8 @@ use std::sync::{Arc, Mutex};
 use gonio_instrument::InstrumentFile;
 
 use super::{CampaignRunner, RunFuture, Submission};
+use gonio_engine::align::correction::PoseCorrection;
+use gonio_engine::align::file::CalibrationFile;
 use gonio_engine::control::Control;
 use gonio_engine::rig::Rig;
 use gonio_engine::store::{CampaignId, CampaignRecord, Store};
@@ -85,6 +87,13 @@ impl CampaignRunner for EngineRunner {
 
     fn rig(&self) -> Option<Rig> {
         Some(self.rig.clone())
+    }
+
+    fn pose_correction(&self) -> Option<PoseCorrection> {
+        // Checked against the instrument file when the daemon started (`gonio daemon --calibration`).
+        let text = self.alignment_toml.as_ref()?;
+        let cal = CalibrationFile::parse(text, "<the daemon's alignment>").ok()?;
+        Some(PoseCorrection::new(&self.instrument.instrument, cal.params()))
     }
 
     fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
