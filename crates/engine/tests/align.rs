@@ -19,25 +19,7 @@ fn realistic(seed: u64) -> InstrumentFile {
 
 /// The alignment with a mirror in the holder; the mirror's seating tilt while it was aligned.
 async fn align(file: &InstrumentFile) -> (AlignmentReport, [f64; 2]) {
-    let rig = Rig::connect_with_time_scale(file, None, 1.0).await.expect("rig");
-    let mirror = Material::preset("mirror").expect("mirror");
-    let holder = rig
-        .alignment_holder(&mirror, 25.0)
-        .expect("holder")
-        .expect("dry-run");
-    let operator = |p: Placement| {
-        holder.hold(match p {
-            Placement::Empty => Held::Empty,
-            Placement::Mirror => Held::Sample,
-        });
-        Ok(())
-    };
-    let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
-    let report = run_alignment(&mut motion, &operator)
-        .await
-        .expect("alignment ran");
-    let seat = rig.optics().expect("optics").seating().1;
-    (report, [seat.x_deg, seat.y_deg])
+    try_align(file, "mirror").await.expect("alignment ran")
 }
 
 /// (estimate, its u, truth) for the keys compared.
@@ -154,7 +136,9 @@ async fn a_step_that_cannot_see_what_it_needs_refuses_with_the_cause() {
     assert!(err.contains("direct beam") && err.contains("saturated"), "{err}");
 }
 
-async fn try_align(file: &InstrumentFile, material: &str) -> Result<AlignmentReport, String> {
+/// The alignment with `material` (a preset) standing in for the mirror: the report and the seating tilt of
+/// that mounting, or the refusal's message.
+async fn try_align(file: &InstrumentFile, material: &str) -> Result<(AlignmentReport, [f64; 2]), String> {
     let rig = Rig::connect_with_time_scale(file, None, 1.0).await.expect("rig");
     let m = Material::preset(material).expect("preset");
     let holder = rig.alignment_holder(&m, 25.0).expect("holder").expect("dry-run");
@@ -166,9 +150,11 @@ async fn try_align(file: &InstrumentFile, material: &str) -> Result<AlignmentRep
         Ok(())
     };
     let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
-    run_alignment(&mut motion, &operator)
+    let report = run_alignment(&mut motion, &operator)
         .await
-        .map_err(|e| e.to_string())
+        .map_err(|e| e.to_string())?;
+    let seat = rig.optics().expect("optics").seating().1;
+    Ok((report, [seat.x_deg, seat.y_deg]))
 }
 
 /// The console's move by geometry goes through the alignment when it has one: it stands where the calibrated

@@ -9,14 +9,14 @@ use std::path::PathBuf;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use gonio_brdf::material::Material;
+use gonio_engine::Control;
 use gonio_engine::align::file::CalibrationFile;
 use gonio_engine::align::{AlignmentReport, Placement, run_alignment};
 use gonio_engine::rig::Held;
-use gonio_engine::{Control, Rig};
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use gonio_scheduler::timing::TimeModel;
 
 use crate::CliError;
+use crate::instrument_arg::{InstrumentArg, connect, in_process, read_instrument};
 
 /// Device operations are retried this many times during the alignment.
 const RETRIES: u32 = 2;
@@ -40,30 +40,12 @@ pub struct AlignArgs {
 }
 
 pub fn run(args: AlignArgs) -> Result<(), CliError> {
-    let (text, origin) = match &args.instrument {
-        Some(p) => (
-            std::fs::read_to_string(p)
-                .map_err(|e| CliError::io(format!("cannot read instrument file {}", p.display()), e))?,
-            p.display().to_string(),
-        ),
-        None => (
-            SIMULATED_INSTRUMENT_TOML.to_string(),
-            "<embedded simulated instrument>".to_string(),
-        ),
-    };
-    let file = InstrumentFile::parse(&text, &origin).map_err(|e| CliError::input(e.to_string()))?;
+    let InstrumentArg { text, file, .. } = read_instrument(args.instrument.as_deref())?;
     let mirror = Material::preset(&args.material)
         .map_err(|e| CliError::input(format!("--material {}: {e}", args.material)))?;
-    let devices = &file.instrument.devices;
-    let simulated = devices.iter().all(|d| d.is_simulated()) && !devices.iter().any(|d| d.is_sim_pty());
-    let runtime = crate::run::instrument_runtime(simulated)?;
+    let runtime = crate::run::instrument_runtime(in_process(&file))?;
     let report = runtime.block_on(async {
-        let rig = if simulated {
-            Rig::connect_with_time_scale(&file, None, 1.0).await
-        } else {
-            Rig::connect(&file, None).await
-        }
-        .map_err(|e| CliError::input(e.to_string()))?;
+        let rig = connect(&file).await?;
         let holder = rig
             .alignment_holder(&mirror, MIRROR_RADIUS_MM)
             .map_err(|e| CliError::input(e.to_string()))?;

@@ -13,6 +13,7 @@ mod devices;
 mod error;
 mod export;
 mod fit;
+mod instrument_arg;
 mod plan;
 mod plot;
 mod run;

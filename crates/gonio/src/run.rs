@@ -18,10 +18,11 @@ use std::time::Instant;
 use gonio_engine::export;
 use gonio_engine::store::{CampaignId, CampaignState, NewCampaign, Store};
 use gonio_engine::{self as engine, Control, Event, Rig};
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
+use gonio_instrument::InstrumentFile;
 use gonio_results::points;
 
 use crate::CliError;
+use crate::instrument_arg::{InstrumentArg, read_instrument};
 
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
@@ -47,19 +48,11 @@ pub fn run(args: RunArgs) -> Result<(), CliError> {
     let origin = args.campaign.display().to_string();
     let text = std::fs::read_to_string(&args.campaign)
         .map_err(|e| CliError::io(format!("cannot read campaign file {origin}"), e))?;
-    let (instrument_text, instrument_origin) = match &args.instrument {
-        Some(p) => (
-            std::fs::read_to_string(p)
-                .map_err(|e| CliError::io(format!("cannot read instrument file {}", p.display()), e))?,
-            p.display().to_string(),
-        ),
-        None => (
-            SIMULATED_INSTRUMENT_TOML.to_string(),
-            "<embedded simulated instrument>".to_string(),
-        ),
-    };
-    let file = InstrumentFile::parse(&instrument_text, &instrument_origin)
-        .map_err(|e| CliError::input(e.to_string()))?;
+    let InstrumentArg {
+        text: instrument_text,
+        origin: instrument_origin,
+        file,
+    } = read_instrument(args.instrument.as_deref())?;
     let alignment_toml = args
         .calibration
         .as_deref()

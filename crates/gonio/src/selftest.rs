@@ -6,13 +6,13 @@
 use std::path::PathBuf;
 use std::time::{SystemTime, UNIX_EPOCH};
 
+use gonio_engine::Control;
 use gonio_engine::selftest::{DEFAULT_TOLERANCE, SelftestReport, Verdict, run_selftest};
-use gonio_engine::{Control, Rig};
-use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use gonio_results::provenance_summary::iso8601_utc;
 use gonio_scheduler::timing::TimeModel;
 
 use crate::CliError;
+use crate::instrument_arg::{InstrumentArg, connect, in_process, read_instrument};
 
 /// Device operations are retried this many times during the self-test.
 const RETRIES: u32 = 2;
@@ -40,30 +40,10 @@ pub fn run(args: SelftestArgs) -> Result<(), CliError> {
             args.tolerance
         )));
     }
-    let (text, origin) = match &args.instrument {
-        Some(p) => (
-            std::fs::read_to_string(p)
-                .map_err(|e| CliError::io(format!("cannot read instrument file {}", p.display()), e))?,
-            p.display().to_string(),
-        ),
-        None => (
-            SIMULATED_INSTRUMENT_TOML.to_string(),
-            "<embedded simulated instrument>".to_string(),
-        ),
-    };
-    let file = InstrumentFile::parse(&text, &origin).map_err(|e| CliError::input(e.to_string()))?;
-    // A dry-run takes the simulated instrument's time on a paused clock (no wall time), as `gonio run` does;
-    // simulated devices on pseudo-terminals need the real clock (see `gonio run`).
-    let devices = &file.instrument.devices;
-    let simulated = devices.iter().all(|d| d.is_simulated()) && !devices.iter().any(|d| d.is_sim_pty());
-    let runtime = crate::run::instrument_runtime(simulated)?;
+    let InstrumentArg { text, file, .. } = read_instrument(args.instrument.as_deref())?;
+    let runtime = crate::run::instrument_runtime(in_process(&file))?;
     let report = runtime.block_on(async {
-        let rig = if simulated {
-            Rig::connect_with_time_scale(&file, None, 1.0).await
-        } else {
-            Rig::connect(&file, None).await
-        }
-        .map_err(|e| CliError::input(e.to_string()))?;
+        let rig = connect(&file).await?;
         let mut motion = gonio_engine::motion::Motion::new(
             &rig,
             TimeModel::new(&file.instrument),
@@ -202,6 +182,7 @@ fn set_key(doc: &mut toml::Table, key: &str, value: f64) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 
     #[test]
     fn measured_keys_are_written_where_the_file_has_them() {

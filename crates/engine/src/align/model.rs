@@ -291,16 +291,17 @@ impl Model {
                 let (true_deg, _) = self.crossing(&p, &m)?;
                 Some(self.detector_nominal_deg(true_deg))
             }
+            // The detector stands at the reflection's centre (`detector_deg`, the detector scan's result), so the
+            // ray's height is taken where it crosses the detector's circle, whatever the angle recorded.
             Observation::MirrorTilt {
                 light_deg,
-                detector_deg,
+                detector_deg: _,
                 rotation_deg,
             } => {
                 // Secant on the tilt: the ray's height at the detector, 0 at the centre. Starts where the
                 // nominal geometry puts it (0) and moves by hundredths of a degree.
                 let height = |t: f64| -> Option<f64> {
                     let (p, m) = self.reflected(light_deg, t, rotation_deg)?;
-                    let _ = detector_deg;
                     self.crossing(&p, &m).map(|(_, z)| z)
                 };
                 let (mut t0, mut t1) = (0.0, 0.01);

@@ -27,15 +27,7 @@ async fn read_along(
     at: &dyn Fn(f64) -> Pose,
 ) -> Result<Vec<(f64, f64)>, AlignError> {
     let det = motion.rig().detector().clone();
-    let largest = motion
-        .rig()
-        .file()
-        .instrument
-        .detector
-        .ranges_w
-        .iter()
-        .copied()
-        .fold(0.0, f64::max);
+    let largest = meter_ranges_w(motion).iter().copied().fold(0.0, f64::max);
     let mut out = Vec::with_capacity(positions.len());
     for &x in positions {
         motion.move_to(&at(x)).await?;
@@ -77,12 +69,7 @@ pub(super) async fn scan(
     // A beam is there when its top stands well above the ends: ten times their scatter (consecutive
     // differences of the three readings at each end) and ten times a floor of a thousandth of the meter's
     // smallest range.
-    let floor = motion
-        .rig()
-        .file()
-        .instrument
-        .detector
-        .ranges_w
+    let floor = meter_ranges_w(motion)
         .iter()
         .copied()
         .fold(f64::INFINITY, f64::min)
@@ -164,4 +151,9 @@ fn crossing(samples: &[(f64, f64)], level: f64) -> Option<f64> {
         let ((x0, p0), (x1, p1)) = (w[0], w[1]);
         ((p0 - level) * (p1 - level) <= 0.0 && p1 != p0).then(|| x0 + (level - p0) * (x1 - x0) / (p1 - p0))
     })
+}
+
+/// The meter's ranges (full scale, W) as the instrument file gives them.
+fn meter_ranges_w<'m>(motion: &'m Motion<'_>) -> &'m [f64] {
+    &motion.rig().file().instrument.detector.ranges_w
 }
