@@ -42,10 +42,6 @@ impl PoseCorrection {
         }
     }
 
-    pub fn params(&self) -> &GeometryParams {
-        &self.model.p
-    }
-
     /// The pose to command for `planned` (module doc); `planned` itself, with a warning in the log, when the model
     /// has no answer near it or the correction would exceed [`MAX_CORRECTION_DEG`] on some axis.
     pub fn correct(&self, planned: &Pose) -> Pose {

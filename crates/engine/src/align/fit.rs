@@ -71,7 +71,7 @@ fn prior(k: usize) -> f64 {
 }
 
 /// Prior standard deviation of each encoder term (deg).
-pub const ENCODER_PRIOR_DEG: f64 = 0.02;
+const ENCODER_PRIOR_DEG: f64 = 0.02;
 
 /// Fit the model to `observed`. None when the model cannot be evaluated at the start (an observation the
 /// geometry cannot produce).
