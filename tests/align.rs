@@ -70,7 +70,7 @@ fn align_writes_a_calibration_that_names_its_instrument() {
     let out = gonio()
         .args([
             "align",
-            "--material",
+            "--mirror",
             "spectralon",
             "--instrument",
             instrument,

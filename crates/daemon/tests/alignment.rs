@@ -8,7 +8,7 @@ use gonio_engine::align::file::CalibrationFile;
 use gonio_engine::align::{Placement, run_alignment};
 use gonio_engine::control::Control;
 use gonio_engine::motion::Motion;
-use gonio_engine::rig::{Held, Rig};
+use gonio_engine::rig::Rig;
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use gonio_scheduler::timing::TimeModel;
 
@@ -20,18 +20,17 @@ async fn a_daemon_with_an_alignment_stores_it_with_every_submitted_campaign() {
     let rig = Rig::connect_with_time_scale(&file, None, 1.0).await.expect("rig");
     let mirror = Material::preset("mirror").expect("mirror");
     let holder = rig
-        .alignment_holder(&mirror, 25.0)
+        .alignment_holder(&mirror, None, 25.0)
         .expect("holder")
         .expect("dry-run");
     let operator = |p: Placement| {
-        holder.hold(match p {
-            Placement::Empty => Held::Empty,
-            Placement::Mirror => Held::Sample,
-        });
+        holder.hold(p.held());
         Ok(())
     };
     let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
-    let report = run_alignment(&mut motion, &operator).await.expect("alignment");
+    let report = run_alignment(&mut motion, &operator, Default::default())
+        .await
+        .expect("alignment");
     drop(motion);
     let text = CalibrationFile::from_report(&report, SIMULATED_INSTRUMENT_TOML, 1.8e9)
         .to_toml()

@@ -44,6 +44,8 @@ pub struct MeterReading {
     pub power_w: f64,
     pub std_w: f64,
     pub overload: bool,
+    /// Index into the instrument's `ranges_w` of the range it was read on ([`range_index`]).
+    pub range: Option<usize>,
 }
 
 /// The standard uncertainty of a meter's reading: a part relative to the reading plus a part relative to the
@@ -65,6 +67,22 @@ pub fn meter_reading(r: &PowerReading, ranges_w: &[f64], range: Range) -> MeterR
         power_w: r.power_w,
         std_w,
         overload: r.overload,
+        range: range_index(r, ranges_w, range),
+    }
+}
+
+/// The index into the instrument's `ranges_w` of the range a reading was taken on. Under auto-range the meter's
+/// reported range need not be the one in use (it may be its largest, or the last one set by hand), so it is the
+/// smallest of `ranges_w` holding the reading, which is what auto-ranging settles on (a reading within 1 % of a
+/// full scale may be on either: crate::characterise::ranges::near_range_boundary); a fixed range is the one
+/// reported. `None` when no range of the file matches.
+pub fn range_index(r: &PowerReading, ranges_w: &[f64], range: Range) -> Option<usize> {
+    let reported = ranges_w
+        .iter()
+        .position(|fs| (fs - r.range_w).abs() <= 1e-9 * fs.abs());
+    match range {
+        Range::Auto => ranges_w.iter().position(|fs| *fs > r.power_w.abs()).or(reported),
+        Range::FixedW(_) => reported,
     }
 }
 

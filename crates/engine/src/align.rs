@@ -15,9 +15,12 @@
 //! errors are fitted together; over the arcs the scans cover they are strongly correlated, so each alone is
 //! uncertain while their sum at any angle in those arcs ([`AlignmentReport::detector_error_deg`]) is known well.
 //!
-//! Not measured yet (issue 27 goes on): the encoders' cyclic errors of the tilt and rotation, the rotation's zero (an isotropic mirror
-//! cannot show it: it turns the tilt vector, which absorbs it), the re-seating of a sample other than the mirror,
-//! and the detector's characterisation (range gains, nonlinearity, the instrument signature, the source's drift).
+//! With the holder still empty after step 1, the characterisation (crate::characterise: the meter's ranges, the
+//! instrument signature, the source's warm-up) runs when [`AlignOptions::characterise`] asks for it.
+//!
+//! Not measured yet: the encoders' cyclic errors of the tilt and rotation, the rotation's zero (an isotropic
+//! mirror cannot show it: it turns the tilt vector, which absorbs it), and the re-seating of a sample other than
+//! the mirror.
 
 pub mod centre;
 pub mod correction;
@@ -32,6 +35,10 @@ use gonio_instrument::AxisRole;
 use gonio_scheduler::kinematics::Pose;
 use serde::Serialize;
 
+use crate::characterise::{
+    CharacterisationReport, CharacteriseError, CharacteriseOptions, Meter, finish, read_empty_holder,
+    sample_overlaps,
+};
 use crate::motion::{Device, Motion, MotionError};
 pub use centre::CentreError;
 use fit::{GeometryFit, Observed};
@@ -45,9 +52,21 @@ pub enum Placement {
     Empty,
     /// A flat front-surface mirror, its face where a sample's face goes.
     Mirror,
+    /// The sample to be measured (the characterisation reads its reflection).
+    Sample,
 }
 
 impl Placement {
+    /// What a dry-run's alignment holder (crate::rig::Rig::alignment_holder) holds for this placement: the
+    /// mirror in its first place, the sample in its second.
+    pub fn held(self) -> crate::rig::Held {
+        match self {
+            Placement::Empty => crate::rig::Held::Empty,
+            Placement::Mirror => crate::rig::Held::Sample,
+            Placement::Sample => crate::rig::Held::Reference,
+        }
+    }
+
     /// The instruction to the operator.
     pub fn instruction(self) -> &'static str {
         match self {
@@ -56,6 +75,10 @@ impl Placement {
             }
             Placement::Mirror => {
                 "mount the alignment mirror on the sample holder, its face where a sample's face goes"
+            }
+            Placement::Sample => {
+                "mount the sample to be measured on the holder (its reflection gives the meter's smallest ranges \
+                 their levels)"
             }
         }
     }
@@ -66,6 +89,8 @@ impl Placement {
 pub enum AlignError {
     #[error(transparent)]
     Motion(#[from] MotionError),
+    #[error(transparent)]
+    Characterise(#[from] CharacteriseError),
     /// A scan could not see what it needs: which scan, and why.
     #[error("{scan}: {cause}")]
     Scan { scan: String, cause: CentreError },
@@ -82,6 +107,12 @@ pub enum AlignError {
     Operator(String),
 }
 
+/// The beam's direction against its line through the arms' axis, which no scan here sees (deg, standard
+/// uncertainty): an assumption, a 0.2 mm lateral offset of the beam over the 250 mm to a typical detector.
+const BEAM_DIRECTION_UNSEEN_DEG: f64 = 0.05;
+/// Incidence of the characterisation's overlaps on the sample (deg): near grazing a glossy sample's lobe is at its
+/// brightest, which the second-smallest range needs.
+const SAMPLE_INCIDENCE_DEG: f64 = 60.0;
 /// Direct-beam light angles tried, then kept where both arms (with the scan) stay inside their travel.
 const DIRECT_LIGHT_DEG: [f64; 4] = [-90.0, -85.0, 85.0, 90.0];
 /// Incidence angles of the mirror scans (deg from the normal), on both sides.
@@ -158,6 +189,15 @@ pub struct AlignmentReport {
     pub scans: Vec<ScanRecord>,
     /// Instrument time the procedure took (s).
     pub instrument_s: f64,
+    /// The detector's and the source's characterisation, when it ran.
+    pub characterisation: Option<CharacterisationReport>,
+}
+
+/// What `run_alignment` does besides the geometric alignment.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct AlignOptions {
+    /// Characterise the detector and the source with the holder empty (crate::characterise).
+    pub characterise: Option<CharacteriseOptions>,
 }
 
 impl AlignmentReport {
@@ -203,6 +243,7 @@ impl AlignmentReport {
 pub async fn run_alignment(
     motion: &mut Motion<'_>,
     operator: &dyn Fn(Placement) -> Result<(), String>,
+    options: AlignOptions,
 ) -> Result<AlignmentReport, AlignError> {
     let rig = motion.rig();
     let file = rig.file().clone();
@@ -310,6 +351,25 @@ pub async fn run_alignment(
         });
         readings.push(n);
     }
+    let first_direct = observed.iter().find_map(|o| match o.what {
+        Observation::DirectBeam { light_deg } => Some((light_deg, o.value_deg)),
+        _ => None,
+    });
+    let mut meter = Meter::default();
+    let characterise_from = clock.now_s();
+    let empty = match (options.characterise, first_direct) {
+        (Some(opts), Some((light_deg, facing_deg))) => {
+            tracing::info!("characterisation with the holder empty");
+            let e = read_empty_holder(motion, &mut meter, light_deg, facing_deg, opts, t0).await?;
+            put_band_in_beam(motion).await?;
+            motion
+                .device(Device::Detector, "configure the meter", || det.configure(config))
+                .await?;
+            Some(e)
+        }
+        _ => None,
+    };
+    let mut characterise_s = clock.now_s() - characterise_from;
     operator(Placement::Mirror).map_err(AlignError::Operator)?;
     let mut last_detector = std::collections::BTreeMap::new();
     for o in plan.iter() {
@@ -376,6 +436,25 @@ pub async fn run_alignment(
             Observation::DirectBeam { .. } => {}
         }
     }
+    // The characterisation's last step, with the sample back in the holder.
+    let characterisation = match empty {
+        Some(e) => {
+            operator(Placement::Sample).map_err(AlignError::Operator)?;
+            let from = clock.now_s();
+            let light_deg = -order.signum() * SAMPLE_INCIDENCE_DEG;
+            let position = inst.filter_wheel.as_ref().and_then(|w| {
+                w.positions
+                    .iter()
+                    .find(|p| !p.blank && p.band_nm == Some(e.overlap_nm))
+                    .map(|p| p.position)
+            });
+            let sample =
+                sample_overlaps(motion, &mut meter, light_deg, -light_deg, e.overlap_nm, position).await?;
+            characterise_s += clock.now_s() - from;
+            Some(finish(e, sample, inst, characterise_s))
+        }
+        None => None,
+    };
     let dims = Dimensions {
         detector_distance_mm: inst.detector.distance_mm,
     };
@@ -400,7 +479,19 @@ pub async fn run_alignment(
         band_nm,
         instrument_s: clock.now_s() - t0,
     };
-    Ok(report(run, &observed, &readings, &fitted, dims))
+    let mut out = report(run, &observed, &readings, &fitted, dims);
+    if let (Some(mut c), Some((_, facing_deg))) = (characterisation, first_direct) {
+        // Each signature point's angle from the beam is known to the detector's error there and the beam's
+        // line, and to what the scans cannot see: the beam's direction against its line (a lateral offset).
+        let (_, detector_u) = out.detector_error_deg(facing_deg);
+        let line_u = out.get("beam_line_deg").map_or(0.0, |e| e.u);
+        let u_alpha = detector_u.hypot(line_u).hypot(BEAM_DIRECTION_UNSEEN_DEG);
+        for s in &mut c.detector.signature {
+            s.widen_for_angle(u_alpha);
+        }
+        out.characterisation = Some(c);
+    }
+    Ok(out)
 }
 
 /// What the report says of the run itself.
@@ -484,6 +575,7 @@ fn report(
         covariance: f.covariance.clone(),
         scans,
         instrument_s,
+        characterisation: None,
     }
 }
 

@@ -26,6 +26,7 @@
 pub mod acquisition;
 pub mod align;
 pub mod calibration;
+pub mod characterise;
 pub mod console;
 pub mod control;
 pub mod error;

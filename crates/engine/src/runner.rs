@@ -50,6 +50,7 @@ mod reference;
 
 use crate::align::correction::PoseCorrection;
 use crate::align::file::CalibrationFile;
+use crate::characterise::correction::DetectorCorrection;
 use std::sync::{Arc, Mutex};
 
 use gonio_brdf::measurement::Reading;
@@ -130,6 +131,8 @@ struct Run<'a> {
     reference: Option<ReferenceRun>,
     /// The stored alignment calibration applied to every point's pose (crate::align::correction).
     correction: Option<PoseCorrection>,
+    /// The stored characterisation applied to every reading and value (crate::characterise::correction).
+    detector: Option<DetectorCorrection>,
     done: u64,
     total: u64,
     /// The pass being measured: its predicted duration, the index after its last point, and the predicted
@@ -228,15 +231,18 @@ pub(crate) async fn run(
     });
     // The alignment stored with the campaign: the same on every resume, and only for the instrument file it was
     // made for.
-    let correction = match &rec.alignment_toml {
+    let (correction, detector) = match &rec.alignment_toml {
         Some(text) => {
             let origin = format!("<alignment stored with campaign {id}>");
             let cal = CalibrationFile::parse(text, &origin)
                 .and_then(|cal| cal.check_instrument(&rec.instrument_toml, &origin).map(|()| cal))
                 .map_err(|e| not_runnable(e.to_string()))?;
-            Some(PoseCorrection::new(&file.instrument, cal.params()))
+            (
+                Some(PoseCorrection::new(&file.instrument, cal.params())),
+                cal.detector.clone().map(DetectorCorrection::new),
+            )
         }
-        None => None,
+        None => (None, None),
     };
     let faults_to = control.clone();
     let motion = Motion::new(
@@ -288,6 +294,7 @@ pub(crate) async fn run(
         holder,
         reference,
         correction,
+        detector,
         done,
         total,
         pass_total_s: 0.0,

@@ -5,7 +5,7 @@ use gonio_brdf::material::Material;
 use gonio_engine::align::{AlignmentReport, Placement, run_alignment};
 use gonio_engine::control::Control;
 use gonio_engine::motion::Motion;
-use gonio_engine::rig::{Held, Rig};
+use gonio_engine::rig::Rig;
 use gonio_instrument::{AxisRole, InstrumentFile};
 use gonio_scheduler::timing::TimeModel;
 use gonio_simulator::imperfections::HiddenTruth;
@@ -141,16 +141,16 @@ async fn a_step_that_cannot_see_what_it_needs_refuses_with_the_cause() {
 async fn try_align(file: &InstrumentFile, material: &str) -> Result<(AlignmentReport, [f64; 2]), String> {
     let rig = Rig::connect_with_time_scale(file, None, 1.0).await.expect("rig");
     let m = Material::preset(material).expect("preset");
-    let holder = rig.alignment_holder(&m, 25.0).expect("holder").expect("dry-run");
+    let holder = rig
+        .alignment_holder(&m, None, 25.0)
+        .expect("holder")
+        .expect("dry-run");
     let operator = |p: Placement| {
-        holder.hold(match p {
-            Placement::Empty => Held::Empty,
-            Placement::Mirror => Held::Sample,
-        });
+        holder.hold(p.held());
         Ok(())
     };
     let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
-    let report = run_alignment(&mut motion, &operator)
+    let report = run_alignment(&mut motion, &operator, Default::default())
         .await
         .map_err(|e| e.to_string())?;
     let seat = rig.optics().expect("optics").seating().1;

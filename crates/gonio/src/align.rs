@@ -1,5 +1,6 @@
-//! `gonio align [--instrument FILE] --out CAL.toml [--json REPORT.json] [--material M]`: the alignment
-//! (`gonio_engine::align`) on the instrument, a short report per fitted value, and a dated calibration file: every
+//! `gonio align [--instrument FILE] --out CAL.toml [--json REPORT.json] [--mirror M] [--material M]
+//! [--steps S,...] [--warmup-watch-s S]`: the alignment (`gonio_engine::align`) and the characterisation
+//! (`gonio_engine::characterise`) on the instrument, a short report per value, and a dated calibration file: every
 //! value with its standard uncertainty, how it was measured, and the instrument file it belongs to (name and
 //! SHA-256) with the software version. On the simulated instrument the operator's steps (empty the holder, mount
 //! the mirror) are done by the simulated operator; on hardware each is prompted and waits for Enter.
@@ -11,8 +12,8 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use gonio_brdf::material::Material;
 use gonio_engine::Control;
 use gonio_engine::align::file::CalibrationFile;
-use gonio_engine::align::{AlignmentReport, Placement, run_alignment};
-use gonio_engine::rig::Held;
+use gonio_engine::align::{AlignOptions, AlignmentReport, Placement, run_alignment};
+use gonio_engine::characterise::{CharacterisationReport, CharacteriseOptions};
 use gonio_scheduler::timing::TimeModel;
 
 use crate::CliError;
@@ -36,27 +37,58 @@ pub struct AlignArgs {
     pub json: Option<PathBuf>,
     /// Dry-runs: the material the simulated operator mounts as the alignment mirror (a preset name).
     #[arg(long, default_value = "mirror")]
+    pub mirror: String,
+    /// Dry-runs: the sample the simulated operator mounts for the steps that use it (a preset name; the
+    /// characterisation reads its reflection for the meter's smallest ranges).
+    #[arg(long, default_value = "coloured-plastic")]
     pub material: String,
+    /// The procedures to run, comma-separated: `alignment` (always: the others need the beam it finds) and
+    /// `characterisation` (the meter's ranges, the instrument signature, the source's warm-up).
+    #[arg(long, value_delimiter = ',', default_value = "alignment,characterisation")]
+    pub steps: Vec<Step>,
+    /// How long the characterisation watches the direct beam for the source's warm-up (s of instrument time).
+    #[arg(long, default_value_t = 1800.0)]
+    pub warmup_watch_s: f64,
+}
+
+/// One procedure of `--steps`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Step {
+    Alignment,
+    Characterisation,
 }
 
 pub fn run(args: AlignArgs) -> Result<(), CliError> {
+    if !(args.warmup_watch_s.is_finite() && args.warmup_watch_s >= 0.0) {
+        return Err(CliError::input(format!(
+            "--warmup-watch-s {}: give a number of seconds, 0 or more",
+            args.warmup_watch_s
+        )));
+    }
+    let options = AlignOptions {
+        characterise: args
+            .steps
+            .contains(&Step::Characterisation)
+            .then_some(CharacteriseOptions {
+                warmup_watch_s: args.warmup_watch_s,
+            }),
+    };
     let InstrumentArg { text, file, .. } = read_instrument(args.instrument.as_deref())?;
-    let mirror = Material::preset(&args.material)
+    let mirror = Material::preset(&args.mirror)
+        .map_err(|e| CliError::input(format!("--mirror {}: {e}", args.mirror)))?;
+    let sample = Material::preset(&args.material)
         .map_err(|e| CliError::input(format!("--material {}: {e}", args.material)))?;
     let runtime = crate::run::instrument_runtime(in_process(&file))?;
     let report = runtime.block_on(async {
         let rig = connect(&file).await?;
         let holder = rig
-            .alignment_holder(&mirror, MIRROR_RADIUS_MM)
+            .alignment_holder(&mirror, Some(&sample), MIRROR_RADIUS_MM)
             .map_err(|e| CliError::input(e.to_string()))?;
         let operator = |p: Placement| -> Result<(), String> {
             match &holder {
                 Some(h) => {
                     eprintln!("simulated operator: {}", p.instruction());
-                    h.hold(match p {
-                        Placement::Empty => Held::Empty,
-                        Placement::Mirror => Held::Sample,
-                    });
+                    h.hold(p.held());
                     Ok(())
                 }
                 None => prompt(p),
@@ -68,7 +100,7 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
             RETRIES,
             Control::new(),
         );
-        run_alignment(&mut motion, &operator)
+        run_alignment(&mut motion, &operator, options)
             .await
             .map_err(|e| CliError::input(format!("alignment stopped: {e}")))
     })?;
@@ -137,6 +169,71 @@ pub fn report_text(r: &AlignmentReport) -> String {
     }
     for m in &r.unobservable {
         s.push_str(&format!("  not observable: {m}\n"));
+    }
+    if let Some(c) = &r.characterisation {
+        s.push_str(&characterisation_text(c));
+    }
+    s
+}
+
+/// The characterisation's part of the report: one line per range, per band and for the source.
+fn characterisation_text(c: &CharacterisationReport) -> String {
+    let mut s = format!(
+        "characterisation with the holder empty: {:.0} s of instrument time, {} overlaps, {} darks\n",
+        c.instrument_s,
+        c.overlaps.len(),
+        c.darks.len()
+    );
+    if let Some(rc) = &c.detector.ranges {
+        s.push_str(&format!(
+            "  meter ranges (gains relative to range {}; reduced chi2 {:.2}):\n",
+            rc.reference_range, rc.reduced_chi2
+        ));
+        for r in &rc.ranges {
+            s.push_str(&format!(
+                "    range {} ({:.0e} W): gain {:+.5} +- {:.5}, nonlinearity {:+.5} +- {:.5}, offset {:+.3e} +- {:.1e} W{}\n",
+                r.index,
+                r.full_scale_w,
+                r.gain,
+                r.gain_u,
+                r.nonlinearity,
+                r.nonlinearity_u,
+                r.offset_w,
+                r.offset_w_u,
+                if r.observable { "" } else { " (not observable: no overlap reaches it)" }
+            ));
+        }
+    }
+    for b in &c.detector.signature {
+        let far = b.brdf_sr.last().copied().unwrap_or(f64::NAN);
+        let near = b.brdf_sr.first().copied().unwrap_or(f64::NAN);
+        s.push_str(&format!(
+            "  signature at {} nm: {:.2e} 1/sr at {} deg from the beam, {:.2e} 1/sr at {} deg; NEBRDF {:.2e} 1/sr per \
+             sample along the normal\n",
+            b.band_nm,
+            near,
+            b.alpha_deg.first().copied().unwrap_or(f64::NAN),
+            far,
+            b.alpha_deg.last().copied().unwrap_or(f64::NAN),
+            b.nebrdf_one_sample_sr
+        ));
+    }
+    if let Some(d) = &c.source {
+        s.push_str(&format!(
+            "  source at {} nm over {:.0} s ({} readings): {:.4} % below its settled power at the first reading \
+             (+- {:.4} %), time constant {:.0} s, drifting {:+.4} % per hour at the end, {:.4} % rms besides\n",
+            d.band_nm,
+            d.last_s - d.first_s,
+            d.readings,
+            100.0 * d.warmup_deficit,
+            100.0 * d.warmup_deficit_u,
+            d.warmup_time_s,
+            100.0 * d.drift_per_hour_at_end,
+            100.0 * d.residual_rms
+        ));
+    }
+    for n in &c.not_done {
+        s.push_str(&format!("  not done: {n}\n"));
     }
     s
 }

@@ -63,7 +63,11 @@ impl Optics {
             spot_mm,
             ..
         } = g;
-        let blocked = geometry.arm_separation_rad() < self.retro_block_rad;
+        // The detector head blocks the beam when its arm is near the source's: the arms' directions, not the
+        // viewing direction from the beam's spot (with the holder empty and the beam grazing the sample's plane,
+        // that spot is far away and the direction from it means nothing).
+        let blocked =
+            kinematics::angle_between(&geometry.source_lab, &detector_arm_lab) < self.retro_block_rad;
         let mirror = geometry.wi.reflect_about_normal();
         let specular_in_aperture =
             geometry.wi.z() > 0.0 && mirror.angle_to(&geometry.wo) <= self.aperture_half_rad;

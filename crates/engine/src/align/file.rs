@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::AlignmentReport;
 use super::model::{GeometryParams, N_PARAMS, PARAM_NAMES};
+use crate::characterise::{DetectorCalibration, SourceDrift};
 
 /// The calibration file's contents.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -16,6 +17,12 @@ pub struct CalibrationFile {
     pub values: Vec<Value>,
     #[serde(default)]
     pub unobservable: Vec<String>,
+    /// The detector's characterisation (crate::characterise), when it ran.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector: Option<DetectorCalibration>,
+    /// The source's warm-up and drift, when they were watched.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<SourceDrift>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -76,9 +83,16 @@ impl CalibrationFile {
                 software: format!("gonio {}", env!("CARGO_PKG_VERSION")),
                 created_utc: iso8601_utc(now_s),
                 dry_run: r.dry_run,
-                method: "scans through the direct beam and a mirror's reflection (edge mid-points), fitted with the \
-                         geometric model of gonio_engine::align::model; u is the standard uncertainty"
-                    .into(),
+                method: if r.characterisation.is_some() {
+                    "scans through the direct beam and a mirror's reflection (edge mid-points), fitted with the \
+                     geometric model of gonio_engine::align::model; the meter's ranges from darks and overlaps, the \
+                     instrument signature and the source's drift with the holder empty (gonio_engine::characterise); \
+                     u is the standard uncertainty"
+                } else {
+                    "scans through the direct beam and a mirror's reflection (edge mid-points), fitted with the \
+                     geometric model of gonio_engine::align::model; u is the standard uncertainty"
+                }
+                .into(),
             },
             values: r
                 .estimates
@@ -92,6 +106,8 @@ impl CalibrationFile {
                 })
                 .collect(),
             unobservable: r.unobservable.clone(),
+            detector: r.characterisation.as_ref().map(|c| c.detector.clone()),
+            source: r.characterisation.as_ref().and_then(|c| c.source.clone()),
         }
     }
 

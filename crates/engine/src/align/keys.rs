@@ -14,6 +14,14 @@
 //!   stage's x' and y' at the nominal rotation: the truth's `sample_tilt_*` plus that mounting's own seating.
 //! - `beam.line_deg`: the light arm's zero plus the beam's in-plane pointing, less asin(lateral offset / detector
 //!   distance): the one combination of the light side the scans see.
+//! - `detector.ranges[]` by index (with the characterisation): `gain` relative to the reference range
+//!   (`detector.reference_range`, whose gain is 0 by definition: every BRDF is a ratio of two readings, so the
+//!   common gain is not observable), `nonlinearity`, and `offset_fs`, the offset relative to range 0's (which a
+//!   campaign's dark takes with it) as a fraction of the range's full scale, each with `_u`.
+//! - `detector.signature_floor_sr`: the signature at the largest angle measured from the beam, the mean over the
+//!   bands; `detector.signature` the whole table per band.
+//! - `source.warmup_deficit_at_first_reading` (the truth's `warmup_fraction` times `exp(-t / warmup_time_s)`,
+//!   t the first reading's time in `source.first_s`) and `source.warmup_time_s`.
 //! - `unobservable`: what could not be estimated, and why.
 
 use serde_json::{Map, Value, json};
@@ -88,7 +96,51 @@ impl AlignmentReport {
                 "eccentricity_x_mm_u": ex_u,
             },
             "beam": { "line_deg": line, "line_deg_u": line_u },
+            "detector": self.estimated_detector(),
+            "source": self.characterisation.as_ref().and_then(|c| c.source.as_ref()).map(|d| json!({
+                "warmup_deficit_at_first_reading": d.warmup_deficit,
+                "warmup_deficit_at_first_reading_u": d.warmup_deficit_u,
+                "first_s": d.first_s,
+                "warmup_time_s": d.warmup_time_s,
+            })),
             "unobservable": self.unobservable,
+        })
+    }
+
+    /// `detector` of [`AlignmentReport::estimated`] (module doc); null without a characterisation.
+    fn estimated_detector(&self) -> Value {
+        let Some(c) = &self.characterisation else {
+            return Value::Null;
+        };
+        let ranges = c.detector.ranges.as_ref().map(|rc| {
+            rc.ranges
+                .iter()
+                .map(|r| {
+                    json!({
+                        "index": r.index,
+                        "gain": r.gain,
+                        "gain_u": r.gain_u,
+                        "nonlinearity": r.nonlinearity,
+                        "nonlinearity_u": r.nonlinearity_u,
+                        "offset_fs": r.offset_w / r.full_scale_w,
+                        "offset_fs_u": r.offset_w_u / r.full_scale_w,
+                        "observable": r.observable,
+                    })
+                })
+                .collect::<Vec<_>>()
+        });
+        let far: Vec<f64> = c
+            .detector
+            .signature
+            .iter()
+            .filter_map(|s| s.brdf_sr.last().copied())
+            .collect();
+        let floor = (!far.is_empty()).then(|| far.iter().sum::<f64>() / far.len() as f64);
+        json!({
+            "reference_range": c.detector.ranges.as_ref().map(|r| r.reference_range),
+            "ranges": ranges,
+            "signature_floor_sr": floor,
+            "signature": c.detector.signature,
         })
     }
 }

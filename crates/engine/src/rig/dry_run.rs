@@ -224,28 +224,31 @@ impl Rig {
     /// A dry-run's holder for the alignment: `mirror` (radius `radius_mm`) is the alignment mirror, an object of
     /// its own on the holder (its seatings are not the sample's: crate::align cannot learn the sample's from
     /// it). None on an instrument with real devices.
+    ///
+    /// `sample` (the sample to be measured, same radius), when given, waits in the holder's second place:
+    /// [`Held::Reference`] mounts it (the characterisation reads its reflection: crate::characterise::sample).
     pub fn alignment_holder(
         &self,
         mirror: &Material,
+        sample: Option<&Material>,
         radius_mm: f64,
     ) -> Result<Option<Arc<dyn SampleHolder>>, EngineError> {
         if !self.is_dry_run() {
             return Ok(None);
         }
-        let spec = SampleSpec {
-            material: mirror.clone(),
+        let seed = self.file().simulator.seed;
+        let spec = |material: &Material| SampleSpec {
+            material: material.clone(),
             radius_mm,
             orientation_deg: 0.0,
         };
-        let optics = Arc::new(
-            self.unshared_optics(spec, self.file().simulator.seed)?
-                .as_alignment_mirror(),
-        );
+        let optics = Arc::new(self.unshared_optics(spec(mirror), seed)?.as_alignment_mirror());
         self.show_optics(Arc::clone(&optics));
+        let sample = sample.map(|m| self.build_optics(spec(m), seed)).transpose()?;
         Ok(Some(Arc::new(SimulatedHolder {
             rig: self.clone(),
             sample: optics,
-            reference: None,
+            reference: sample,
         })))
     }
 }

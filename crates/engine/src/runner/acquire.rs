@@ -5,6 +5,9 @@ use gonio_brdf::{Direction, Wavelength};
 
 use super::*;
 use crate::acquisition::{self, EquationInputs, Normalisation, brdf_of_reading, flag_for};
+use crate::characterise::correction::{FLAG_BELOW_NEBRDF, FLAG_NEAR_BEAM, SignatureAt};
+use crate::characterise::ranges::near_range_boundary;
+use gonio_campaign::Range;
 
 impl<'a> Run<'a> {
     pub(super) async fn wheel_to(&mut self, position: u8) -> Result<(), Interrupt> {
@@ -48,14 +51,85 @@ impl<'a> Run<'a> {
 
     /// One detector reading at wavelength `nm`: (value, standard uncertainty, overload).
     pub(super) async fn read(&mut self, nm: f64) -> Result<(f64, f64, bool), Interrupt> {
-        let r = acquisition::read(
+        let mut r = acquisition::read(
             &self.motion,
             nm,
             &self.c.campaign.acquisition,
             &mut self.configured_nm,
         )
         .await?;
-        Ok((r.power_w, r.std_w, r.overload))
+        // A characterised meter under auto-range: a reading within 1 % of a range's full scale may have been
+        // taken on either range, whose corrections differ; it is read again on the upper range, fixed.
+        let ranges_w = &self.file.instrument.detector.ranges_w;
+        if let (Some(d), Range::Auto) = (&self.detector, self.c.campaign.acquisition.range)
+            && d.calibration.ranges.is_some()
+            && !r.overload
+            && let Some(upper) = near_range_boundary(r.power_w, ranges_w)
+        {
+            let mut fixed = self.c.campaign.acquisition;
+            fixed.range = Range::FixedW(ranges_w[upper]);
+            let mut configured = None;
+            r = acquisition::read(&self.motion, nm, &fixed, &mut configured).await?;
+            // Back to auto-range at the next reading, through the largest range: what the meter reports as its
+            // range under auto-range, and what the driver holds a reading against for overload.
+            let largest = ranges_w.iter().copied().fold(0.0, f64::max);
+            let det = self.rig.detector();
+            let through = acquisition::meter_config(
+                nm,
+                &gonio_campaign::Acquisition {
+                    range: Range::FixedW(largest),
+                    ..self.c.campaign.acquisition
+                },
+            );
+            self.motion
+                .device(Device::Detector, "configure the detector", || {
+                    det.configure(through)
+                })
+                .await?;
+            self.configured_nm = None;
+        }
+        // A characterised meter: the reading as the true signal (crate::characterise::ranges).
+        let (power_w, added_u) = match &self.detector {
+            Some(d) if !r.overload => d.reading(r.power_w, r.range),
+            _ => (r.power_w, 0.0),
+        };
+        Ok((power_w, r.std_w.hypot(added_u), r.overload))
+    }
+
+    /// A characterised instrument: the signature subtracted from a value and the point flagged where the
+    /// signature was not measured or the value is below three NEBRDF (crate::characterise::correction).
+    fn less_signature(
+        &self,
+        value: f64,
+        u: f64,
+        step: &Step,
+        g: &gonio_scheduler::kinematics::Geometry,
+        band_nm: f64,
+        flags: &mut Vec<String>,
+    ) -> (f64, f64) {
+        let Some(d) = &self.detector else {
+            return (value, u);
+        };
+        let (value, u) = match d.signature(
+            band_nm,
+            step.pose.light_deg,
+            step.pose.detector_deg,
+            g.theta_o_deg,
+        ) {
+            SignatureAt::Subtract { brdf_sr, u_sr } => (value - brdf_sr, u.hypot(u_sr)),
+            SignatureAt::NearBeam => {
+                flags.push(FLAG_NEAR_BEAM.to_string());
+                (value, u)
+            }
+            SignatureAt::Unknown => (value, u),
+        };
+        let averaging = self.c.campaign.acquisition.averaging;
+        if d.nebrdf_sr(band_nm, averaging, g.theta_o_deg)
+            .is_some_and(|ne| value < 3.0 * ne)
+        {
+            flags.push(FLAG_BELOW_NEBRDF.to_string());
+        }
+        (value, u)
     }
 
     pub(super) async fn measure(&mut self, step: &Step, next_start_s: Option<f64>) -> Result<(), Interrupt> {
@@ -128,8 +202,10 @@ impl<'a> Run<'a> {
                 };
                 match brdf_of_reading(&inputs, Reading::new(signal, u_signal), dark, incident) {
                     Ok(v) => {
-                        brdf = Some(v.value_per_sr);
-                        brdf_u = Some(v.std_per_sr);
+                        let (value, u) =
+                            self.less_signature(v.value_per_sr, v.std_per_sr, step, &g, band_nm, &mut flags);
+                        brdf = Some(value);
+                        brdf_u = Some(u);
                     }
                     Err(e) => flags.push(flag_for(&e)),
                 }
