@@ -156,13 +156,28 @@ impl CalibrationFile {
         }
     }
 
-    /// The geometric model's parameters (a value the file does not give is 0).
+    /// The geometric model's parameters a correction applies (a value the file does not give is 0).
+    ///
+    /// A value the scans could not observe stays at its nominal 0: its fitted value is its prior's, moved along
+    /// a direction the observations do not constrain by whatever they weakly see, and applying it would move
+    /// the arms by that noise (a beam offset of half a millimetre "found" where the truth is a tenth). Where an
+    /// observed combination stands for it, the combination is kept: the beam's line (`beam_line_deg`) becomes
+    /// its direction when the beam's lateral offset is not observable.
     pub fn params(&self) -> GeometryParams {
         let mut x = [0.0; N_PARAMS];
+        let get = |name: &str| self.values.iter().find(|v| v.name == name);
         for (k, (name, _)) in PARAM_NAMES.iter().enumerate() {
-            if let Some(v) = self.values.iter().find(|v| v.name == *name) {
+            if let Some(v) = get(name).filter(|v| v.observable) {
                 x[k] = v.value;
             }
+        }
+        let lateral_seen = get("beam_lateral_mm").is_some_and(|v| v.observable);
+        if let (false, Some(line), Some(k)) = (
+            lateral_seen,
+            get("beam_line_deg").filter(|v| v.observable),
+            PARAM_NAMES.iter().position(|(n, _)| *n == "beam_deg"),
+        ) {
+            x[k] = line.value;
         }
         GeometryParams::from_slice(&x)
     }
