@@ -80,15 +80,42 @@ fn quantile(sorted: &[f64], q: f64) -> f64 {
     sorted[rank - 1]
 }
 
+/// One point as the classes see it: the nominal geometry (deg), the BRDF and the point truth (1/sr).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClassPoint {
+    pub geometry_deg: [f64; 4],
+    pub brdf_sr: Option<f64>,
+    pub truth_sr: Option<f64>,
+}
+
+impl From<&PointRecord> for ClassPoint {
+    fn from(p: &PointRecord) -> ClassPoint {
+        ClassPoint {
+            geometry_deg: [p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg],
+            brdf_sr: p.brdf_sr,
+            truth_sr: p.truth_point_sr,
+        }
+    }
+}
+
 /// The errors of a run's points by class.
 pub fn errors_by_class(name: &str, points: &[PointRecord]) -> Variant {
-    let mut per: Vec<Vec<f64>> = vec![Vec::new(); CLASSES.len()];
+    let points: Vec<ClassPoint> = points.iter().map(ClassPoint::from).collect();
+    errors_of(name, &points)
+}
+
+/// The errors of `points` by class, and over all of them as a fifth class.
+pub fn errors_of(name: &str, points: &[ClassPoint]) -> Variant {
+    let mut per: Vec<Vec<f64>> = vec![Vec::new(); CLASSES.len() + 1];
     let mut flagged = 0;
     for p in points {
-        match (p.brdf_sr, p.truth_point_sr) {
-            (Some(b), Some(t)) if t > 0.0 && b.is_finite() => per
-                [class_of(p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg)]
-            .push(((b - t) / t).abs()),
+        match (p.brdf_sr, p.truth_sr) {
+            (Some(b), Some(t)) if t > 0.0 && b.is_finite() => {
+                let [ti, pi, to, po] = p.geometry_deg;
+                let e = ((b - t) / t).abs();
+                per[class_of(ti, pi, to, po)].push(e);
+                per[CLASSES.len()].push(e);
+            }
             _ => flagged += 1,
         }
     }
@@ -181,7 +208,7 @@ fn median_run(mut runs: Vec<Throughput>) -> Throughput {
     runs.swap_remove(mid)
 }
 
-fn pct(x: f64) -> String {
+pub fn pct(x: f64) -> String {
     if x.is_nan() {
         "-".to_string()
     } else if x < 1e-4 {
@@ -211,7 +238,7 @@ pub fn markdown(variants: &[Variant], throughput: &[(&str, Throughput)], target_
     );
     s.push_str("| imperfections | class | points | median | p95 | max |\n|---|---|---|---|---|---|\n");
     for v in variants {
-        for (k, c) in v.classes.iter().enumerate() {
+        for (k, c) in v.classes.iter().enumerate().take(CLASSES.len()) {
             s.push_str(&format!(
                 "| {} | {} | {} | {} | {} | {} |\n",
                 if k == 0 { v.name.as_str() } else { "" },

@@ -39,6 +39,7 @@ use gonio_scheduler::timing::TimeModel;
 
 use readings::{FixedComparison, ReadingPoint, time_us};
 
+mod bring_up;
 mod measure;
 mod section_campaigns;
 mod section_micro;
@@ -67,9 +68,7 @@ fn main() {
     let started = Instant::now();
     let min_s = if quick { 0.005 } else { 0.05 };
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let target = std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| root.join("target"));
+    let target = target_dir();
     let load_start = load_average();
     let inst = InstrumentFile::simulated().instrument;
     let docs = root.join("docs/bench");
@@ -112,7 +111,7 @@ fn main() {
 
     eprintln!("(5) the realistic instrument's error budget...");
     loads.push(("5 realistic error budget", load_average()));
-    let budget_md = budget_section(&root, quick);
+    let budget_md = budget_section(&root, &target, quick);
 
     eprintln!("(4) micro-benchmarks...");
     loads.push(("4 micro-benchmarks", load_average()));
@@ -199,7 +198,7 @@ fn main() {
 }
 
 /// Section 5: the realistic instrument's error budget and its throughput beside the ideal one's.
-fn budget_section(root: &Path, quick: bool) -> String {
+fn budget_section(root: &Path, target: &Path, quick: bool) -> String {
     /// Issue 16's target for an in-process dry-run on the realistic instrument.
     const TARGET_PPS: f64 = 2000.0;
     let variants = match error_budget::budget(root) {
@@ -211,7 +210,17 @@ fn budget_section(root: &Path, quick: bool) -> String {
         eprintln!("realistic throughput: {e}");
         Vec::new()
     });
-    error_budget::markdown(&variants, &runs, TARGET_PPS)
+    let seeds = if quick {
+        &bring_up::SEEDS[..2]
+    } else {
+        &bring_up::SEEDS[..]
+    };
+    let pairs = bring_up::bring_up(root, &target.join("release/gonio"), seeds);
+    format!(
+        "{}\n{}",
+        error_budget::markdown(&variants, &runs, TARGET_PPS),
+        bring_up::markdown(&pairs, variants.first())
+    )
 }
 
 fn met(ok: bool) -> &'static str {
@@ -348,6 +357,13 @@ fn report(
     s
 }
 
+/// Cargo's target directory (`CARGO_TARGET_DIR`, or the workspace's `target/`).
+fn target_dir() -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target"))
+}
+
 /// `--only <section>`: one section, printed (BENCHMARKS.md is not touched). For working on one section.
 fn run_only(section: &str, quick: bool) {
     let inst = InstrumentFile::simulated().instrument;
@@ -414,7 +430,11 @@ fn run_only(section: &str, quick: bool) {
         }
         "budget" => print!(
             "{}",
-            budget_section(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../.."), quick)
+            budget_section(
+                &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../.."),
+                &target_dir(),
+                quick
+            )
         ),
         "stress-large" => {
             let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");

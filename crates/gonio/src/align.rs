@@ -208,8 +208,8 @@ fn characterisation_text(c: &CharacterisationReport) -> String {
         let far = b.brdf_sr.last().copied().unwrap_or(f64::NAN);
         let near = b.brdf_sr.first().copied().unwrap_or(f64::NAN);
         s.push_str(&format!(
-            "  signature at {} nm: {:.2e} 1/sr at {} deg from the beam, {:.2e} 1/sr at {} deg; NEBRDF {:.2e} 1/sr per \
-             sample along the normal\n",
+            "  signature at {} nm: {:.2e} 1/sr at {:.1} deg from the beam, {:.2e} 1/sr at {:.1} deg; NEBRDF {:.2e} \
+             1/sr per sample along the normal\n",
             b.band_nm,
             near,
             b.alpha_deg.first().copied().unwrap_or(f64::NAN),
