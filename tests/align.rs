@@ -90,6 +90,30 @@ fn align_writes_a_calibration_that_names_its_instrument() {
         !dir.path().join("no.toml").exists(),
         "a refused alignment writes nothing"
     );
+
+    // Asked to align on a sample with no specular peak, the sample step refuses and names the cause.
+    let out = gonio()
+        .args([
+            "align",
+            "--steps",
+            "alignment,sample-alignment",
+            "--material",
+            "spectralon",
+            "--instrument",
+            instrument,
+            "--out",
+        ])
+        .arg(dir.path().join("diffuse.toml"))
+        .stdin(Stdio::null())
+        .output()
+        .expect("run gonio align");
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("no specular peak"),
+        "{}",
+        text(&out.stderr)
+    );
+    assert!(!dir.path().join("diffuse.toml").exists());
 }
 
 /// realistic.toml with only its geometric imperfections (every other `[simulator.imperfections.*]` group

@@ -28,6 +28,7 @@ pub mod file;
 pub mod fit;
 mod keys;
 pub mod model;
+pub mod sample_tilt;
 mod scan;
 
 use gonio_driver::{DetectorConfig, PowerRange};
@@ -110,6 +111,8 @@ pub enum AlignError {
 /// The beam's direction against its line through the arms' axis, which no scan here sees (deg, standard
 /// uncertainty): an assumption, a 0.2 mm lateral offset of the beam over the 250 mm to a typical detector.
 const BEAM_DIRECTION_UNSEEN_DEG: f64 = 0.05;
+/// Incidence of the scans of the sample's own lobe (deg).
+const LOBE_INCIDENCE_DEG: f64 = 30.0;
 /// Incidence of the characterisation's overlaps on the sample (deg): near grazing a glossy sample's lobe is at its
 /// brightest, which the second-smallest range needs.
 const SAMPLE_INCIDENCE_DEG: f64 = 60.0;
@@ -198,6 +201,9 @@ pub struct AlignmentReport {
 pub struct AlignOptions {
     /// Characterise the detector and the source with the holder empty (crate::characterise).
     pub characterise: Option<CharacteriseOptions>,
+    /// Align on the sample's own specular lobe too (crate::align::sample_tilt): its tilt as it sits, used in
+    /// place of the mirror's.
+    pub on_sample: bool,
 }
 
 impl AlignmentReport {
@@ -436,25 +442,6 @@ pub async fn run_alignment(
             Observation::DirectBeam { .. } => {}
         }
     }
-    // The characterisation's last step, with the sample back in the holder.
-    let characterisation = match empty {
-        Some(e) => {
-            operator(Placement::Sample).map_err(AlignError::Operator)?;
-            let from = clock.now_s();
-            let light_deg = -order.signum() * SAMPLE_INCIDENCE_DEG;
-            let position = inst.filter_wheel.as_ref().and_then(|w| {
-                w.positions
-                    .iter()
-                    .find(|p| !p.blank && p.band_nm == Some(e.overlap_nm))
-                    .map(|p| p.position)
-            });
-            let sample =
-                sample_overlaps(motion, &mut meter, light_deg, -light_deg, e.overlap_nm, position).await?;
-            characterise_s += clock.now_s() - from;
-            Some(finish(e, sample, inst, characterise_s))
-        }
-        None => None,
-    };
     let dims = Dimensions {
         detector_distance_mm: inst.detector.distance_mm,
     };
@@ -473,6 +460,41 @@ pub async fn run_alignment(
             "the scan centres do not fit the instrument's geometry (the fit left the model's range)".into(),
         )
     })?;
+    // With the sample back in the holder: its own lobe (when asked), then the characterisation's last step.
+    let mut on_sample = Vec::new();
+    if options.on_sample || empty.is_some() {
+        operator(Placement::Sample).map_err(AlignError::Operator)?;
+    }
+    let light_deg = -order.signum() * SAMPLE_INCIDENCE_DEG;
+    if options.on_sample {
+        let model = model::Model {
+            p: fitted.params,
+            dims,
+        };
+        on_sample = sample_tilt::align_on_sample(
+            motion,
+            &model,
+            -order.signum() * LOBE_INCIDENCE_DEG,
+            &rotations_ok,
+        )
+        .await?;
+    }
+    let characterisation = match empty {
+        Some(e) => {
+            let from = clock.now_s();
+            let position = inst.filter_wheel.as_ref().and_then(|w| {
+                w.positions
+                    .iter()
+                    .find(|p| !p.blank && p.band_nm == Some(e.overlap_nm))
+                    .map(|p| p.position)
+            });
+            let sample =
+                sample_overlaps(motion, &mut meter, light_deg, -light_deg, e.overlap_nm, position).await?;
+            characterise_s += clock.now_s() - from;
+            Some(finish(e, sample, inst, characterise_s))
+        }
+        None => None,
+    };
     let run = RunFacts {
         instrument: inst.name.clone(),
         dry_run: rig.is_dry_run(),
@@ -480,6 +502,7 @@ pub async fn run_alignment(
         instrument_s: clock.now_s() - t0,
     };
     let mut out = report(run, &observed, &readings, &fitted, dims);
+    out.estimates.extend(on_sample);
     if let (Some(mut c), Some((_, facing_deg))) = (characterisation, first_direct) {
         // Each signature point's angle from the beam is known to the detector's error there and the beam's
         // line, and to what the scans cannot see: the beam's direction against its line (a lateral offset).

@@ -35,6 +35,7 @@ async fn characterise(file: &InstrumentFile, sample: &str) -> AlignmentReport {
     let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
     let options = AlignOptions {
         characterise: Some(CharacteriseOptions::default()),
+        on_sample: false,
     };
     run_alignment(&mut motion, &operator, options)
         .await

@@ -42,8 +42,10 @@ pub struct AlignArgs {
     /// characterisation reads its reflection for the meter's smallest ranges).
     #[arg(long, default_value = "coloured-plastic")]
     pub material: String,
-    /// The procedures to run, comma-separated: `alignment` (always: the others need the beam it finds) and
-    /// `characterisation` (the meter's ranges, the instrument signature, the source's warm-up).
+    /// The procedures to run, comma-separated: `alignment` (always: the others need the beam it finds),
+    /// `characterisation` (the meter's ranges, the instrument signature, the source's warm-up) and
+    /// `sample-alignment` (the sample's own tilt from its specular lobe, used in place of the mirror's; the
+    /// sample must have a specular peak).
     #[arg(long, value_delimiter = ',', default_value = "alignment,characterisation")]
     pub steps: Vec<Step>,
     /// How long the characterisation watches the direct beam for the source's warm-up (s of instrument time).
@@ -56,6 +58,7 @@ pub struct AlignArgs {
 pub enum Step {
     Alignment,
     Characterisation,
+    SampleAlignment,
 }
 
 pub fn run(args: AlignArgs) -> Result<(), CliError> {
@@ -72,6 +75,7 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
             .then_some(CharacteriseOptions {
                 warmup_watch_s: args.warmup_watch_s,
             }),
+        on_sample: args.steps.contains(&Step::SampleAlignment),
     };
     let InstrumentArg { text, file, .. } = read_instrument(args.instrument.as_deref())?;
     let mirror = Material::preset(&args.mirror)

@@ -16,6 +16,11 @@ pub enum CentreError {
     NotInside { side: &'static str },
     #[error("too few readings on the {side} edge ({count}) to fit it: use a finer step")]
     FewEdgePoints { side: &'static str, count: usize },
+    #[error(
+        "no specular peak: the reflection varies by {contrast_percent:.1} % over the scan with no maximum to fit \
+         (a diffuse sample cannot be aligned on; align on the mirror only)"
+    )]
+    NoSpecularPeak { contrast_percent: f64 },
 }
 
 /// An edge or a centre, with its standard uncertainty (same unit as the positions).

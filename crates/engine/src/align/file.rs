@@ -162,12 +162,25 @@ impl CalibrationFile {
     /// a direction the observations do not constrain by whatever they weakly see, and applying it would move
     /// the arms by that noise (a beam offset of half a millimetre "found" where the truth is a tenth). Where an
     /// observed combination stands for it, the combination is kept: the beam's line (`beam_line_deg`) becomes
-    /// its direction when the beam's lateral offset is not observable.
+    /// its direction when the beam's lateral offset is not observable. The sample's own tilt
+    /// (`sample_own_tilt_*`, crate::align::sample_tilt), when it was measured, replaces the mirror's.
     pub fn params(&self) -> GeometryParams {
         let mut x = [0.0; N_PARAMS];
         let get = |name: &str| self.values.iter().find(|v| v.name == name);
         for (k, (name, _)) in PARAM_NAMES.iter().enumerate() {
             if let Some(v) = get(name).filter(|v| v.observable) {
+                x[k] = v.value;
+            }
+        }
+        // Aligned on the sample itself: its own tilt, as it sat, stands for the mirror's.
+        for (own, of_mirror) in [
+            ("sample_own_tilt_x_deg", "sample_tilt_x_deg"),
+            ("sample_own_tilt_y_deg", "sample_tilt_y_deg"),
+        ] {
+            if let (Some(v), Some(k)) = (
+                get(own).filter(|v| v.observable),
+                PARAM_NAMES.iter().position(|(n, _)| *n == of_mirror),
+            ) {
                 x[k] = v.value;
             }
         }

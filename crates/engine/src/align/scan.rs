@@ -19,7 +19,7 @@ pub(super) fn tilt_half_width_deg(theta_i_deg: f64) -> f64 {
 const FINE_POINTS: i32 = 17;
 
 /// Read the meter at each position of `role` (the others as `at` puts them): (position deg, power W).
-async fn read_along(
+pub(super) async fn read_along(
     motion: &mut Motion<'_>,
     scan_name: &str,
     role: AxisRole,
