@@ -55,6 +55,7 @@ impl CampaignRunner for FakeRunner {
                 software_version: "test".into(),
                 predicted_instrument_s: None,
                 alignment_toml: None,
+                calibration_id: None,
             },
             prepared: None,
         })
@@ -316,6 +317,7 @@ async fn interrupted_campaigns_are_resumed_first_from_their_first_missing_point(
         software_version: "test".into(),
         predicted_instrument_s: None,
         alignment_toml: None,
+        calibration_id: None,
     };
     let mut ids = Vec::new();
     let h = start_with(dir, |store| {
