@@ -200,9 +200,10 @@ impl AlignmentReport {
 }
 
 /// Run the alignment (module doc). `operator` is asked to make each placement and returns when it is done.
+/// (`Sync`, so that the procedure's future is `Send`: the daemon runs it in a task of its own.)
 pub async fn run_alignment(
     motion: &mut Motion<'_>,
-    operator: &dyn Fn(Placement) -> Result<(), String>,
+    operator: &(dyn Fn(Placement) -> Result<(), String> + Sync),
 ) -> Result<AlignmentReport, AlignError> {
     let rig = motion.rig();
     let file = rig.file().clone();

@@ -76,12 +76,8 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
     print!("{}", report_text(&report));
     if let Some(path) = &args.json {
         // The whole report, and the estimates under run.json's `simulator_truth` keys (`estimated`).
-        let mut value = serde_json::to_value(&report)
-            .map_err(|e| CliError::input(format!("cannot encode the report: {e}")))?;
-        if let Some(map) = value.as_object_mut() {
-            map.insert("estimated".into(), report.estimated());
-        }
-        let json = serde_json::to_string_pretty(&value)
+        let json = report
+            .to_json_pretty()
             .map_err(|e| CliError::input(format!("cannot encode the report: {e}")))?;
         std::fs::write(path, json)
             .map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
