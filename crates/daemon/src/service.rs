@@ -150,7 +150,10 @@ pub trait CampaignRunner: Send + Sync + 'static {
     /// The pose correction of the alignment calibration `alignment_toml` (a `gonio align` file already checked
     /// against this instrument file) on this instrument, for the console's moves by geometry; None when it
     /// cannot be read or the runner has no instrument.
-    fn pose_correction(&self, _alignment_toml: &str) -> Option<gonio_engine::align::correction::PoseCorrection> {
+    fn pose_correction(
+        &self,
+        _alignment_toml: &str,
+    ) -> Option<gonio_engine::align::correction::PoseCorrection> {
         None
     }
 }

@@ -84,7 +84,8 @@ pub fn run(args: DaemonArgs) -> Result<(), CliError> {
         .calibration
         .as_deref()
         .map(|p| {
-            crate::calibration::read_calibration(p, &instrument_toml).map(|text| (text, p.display().to_string()))
+            crate::calibration::read_calibration(p, &instrument_toml)
+                .map(|text| (text, p.display().to_string()))
         })
         .transpose()?;
     // Submitted campaigns may name material files inside the data directory only (issue #8: paths in configs).

@@ -87,7 +87,8 @@ impl Service {
     /// another alignment runs. Answers at once with the status; the alignment goes on in its own task.
     pub fn start_alignment(&self, who: &str, mirror: Option<&str>) -> Result<AlignStatus, ServiceError> {
         let name = mirror.unwrap_or(DEFAULT_ALIGNMENT_MIRROR);
-        let mirror = Material::preset(name).map_err(|e| ServiceError::Invalid(format!("mirror {name:?}: {e}")))?;
+        let mirror =
+            Material::preset(name).map_err(|e| ServiceError::Invalid(format!("mirror {name:?}: {e}")))?;
         let instrument_toml = self
             .shared
             .runner
@@ -210,7 +211,12 @@ impl Service {
             .map_err(|e| tracing::warn!("the alignment report is not kept: {e}"))
             .ok();
         let id = self
-            .keep_calibration(&file, &text, &format!("alignment by the daemon ({who})"), report_json)
+            .keep_calibration(
+                &file,
+                &text,
+                &format!("alignment by the daemon ({who})"),
+                report_json,
+            )
             .map_err(|e| e.to_string())?;
         self.make_current(id, &text);
         Ok((id, report.instrument_s))

@@ -94,12 +94,18 @@ impl Service {
 
     /// Apply the calibration file `text` (`gonio daemon --calibration`, `origin` its path) from now on: refused
     /// unless it was made for this instrument file; kept in the store (once, however often it is given).
-    pub fn use_calibration_file(&self, text: &str, origin: &str) -> Result<InstrumentCalibrationId, ServiceError> {
+    pub fn use_calibration_file(
+        &self,
+        text: &str,
+        origin: &str,
+    ) -> Result<InstrumentCalibrationId, ServiceError> {
         let file = checked(self.shared.runner.as_ref(), text, origin)?;
         let known = lock(&self.shared.store).instrument_calibration_with_text(text)?;
         let id = match known {
             Some(c) => c.id,
-            None => self.keep_calibration(&file, text, &format!("gonio daemon --calibration {origin}"), None)?,
+            None => {
+                self.keep_calibration(&file, text, &format!("gonio daemon --calibration {origin}"), None)?
+            }
         };
         self.make_current(id, text);
         Ok(id)
@@ -166,7 +172,9 @@ impl Service {
 
     /// One stored calibration's file text.
     pub fn calibration_toml(&self, id: InstrumentCalibrationId) -> Result<String, ServiceError> {
-        Ok(lock(&self.shared.store).instrument_calibration(id)?.calibration_toml)
+        Ok(lock(&self.shared.store)
+            .instrument_calibration(id)?
+            .calibration_toml)
     }
 
     /// The alignment report kept with a stored calibration (None for one that came from a file).
