@@ -24,7 +24,7 @@ async fn app(token: Option<&str>) -> App {
             ..ApiConfig::default()
         },
         queue: false,
-        files_dir: None,
+        ..Setup::default()
     };
     common::app_with(tempfile::tempdir().expect("tempdir"), setup).await
 }

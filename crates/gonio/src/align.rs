@@ -113,14 +113,7 @@ pub fn report_text(r: &AlignmentReport) -> String {
         r.reduced_chi2
     );
     for e in &r.estimates {
-        s.push_str(&format!(
-            "  {:<28} {:>11.5} +- {:<9.5} {:<4} {}\n",
-            e.name,
-            e.value,
-            e.u,
-            e.unit,
-            if e.observable { "" } else { "(not observable)" }
-        ));
+        s.push_str(&value_line(&e.name, e.value, e.u, &e.unit, e.observable));
     }
     for (name, at) in [
         ("detector error at 30 deg", 30.0),
@@ -135,6 +128,14 @@ pub fn report_text(r: &AlignmentReport) -> String {
         s.push_str(&format!("  not observable: {m}\n"));
     }
     s
+}
+
+/// One fitted value for a person (`gonio align`'s report, `gonio ctl align`'s summary).
+pub fn value_line(name: &str, value: f64, u: f64, unit: &str, observable: bool) -> String {
+    format!(
+        "  {name:<28} {value:>11.5} +- {u:<9.5} {unit:<4} {}\n",
+        if observable { "" } else { "(not observable)" }
+    )
 }
 
 fn calibration_toml(r: &AlignmentReport, instrument_text: &str) -> Result<String, CliError> {
