@@ -1,10 +1,17 @@
 //! `gonio ctl align` and `gonio ctl calibrations` against a running `gonio daemon` on the realistic simulated
 //! instrument: the alignment followed to its end with its calibration summarised, kept in the daemon's store as
-//! the current calibration, fetched as the file `gonio align` writes, and given to the campaign submitted next.
+//! the current calibration, fetched as the file `gonio align` writes, and given to the campaign submitted next;
+//! and on the real-hardware path (a separate `gonio sim`, every device opened by path), each operator step
+//! waiting for its confirmation (`gonio ctl align --confirm`) while the operator works on the simulator.
+
+use std::io::{BufRead, BufReader};
+use std::process::Stdio;
+use std::time::Duration;
 
 use gonio_engine::align::file::CalibrationFile;
 use gonio_testkit::daemon::{Daemon, ctl, start_daemon_on};
-use gonio_testkit::text;
+use gonio_testkit::sim::start_sim_links;
+use gonio_testkit::{gonio, text};
 
 fn ok(daemon: &Daemon, args: &[&str]) -> String {
     let out = ctl(daemon, args, &[]);
@@ -75,4 +82,70 @@ fn ctl_aligns_through_the_daemon_and_lists_its_calibrations() {
     let status = ok(&daemon, &["status", "1"]);
     assert!(status.contains("calibration 1 applied"), "{status}");
     ok(&daemon, &["abort", "1"]);
+}
+
+/// The real-hardware path end to end: each of `gonio ctl align`'s operator prompts read from its output, done on
+/// the simulator and confirmed with `gonio ctl align --confirm`, as a person at the instrument does.
+#[test]
+#[ignore = "about 3 minutes: on the hardware path the daemon waits in real time; \
+            cargo test -p gonio --test ctl_align -- --ignored"]
+fn on_the_hardware_path_each_operator_step_waits_for_its_confirmation() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The mirror is the simulator's sample: the operator takes it out and puts it back on its stdin.
+    let mut sim = start_sim_links(&dir.path().join("ports"), "mirror", "50");
+    let instrument = dir.path().join("lab.toml");
+    std::fs::write(
+        &instrument,
+        sim.instrument_text(gonio_instrument::SIMULATED_INSTRUMENT_TOML),
+    )
+    .expect("write instrument");
+    let daemon = start_daemon_on(&dir.path().join("data"), "50", &[], Some(&instrument));
+    let mut align = gonio()
+        .args(["ctl", "--url", &daemon.url, "align"])
+        .env_remove("GONIO_TOKEN")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start gonio ctl align");
+    // Its output line by line, each within a deadline.
+    let (tx, lines) = std::sync::mpsc::channel();
+    let stdout = align.stdout.take().expect("stdout");
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let mut out = Vec::new();
+    let mut done = Vec::new();
+    while let Ok(line) = lines.recv_timeout(Duration::from_secs(600)) {
+        out.push(line.clone());
+        let Some(prompt) = line.strip_prefix("operator: ") else {
+            continue;
+        };
+        let command = if prompt.contains("remove everything") {
+            "sample out"
+        } else if prompt.contains("mount the alignment mirror") {
+            "sample in"
+        } else {
+            panic!("unexpected operator prompt {prompt:?}");
+        };
+        assert_eq!(
+            sim.operator(command),
+            format!("{{\"sample_mounted\":{}}}", command == "sample in")
+        );
+        ok(&daemon, &["align", "--confirm"]);
+        done.push(command);
+    }
+    let status = align.wait().expect("wait");
+    let out = out.join("\n");
+    assert!(status.success(), "{out}");
+    assert_eq!(done, ["sample out", "sample in"], "{out}");
+    assert!(out.starts_with("alignment started\n"), "not a dry-run: {out}");
+    assert!(out.contains("calibration 1 of"), "{out}");
+    let cal =
+        CalibrationFile::parse(&ok(&daemon, &["calibrations", "1"]), "calibration 1").expect("calibration");
+    assert!(!cal.calibration.dry_run, "made on the hardware path");
+    assert!(ok(&daemon, &["calibrations"]).contains("current"));
 }

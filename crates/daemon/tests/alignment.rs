@@ -14,10 +14,10 @@ use axum::http::{Request, StatusCode};
 use common::{App, Setup};
 use gonio_brdf::material::Material;
 use gonio_engine::align::file::{CalibrationFile, Header, Value as CalValue};
-use gonio_engine::align::{Placement, run_alignment};
+use gonio_engine::align::{OperatorStep, Placement, run_alignment};
 use gonio_engine::control::Control;
 use gonio_engine::motion::Motion;
-use gonio_engine::rig::{Held, Rig};
+use gonio_engine::rig::Rig;
 use gonio_engine::store::{CampaignId, NewInstrumentCalibration, Store};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 use gonio_results::provenance_summary::{iso8601_utc, sha256_hex};
@@ -100,12 +100,9 @@ async fn calibration_like_gonio_align(instrument_toml: &str) -> CalibrationFile 
         .alignment_holder(&mirror, 25.0)
         .expect("holder")
         .expect("dry-run");
-    let operator = |p: Placement| {
-        holder.hold(match p {
-            Placement::Empty => Held::Empty,
-            Placement::Mirror => Held::Sample,
-        });
-        Ok(())
+    let operator = |p: Placement| -> OperatorStep<'_> {
+        holder.hold(p.held());
+        Box::pin(std::future::ready(Ok(())))
     };
     let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
     let report = run_alignment(&mut motion, &operator).await.expect("alignment");
@@ -428,4 +425,75 @@ async fn the_consoles_move_by_geometry_uses_the_current_calibration() {
     ] {
         assert!((a - b).abs() < 0.002, "{aligned:?} vs {expected:?}");
     }
+}
+
+impl App {
+    /// Poll the alignment until it waits for the operator with an instruction containing `asks` (at most
+    /// `limit_s` simulated seconds); its status.
+    async fn alignment_waiting(&self, asks: &str, limit_s: u64) -> Value {
+        for _ in 0..limit_s * 10 {
+            let (_, a) = self.json("GET", "/api/align", "").await;
+            let message = a["operator_message"].as_str().unwrap_or_default();
+            if a["state"] == "waiting-operator" && message.contains(asks) {
+                return a;
+            }
+            assert!(a["state"] == "running" || a["state"] == "waiting-operator", "{a}");
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        panic!("the alignment did not ask the operator to {asks} within {limit_s} s");
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_persons_operator_steps_wait_for_the_confirmation_and_an_abort_stores_nothing() {
+    let app = app_on(SIMULATED_INSTRUMENT_TOML, tempfile::tempdir().expect("tempdir")).await;
+    let body = r#"{"simulate_operator": false}"#;
+    let (status, started) = app.json("POST", "/api/align", body).await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{started}");
+
+    // Each step waits, however long the person takes, until it is confirmed.
+    app.alignment_waiting("remove everything from the sample holder", 600)
+        .await;
+    tokio::time::sleep(Duration::from_secs(120)).await;
+    let (_, still) = app.json("GET", "/api/align", "").await;
+    assert_eq!(still["state"], "waiting-operator", "{still}");
+    let (status, confirmed) = app.json("POST", "/api/align/confirm", "").await;
+    assert_eq!(status, StatusCode::OK, "{confirmed}");
+    app.alignment_waiting("mount the alignment mirror", 3600).await;
+    // While it waits, the instrument is still the alignment's.
+    let (status, console) = app.json("GET", "/api/console/state", "").await;
+    assert_eq!(status, StatusCode::CONFLICT, "{console}");
+    let (status, _) = app.json("POST", "/api/align/confirm", "").await;
+    assert_eq!(status, StatusCode::OK);
+    let done = app.alignment_outcome(3600).await;
+    assert_eq!(done["state"], "completed", "{done}");
+    // The simulated holder followed each confirmed step: the fit saw the beam and then the mirror.
+    let id = done["calibration_id"].as_i64().expect("id");
+    let (_, text) = app.text(&format!("/api/calibrations/{id}")).await;
+    CalibrationFile::parse(&text, "stored").expect("a calibration");
+
+    // An abort while waiting ends the alignment, stores nothing and gives the instrument back.
+    let (status, _) = app.json("POST", "/api/align", body).await;
+    assert_eq!(status, StatusCode::ACCEPTED);
+    app.alignment_waiting("remove everything", 600).await;
+    let (status, answer) = app.json("POST", "/api/align/abort", "").await;
+    assert_eq!(status, StatusCode::OK, "{answer}");
+    let ended = app.alignment_outcome(60).await;
+    assert_eq!(ended["state"], "failed", "{ended}");
+    assert!(
+        ended["error"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("aborted while waiting"),
+        "{ended}"
+    );
+    let (_, list) = app.json("GET", "/api/calibrations", "").await;
+    assert_eq!(list.as_array().map(Vec::len), Some(1), "nothing stored: {list}");
+    assert_eq!(
+        list[0]["current"].as_bool(),
+        Some(true),
+        "the earlier one stays current: {list}"
+    );
+    let (status, console) = app.json("GET", "/api/console/state", "").await;
+    assert_eq!(status, StatusCode::OK, "{console}");
 }

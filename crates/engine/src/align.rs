@@ -27,12 +27,16 @@ mod keys;
 pub mod model;
 mod scan;
 
+use std::future::Future;
+use std::pin::Pin;
+
 use gonio_driver::{DetectorConfig, PowerRange};
 use gonio_instrument::AxisRole;
 use gonio_scheduler::kinematics::Pose;
 use serde::Serialize;
 
 use crate::motion::{Device, Motion, MotionError};
+use crate::rig::Held;
 pub use centre::CentreError;
 use fit::{GeometryFit, Observed};
 use model::{Dimensions, N_PARAMS, Observation, PARAM_NAMES};
@@ -60,6 +64,21 @@ impl Placement {
         }
     }
 }
+
+impl Placement {
+    /// What a dry-run's simulated holder holds once the operator has made this placement.
+    pub fn held(self) -> Held {
+        match self {
+            Placement::Empty => Held::Empty,
+            Placement::Mirror => Held::Sample,
+        }
+    }
+}
+
+/// An operator step's answer: done, or why not. A future, so that a caller can wait for a person (the daemon
+/// waits for a confirmation through its API) without holding a thread; `Send`, so that the procedure's future
+/// is (the daemon runs it in a task of its own).
+pub type OperatorStep<'a> = Pin<Box<dyn Future<Output = Result<(), String>> + Send + 'a>>;
 
 /// Why the alignment stopped.
 #[derive(Debug, thiserror::Error)]
@@ -199,11 +218,10 @@ impl AlignmentReport {
     }
 }
 
-/// Run the alignment (module doc). `operator` is asked to make each placement and returns when it is done.
-/// (`Sync`, so that the procedure's future is `Send`: the daemon runs it in a task of its own.)
-pub async fn run_alignment(
+/// Run the alignment (module doc). `operator` is asked to make each placement; its step ends when it is done.
+pub async fn run_alignment<'a>(
     motion: &mut Motion<'_>,
-    operator: &(dyn Fn(Placement) -> Result<(), String> + Sync),
+    operator: &'a (dyn Fn(Placement) -> OperatorStep<'a> + Sync),
 ) -> Result<AlignmentReport, AlignError> {
     let rig = motion.rig();
     let file = rig.file().clone();
@@ -284,7 +302,7 @@ pub async fn run_alignment(
 
     let mut observed: Vec<Observed> = Vec::new();
     let mut readings = Vec::new();
-    operator(Placement::Empty).map_err(AlignError::Operator)?;
+    operator(Placement::Empty).await.map_err(AlignError::Operator)?;
     for o in plan
         .iter()
         .filter(|o| matches!(o, Observation::DirectBeam { .. }))
@@ -311,7 +329,7 @@ pub async fn run_alignment(
         });
         readings.push(n);
     }
-    operator(Placement::Mirror).map_err(AlignError::Operator)?;
+    operator(Placement::Mirror).await.map_err(AlignError::Operator)?;
     let mut last_detector = std::collections::BTreeMap::new();
     for o in plan.iter() {
         match *o {

@@ -2,10 +2,10 @@
 //! simulator's hidden truth, on seeds of our own.
 
 use gonio_brdf::material::Material;
-use gonio_engine::align::{AlignmentReport, Placement, run_alignment};
+use gonio_engine::align::{AlignmentReport, OperatorStep, Placement, run_alignment};
 use gonio_engine::control::Control;
 use gonio_engine::motion::Motion;
-use gonio_engine::rig::{Held, Rig};
+use gonio_engine::rig::Rig;
 use gonio_instrument::{AxisRole, InstrumentFile};
 use gonio_scheduler::timing::TimeModel;
 use gonio_simulator::imperfections::HiddenTruth;
@@ -142,12 +142,9 @@ async fn try_align(file: &InstrumentFile, material: &str) -> Result<(AlignmentRe
     let rig = Rig::connect_with_time_scale(file, None, 1.0).await.expect("rig");
     let m = Material::preset(material).expect("preset");
     let holder = rig.alignment_holder(&m, 25.0).expect("holder").expect("dry-run");
-    let operator = |p: Placement| {
-        holder.hold(match p {
-            Placement::Empty => Held::Empty,
-            Placement::Mirror => Held::Sample,
-        });
-        Ok(())
+    let operator = |p: Placement| -> OperatorStep<'_> {
+        holder.hold(p.held());
+        Box::pin(std::future::ready(Ok(())))
     };
     let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
     let report = run_alignment(&mut motion, &operator)

@@ -11,8 +11,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use gonio_brdf::material::Material;
 use gonio_engine::Control;
 use gonio_engine::align::file::CalibrationFile;
-use gonio_engine::align::{AlignmentReport, Placement, run_alignment};
-use gonio_engine::rig::Held;
+use gonio_engine::align::{AlignmentReport, OperatorStep, Placement, run_alignment};
 use gonio_scheduler::timing::TimeModel;
 
 use crate::CliError;
@@ -49,18 +48,18 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
         let holder = rig
             .alignment_holder(&mirror, MIRROR_RADIUS_MM)
             .map_err(|e| CliError::input(e.to_string()))?;
-        let operator = |p: Placement| -> Result<(), String> {
-            match &holder {
+        // The answer is ready when the closure returns: a person's Enter is read right there (this command has
+        // nothing else to do meanwhile).
+        let operator = |p: Placement| -> OperatorStep<'_> {
+            let done = match &holder {
                 Some(h) => {
                     eprintln!("simulated operator: {}", p.instruction());
-                    h.hold(match p {
-                        Placement::Empty => Held::Empty,
-                        Placement::Mirror => Held::Sample,
-                    });
+                    h.hold(p.held());
                     Ok(())
                 }
                 None => prompt(p),
-            }
+            };
+            Box::pin(std::future::ready(done))
         };
         let mut motion = gonio_engine::motion::Motion::new(
             &rig,

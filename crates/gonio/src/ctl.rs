@@ -66,6 +66,10 @@ pub enum CtlCommand {
         /// Dry-runs: the preset the simulated operator mounts as the alignment mirror (default `mirror`).
         #[arg(long)]
         mirror: Option<String>,
+        /// Dry-runs: each operator step waits for `gonio ctl align --confirm`, as on hardware (the simulated
+        /// holder follows once it is confirmed).
+        #[arg(long, conflicts_with_all = ["confirm", "abort", "status"])]
+        no_simulated_operator: bool,
         /// Confirm that the operator did what the waiting alignment asked.
         #[arg(long, conflicts_with_all = ["abort", "status", "mirror"])]
         confirm: bool,
@@ -172,6 +176,7 @@ async fn execute(client: &Client, command: CtlCommand) -> Result<(), CliError> {
         CtlCommand::Watch { id } => watch(client, id).await?,
         CtlCommand::Align {
             mirror,
+            no_simulated_operator,
             confirm,
             abort,
             status,
@@ -179,7 +184,7 @@ async fn execute(client: &Client, command: CtlCommand) -> Result<(), CliError> {
             (true, _, _) => align::request(client, Some("confirm")).await?,
             (_, true, _) => align::request(client, Some("abort")).await?,
             (_, _, true) => align::request(client, None).await?,
-            _ => align::align(client, mirror.as_deref()).await?,
+            _ => align::align(client, mirror.as_deref(), !no_simulated_operator).await?,
         },
         CtlCommand::Calibrations { id } => align::calibrations(client, id).await?,
         CtlCommand::State { json } => console::state(client, json).await?,

@@ -1,7 +1,8 @@
 //! The alignment and the calibrations ([`crate::service`]'s `align` and `calibration`):
 //!
-//! - `POST /api/align` `{}` or `{"mirror": "mirror"}` (the simulated operator's alignment mirror, a preset) ->
-//!   202 with the status; 409 naming the campaign while one holds the instrument, or while an alignment runs
+//! - `POST /api/align` `{}` or `{"mirror": "mirror", "simulate_operator": false}` (dry-runs: the simulated
+//!   operator's alignment mirror, a preset; false: each operator step waits for a person's confirmation) -> 202
+//!   with the status; 409 naming the campaign while one holds the instrument, or while an alignment runs
 //! - `GET /api/align` -> the alignment in progress or how the last one ended: `state` (`idle`, `running`,
 //!   `waiting-operator`, `completed`, `failed`), `step`, `operator_message`, `calibration_id`, `error`, ...
 //! - `POST /api/align/confirm` -> the operator did what a waiting alignment asked; `POST /api/align/abort` ends
@@ -28,13 +29,21 @@ use gonio_engine::store::InstrumentCalibrationId;
 struct AlignBody {
     #[serde(default)]
     mirror: Option<String>,
+    /// Dry-runs: false makes each operator step wait for a person's confirmation.
+    #[serde(default = "yes")]
+    simulate_operator: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 pub(super) async fn align_start(State(state): State<AppState>, body: Bytes) -> Result<Response, ApiError> {
-    let body: AlignBody = parse_body(&body, r#"{} or {"mirror": "mirror"}"#)?;
-    let status = state
-        .service
-        .start_alignment(who(&state), body.mirror.as_deref())?;
+    let body: AlignBody = parse_body(&body, r#"{} or {"mirror": "mirror", "simulate_operator": false}"#)?;
+    let status =
+        state
+            .service
+            .start_alignment(who(&state), body.mirror.as_deref(), body.simulate_operator)?;
     Ok((StatusCode::ACCEPTED, axum::Json(status)).into_response())
 }
 

@@ -6,10 +6,10 @@
 //! naming the campaign, while a campaign runs or waits for its operator, and the queue starts nothing until it
 //! ends; console actions are refused meanwhile. It runs in its own task and reports its progress in an
 //! [`AlignStatus`] the API serves (`GET /api/align`) until the next alignment starts. The operator's steps
-//! (empty the holder, mount the mirror) are done by the simulated operator in a dry-run; on hardware they wait,
-//! as a campaign's do, for the operator's confirmation through the service's [`Control`]
-//! (`POST /api/align/confirm`; `POST /api/align/abort` or the emergency stop end the wait). A step that fails
-//! stores nothing.
+//! (empty the holder, mount the mirror) are done by the simulated operator in a dry-run (unless asked not to);
+//! on hardware they wait, as a campaign's do, for the operator's confirmation through the service's [`Control`]
+//! (`POST /api/align/confirm`; `POST /api/align/abort` or the emergency stop end the wait, within
+//! [`OPERATOR_WAIT`] at most). A step that fails stores nothing.
 //!
 //! [`Control`]: gonio_engine::control::Control
 
@@ -21,8 +21,8 @@ use serde::Serialize;
 use super::{CONSOLE_RETRIES, InstrumentLease, Service, ServiceError, lock};
 use gonio_brdf::Material;
 use gonio_engine::align::file::CalibrationFile;
-use gonio_engine::align::{Placement, run_alignment};
-use gonio_engine::rig::{Held, SampleHolder};
+use gonio_engine::align::{OperatorStep, Placement, run_alignment};
+use gonio_engine::rig::SampleHolder;
 use gonio_engine::store::InstrumentCalibrationId;
 
 /// The preset the simulated operator mounts as the alignment mirror, unless the request names another.
@@ -83,9 +83,15 @@ fn unix_now_s() -> f64 {
 
 impl Service {
     /// Start the alignment for `who`; `mirror` names the simulated operator's alignment mirror (a preset; default
-    /// [`DEFAULT_ALIGNMENT_MIRROR`]). Refused (`Conflict`) while a campaign or a person holds the instrument, or
+    /// [`DEFAULT_ALIGNMENT_MIRROR`]); `simulate_operator` false: in a dry-run too, each operator step waits for a
+    /// person's confirmation (then the simulated holder follows), as a campaign's `simulate_operator = false`. Refused (`Conflict`) while a campaign or a person holds the instrument, or
     /// another alignment runs. Answers at once with the status; the alignment goes on in its own task.
-    pub fn start_alignment(&self, who: &str, mirror: Option<&str>) -> Result<AlignStatus, ServiceError> {
+    pub fn start_alignment(
+        &self,
+        who: &str,
+        mirror: Option<&str>,
+        simulate_operator: bool,
+    ) -> Result<AlignStatus, ServiceError> {
         let name = mirror.unwrap_or(DEFAULT_ALIGNMENT_MIRROR);
         let mirror =
             Material::preset(name).map_err(|e| ServiceError::Invalid(format!("mirror {name:?}: {e}")))?;
@@ -114,10 +120,12 @@ impl Service {
         };
         let answer = status.clone();
         drop(status);
-        tracing::info!(%who, mirror = %name, "alignment started");
+        tracing::info!(%who, mirror = %name, simulate_operator, "alignment started");
         let (service, who) = (self.clone(), who.to_string());
         tokio::spawn(async move {
-            let outcome = service.align_with(&lease, &mirror, &instrument_toml, &who).await;
+            let outcome = service
+                .align_with(&lease, &mirror, simulate_operator, &instrument_toml, &who)
+                .await;
             let mut status = lock(&service.shared.align);
             status.operator_message = None;
             match outcome {
@@ -186,6 +194,7 @@ impl Service {
         &self,
         lease: &InstrumentLease,
         mirror: &Material,
+        simulate_operator: bool,
         instrument_toml: &str,
         who: &str,
     ) -> Result<(InstrumentCalibrationId, f64), String> {
@@ -196,7 +205,9 @@ impl Service {
         let mut motion = lease
             .motion(CONSOLE_RETRIES)
             .ok_or("this daemon has no instrument of its own")?;
-        let operator = |p: Placement| self.operator_step(holder.as_ref(), p);
+        let operator = |p: Placement| -> OperatorStep<'_> {
+            Box::pin(self.operator_step(holder.as_ref(), simulate_operator, p))
+        };
         let report = run_alignment(&mut motion, &operator)
             .await
             .map_err(|e| format!("alignment stopped: {e}"))?;
@@ -222,17 +233,22 @@ impl Service {
         Ok((id, report.instrument_s))
     }
 
-    /// One operator step: the simulated operator's in a dry-run, else a person's, confirmed through the API.
-    fn operator_step(&self, holder: Option<&Arc<dyn SampleHolder>>, p: Placement) -> Result<(), String> {
+    /// One operator step: the simulated operator's in a dry-run (unless the person asked to do them), else a
+    /// person's, confirmed through the API; a dry-run's simulated holder then holds what the step asked for.
+    async fn operator_step(
+        &self,
+        holder: Option<&Arc<dyn SampleHolder>>,
+        simulate_operator: bool,
+        p: Placement,
+    ) -> Result<(), String> {
         match holder {
-            Some(h) => {
+            Some(_) if simulate_operator => {
                 tracing::info!("alignment: simulated operator: {}", p.instruction());
-                h.hold(match p {
-                    Placement::Empty => Held::Empty,
-                    Placement::Mirror => Held::Sample,
-                });
             }
-            None => self.wait_for_operator(p)?,
+            _ => self.wait_for_operator(p).await?,
+        }
+        if let Some(h) = holder {
+            h.hold(p.held());
         }
         self.set_align_step(match p {
             Placement::Empty => "scans through the direct beam (the holder empty)",
@@ -241,22 +257,9 @@ impl Service {
         Ok(())
     }
 
-    /// Ask the operator for `p` and wait for the confirmation (or an abort, the emergency stop, the deadline).
-    ///
-    /// `run_alignment` takes its operator as a plain callback, called from inside the procedure's future; a
-    /// person's step must wait there. `block_in_place` lets this worker thread wait while the runtime's others
-    /// serve the API (the daemon's runtime is multi-threaded; on any other the step is refused, not blocked).
-    fn wait_for_operator(&self, p: Placement) -> Result<(), String> {
-        use tokio::runtime::{Handle, RuntimeFlavor};
-        let handle = Handle::try_current()
-            .ok()
-            .filter(|h| h.runtime_flavor() == RuntimeFlavor::MultiThread)
-            .ok_or_else(|| {
-                format!(
-                    "operator step not done: {} (this runtime cannot wait for a person)",
-                    p.instruction()
-                )
-            })?;
+    /// Ask the operator for `p` and wait for the confirmation, as a campaign's operator step does (or for an
+    /// abort, the emergency stop, the deadline).
+    async fn wait_for_operator(&self, p: Placement) -> Result<(), String> {
         let control = self.shared.control.clone();
         // A confirmation given before the question does not count.
         let _ = control.take_confirm();
@@ -267,30 +270,26 @@ impl Service {
             status.step = Some(format!("waiting for the operator: {}", p.instruction()));
         }
         tracing::info!("alignment: waiting for the operator: {}", p.instruction());
-        let outcome = tokio::task::block_in_place(|| {
-            handle.block_on(async {
-                let deadline = tokio::time::Instant::now() + OPERATOR_WAIT;
-                loop {
-                    if control.take_confirm() {
-                        return Ok(());
-                    }
-                    if control.estop_requested() {
-                        return Err("emergency stop while waiting for the operator".to_string());
-                    }
-                    if control.abort_requested() {
-                        return Err("aborted while waiting for the operator".to_string());
-                    }
-                    if tokio::time::Instant::now() >= deadline {
-                        return Err(format!(
-                            "no confirmation within {} s: {}",
-                            OPERATOR_WAIT.as_secs(),
-                            p.instruction()
-                        ));
-                    }
-                    tokio::time::sleep(OPERATOR_POLL).await;
-                }
-            })
-        });
+        let deadline = tokio::time::Instant::now() + OPERATOR_WAIT;
+        let outcome = loop {
+            if control.take_confirm() {
+                break Ok(());
+            }
+            if control.estop_requested() {
+                break Err("emergency stop while waiting for the operator".to_string());
+            }
+            if control.abort_requested() {
+                break Err("aborted while waiting for the operator".to_string());
+            }
+            if tokio::time::Instant::now() >= deadline {
+                break Err(format!(
+                    "no confirmation within {} s: {}",
+                    OPERATOR_WAIT.as_secs(),
+                    p.instruction()
+                ));
+            }
+            tokio::time::sleep(OPERATOR_POLL).await;
+        };
         let mut status = lock(&self.shared.align);
         status.state = AlignPhase::Running;
         status.operator_message = None;

@@ -21,11 +21,15 @@ const POLL: Duration = Duration::from_millis(500);
 const FOLLOW_LIMIT: Duration = Duration::from_secs(3 * 3600);
 
 /// Start the alignment and follow it to its end; print the calibration it made.
-pub(super) async fn align(client: &Client, mirror: Option<&str>) -> Result<(), CliError> {
-    let body = match mirror {
-        Some(m) => json!({ "mirror": m }),
-        None => json!({}),
-    };
+pub(super) async fn align(
+    client: &Client,
+    mirror: Option<&str>,
+    simulate_operator: bool,
+) -> Result<(), CliError> {
+    let mut body = json!({ "simulate_operator": simulate_operator });
+    if let Some(m) = mirror {
+        body["mirror"] = json!(m);
+    }
     let started = client
         .json(
             Method::POST,
@@ -39,10 +43,10 @@ pub(super) async fn align(client: &Client, mirror: Option<&str>) -> Result<(), C
         .await?;
     println!(
         "alignment started{}",
-        if started["dry_run"].as_bool() == Some(true) {
-            " (dry-run: the simulated operator does the operator's steps)"
-        } else {
-            ""
+        match (started["dry_run"].as_bool(), simulate_operator) {
+            (Some(true), true) => " (dry-run: the simulated operator does the operator's steps)",
+            (Some(true), false) => " (dry-run: each operator step waits for your confirmation)",
+            _ => "",
         }
     );
     let status = follow(client).await?;
