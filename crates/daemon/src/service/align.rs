@@ -52,6 +52,32 @@ impl AlignPhase {
     pub fn in_progress(self) -> bool {
         matches!(self, AlignPhase::Running | AlignPhase::WaitingOperator)
     }
+
+    /// The name the API gives it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            AlignPhase::Idle => "idle",
+            AlignPhase::Running => "running",
+            AlignPhase::WaitingOperator => "waiting-operator",
+            AlignPhase::Completed => "completed",
+            AlignPhase::Failed => "failed",
+        }
+    }
+}
+
+/// Ends the status of an alignment whose task ends without saying how (it cannot, short of a bug): the status
+/// must not say `running` for ever, refusing every later alignment.
+struct EndsTheStatus(Service);
+
+impl Drop for EndsTheStatus {
+    fn drop(&mut self) {
+        let mut status = lock(&self.0.shared.align);
+        if status.state.in_progress() {
+            status.state = AlignPhase::Failed;
+            status.operator_message = None;
+            status.error = Some("the alignment's task ended unexpectedly".into());
+        }
+    }
 }
 
 /// The alignment in progress, or how the last one ended (module doc).
@@ -84,8 +110,9 @@ fn unix_now_s() -> f64 {
 impl Service {
     /// Start the alignment for `who`; `mirror` names the simulated operator's alignment mirror (a preset; default
     /// [`DEFAULT_ALIGNMENT_MIRROR`]); `simulate_operator` false: in a dry-run too, each operator step waits for a
-    /// person's confirmation (then the simulated holder follows), as a campaign's `simulate_operator = false`. Refused (`Conflict`) while a campaign or a person holds the instrument, or
-    /// another alignment runs. Answers at once with the status; the alignment goes on in its own task.
+    /// person's confirmation (then the simulated holder follows), as a campaign's `simulate_operator = false`.
+    /// Refused (`Conflict`) while a campaign or a person holds the instrument, or another alignment runs.
+    /// Answers at once with the status; the alignment goes on in its own task.
     pub fn start_alignment(
         &self,
         who: &str,
@@ -123,6 +150,7 @@ impl Service {
         tracing::info!(%who, mirror = %name, simulate_operator, "alignment started");
         let (service, who) = (self.clone(), who.to_string());
         tokio::spawn(async move {
+            let _ends = EndsTheStatus(service.clone());
             let outcome = service
                 .align_with(&lease, &mirror, simulate_operator, &instrument_toml, &who)
                 .await;
@@ -159,8 +187,8 @@ impl Service {
         let status = lock(&self.shared.align);
         if status.state != AlignPhase::WaitingOperator {
             return Err(ServiceError::Conflict(format!(
-                "the alignment is not waiting for the operator (it is {:?})",
-                status.state
+                "the alignment is not waiting for the operator (it is {})",
+                status.state.as_str()
             )));
         }
         tracing::info!(%who, "alignment: operator step confirmed");

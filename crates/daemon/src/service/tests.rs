@@ -361,3 +361,28 @@ async fn shutdown_stops_at_a_safe_point_and_leaves_the_campaign_interrupted() {
         vec![id]
     );
 }
+
+#[tokio::test(start_paused = true)]
+async fn without_an_instrument_there_is_nothing_to_align_nor_to_calibrate() {
+    let h = start();
+    for err in [
+        h.service
+            .start_alignment("loopback", None, true)
+            .expect_err("no instrument"),
+        h.service
+            .use_calibration_file("[calibration]\n", "cal.toml")
+            .expect_err("no instrument"),
+    ] {
+        assert!(
+            matches!(&err, ServiceError::Conflict(m) if m.contains("no instrument of its own")),
+            "{err}"
+        );
+    }
+    assert_eq!(h.service.alignment_status().state, AlignPhase::Idle);
+    assert!(h.service.calibrations().expect("list").is_empty());
+    assert_eq!(h.service.current_calibration(), None);
+    // The queue is not held: a campaign still runs.
+    let id = h.service.submit("points = 2", "t").expect("submit");
+    h.wait_for(id, CampaignState::Completed, 30).await;
+    assert_eq!(h.service.campaign(id).expect("c").calibration_id, None);
+}
