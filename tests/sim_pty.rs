@@ -6,6 +6,7 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use gonio_testkit::gonio;
+use gonio_testkit::sim::start_sim_links;
 
 /// Read from `port` until `end` appears or the deadline passes.
 fn read_until(port: &mut std::fs::File, end: &[u8], deadline: Duration) -> Vec<u8> {
@@ -287,53 +288,12 @@ fn gonio_run_against_a_separate_gonio_sim_through_the_real_hardware_path_matches
     use gonio_brdf::spectrum::Wavelength;
 
     let dir = tempfile::tempdir().expect("tempdir");
-    let links = dir.path().join("ports");
-    let mut sim = gonio()
-        .args([
-            "sim",
-            "--time-scale",
-            "50",
-            "--material",
-            "spectralon",
-            "--link-dir",
-        ])
-        .arg(&links)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("start gonio sim");
-    let mut sim_in = sim.stdin.take().expect("sim stdin");
-    let mut sim_out = BufReader::new(sim.stdout.take().expect("sim stdout")).lines();
-    let mut ports = std::collections::HashMap::new();
-    loop {
-        let line = sim_out.next().expect("a line before ready").expect("utf-8");
-        let v: serde_json::Value = serde_json::from_str(&line).expect("JSON line");
-        if v["ready"] == serde_json::Value::Bool(true) {
-            break;
-        }
-        let port = v["port"]
-            .as_str()
-            .or(v["path"].as_str())
-            .expect("a path")
-            .to_string();
-        ports.insert(v["device"].as_str().expect("device").to_string(), port);
-    }
-    assert_eq!(ports.len(), 4, "{ports:?}");
-    assert!(ports["meter"].starts_with("usb-socket:"), "{ports:?}");
+    let mut sim = start_sim_links(&dir.path().join("ports"), "spectralon", "50");
+    assert_eq!(sim.ports.len(), 4, "{:?}", sim.ports);
+    assert!(sim.ports["meter"].starts_with("usb-socket:"), "{:?}", sim.ports);
 
     // The simulated instrument's file with every device on a real path instead of "sim".
-    let mut text = gonio_instrument::SIMULATED_INSTRUMENT_TOML.to_string();
-    for device in ["arms", "stage", "wheel", "meter"] {
-        let block = format!("name = \"{device}\"");
-        let at = text.find(&block).expect("device block");
-        let port_at = at + text[at..].find("port = \"sim\"").expect("port line");
-        text.replace_range(
-            port_at..port_at + "port = \"sim\"".len(),
-            &format!("port = {:?}", ports[device]),
-        );
-    }
-    assert!(!text.contains("port = \"sim\""));
+    let text = sim.instrument_text(gonio_instrument::SIMULATED_INSTRUMENT_TOML);
     let instrument = dir.path().join("lab.toml");
     std::fs::write(&instrument, text).expect("write instrument");
     let campaign = dir.path().join("separate.toml");
@@ -389,8 +349,7 @@ averaging = 4
         } else {
             panic!("unexpected operator prompt {prompt:?}");
         };
-        say(&mut sim_in, command);
-        let ack = sim_out.next().expect("simulator answers").expect("utf-8");
+        let ack = sim.operator(command);
         assert_eq!(
             ack,
             format!("{{\"sample_mounted\":{}}}", command == "sample in"),
@@ -439,12 +398,12 @@ averaging = 4
     }
     assert!(compared >= 10, "only {compared} points");
 
-    drop(sim_in);
+    sim.close_stdin();
     nix::sys::signal::kill(
-        nix::unistd::Pid::from_raw(sim.id() as i32),
+        nix::unistd::Pid::from_raw(sim.child.id() as i32),
         nix::sys::signal::Signal::SIGTERM,
     )
     .expect("send SIGTERM");
-    let status = sim.wait().expect("wait sim");
+    let status = sim.child.wait().expect("wait sim");
     assert!(status.success(), "gonio sim exit {status}");
 }

@@ -10,6 +10,8 @@ Against `gonio daemon` on the simulated instrument, with the HTTP API as the ind
     tolerance), and the panel shows the new position;
   - choosing a filter turns the wheel there (API state);
   - the live trace draws readings from the reading stream and shows the latest power;
+  - the alignment card aligns the instrument through the daemon and shows the calibration it made as current
+    (API /api/calibrations);
   - while a campaign runs the controls are disabled with a reason naming it; the emergency stop is not, and
     clicking it halts the campaign (paused, "emergency stop" in the API) and gives the console back;
   - no script error, no CSP violation.
@@ -102,6 +104,20 @@ def run(gonio, chromium, workdir):
             raise Fail(f"the trace shows no power: {value!r}")
         tab.click("#console-trace")
         print(f"ok: live trace ({value})")
+
+        # The alignment card: the daemon aligns the simulated instrument, and the card shows the calibration it
+        # made as the current one (the API says the same).
+        tab.wait_for("the align button enabled", "!document.getElementById('align-start').disabled")
+        tab.click("#align-start")
+        tab.wait_for("the alignment completed on the card", """document.getElementById('align-state').dataset
+            .state === 'completed' && document.getElementById('align-current').textContent
+            .startsWith('Current calibration: 1,')""", timeout=240, daemon=daemon)
+        calibrations = daemon.json("GET", "/api/calibrations")
+        if [c["id"] for c in calibrations if c["current"]] != [1]:
+            raise Fail(f"the API's current calibration is not the card's: {calibrations}")
+        tab.wait_for("the panel enabled after the alignment",
+                     "document.getElementById('console-card').dataset.enabled === 'true'", daemon=daemon)
+        print(f"ok: alignment card: calibration 1 made and current ({time.monotonic() - started:.1f} s)")
 
         # A campaign owns the instrument: the controls are off with the reason; the emergency stop is not.
         cid = daemon.json("POST", "/api/campaigns", campaign_toml("panel-owner", True, -70.0, 70.0, 2.5))["id"]

@@ -12,6 +12,8 @@
 //!   [`Event`](gonio_engine::control::Event) with its `type`
 //! - `/api/console/...`: the console (state, move, jog, home, filter, read, a live reading stream), see
 //!   [`console`]
+//! - `/api/align`, `/api/align/confirm|abort`, `/api/calibrations`, `/api/calibrations/{id}` (the TOML file),
+//!   `/api/calibrations/{id}/report.json`: the alignment action and the stored calibrations, see [`align`]
 //! - `GET /` and `/assets/*`: the live status page ([`crate::status_page`]), the only routes without the token
 //!
 //! Safety of the service itself:
@@ -30,8 +32,9 @@
 
 //!
 //! Parts: this file holds the configuration, the token rule, the router and its middleware; `handlers` the
-//! routes; `server` the accept loop and the daemon's life; `connections` and `origin` the policing above.
+//! routes; `console` and `align` theirs; `server` the accept loop and the daemon's life; `connections` and `origin` the policing above.
 
+mod align;
 mod connections;
 mod console;
 mod handlers;
@@ -42,6 +45,7 @@ pub use connections::ConnectionLimits;
 pub use origin::HostPolicy;
 pub use server::{run_daemon, serve, serve_with};
 
+use align::{align_action, align_start, align_status, calibration, calibration_report, calibrations};
 use console::{
     console_filter, console_home, console_jog, console_move, console_read, console_readings, console_state,
 };
@@ -249,6 +253,11 @@ pub fn router(service: Service, config: &ApiConfig, shutdown: Shutdown) -> Route
         .route("/api/console/state", get(console_state))
         .route("/api/console/filter", post(console_filter))
         .route("/api/console/read", get(console_read))
+        .route("/api/align", post(align_start).get(align_status))
+        .route("/api/align/{action}", post(align_action))
+        .route("/api/calibrations", get(calibrations))
+        .route("/api/calibrations/{id}", get(calibration))
+        .route("/api/calibrations/{id}/report.json", get(calibration_report))
         .layer(middleware::from_fn_with_state(state.clone(), request_deadline));
     // A console move or homing takes as long as the instrument needs (every device wait has its own deadline).
     let motion = Router::new()
@@ -303,7 +312,7 @@ impl IntoResponse for ApiError {
 impl From<ServiceError> for ApiError {
     fn from(e: ServiceError) -> Self {
         let status = match &e {
-            ServiceError::NotFound(_) => StatusCode::NOT_FOUND,
+            ServiceError::NotFound(_) | ServiceError::NoCalibration(_) => StatusCode::NOT_FOUND,
             ServiceError::Invalid(_) => StatusCode::BAD_REQUEST,
             ServiceError::Conflict(_) => StatusCode::CONFLICT,
             ServiceError::Store(_) | ServiceError::Internal(_) => {

@@ -21,11 +21,19 @@
 //! - The console ([`Service::console`], `console`): a person's moves, homing, wheel and meter readings, each
 //!   taking the instrument for its duration under the same rule.
 //!
+//! - Calibrations (`calibration`): the instrument's calibrations kept in the store, and the current one, applied
+//!   to every campaign submitted and to the console's moves by geometry: `gonio daemon --calibration FILE` if
+//!   given, else the store's latest made for this instrument file; the alignment action (`align`,
+//!   [`Service::start_alignment`]) runs `gonio align`'s procedure on the instrument under the one-owner rule and
+//!   makes its result the current calibration.
+//!
 //! Parts: this file holds the types, the shared state and construction; `requests` the API's requests;
-//! `console` the console's;
+//! `console` the console's; `calibration` the calibrations; `align` the alignment action;
 //! `queue` the queue loop and shutdown of the running campaign; `ownership` the instrument's one owner; `shutdown` the signal; `engine_runner` the
 //! runner that drives the real engine.
 
+mod align;
+mod calibration;
 mod console;
 mod engine_runner;
 mod ownership;
@@ -33,6 +41,10 @@ mod queue;
 mod requests;
 mod shutdown;
 
+pub use align::{
+    AlignPhase, AlignProcedures, AlignStatus, DEFAULT_ALIGNMENT_MIRROR, DEFAULT_ALIGNMENT_SAMPLE,
+};
+pub use calibration::{CalibrationView, CurrentCalibration};
 pub use console::{CONSOLE_RETRIES, ConsoleAction, MAX_CONSOLE_READINGS};
 pub use engine_runner::EngineRunner;
 pub use ownership::InstrumentLease;
@@ -49,7 +61,9 @@ use tokio::sync::{Notify, broadcast};
 
 use gonio_engine::PreparedCampaign;
 use gonio_engine::control::{Control, Event};
-use gonio_engine::store::{CampaignId, CampaignRecord, CampaignState, NewCampaign, Store, StoreError};
+use gonio_engine::store::{
+    CampaignId, CampaignRecord, CampaignState, InstrumentCalibrationId, NewCampaign, Store, StoreError,
+};
 
 /// How long a running campaign is given to reach a safe point when the daemon shuts down, by default.
 pub const DEFAULT_SHUTDOWN_GRACE: Duration = Duration::from_secs(20);
@@ -63,6 +77,9 @@ pub enum ServiceError {
     /// No campaign with this id (404).
     #[error("no campaign with id {0}")]
     NotFound(CampaignId),
+    /// No stored calibration with this id (404).
+    #[error("no calibration with id {0}")]
+    NoCalibration(InstrumentCalibrationId),
     /// The submitted campaign file is invalid; the message names the line and key (400).
     #[error("{0}")]
     Invalid(String),
@@ -81,6 +98,7 @@ impl From<StoreError> for ServiceError {
     fn from(e: StoreError) -> Self {
         match e {
             StoreError::NoSuchCampaign(id) => ServiceError::NotFound(id),
+            StoreError::NoSuchCalibration(id) => ServiceError::NoCalibration(id),
             other => ServiceError::Store(other),
         }
     }
@@ -125,9 +143,19 @@ pub trait CampaignRunner: Send + Sync + 'static {
         None
     }
 
-    /// The alignment calibration the daemon applies (campaigns and the console's moves by geometry); None
-    /// without one.
-    fn pose_correction(&self) -> Option<gonio_engine::align::correction::PoseCorrection> {
+    /// The text of the instrument file in force (what calibrations are made for and checked against); None for
+    /// a runner without an instrument of its own (the queue tests' fake).
+    fn instrument_toml(&self) -> Option<&str> {
+        None
+    }
+
+    /// The pose correction of the alignment calibration `alignment_toml` (a `gonio align` file already checked
+    /// against this instrument file) on this instrument, for the console's moves by geometry; None when it
+    /// cannot be read or the runner has no instrument.
+    fn pose_correction(
+        &self,
+        _alignment_toml: &str,
+    ) -> Option<gonio_engine::align::correction::PoseCorrection> {
         None
     }
 }
@@ -148,6 +176,9 @@ pub struct CampaignView {
     pub dry_run: bool,
     pub created_unix_s: f64,
     pub software_version: String,
+    /// The stored instrument calibration applied to the campaign (`GET /api/calibrations/{id}`); None when none
+    /// was.
+    pub calibration_id: Option<InstrumentCalibrationId>,
 }
 
 /// What the service knows about the campaign on the instrument, guarded by one lock so that a request and the
@@ -185,6 +216,10 @@ struct Shared {
     wake: Notify,
     /// Console actions, one at a time (`console`).
     console: tokio::sync::Mutex<()>,
+    /// The calibration applied to campaigns submitted from now on and to the console's moves by geometry.
+    calibration: Mutex<Option<CurrentCalibration>>,
+    /// The alignment action's progress, or how the last one ended (`align`).
+    align: Mutex<AlignStatus>,
     shutdown_grace: Duration,
 }
 
@@ -220,6 +255,7 @@ impl Service {
         if !resume_first.is_empty() {
             tracing::info!(campaigns = ?resume_first, "interrupted campaigns will be resumed first");
         }
+        let calibration = calibration::latest_for_instrument(&store, runner.as_ref())?;
         Ok(Service {
             shared: Arc::new(Shared {
                 store: Arc::new(Mutex::new(store)),
@@ -231,6 +267,8 @@ impl Service {
                 }),
                 wake: Notify::new(),
                 console: tokio::sync::Mutex::new(()),
+                calibration: Mutex::new(calibration),
+                align: Mutex::new(AlignStatus::default()),
                 shutdown_grace: DEFAULT_SHUTDOWN_GRACE,
             }),
         })

@@ -3,8 +3,10 @@
 //! (the axes' positions, jog buttons, homing, the filter wheel, a live trace of the meter, a big emergency
 //! stop), its controls disabled with the reason while a campaign owns the instrument.
 //!
-//! Routes: `GET /` (the page), `GET /assets/status.js`, `GET /assets/console.js`, `GET /assets/status.css`,
-//! `GET /assets/favicon.svg`.
+//! The alignment card (align.js) starts the daemon's alignment, follows it and shows the current calibration.
+//!
+//! Routes: `GET /` (the page), `GET /assets/status.js`, `GET /assets/console.js`, `GET /assets/align.js`,
+//! `GET /assets/status.css`, `GET /assets/favicon.svg`.
 //! The assets are hand-written files embedded in the binary (`include_str!`): no build step, no network; the
 //! page works offline.
 //!
@@ -29,16 +31,19 @@ pub const INDEX_HTML: &str = include_str!("../assets/index.html");
 pub const STATUS_JS: &str = include_str!("../assets/status.js");
 /// The console panel's script (positions, jog, homing, the wheel, a live trace, the emergency stop).
 pub const CONSOLE_JS: &str = include_str!("../assets/console.js");
+/// The alignment card's script (start an alignment, follow it, confirm an operator step, the current calibration).
+pub const ALIGN_JS: &str = include_str!("../assets/align.js");
 /// Its style sheet.
 pub const STATUS_CSS: &str = include_str!("../assets/status.css");
 /// Its icon (without one, browsers ask for `/favicon.ico`, which the token rule may refuse).
 pub const FAVICON_SVG: &str = include_str!("../assets/favicon.svg");
 
 /// Paths of the page's files, with their content types.
-pub const ASSETS: [(&str, &str, &str); 5] = [
+pub const ASSETS: [(&str, &str, &str); 6] = [
     ("/", "text/html; charset=utf-8", INDEX_HTML),
     ("/assets/status.js", "text/javascript; charset=utf-8", STATUS_JS),
     ("/assets/console.js", "text/javascript; charset=utf-8", CONSOLE_JS),
+    ("/assets/align.js", "text/javascript; charset=utf-8", ALIGN_JS),
     ("/assets/status.css", "text/css; charset=utf-8", STATUS_CSS),
     ("/assets/favicon.svg", "image/svg+xml", FAVICON_SVG),
 ];
@@ -97,7 +102,14 @@ mod tests {
         );
         // Nothing from elsewhere: the page must work offline and under the CSP. The SVG namespace is a name,
         // not a resource.
-        for text in [INDEX_HTML, STATUS_JS, STATUS_CSS, FAVICON_SVG] {
+        for text in [
+            INDEX_HTML,
+            STATUS_JS,
+            CONSOLE_JS,
+            ALIGN_JS,
+            STATUS_CSS,
+            FAVICON_SVG,
+        ] {
             let text = text.replace("http://www.w3.org/2000/svg", "");
             for remote in ["http:", "https:", "//cdn", "@import"] {
                 assert!(!text.contains(remote), "an asset refers to {remote}");

@@ -53,6 +53,7 @@ fn path() -> impl Strategy<Value = String> {
         4 => prop::sample::select(vec![
             "campaigns", "campaigns", "1", "2", "0", "-1", "99999999999999999999", "abc", "points.csv", "pause",
             "resume", "abort", "confirm", "estop", "events", "%00", "..", "", "%2e%2e", "api", "1.5", "0x1",
+            "align", "calibrations", "report.json",
         ])
         .prop_map(str::to_string),
         1 => "[A-Za-z0-9._~-]{0,12}",
@@ -127,7 +128,7 @@ async fn app() -> App {
             ..ApiConfig::default()
         },
         queue: false,
-        files_dir: None,
+        ..Setup::default()
     };
     common::app_with(tempfile::tempdir().expect("tempdir"), setup).await
 }

@@ -24,7 +24,7 @@ async fn app(token: Option<&str>) -> App {
             ..ApiConfig::default()
         },
         queue: false,
-        files_dir: None,
+        ..Setup::default()
     };
     common::app_with(tempfile::tempdir().expect("tempdir"), setup).await
 }
@@ -125,6 +125,7 @@ async fn every_asset_is_served_byte_for_byte_with_its_content_type() {
         ("/", "text/html"),
         ("/assets/status.js", "text/javascript"),
         ("/assets/console.js", "text/javascript"),
+        ("/assets/align.js", "text/javascript"),
         ("/assets/status.css", "text/css"),
         ("/assets/favicon.svg", "image/svg+xml"),
     ];
@@ -146,6 +147,17 @@ async fn every_asset_is_served_byte_for_byte_with_its_content_type() {
         "Authorization",
     ] {
         assert!(js.contains(used), "status.js does not use {used}");
+    }
+    // The alignment card's script talks to the alignment's and the calibrations' routes.
+    let js = String::from_utf8(app.send("GET", "/assets/align.js", None).await.body).expect("UTF-8");
+    for used in ["'/api/align'", "'/api/align/confirm'", "'/api/calibrations'"] {
+        assert!(js.contains(used), "align.js does not use {used}");
+    }
+    for (path, body) in [("/api/align", "{}"), ("/api/calibrations", "[]")] {
+        let answer = app.send("GET", path, None).await;
+        assert_eq!(answer.status, StatusCode::OK, "{path}");
+        let v: serde_json::Value = serde_json::from_slice(&answer.body).expect("JSON");
+        assert_eq!(v.is_array(), body == "[]", "{path}: {v}");
     }
     // Other paths under /assets are not files: the API's 404.
     let missing = app.send("GET", "/assets/other.js", None).await;

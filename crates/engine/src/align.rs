@@ -31,6 +31,9 @@ pub mod model;
 pub mod sample_tilt;
 mod scan;
 
+use std::future::Future;
+use std::pin::Pin;
+
 use gonio_driver::{DetectorConfig, PowerRange};
 use gonio_instrument::AxisRole;
 use gonio_scheduler::kinematics::Pose;
@@ -41,6 +44,7 @@ use crate::characterise::{
     sample_overlaps,
 };
 use crate::motion::{Device, Motion, MotionError};
+use crate::rig::Held;
 pub use centre::CentreError;
 use fit::{GeometryFit, Observed};
 use model::{Dimensions, N_PARAMS, Observation, PARAM_NAMES};
@@ -60,11 +64,11 @@ pub enum Placement {
 impl Placement {
     /// What a dry-run's alignment holder (crate::rig::Rig::alignment_holder) holds for this placement: the
     /// mirror in its first place, the sample in its second.
-    pub fn held(self) -> crate::rig::Held {
+    pub fn held(self) -> Held {
         match self {
-            Placement::Empty => crate::rig::Held::Empty,
-            Placement::Mirror => crate::rig::Held::Sample,
-            Placement::Sample => crate::rig::Held::Reference,
+            Placement::Empty => Held::Empty,
+            Placement::Mirror => Held::Sample,
+            Placement::Sample => Held::Reference,
         }
     }
 
@@ -84,6 +88,11 @@ impl Placement {
         }
     }
 }
+
+/// An operator step's answer: done, or why not. A future, so that a caller can wait for a person (the daemon
+/// waits for a confirmation through its API) without holding a thread; `Send`, so that the procedure's future
+/// is (the daemon runs it in a task of its own).
+pub type OperatorStep<'a> = Pin<Box<dyn Future<Output = Result<(), String>> + Send + 'a>>;
 
 /// Why the alignment stopped.
 #[derive(Debug, thiserror::Error)]
@@ -245,10 +254,10 @@ impl AlignmentReport {
     }
 }
 
-/// Run the alignment (module doc). `operator` is asked to make each placement and returns when it is done.
-pub async fn run_alignment(
+/// Run the alignment (module doc). `operator` is asked to make each placement; its step ends when it is done.
+pub async fn run_alignment<'a>(
     motion: &mut Motion<'_>,
-    operator: &dyn Fn(Placement) -> Result<(), String>,
+    operator: &'a (dyn Fn(Placement) -> OperatorStep<'a> + Sync),
     options: AlignOptions,
 ) -> Result<AlignmentReport, AlignError> {
     let rig = motion.rig();
@@ -330,7 +339,7 @@ pub async fn run_alignment(
 
     let mut observed: Vec<Observed> = Vec::new();
     let mut readings = Vec::new();
-    operator(Placement::Empty).map_err(AlignError::Operator)?;
+    operator(Placement::Empty).await.map_err(AlignError::Operator)?;
     for o in plan
         .iter()
         .filter(|o| matches!(o, Observation::DirectBeam { .. }))
@@ -376,7 +385,7 @@ pub async fn run_alignment(
         _ => None,
     };
     let mut characterise_s = clock.now_s() - characterise_from;
-    operator(Placement::Mirror).map_err(AlignError::Operator)?;
+    operator(Placement::Mirror).await.map_err(AlignError::Operator)?;
     let mut last_detector = std::collections::BTreeMap::new();
     for o in plan.iter() {
         match *o {
@@ -463,7 +472,7 @@ pub async fn run_alignment(
     // With the sample back in the holder: its own lobe (when asked), then the characterisation's last step.
     let mut on_sample = Vec::new();
     if options.on_sample || empty.is_some() {
-        operator(Placement::Sample).map_err(AlignError::Operator)?;
+        operator(Placement::Sample).await.map_err(AlignError::Operator)?;
     }
     let light_deg = -order.signum() * SAMPLE_INCIDENCE_DEG;
     if options.on_sample {

@@ -61,6 +61,7 @@ impl PreparedCampaign {
             software_version: software_version(),
             predicted_instrument_s: Some(self.predicted_s),
             alignment_toml: None,
+            calibration_id: None,
         }
     }
 

@@ -33,15 +33,17 @@
 //!
 //! Parts: `records` holds the types read and written; `schema` opens the file, sets the connection up, creates
 //! and migrates the schema and picks each write's durability; `queries` reads and writes campaigns, devices,
-//! calibrations and points. [`Store`] and [`StoreError`] are here.
+//! calibrations and points; `instrument_calibrations` keeps the instrument's calibrations (`gonio align` files)
+//! and finds the latest one made for an instrument file. [`Store`] and [`StoreError`] are here.
 
+mod instrument_calibrations;
 mod queries;
 mod records;
 mod schema;
 
 pub use records::{
-    CalibrationRecord, CampaignId, CampaignRecord, CampaignState, Durability, NewCampaign, PointRecord,
-    PointValue,
+    CalibrationRecord, CampaignId, CampaignRecord, CampaignState, Durability, InstrumentCalibration,
+    InstrumentCalibrationId, NewCampaign, NewInstrumentCalibration, PointRecord, PointValue,
 };
 
 use std::collections::HashMap;
@@ -56,7 +58,10 @@ pub const STORE_FILE: &str = "gonio.sqlite";
 /// Version 2: `signal_w`, `dark_w` and `incident_w` may be NULL (a failed point has no reading; SQLite cannot
 /// store NaN and turns it into NULL).
 /// Version 3: `truth_effects_json` (a dry-run's per-point attribution of its imperfections).
-const SCHEMA_VERSION: i64 = 5;
+/// Version 4: `predicted_instrument_s`; version 5: `alignment_toml` (the alignment applied to a campaign).
+/// Version 6: `instrument_calibrations` (the daemon's calibrations, dated, never overwritten) and
+/// `campaigns.calibration_id` (which one a campaign was given).
+const SCHEMA_VERSION: i64 = 6;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
@@ -77,6 +82,8 @@ pub enum StoreError {
     Read { path: PathBuf, source: rusqlite::Error },
     #[error("campaign {0} is not in the store")]
     NoSuchCampaign(CampaignId),
+    #[error("instrument calibration {0} is not in the store")]
+    NoSuchCalibration(InstrumentCalibrationId),
     #[error("point {index} of campaign {campaign} is already committed")]
     DuplicatePoint { campaign: CampaignId, index: u64 },
     #[error("the store holds a value it cannot interpret: {0}")]

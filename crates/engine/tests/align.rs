@@ -2,7 +2,7 @@
 //! simulator's hidden truth, on seeds of our own.
 
 use gonio_brdf::material::Material;
-use gonio_engine::align::{AlignmentReport, Placement, run_alignment};
+use gonio_engine::align::{AlignmentReport, OperatorStep, Placement, run_alignment};
 use gonio_engine::control::Control;
 use gonio_engine::motion::Motion;
 use gonio_engine::rig::Rig;
@@ -145,9 +145,9 @@ async fn try_align(file: &InstrumentFile, material: &str) -> Result<(AlignmentRe
         .alignment_holder(&m, None, 25.0)
         .expect("holder")
         .expect("dry-run");
-    let operator = |p: Placement| {
+    let operator = |p: Placement| -> OperatorStep<'_> {
         holder.hold(p.held());
-        Ok(())
+        Box::pin(std::future::ready(Ok(())))
     };
     let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
     let report = run_alignment(&mut motion, &operator, Default::default())

@@ -25,9 +25,9 @@ async fn align_on(seed: u64, sample: &str) -> Result<(AlignmentReport, [f64; 2])
         .alignment_holder(&mirror, Some(&sample), 25.0)
         .expect("holder")
         .expect("dry-run");
-    let operator = |p: gonio_engine::align::Placement| {
+    let operator = |p: gonio_engine::align::Placement| -> gonio_engine::align::OperatorStep<'_> {
         holder.hold(p.held());
-        Ok(())
+        Box::pin(std::future::ready(Ok(())))
     };
     let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
     let options = AlignOptions {

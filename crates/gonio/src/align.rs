@@ -12,7 +12,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use gonio_brdf::material::Material;
 use gonio_engine::Control;
 use gonio_engine::align::file::CalibrationFile;
-use gonio_engine::align::{AlignOptions, AlignmentReport, Placement, run_alignment};
+use gonio_engine::align::{AlignOptions, AlignmentReport, OperatorStep, Placement, run_alignment};
 use gonio_engine::characterise::{CharacterisationReport, CharacteriseOptions};
 use gonio_scheduler::timing::TimeModel;
 
@@ -88,15 +88,18 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
         let holder = rig
             .alignment_holder(&mirror, Some(&sample), MIRROR_RADIUS_MM)
             .map_err(|e| CliError::input(e.to_string()))?;
-        let operator = |p: Placement| -> Result<(), String> {
-            match &holder {
+        // The answer is ready when the closure returns: a person's Enter is read right there (this command has
+        // nothing else to do meanwhile).
+        let operator = |p: Placement| -> OperatorStep<'_> {
+            let done = match &holder {
                 Some(h) => {
                     eprintln!("simulated operator: {}", p.instruction());
                     h.hold(p.held());
                     Ok(())
                 }
                 None => prompt(p),
-            }
+            };
+            Box::pin(std::future::ready(done))
         };
         let mut motion = gonio_engine::motion::Motion::new(
             &rig,
@@ -112,12 +115,8 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
     print!("{}", report_text(&report));
     if let Some(path) = &args.json {
         // The whole report, and the estimates under run.json's `simulator_truth` keys (`estimated`).
-        let mut value = serde_json::to_value(&report)
-            .map_err(|e| CliError::input(format!("cannot encode the report: {e}")))?;
-        if let Some(map) = value.as_object_mut() {
-            map.insert("estimated".into(), report.estimated());
-        }
-        let json = serde_json::to_string_pretty(&value)
+        let json = report
+            .to_json_pretty()
             .map_err(|e| CliError::input(format!("cannot encode the report: {e}")))?;
         std::fs::write(path, json)
             .map_err(|e| CliError::io(format!("cannot write {}", path.display()), e))?;
@@ -153,14 +152,7 @@ pub fn report_text(r: &AlignmentReport) -> String {
         r.reduced_chi2
     );
     for e in &r.estimates {
-        s.push_str(&format!(
-            "  {:<28} {:>11.5} +- {:<9.5} {:<4} {}\n",
-            e.name,
-            e.value,
-            e.u,
-            e.unit,
-            if e.observable { "" } else { "(not observable)" }
-        ));
+        s.push_str(&value_line(&e.name, e.value, e.u, &e.unit, e.observable));
     }
     for (name, at) in [
         ("detector error at 30 deg", 30.0),
@@ -240,6 +232,14 @@ fn characterisation_text(c: &CharacterisationReport) -> String {
         s.push_str(&format!("  not done: {n}\n"));
     }
     s
+}
+
+/// One fitted value for a person (`gonio align`'s report, `gonio ctl align`'s summary).
+pub fn value_line(name: &str, value: f64, u: f64, unit: &str, observable: bool) -> String {
+    format!(
+        "  {name:<28} {value:>11.5} +- {u:<9.5} {unit:<4} {}\n",
+        if observable { "" } else { "(not observable)" }
+    )
 }
 
 fn calibration_toml(r: &AlignmentReport, instrument_text: &str) -> Result<String, CliError> {

@@ -3,6 +3,7 @@
 //! A small HTTP/1.1 client on hyper (already in the binary through the daemon's server): one connection per
 //! request, a deadline on every call, and the server's `{"error": ...}` message as the command's error.
 
+mod align;
 mod client;
 mod console;
 
@@ -58,6 +59,29 @@ pub enum CtlCommand {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Align the instrument through the daemon (`gonio align`'s procedure, taking the instrument as the console
+    /// does): follow it, then print the calibration it stored, which the daemon applies to every campaign
+    /// submitted after it.
+    Align {
+        /// Dry-runs: the preset the simulated operator mounts as the alignment mirror (default `mirror`).
+        #[arg(long)]
+        mirror: Option<String>,
+        /// Dry-runs: each operator step waits for `gonio ctl align --confirm`, as on hardware (the simulated
+        /// holder follows once it is confirmed).
+        #[arg(long, conflicts_with_all = ["confirm", "abort", "status"])]
+        no_simulated_operator: bool,
+        /// Confirm that the operator did what the waiting alignment asked.
+        #[arg(long, conflicts_with_all = ["abort", "status", "mirror"])]
+        confirm: bool,
+        /// End an alignment waiting for its operator.
+        #[arg(long, conflicts_with_all = ["status", "mirror"])]
+        abort: bool,
+        /// Where the alignment is (or how the last one ended), without starting one.
+        #[arg(long, conflicts_with = "mirror")]
+        status: bool,
+    },
+    /// The daemon's stored calibrations (the current one marked), or one's calibration file.
+    Calibrations { id: Option<i64> },
     /// Console: every axis's position and state, the wheel, the meter, each device's identity and health.
     State {
         /// Print the daemon's JSON (one object; `axes` a list with `name` and `position_deg`).
@@ -150,6 +174,19 @@ async fn execute(client: &Client, command: CtlCommand) -> Result<(), CliError> {
             println!("emergency stop sent: the instrument is halted and queued campaigns are paused");
         }
         CtlCommand::Watch { id } => watch(client, id).await?,
+        CtlCommand::Align {
+            mirror,
+            no_simulated_operator,
+            confirm,
+            abort,
+            status,
+        } => match (confirm, abort, status) {
+            (true, _, _) => align::request(client, Some("confirm")).await?,
+            (_, true, _) => align::request(client, Some("abort")).await?,
+            (_, _, true) => align::request(client, None).await?,
+            _ => align::align(client, mirror.as_deref(), !no_simulated_operator).await?,
+        },
+        CtlCommand::Calibrations { id } => align::calibrations(client, id).await?,
         CtlCommand::State { json } => console::state(client, json).await?,
         CtlCommand::Move { targets, geometry } => {
             console::move_axes(client, &targets, geometry.as_deref()).await?
@@ -228,6 +265,11 @@ fn details(c: &Value) -> String {
     }
     if c.get("dry_run").and_then(Value::as_bool) == Some(true) {
         s.push_str("  dry-run on the simulator\n");
+    }
+    if let Some(cal) = c.get("calibration_id").and_then(Value::as_i64) {
+        s.push_str(&format!(
+            "  calibration {cal} applied (`gonio ctl calibrations {cal}`)\n"
+        ));
     }
     if let Some(m) = c.get("operator_message").and_then(Value::as_str) {
         s.push_str(&format!("  operator: {m}\n"));

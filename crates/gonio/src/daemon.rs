@@ -47,8 +47,9 @@ pub struct DaemonArgs {
     /// rebinding; loopback names and addresses, and the listening address, are always allowed.
     #[arg(long = "allow-host", value_name = "NAME")]
     pub allow_hosts: Vec<String>,
-    /// Calibration file from `gonio align` for this instrument file: stored with, and applied to, every campaign
-    /// submitted to this daemon (refused when it was made for another instrument file).
+    /// Calibration file from `gonio align` for this instrument file: kept in the store and applied to every
+    /// campaign submitted to this daemon (refused when it was made for another instrument file). Without it the
+    /// store's latest calibration made for this instrument file is applied, if there is one.
     #[arg(long)]
     pub calibration: Option<PathBuf>,
 }
@@ -79,10 +80,13 @@ pub fn run(args: DaemonArgs) -> Result<(), CliError> {
         }
         None => (InstrumentFile::simulated(), SIMULATED_INSTRUMENT_TOML.to_string()),
     };
-    let alignment_toml = args
+    let calibration = args
         .calibration
         .as_deref()
-        .map(|p| crate::calibration::read_calibration(p, &instrument_toml))
+        .map(|p| {
+            crate::calibration::read_calibration(p, &instrument_toml)
+                .map(|text| (text, p.display().to_string()))
+        })
         .transpose()?;
     // Submitted campaigns may name material files inside the data directory only (issue #8: paths in configs).
     let base_dir = args.data.clone();
@@ -95,12 +99,16 @@ pub fn run(args: DaemonArgs) -> Result<(), CliError> {
         let rig = Rig::connect_with_time_scale(&instrument, None, args.sim_time_scale)
             .await
             .map_err(|e| CliError::input(format!("cannot connect the instrument: {e}")))?;
-        let runner = Arc::new(
-            EngineRunner::new(instrument, instrument_toml, base_dir, rig).with_alignment(alignment_toml),
-        );
+        let runner = Arc::new(EngineRunner::new(instrument, instrument_toml, base_dir, rig));
         let service = Service::new(store, runner, Control::new())
             .map_err(|e| CliError::input(e.to_string()))?
             .with_shutdown_grace(Duration::from_secs_f64(args.shutdown_grace_s));
+        // The file given wins over the store's latest calibration; it is kept in the store too.
+        if let Some((text, origin)) = &calibration {
+            service
+                .use_calibration_file(text, origin)
+                .map_err(|e| CliError::input(e.to_string()))?;
+        }
         let listener = tokio::net::TcpListener::bind(args.listen)
             .await
             .map_err(|e| CliError::io(format!("cannot listen on {}", args.listen), e))?;

@@ -101,12 +101,17 @@ fn main() -> ExitCode {
 }
 
 /// Logs go to stderr; `RUST_LOG` selects them (default: warnings only, so stdout stays clean for data, and the
-/// daemon's record of console actions, who sent each, at info: the operator's log of who moved what). Colour
+/// daemon's record of console actions and alignments, who sent each, and of the calibrations it keeps and
+/// applies, at info: the operator's log of who moved what and which calibration campaigns got). Colour
 /// only on a terminal: a log file or a pipe gets plain text that grep and a lab's log viewer read as written.
 fn init_tracing() {
     use std::io::IsTerminal;
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,gonio_daemon::service::console=info"));
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        tracing_subscriber::EnvFilter::new(
+            "warn,gonio_daemon::service::console=info,gonio_daemon::service::align=info,\
+                 gonio_daemon::service::calibration=info",
+        )
+    });
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)

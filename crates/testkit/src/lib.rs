@@ -2,7 +2,8 @@
 //! build.
 //!
 //! - [`cli`]: the `gonio` binary under test and dry-runs through it; [`daemon`]: `gonio daemon` as a child
-//!   process and `gonio ctl` against it.
+//!   process and `gonio ctl` against it; [`sim`]: `gonio sim --link-dir` as a child process, reached as real
+//!   hardware is.
 //! - [`campaign`]: campaign texts for dry-runs on the simulated instrument.
 //! - [`rng`]: a small fixed-seed generator (reproducible random searches, no dependency).
 //! - [`directions`]: hostile directions for the numerical stress suites; [`nm`]: a wavelength in a test.
@@ -20,6 +21,7 @@ pub mod directions;
 pub mod imports;
 pub mod load;
 pub mod rng;
+pub mod sim;
 
 pub use campaign::CampaignText;
 pub use cli::{gonio, text};

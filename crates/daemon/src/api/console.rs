@@ -36,7 +36,7 @@ pub const MIN_STREAM_INTERVAL_MS: u64 = 50;
 pub const DEFAULT_STREAM_INTERVAL_MS: u64 = 250;
 
 /// Who sent a console request, for the log: with a token set every request carries it.
-fn who(state: &AppState) -> &'static str {
+pub(super) fn who(state: &AppState) -> &'static str {
     if state.token.is_some() {
         "token holder"
     } else {
@@ -44,7 +44,7 @@ fn who(state: &AppState) -> &'static str {
     }
 }
 
-fn parse_body<T: for<'de> Deserialize<'de>>(body: &Bytes, example: &str) -> Result<T, ApiError> {
+pub(super) fn parse_body<T: for<'de> Deserialize<'de>>(body: &Bytes, example: &str) -> Result<T, ApiError> {
     let body: &[u8] = if body.iter().all(u8::is_ascii_whitespace) {
         b"{}"
     } else {

@@ -89,7 +89,11 @@ impl Service {
                 "this daemon has no instrument of its own".into(),
             ));
         };
-        let mut console = Console::new(motion).with_correction(self.shared.runner.pose_correction());
+        // The current calibration, the one campaigns submitted now are given.
+        let correction = self
+            .current_calibration()
+            .and_then(|c| self.shared.runner.pose_correction(&c.toml));
+        let mut console = Console::new(motion).with_correction(correction);
         let answer = match action {
             ConsoleAction::State => to_json(console.state().await),
             ConsoleAction::Move(targets) => to_json(console.move_axes(&targets).await?),

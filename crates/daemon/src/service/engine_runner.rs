@@ -22,8 +22,6 @@ pub struct EngineRunner {
     /// relative names resolve against it.
     base_dir: PathBuf,
     rig: Rig,
-    /// The alignment calibration stored with (and applied to) every campaign submitted from now on.
-    alignment_toml: Option<String>,
 }
 
 impl EngineRunner {
@@ -39,15 +37,7 @@ impl EngineRunner {
             instrument_toml,
             base_dir,
             rig,
-            alignment_toml: None,
         }
-    }
-
-    /// Apply the alignment calibration `text` (a `gonio align` file, already checked against this instrument
-    /// file) to every campaign submitted from now on: it is stored with each.
-    pub fn with_alignment(mut self, text: Option<String>) -> EngineRunner {
-        self.alignment_toml = text;
-        self
     }
 
     pub fn rig(&self) -> &Rig {
@@ -59,11 +49,9 @@ impl CampaignRunner for EngineRunner {
     fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, String> {
         let p = prepare_submitted_campaign(campaign_toml, origin, &self.base_dir, &self.instrument)
             .map_err(|e| e.to_string())?;
+        // The service adds the current calibration (`Service::submit`).
         Ok(Submission {
-            campaign: gonio_engine::store::NewCampaign {
-                alignment_toml: self.alignment_toml.clone(),
-                ..p.new_campaign(campaign_toml, &self.instrument_toml)
-            },
+            campaign: p.new_campaign(campaign_toml, &self.instrument_toml),
             prepared: Some(Arc::new(p)),
         })
     }
@@ -89,10 +77,13 @@ impl CampaignRunner for EngineRunner {
         Some(self.rig.clone())
     }
 
-    fn pose_correction(&self) -> Option<PoseCorrection> {
-        // Checked against the instrument file when the daemon started (`gonio daemon --calibration`).
-        let text = self.alignment_toml.as_ref()?;
-        let cal = CalibrationFile::parse(text, "<the daemon's alignment>").ok()?;
+    fn instrument_toml(&self) -> Option<&str> {
+        Some(&self.instrument_toml)
+    }
+
+    fn pose_correction(&self, alignment_toml: &str) -> Option<PoseCorrection> {
+        // Checked against the instrument file when it became the daemon's current calibration.
+        let cal = CalibrationFile::parse(alignment_toml, "<the daemon's calibration>").ok()?;
         Some(PoseCorrection::new(&self.instrument.instrument, cal.params()))
     }
 

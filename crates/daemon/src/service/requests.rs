@@ -10,13 +10,18 @@ impl Service {
     /// Validate and queue a campaign.
     pub fn submit(&self, campaign_toml: &str, origin: &str) -> Result<CampaignId, ServiceError> {
         let Submission {
-            campaign: new,
+            campaign: mut new,
             prepared,
         } = self
             .shared
             .runner
             .prepare(campaign_toml, origin)
             .map_err(ServiceError::Invalid)?;
+        // The current calibration goes with the campaign (the run loop applies what is stored with it).
+        if let Some(c) = self.current_calibration() {
+            new.alignment_toml = Some(c.toml);
+            new.calibration_id = Some(c.id);
+        }
         let id = lock(&self.shared.store).create_campaign(&new)?;
         if let Some(p) = prepared {
             let mut run = lock(&self.shared.run);
@@ -24,7 +29,13 @@ impl Service {
                 run.prepared.insert(id, p);
             }
         }
-        tracing::info!(campaign = %id, name = %new.name, points = new.total_points, "campaign queued");
+        tracing::info!(
+            campaign = %id,
+            name = %new.name,
+            points = new.total_points,
+            calibration = ?new.calibration_id,
+            "campaign queued"
+        );
         self.emit_state(id, CampaignState::Queued, None);
         self.shared.wake.notify_one();
         Ok(id)
@@ -214,6 +225,7 @@ fn view(r: CampaignRecord, run: &RunState) -> CampaignView {
         dry_run: r.dry_run,
         created_unix_s: r.created_unix_s,
         software_version: r.software_version,
+        calibration_id: r.calibration_id,
     }
 }
 

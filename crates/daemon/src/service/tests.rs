@@ -55,6 +55,7 @@ impl CampaignRunner for FakeRunner {
                 software_version: "test".into(),
                 predicted_instrument_s: None,
                 alignment_toml: None,
+                calibration_id: None,
             },
             prepared: None,
         })
@@ -316,6 +317,7 @@ async fn interrupted_campaigns_are_resumed_first_from_their_first_missing_point(
         software_version: "test".into(),
         predicted_instrument_s: None,
         alignment_toml: None,
+        calibration_id: None,
     };
     let mut ids = Vec::new();
     let h = start_with(dir, |store| {
@@ -358,4 +360,29 @@ async fn shutdown_stops_at_a_safe_point_and_leaves_the_campaign_interrupted() {
             .expect("list"),
         vec![id]
     );
+}
+
+#[tokio::test(start_paused = true)]
+async fn without_an_instrument_there_is_nothing_to_align_nor_to_calibrate() {
+    let h = start();
+    for err in [
+        h.service
+            .start_alignment("loopback", None, true, Default::default())
+            .expect_err("no instrument"),
+        h.service
+            .use_calibration_file("[calibration]\n", "cal.toml")
+            .expect_err("no instrument"),
+    ] {
+        assert!(
+            matches!(&err, ServiceError::Conflict(m) if m.contains("no instrument of its own")),
+            "{err}"
+        );
+    }
+    assert_eq!(h.service.alignment_status().state, AlignPhase::Idle);
+    assert!(h.service.calibrations().expect("list").is_empty());
+    assert_eq!(h.service.current_calibration(), None);
+    // The queue is not held: a campaign still runs.
+    let id = h.service.submit("points = 2", "t").expect("submit");
+    h.wait_for(id, CampaignState::Completed, 30).await;
+    assert_eq!(h.service.campaign(id).expect("c").calibration_id, None);
 }

@@ -27,6 +27,7 @@ use tower::ServiceExt;
 
 pub struct App {
     pub router: Router,
+    pub service: Service,
     pub rig: Rig,
     pub data: tempfile::TempDir,
     /// The queue task (with [`Setup::queue`]): it returns once the daemon shuts down.
@@ -47,6 +48,8 @@ pub struct Setup {
     pub queue: bool,
     /// Where submitted campaigns' file names resolve; default the data directory.
     pub files_dir: Option<PathBuf>,
+    /// The instrument file's text; default the embedded simulated instrument.
+    pub instrument_toml: Option<String>,
 }
 
 impl Default for Setup {
@@ -55,16 +58,17 @@ impl Default for Setup {
             config: ApiConfig::default(),
             queue: true,
             files_dir: None,
+            instrument_toml: None,
         }
     }
 }
 
-/// The daemon's service on the simulated instrument reached through `rig`: its store in `data`, submitted
-/// campaigns' file names resolving under `files_dir`.
-pub fn service(rig: &Rig, data: &Path, files_dir: PathBuf) -> Service {
+/// The daemon's service on the simulated instrument file `instrument_toml` reached through `rig`: its store in
+/// `data`, submitted campaigns' file names resolving under `files_dir`.
+pub fn service(rig: &Rig, instrument_toml: &str, data: &Path, files_dir: PathBuf) -> Service {
     let runner = Arc::new(EngineRunner::new(
-        InstrumentFile::simulated(),
-        SIMULATED_INSTRUMENT_TOML.to_string(),
+        InstrumentFile::parse(instrument_toml, "instrument").expect("instrument file"),
+        instrument_toml.to_string(),
         files_dir,
         rig.clone(),
     ));
@@ -78,21 +82,26 @@ pub async fn app(data: tempfile::TempDir) -> App {
 
 /// A daemon on `data` set up as `setup` says.
 pub async fn app_with(data: tempfile::TempDir, setup: Setup) -> App {
+    let instrument_toml = setup
+        .instrument_toml
+        .unwrap_or_else(|| SIMULATED_INSTRUMENT_TOML.to_string());
+    let file = InstrumentFile::parse(&instrument_toml, "instrument").expect("instrument file");
     // Scale 1 on the paused clock: the simulated instrument's own time, at no wall-time cost.
-    let rig = Rig::connect_with_time_scale(&InstrumentFile::simulated(), None, 1.0)
+    let rig = Rig::connect_with_time_scale(&file, None, 1.0)
         .await
         .expect("simulated rig");
     let files_dir = setup.files_dir.unwrap_or_else(|| data.path().to_path_buf());
-    let service = service(&rig, data.path(), files_dir);
+    let service = service(&rig, &instrument_toml, data.path(), files_dir);
     let trigger = ShutdownTrigger::new();
     let queue = setup.queue.then(|| {
         let (complete, _) = tokio::sync::mpsc::channel(1);
         let (service, shutdown) = (service.clone(), trigger.subscribe());
         tokio::spawn(async move { service.run_queue(shutdown, complete).await })
     });
-    let router = api::router(service, &setup.config, trigger.subscribe());
+    let router = api::router(service.clone(), &setup.config, trigger.subscribe());
     App {
         router,
+        service,
         rig,
         data,
         queue,

@@ -28,7 +28,12 @@ pub async fn service(data: &Path) -> Service {
     let rig = Rig::connect(&InstrumentFile::simulated(), None)
         .await
         .expect("simulated rig");
-    super::service(&rig, data, data.to_path_buf())
+    super::service(
+        &rig,
+        gonio_instrument::SIMULATED_INSTRUMENT_TOML,
+        data,
+        data.to_path_buf(),
+    )
 }
 
 /// Start the server with `config` (its `listen_addr` becomes the address actually bound).

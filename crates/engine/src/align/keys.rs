@@ -48,6 +48,17 @@ fn polar(s: f64, c: f64, var_s: f64, var_c: f64, cov: f64) -> (f64, f64, f64, f6
 }
 
 impl AlignmentReport {
+    /// The whole report as JSON (every scan, every estimate, the covariance) with the estimates under
+    /// simulator_truth's keys as `estimated`: `gonio align --json`, and the report the daemon keeps with a
+    /// calibration it made.
+    pub fn to_json_pretty(&self) -> Result<String, serde_json::Error> {
+        let mut value = serde_json::to_value(self)?;
+        if let Some(map) = value.as_object_mut() {
+            map.insert("estimated".into(), self.estimated());
+        }
+        serde_json::to_string_pretty(&value)
+    }
+
     /// The estimates under simulator_truth's keys (module doc).
     pub fn estimated(&self) -> Value {
         let e = |name: &str| self.get(name).map_or((f64::NAN, f64::NAN), |e| (e.value, e.u));

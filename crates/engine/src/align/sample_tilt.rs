@@ -183,7 +183,7 @@ pub(super) async fn align_on_sample(
     motion: &mut Motion<'_>,
     model: &Model,
     light_deg: f64,
-    rotation_ok: &dyn Fn(f64) -> bool,
+    rotation_ok: &(dyn Fn(f64) -> bool + Sync),
 ) -> Result<Vec<Estimate>, AlignError> {
     let specular = -light_deg;
     let steps = (HALF_WIDTH_DEG / STEP_DEG).round() as i32;

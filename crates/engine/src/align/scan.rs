@@ -24,7 +24,7 @@ pub(super) async fn read_along(
     scan_name: &str,
     role: AxisRole,
     positions: &[f64],
-    at: &dyn Fn(f64) -> Pose,
+    at: &(dyn Fn(f64) -> Pose + Sync),
 ) -> Result<Vec<(f64, f64)>, AlignError> {
     let det = motion.rig().detector().clone();
     let largest = meter_ranges_w(motion).iter().copied().fold(0.0, f64::max);
@@ -53,7 +53,7 @@ pub(super) async fn scan(
     role: AxisRole,
     nominal: f64,
     half_width: f64,
-    at: &dyn Fn(f64) -> Pose,
+    at: &(dyn Fn(f64) -> Pose + Sync),
 ) -> Result<(Located, usize), AlignError> {
     let fail = |cause| AlignError::Scan {
         scan: name.to_string(),

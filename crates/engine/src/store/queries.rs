@@ -6,8 +6,8 @@ use rusqlite::{OptionalExtension, named_params, params};
 use super::schema::{INSERT_POINT, SELECT_POINTS_FROM};
 
 use super::{
-    CalibrationRecord, CampaignId, CampaignRecord, CampaignState, NewCampaign, PointRecord, PointValue,
-    Store, StoreError,
+    CalibrationRecord, CampaignId, CampaignRecord, CampaignState, InstrumentCalibrationId, NewCampaign,
+    PointRecord, PointValue, Store, StoreError,
 };
 
 impl Store {
@@ -21,8 +21,8 @@ impl Store {
         self.conn
             .execute(
                 "INSERT INTO campaigns (name, state, campaign_toml, instrument_toml, total_points, dry_run,
-                 software_version, created_unix_s, predicted_instrument_s, alignment_toml)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+                 software_version, created_unix_s, predicted_instrument_s, alignment_toml, calibration_id)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
                 params![
                     new.name,
                     CampaignState::Queued.as_str(),
@@ -33,7 +33,8 @@ impl Store {
                     new.software_version,
                     now,
                     new.predicted_instrument_s,
-                    new.alignment_toml
+                    new.alignment_toml,
+                    new.calibration_id.map(|c| c.0)
                 ],
             )
             .map_err(self.write_err())?;
@@ -375,7 +376,8 @@ impl Store {
 
 const CAMPAIGN_SELECT: &str = "SELECT c.id, c.name, c.state, c.campaign_toml, c.instrument_toml, c.total_points,
     (SELECT COUNT(*) FROM points p WHERE p.campaign_id = c.id), c.dry_run, c.software_version, c.created_unix_s,
-    c.last_error, c.operator_message, c.predicted_instrument_s, c.alignment_toml FROM campaigns c";
+    c.last_error, c.operator_message, c.predicted_instrument_s, c.alignment_toml,
+    c.calibration_id FROM campaigns c";
 
 fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignRecord, StoreError>> {
     let state: String = r.get(2)?;
@@ -396,6 +398,7 @@ fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignR
         operator_message: None,
         predicted_instrument_s: None,
         alignment_toml: None,
+        calibration_id: None,
     };
     let state = match state.parse::<CampaignState>() {
         Ok(s) => s,
@@ -413,6 +416,7 @@ fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignR
         operator_message: r.get(11)?,
         predicted_instrument_s: r.get(12)?,
         alignment_toml: r.get(13)?,
+        calibration_id: r.get::<_, Option<i64>>(14)?.map(InstrumentCalibrationId),
         ..record(state)
     }))
 }

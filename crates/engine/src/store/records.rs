@@ -1,5 +1,6 @@
 //! The records the store reads and writes: campaign identifiers and states, a new campaign, a stored campaign,
-//! a measured point, a calibration reading, and the durability level a campaign's writes get.
+//! a measured point, a calibration reading, an instrument calibration (a `gonio align` file kept in the store),
+//! and the durability level a campaign's writes get.
 
 use std::fmt;
 use std::str::FromStr;
@@ -111,6 +112,8 @@ pub struct NewCampaign {
     /// The alignment calibration applied to every point's pose (a `gonio align` file's text), if any: stored so
     /// that a resumed run applies the same one.
     pub alignment_toml: Option<String>,
+    /// The stored instrument calibration that text is (the daemon's), if it is one.
+    pub calibration_id: Option<InstrumentCalibrationId>,
 }
 
 /// A campaign as stored.
@@ -134,6 +137,9 @@ pub struct CampaignRecord {
     /// The alignment calibration applied (a `gonio align` file's text); None when none was (and for campaigns
     /// stored before version 5).
     pub alignment_toml: Option<String>,
+    /// Which stored instrument calibration that is; None when none was applied or it was not a stored one (and
+    /// for campaigns stored before version 6).
+    pub calibration_id: Option<InstrumentCalibrationId>,
 }
 
 /// One measured (or failed) point with everything needed to recompute it.
@@ -193,6 +199,53 @@ pub struct CalibrationRecord {
     pub t_s: f64,
     pub value_w: f64,
     pub u_w: f64,
+}
+
+/// Identifier of a stored instrument calibration: a positive integer assigned by the store.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct InstrumentCalibrationId(pub i64);
+
+impl fmt::Display for InstrumentCalibrationId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// An instrument calibration to keep: a `gonio align` file's text with the header fields the store is searched
+/// by (the caller reads them from the file's header; the store does not parse the text).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NewInstrumentCalibration {
+    /// The instrument's name, as the file's header gives it.
+    pub instrument: String,
+    /// SHA-256 of the instrument file it was made for (the file's header).
+    pub instrument_sha256: String,
+    /// When it was made (the file's header, ISO 8601 UTC).
+    pub created_utc: String,
+    pub software: String,
+    pub method: String,
+    /// Where it came from: "alignment by the daemon (loopback)", "gonio daemon --calibration FILE".
+    pub source: String,
+    /// The calibration file's text, as written.
+    pub calibration_toml: String,
+    /// The alignment's whole report (JSON), when the daemon made it.
+    pub report_json: Option<String>,
+}
+
+/// A stored instrument calibration: never overwritten.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct InstrumentCalibration {
+    pub id: InstrumentCalibrationId,
+    /// When the store received it (unix s).
+    pub stored_unix_s: f64,
+    pub instrument: String,
+    pub instrument_sha256: String,
+    pub created_utc: String,
+    pub software: String,
+    pub method: String,
+    pub source: String,
+    pub calibration_toml: String,
+    pub report_json: Option<String>,
 }
 
 /// How far a commit survives (module doc): the store picks it from the campaign written to.

@@ -45,6 +45,30 @@ fn points_table_body() -> String {
     format!("\n{}\n", lines.join(",\n"))
 }
 
+/// The instrument calibrations (`gonio align` files kept by the daemon), dated and never overwritten: a trigger
+/// refuses every UPDATE and DELETE of a row. (`calibrations` is the campaigns' own calibration readings.)
+/// `campaigns.calibration_id` names the one applied to a campaign; it is a plain INTEGER, not a foreign key, so
+/// that a campaign row never depends on another table's constraint to be written.
+const INSTRUMENT_CALIBRATIONS: &str = "
+            CREATE TABLE instrument_calibrations (
+                id INTEGER PRIMARY KEY AUTOINCREMENT,
+                stored_unix_s REAL NOT NULL,
+                instrument TEXT NOT NULL,
+                instrument_sha256 TEXT NOT NULL,
+                created_utc TEXT NOT NULL,
+                software TEXT NOT NULL,
+                method TEXT NOT NULL,
+                source TEXT NOT NULL,
+                calibration_toml TEXT NOT NULL,
+                report_json TEXT
+            );
+            CREATE INDEX instrument_calibrations_by_sha ON instrument_calibrations (instrument_sha256, created_utc);
+            CREATE TRIGGER instrument_calibrations_never_updated BEFORE UPDATE ON instrument_calibrations
+                BEGIN SELECT RAISE(ABORT, 'a stored instrument calibration is never overwritten'); END;
+            CREATE TRIGGER instrument_calibrations_never_deleted BEFORE DELETE ON instrument_calibrations
+                BEGIN SELECT RAISE(ABORT, 'a stored instrument calibration is never deleted'); END;
+";
+
 /// `INSERT INTO points` of every column, each bound by name (`:band_nm`).
 pub(super) static INSERT_POINT: LazyLock<String> = LazyLock::new(|| {
     let names: Vec<&str> = POINT_COLUMNS.iter().map(|(n, _)| *n).collect();
@@ -223,6 +247,16 @@ impl Store {
         if version == 4 {
             // Version 5 records the alignment calibration applied to a campaign (absent for older ones).
             self.step("ALTER TABLE campaigns ADD COLUMN alignment_toml TEXT;", 5)?;
+            version = 5;
+        }
+        if version == 5 {
+            // Version 6 keeps instrument calibrations, and which one a campaign was given.
+            self.step(
+                &format!(
+                    "{INSTRUMENT_CALIBRATIONS} ALTER TABLE campaigns ADD COLUMN calibration_id INTEGER;"
+                ),
+                6,
+            )?;
             return Ok(());
         }
         if version != 0 {
@@ -248,7 +282,8 @@ impl Store {
                 last_error TEXT,
                 operator_message TEXT,
                 predicted_instrument_s REAL,
-                alignment_toml TEXT
+                alignment_toml TEXT,
+                calibration_id INTEGER
             );
             CREATE TABLE devices (
                 campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
@@ -267,6 +302,7 @@ impl Store {
                 PRIMARY KEY (campaign_id, seq)
             );
             CREATE TABLE points ({points});
+            {INSTRUMENT_CALIBRATIONS}
             PRAGMA user_version = {SCHEMA_VERSION};
             COMMIT;"
         );

@@ -12,6 +12,7 @@ fn new_campaign(total: u64) -> NewCampaign {
         software_version: "0.1.0".into(),
         predicted_instrument_s: Some(12.5),
         alignment_toml: None,
+        calibration_id: None,
     }
 }
 
@@ -143,7 +144,7 @@ fn a_version_1_store_is_migrated_keeping_its_points() {
              phi_o_deg, signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json,
              truth_point_sr, truth_aperture_sr FROM points; DROP TABLE points;
              ALTER TABLE points_v1 RENAME TO points;
-             ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; PRAGMA user_version = 1;"
+             ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 1;"
     ))
     .expect("downgrade");
     drop(conn);
@@ -164,7 +165,7 @@ fn a_version_2_store_gains_the_attribution_column() {
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch(
         "ALTER TABLE points DROP COLUMN truth_effects_json;
-         ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; PRAGMA user_version = 2;",
+         ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 2;",
     )
     .expect("downgrade");
     drop(conn);
@@ -190,7 +191,7 @@ fn a_version_3_store_gains_the_prediction_and_keeps_its_campaigns() {
         "the prediction is stored with the campaign"
     );
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; PRAGMA user_version = 3;")
+    conn.execute_batch("ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 3;")
         .expect("downgrade");
     drop(conn);
     let mut store = Store::open(dir.path()).expect("migrates");
@@ -223,7 +224,7 @@ fn a_version_4_store_gains_the_alignment_column_and_keeps_its_campaigns() {
         store.create_campaign(&new_campaign(2)).expect("create")
     };
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE campaigns DROP COLUMN alignment_toml; PRAGMA user_version = 4;")
+    conn.execute_batch("ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 4;")
         .expect("downgrade");
     drop(conn);
     let store = Store::open(dir.path()).expect("migrates");
