@@ -12,7 +12,7 @@ use gonio_brdf::material::Material;
 use gonio_engine::Control;
 use gonio_engine::align::file::CalibrationFile;
 use gonio_engine::align::{AlignmentReport, Placement, run_alignment};
-use gonio_engine::rig::Held;
+use gonio_engine::rig::{Held, SampleHolder};
 use gonio_scheduler::timing::TimeModel;
 
 use crate::CliError;
@@ -21,7 +21,7 @@ use crate::instrument_arg::{InstrumentArg, connect, in_process, read_instrument}
 /// Device operations are retried this many times during the alignment.
 const RETRIES: u32 = 2;
 /// The simulated alignment mirror's radius (mm).
-const MIRROR_RADIUS_MM: f64 = 25.0;
+pub const MIRROR_RADIUS_MM: f64 = 25.0;
 
 #[derive(Debug, clap::Args)]
 pub struct AlignArgs {
@@ -49,19 +49,7 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
         let holder = rig
             .alignment_holder(&mirror, MIRROR_RADIUS_MM)
             .map_err(|e| CliError::input(e.to_string()))?;
-        let operator = |p: Placement| -> Result<(), String> {
-            match &holder {
-                Some(h) => {
-                    eprintln!("simulated operator: {}", p.instruction());
-                    h.hold(match p {
-                        Placement::Empty => Held::Empty,
-                        Placement::Mirror => Held::Sample,
-                    });
-                    Ok(())
-                }
-                None => prompt(p),
-            }
-        };
+        let operator = |p: Placement| operator_step(holder.as_deref(), p);
         let mut motion = gonio_engine::motion::Motion::new(
             &rig,
             TimeModel::new(&file.instrument),
@@ -91,6 +79,22 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
         .map_err(|e| CliError::io(format!("cannot write {}", args.out.display()), e))?;
     eprintln!("wrote the calibration to {}", args.out.display());
     Ok(())
+}
+
+/// The operator's step `p` of the alignment's procedure (also the self-test's): done by the simulated operator
+/// on a dry-run's `holder`, else prompted on the terminal.
+pub fn operator_step(holder: Option<&dyn SampleHolder>, p: Placement) -> Result<(), String> {
+    match holder {
+        Some(h) => {
+            eprintln!("simulated operator: {}", p.instruction());
+            h.hold(match p {
+                Placement::Empty => Held::Empty,
+                Placement::Mirror => Held::Sample,
+            });
+            Ok(())
+        }
+        None => prompt(p),
+    }
 }
 
 /// Ask the operator to make `placement` and wait for Enter (hardware).
