@@ -106,7 +106,8 @@ fn a_settle_time_four_times_the_claim_or_more_backlash_fails_naming_the_key() {
         assert!(line.ends_with("FAIL"), "{line}");
         // The simulated operator's steps are said.
         assert!(
-            err.contains("simulated operator: remove everything") && err.contains("simulated operator: mount"),
+            err.contains("simulated operator: remove everything")
+                && err.contains("simulated operator: mount"),
             "{err}"
         );
     }

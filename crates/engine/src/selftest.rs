@@ -212,9 +212,52 @@ async fn measure_axis(motion: &mut Motion<'_>, a: &RigAxis) -> Result<Option<(f6
     Ok(ramp_acceleration(&samples, from, speed).map(|accel| (speed, accel)))
 }
 
-/// Command `a` to `to_deg` and read its position back as fast as it answers until it arrives, within a
-/// deadline of three times the move's predicted duration and ten seconds more.
+/// Command `a` to `to_deg` and read its position back as fast as it answers until it arrives (within its
+/// tolerance), then wait for the controller's verified arrival.
 async fn sample_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<Vec<Sample>, MotionError> {
+    let tolerance = a.config.tolerance_deg;
+    let samples = start_and_sample(motion, a, to_deg, &|s: &[Sample]| {
+        s.last().is_some_and(|(_, p)| (p - to_deg).abs() <= tolerance)
+    })
+    .await?;
+    arrive(motion, a, to_deg).await?;
+    Ok(samples)
+}
+
+/// Start a plain move of `a` to `to_deg` (no backlash approach: the approach's direction is the caller's).
+async fn start(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<(), MotionError> {
+    let name = &a.config.name;
+    motion
+        .device(
+            Device::Axis(a),
+            &format!("start {name} to {to_deg:.4} deg"),
+            || a.driver.start_move(to_deg),
+        )
+        .await
+}
+
+/// Wait for the controller's verified arrival of `a` at `to_deg`.
+async fn arrive(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<(), MotionError> {
+    let name = &a.config.name;
+    motion
+        .device(
+            Device::Axis(a),
+            &format!("{name} arrives at {to_deg:.4} deg"),
+            || a.driver.wait_arrived(to_deg),
+        )
+        .await
+        .map(|_| ())
+}
+
+/// Command `a` to `to_deg` (a plain move, no backlash approach) and read its position back as fast as it
+/// answers until `done` says so of the samples so far, within a deadline of three times the move's predicted
+/// duration and ten seconds more. The caller waits for the verified arrival.
+async fn start_and_sample(
+    motion: &Motion<'_>,
+    a: &RigAxis,
+    to_deg: f64,
+    done: &dyn Fn(&[Sample]) -> bool,
+) -> Result<Vec<Sample>, MotionError> {
     let clock = motion.clock();
     let name = &a.config.name;
     let from = motion.current().get(a.config.role);
@@ -223,13 +266,7 @@ async fn sample_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<Ve
         a.config.max_speed_deg_s,
         a.config.accel_deg_s2,
     );
-    motion
-        .device(
-            Device::Axis(a),
-            &format!("start {name} to {to_deg:.3} deg"),
-            || a.driver.start_move(to_deg),
-        )
-        .await?;
+    start(motion, a, to_deg).await?;
     let deadline_s = clock.now_s() + 3.0 * predicted_s + 10.0;
     let mut samples = Vec::new();
     loop {
@@ -247,18 +284,10 @@ async fn sample_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<Ve
         };
         let t = 0.5 * (t_before + clock.now_s());
         samples.push((t, p));
-        if (p - to_deg).abs() <= a.config.tolerance_deg {
-            break;
+        if done(&samples) {
+            return Ok(samples);
         }
     }
-    motion
-        .device(
-            Device::Axis(a),
-            &format!("{name} arrives at {to_deg:.3} deg"),
-            || a.driver.wait_arrived(to_deg),
-        )
-        .await?;
-    Ok(samples)
 }
 
 /// The wheel's seconds per position (module doc); None without a wheel of at least 4 positions.

@@ -347,6 +347,7 @@ async fn a_longer_settle_or_a_larger_backlash_than_claimed_fails_naming_the_key(
         let r = selftest_of(&with_actual(extra)).await;
         assert_eq!(r.failed_keys(), vec![key], "{extra}: {:#?}", r.checks);
         let got = measured(&r, key);
+        eprintln!("{key}: measured {got:.5} for {want}");
         assert!((got / want - 1.0).abs() < 0.10, "{extra}: {got} for {want}");
     }
 }

@@ -27,6 +27,7 @@ use gonio_scheduler::kinematics::Pose;
 use super::fit::{line, mean_std};
 use super::report::{Check, at_most, within};
 use super::ringdown::settle_time_s;
+use super::{arrive, start, start_and_sample};
 use crate::align::centre::edge;
 use crate::align::scan::{DETECTOR_HALF_WIDTH_DEG, Profile, meter_ranges_w, scan, tilt_half_width_deg};
 use crate::align::{AlignError, Placement, arms_order, direct_beam_light_angles, model, put_band_in_beam};
@@ -41,6 +42,8 @@ pub const SETTLE_REPEATS: usize = 3;
 const FINE_POINTS: i32 = 17;
 /// The mirror's incidence for the tilt's edge (deg from the normal).
 const TILT_INCIDENCE_DEG: f64 = 45.0;
+/// The most readings one settle step takes.
+const MAX_FAST_READINGS: usize = 20_000;
 /// A fine scan starts this far (deg) beyond its first position, at least: more than any plausible play.
 const PLAY_MARGIN_DEG: f64 = 0.05;
 
@@ -311,22 +314,8 @@ async fn read_w(motion: &Motion<'_>) -> Result<Result<(f64, f64), String>, Motio
 
 /// A plain move of `a` alone to `to_deg` (no backlash approach: the approach's direction is the caller's).
 async fn plain_move(motion: &Motion<'_>, a: &RigAxis, to_deg: f64) -> Result<(), MotionError> {
-    let name = &a.config.name;
-    motion
-        .device(
-            Device::Axis(a),
-            &format!("start {name} to {to_deg:.4} deg"),
-            || a.driver.start_move(to_deg),
-        )
-        .await?;
-    motion
-        .device(
-            Device::Axis(a),
-            &format!("{name} arrives at {to_deg:.4} deg"),
-            || a.driver.wait_arrived(to_deg),
-        )
-        .await
-        .map(|_| ())
+    start(motion, a, to_deg).await?;
+    arrive(motion, a, to_deg).await
 }
 
 /// Settle time and backlash of `a` on the low edge of `profile` (module doc), or why not.
@@ -448,64 +437,30 @@ async fn settle_once(
     accel_deg_s2: f64,
 ) -> Result<Result<Option<f64>, String>, MotionError> {
     let cfg = &a.config;
-    let name = &cfg.name;
     let clock = motion.clock();
-    let from = motion
-        .device(Device::Axis(a), "position query", || a.driver.position_deg())
-        .await?;
-    let predicted_s =
-        gonio_driver::motion::trapezoid_time_s((x_edge - from).abs(), cfg.max_speed_deg_s, accel_deg_s2);
-    motion
-        .device(
-            Device::Axis(a),
-            &format!("start {name} to {x_edge:.4} deg"),
-            || a.driver.start_move(x_edge),
-        )
-        .await?;
     // The read-back as fast as the controller answers, until the motor is at the target (within half a count)
     // or stands still within the tolerance (a load-side encoder may show the play).
-    let deadline_s = clock.now_s() + 3.0 * predicted_s + 10.0;
     let resolution = cfg.encoder_resolution_deg.max(1e-6);
-    let mut approach: Vec<(f64, f64)> = Vec::new();
-    loop {
-        if clock.now_s() > deadline_s {
-            let _ = a.driver.stop().await;
-            return Err(MotionError::Device(format!(
-                "{name} did not reach {x_edge:.4} deg within {:.1} s",
-                3.0 * predicted_s + 10.0
-            )));
+    let at_target = |s: &[(f64, f64)]| match s {
+        [.., (_, q), (_, p)] => {
+            (p - x_edge).abs() <= 0.5 * resolution + 1e-12
+                || ((q - p).abs() < 0.5 * resolution && (p - x_edge).abs() <= cfg.tolerance_deg)
         }
-        let t = clock.now_s();
-        // One attempt per sample: a lost reply is a missing sample (the deadline bounds the loop).
-        let Ok(p) = a.driver.position_deg().await else {
-            continue;
-        };
-        let still = approach
-            .last()
-            .is_some_and(|(_, q)| (q - p).abs() < 0.5 * resolution);
-        approach.push((0.5 * (t + clock.now_s()), p));
-        if (p - x_edge).abs() <= 0.5 * resolution + 1e-12
-            || (still && (p - x_edge).abs() <= cfg.tolerance_deg)
-        {
-            break;
-        }
-    }
+        [(_, p)] => (p - x_edge).abs() <= 0.5 * resolution + 1e-12,
+        [] => false,
+    };
+    let approach = start_and_sample(motion, a, x_edge, &at_target).await?;
     let t_stop = stop_time_s(&approach, x_edge, accel_deg_s2, resolution);
     let window_s = (10.0 * cfg.settle_s).max(0.4);
     let mut readings = Vec::new();
-    while clock.now_s() < t_stop + window_s {
+    // Bounded by count as well as by time: a meter that answered in no time would not end the window.
+    while clock.now_s() < t_stop + window_s && readings.len() < MAX_FAST_READINGS {
         match read_w(motion).await? {
             Ok((t, w)) => readings.push((t - t_stop, w)),
             Err(why) => return Ok(Err(why)),
         }
     }
-    motion
-        .device(
-            Device::Axis(a),
-            &format!("{name} arrives at {x_edge:.4} deg"),
-            || a.driver.wait_arrived(x_edge),
-        )
-        .await?;
+    arrive(motion, a, x_edge).await?;
     // The final level and one reading's scatter from the last 40 % of the readings, long after the vibration.
     let tail = &readings[readings.len() * 3 / 5..];
     let Some((rest_w, noise_w)) = mean_std(&tail.iter().map(|r| r.1).collect::<Vec<_>>()) else {
