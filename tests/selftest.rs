@@ -65,6 +65,23 @@ fn selftest_passes_on_the_ideal_instrument_and_names_what_the_hardware_contradic
         .map(|w| w.seconds_per_position)
         .expect("wheel");
     assert!((sps - measured).abs() < 1e-9, "{sps}");
+    // The settle times and backlash measured are written too, none below zero (the tilt has no play: its
+    // measured backlash is zero give or take the measurement's noise).
+    let tilt = file
+        .instrument
+        .axes
+        .iter()
+        .find(|a| a.name == "tilt")
+        .expect("tilt");
+    let tilt_line = |key: &str| {
+        report["checks"]
+            .as_array()
+            .and_then(|c| c.iter().find(|c| c["key"] == key))
+            .and_then(|c| c["measured"].as_f64())
+            .expect("the tilt's line")
+    };
+    assert_eq!(tilt.backlash_deg, tilt_line("axes.tilt.backlash_deg").max(0.0));
+    assert_eq!(tilt.settle_s, tilt_line("axes.tilt.settle_s").max(0.0));
     assert!(
         std::fs::read_to_string(&written)
             .expect("text")
