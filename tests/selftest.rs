@@ -65,9 +65,67 @@ fn selftest_passes_on_the_ideal_instrument_and_names_what_the_hardware_contradic
         .map(|w| w.seconds_per_position)
         .expect("wheel");
     assert!((sps - measured).abs() < 1e-9, "{sps}");
+    // The settle times and backlash measured are written too, none below zero (the tilt has no play: its
+    // measured backlash is zero give or take the measurement's noise).
+    let tilt = file
+        .instrument
+        .axes
+        .iter()
+        .find(|a| a.name == "tilt")
+        .expect("tilt");
+    let tilt_line = |key: &str| {
+        report["checks"]
+            .as_array()
+            .and_then(|c| c.iter().find(|c| c["key"] == key))
+            .and_then(|c| c["measured"].as_f64())
+            .expect("the tilt's line")
+    };
+    assert_eq!(tilt.backlash_deg, tilt_line("axes.tilt.backlash_deg").max(0.0));
+    assert_eq!(tilt.settle_s, tilt_line("axes.tilt.settle_s").max(0.0));
     assert!(
         std::fs::read_to_string(&written)
             .expect("text")
             .starts_with("# Written by gonio selftest")
     );
+}
+
+#[test]
+fn a_settle_time_four_times_the_claim_or_more_backlash_fails_naming_the_key() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (extra, key) in [
+        (
+            "[simulator.actual.axes.light]\nsettle_s = 0.2\n",
+            "axes.light.settle_s",
+        ),
+        (
+            "[simulator.actual.axes.detector]\nbacklash_deg = 0.03\n",
+            "axes.detector.backlash_deg",
+        ),
+    ] {
+        let path = dir.path().join("actual.toml");
+        std::fs::write(&path, format!("{SIMULATED_INSTRUMENT_TOML}\n{extra}")).expect("write");
+        let out = gonio()
+            .args(["selftest", "--instrument"])
+            .arg(&path)
+            .output()
+            .expect("run gonio selftest");
+        let (report, err) = (text(&out.stdout), text(&out.stderr));
+        assert_eq!(out.status.code(), Some(1), "{extra}: {report} {err}");
+        assert!(err.contains(key), "{extra}: {err}");
+        assert!(
+            !err.contains("max_speed_deg_s") && !err.contains("seconds_per_position"),
+            "{extra}: only {key} differs: {err}"
+        );
+        let line = report
+            .lines()
+            .find(|l| l.trim_start().starts_with(key))
+            .unwrap_or_else(|| panic!("{key} in {report}"));
+        assert!(line.ends_with("FAIL"), "{line}");
+        // The simulated operator's steps are said.
+        assert!(
+            err.contains("simulated operator: remove everything")
+                && err.contains("simulated operator: mount"),
+            "{err}"
+        );
+    }
 }

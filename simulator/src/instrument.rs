@@ -13,7 +13,7 @@ use gonio_instrument::{Axis, InstrumentFile, Protocol};
 use crate::clock::SimClock;
 use crate::faults::{FaultCounts, FaultInjector};
 use crate::fw102c::Fw102c;
-use crate::motion::{AxisMotion, AxisParams};
+use crate::motion::{AxisMotion, AxisParams, Settling};
 use crate::pm100::{Pm100, SimUsbDevice};
 use crate::recording::MotionRecord;
 use crate::scene::{Band, Pose, Scene};
@@ -99,8 +99,22 @@ impl SimInstrument {
             };
             // Power-up position: the counter's zero, or the nearest end of travel if zero is outside it.
             let start = 0.0f64.clamp(params.hw_min_deg, params.hw_max_deg);
+            // The load rings after each move (crate::motion::settling) on an instrument whose settle times are
+            // drawn or stated as the hardware's; the ideal instrument's loads stop dead, as before.
+            let rings = file.simulator.imperfections.timing.settle_sd > 0.0
+                || file
+                    .simulator
+                    .actual
+                    .axes
+                    .get(&axis.name)
+                    .is_some_and(|a| a.settle_s.is_some());
             let motion = AxisMotion::new(params, start)
-                .with_mechanical_limits(axis.max_speed_deg_s, axis.accel_deg_s2);
+                .with_mechanical_limits(axis.max_speed_deg_s, axis.accel_deg_s2)
+                .with_settling(
+                    rings
+                        .then(|| Settling::new(axis.settle_s, axis.tolerance_deg))
+                        .flatten(),
+                );
             axes.push((axis.clone(), Arc::new(Mutex::new(motion))));
         }
 

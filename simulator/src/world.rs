@@ -29,7 +29,7 @@ impl World {
     pub fn pose(&self, t_s: f64) -> Pose {
         let mut pose = Pose::default();
         for (axis, motion) in &self.axes {
-            let controller_deg = motion.lock().unwrap_or_else(|e| e.into_inner()).load_deg(t_s);
+            let controller_deg = motion.lock().unwrap_or_else(|e| e.into_inner()).optical_deg(t_s);
             let physical = axis.physical_from_controller_deg(controller_deg);
             match axis.role {
                 AxisRole::LightArm => pose.light_deg = physical,

@@ -29,7 +29,7 @@ pub mod fit;
 mod keys;
 pub mod model;
 pub mod sample_tilt;
-mod scan;
+pub(crate) mod scan;
 
 use std::future::Future;
 use std::pin::Pin;
@@ -288,39 +288,8 @@ pub async fn run_alignment<'a>(
         inst.axis(role)
             .is_none_or(|a| deg - margin >= a.min_deg && deg + margin <= a.max_deg)
     };
-    let direct: Vec<f64> = DIRECT_LIGHT_DEG
-        .iter()
-        .copied()
-        .filter(|&l| {
-            within(AxisRole::LightArm, l, 0.0)
-                && within(
-                    AxisRole::DetectorArm,
-                    model::wrap_deg(l + 180.0),
-                    DETECTOR_HALF_WIDTH_DEG + 0.5,
-                )
-        })
-        .collect();
-    if direct.is_empty() {
-        return Err(AlignError::Instrument(
-            "no light-arm angle lets the detector arm face the source within both arms' travel".into(),
-        ));
-    }
-    let here = *motion.current();
-    let order = if here.detector_deg >= here.light_deg {
-        1.0
-    } else {
-        -1.0
-    };
-    let direct: Vec<f64> = direct
-        .into_iter()
-        .filter(|&l| (model::wrap_deg(l + 180.0) - l) * order > 0.0)
-        .collect();
-    if direct.is_empty() {
-        return Err(AlignError::Instrument(
-            "no light-arm angle lets the detector arm face the source without the arms passing each other"
-                .into(),
-        ));
-    }
+    let direct = direct_beam_light_angles(motion)?;
+    let order = arms_order(motion);
     let has_tilt = inst.axis(AxisRole::SampleTilt).is_some();
     let rotations_ok = |r: f64| {
         r == 0.0
@@ -350,7 +319,7 @@ pub async fn run_alignment<'a>(
         let name = format!("direct beam, light arm at {light_deg} deg");
         tracing::info!("alignment: {name}");
         let at = |x: f64| Pose::new(light_deg, x, 0.0, 0.0);
-        let (c, n) = scan(
+        let profile = scan(
             motion,
             &name,
             AxisRole::DetectorArm,
@@ -359,6 +328,7 @@ pub async fn run_alignment<'a>(
             &at,
         )
         .await?;
+        let (c, n) = (profile.centre, profile.readings);
         observed.push(Observed {
             what: *o,
             value_deg: c.value,
@@ -398,7 +368,7 @@ pub async fn run_alignment<'a>(
                     format!("mirror, detector scan, light {light_deg} deg, rotation {rotation_deg} deg");
                 tracing::info!("alignment: {name}");
                 let at = |x: f64| Pose::new(light_deg, x, tilt_deg, rotation_deg);
-                let (c, n) = scan(
+                let profile = scan(
                     motion,
                     &name,
                     AxisRole::DetectorArm,
@@ -407,6 +377,7 @@ pub async fn run_alignment<'a>(
                     &at,
                 )
                 .await?;
+                let (c, n) = (profile.centre, profile.readings);
                 last_detector.insert((light_deg.to_bits(), rotation_deg.to_bits()), c.value);
                 observed.push(Observed {
                     what: *o,
@@ -427,7 +398,7 @@ pub async fn run_alignment<'a>(
                 let name = format!("mirror, tilt scan, light {light_deg} deg, rotation {rotation_deg} deg");
                 tracing::info!("alignment: {name}");
                 let at = |x: f64| Pose::new(light_deg, detector_deg, x, rotation_deg);
-                let (c, n) = scan(
+                let profile = scan(
                     motion,
                     &name,
                     AxisRole::SampleTilt,
@@ -436,6 +407,7 @@ pub async fn run_alignment<'a>(
                     &at,
                 )
                 .await?;
+                let (c, n) = (profile.centre, profile.readings);
                 let what = Observation::MirrorTilt {
                     light_deg,
                     detector_deg,
@@ -526,6 +498,56 @@ pub async fn run_alignment<'a>(
     Ok(out)
 }
 
+/// The sign of (detector - light) the arms keep: they cannot pass each other, so every pose keeps the order
+/// homing left them in.
+pub(crate) fn arms_order(motion: &Motion<'_>) -> f64 {
+    let here = *motion.current();
+    if here.detector_deg >= here.light_deg {
+        1.0
+    } else {
+        -1.0
+    }
+}
+
+/// The light-arm angles of [`DIRECT_LIGHT_DEG`] at which the detector arm can face the source (with a scan's
+/// width) within both arms' travel and without the arms passing each other.
+pub(crate) fn direct_beam_light_angles(motion: &Motion<'_>) -> Result<Vec<f64>, AlignError> {
+    let inst = &motion.rig().file().instrument;
+    let within = |role: AxisRole, deg: f64, margin: f64| {
+        inst.axis(role)
+            .is_none_or(|a| deg - margin >= a.min_deg && deg + margin <= a.max_deg)
+    };
+    let direct: Vec<f64> = DIRECT_LIGHT_DEG
+        .iter()
+        .copied()
+        .filter(|&l| {
+            within(AxisRole::LightArm, l, 0.0)
+                && within(
+                    AxisRole::DetectorArm,
+                    model::wrap_deg(l + 180.0),
+                    DETECTOR_HALF_WIDTH_DEG + 0.5,
+                )
+        })
+        .collect();
+    if direct.is_empty() {
+        return Err(AlignError::Instrument(
+            "no light-arm angle lets the detector arm face the source within both arms' travel".into(),
+        ));
+    }
+    let order = arms_order(motion);
+    let direct: Vec<f64> = direct
+        .into_iter()
+        .filter(|&l| (model::wrap_deg(l + 180.0) - l) * order > 0.0)
+        .collect();
+    if direct.is_empty() {
+        return Err(AlignError::Instrument(
+            "no light-arm angle lets the detector arm face the source without the arms passing each other"
+                .into(),
+        ));
+    }
+    Ok(direct)
+}
+
 /// What the report says of the run itself.
 struct RunFacts {
     instrument: String,
@@ -612,7 +634,7 @@ fn report(
 }
 
 /// The first band of the wheel (or of the detector's table) into the beam; its wavelength.
-async fn put_band_in_beam(motion: &Motion<'_>) -> Result<f64, AlignError> {
+pub(crate) async fn put_band_in_beam(motion: &Motion<'_>) -> Result<f64, AlignError> {
     let rig = motion.rig();
     let inst = &rig.file().instrument;
     let Some(wheel) = &inst.filter_wheel else {

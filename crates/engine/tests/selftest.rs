@@ -1,7 +1,10 @@
 //! The self-test on the simulated instrument (tokio's paused clock): the ideal and the realistic instruments
-//! pass with each figure close to the file's; hardware that differs from its file (`[simulator.actual]`) fails
-//! and the report names the key.
+//! pass with each figure close to the file's (settle times and backlash against the hidden truth on four seeds
+//! of realistic.toml); hardware that differs from its file (`[simulator.actual]`: slower, settling 4x longer,
+//! more backlash) fails and the report names the key.
 
+use gonio_brdf::material::Material;
+use gonio_engine::align::Placement;
 use gonio_engine::control::Control;
 use gonio_engine::motion::Motion;
 use gonio_engine::rig::Rig;
@@ -11,8 +14,27 @@ use gonio_scheduler::timing::TimeModel;
 
 async fn selftest_of(file: &InstrumentFile) -> SelftestReport {
     let rig = Rig::connect_with_time_scale(file, None, 1.0).await.expect("rig");
+    let mirror = Material::preset("mirror").expect("mirror");
+    let holder = rig
+        .alignment_holder(&mirror, None, 25.0)
+        .expect("holder")
+        .expect("dry-run");
+    let steps = std::sync::Mutex::new(Vec::new());
+    let operator = |p: Placement| {
+        steps.lock().expect("steps").push(p);
+        holder.hold(p.held());
+        Ok(())
+    };
     let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
-    run_selftest(&mut motion, 0.10).await.expect("self-test ran")
+    let report = run_selftest(&mut motion, 0.10, &operator)
+        .await
+        .expect("self-test ran");
+    assert_eq!(
+        *steps.lock().expect("steps"),
+        vec![Placement::Empty, Placement::Mirror],
+        "the operator empties the holder, then mounts the mirror"
+    );
+    report
 }
 
 fn with_actual(extra: &str) -> InstrumentFile {
@@ -64,9 +86,24 @@ async fn the_ideal_instrument_measures_as_its_file_says() {
         r.checks.iter().filter(|c| c.key.ends_with(".noise_w")).count(),
         ranges
     );
+    // No vibration on the ideal instrument: settled by the first fast reading after the stop, well within the
+    // claim; its backlash is the file's.
+    for a in file.instrument.axes.iter().filter(|a| a.name != "rotation") {
+        let settle = measured(&r, &format!("axes.{}.settle_s", a.name));
+        assert!(settle < 0.2 * a.settle_s, "{}: {settle} s", a.name);
+        let backlash = measured(&r, &format!("axes.{}.backlash_deg", a.name));
+        assert!(
+            (backlash - a.backlash_deg).abs() < 0.000_25,
+            "{}: {backlash} deg",
+            a.name
+        );
+    }
     assert!(
-        r.not_measured.iter().any(|m| m.contains("settle_s")),
-        "the report says what it cannot measure"
+        r.not_measured
+            .iter()
+            .any(|m| m.starts_with("axes.rotation.settle_s") && m.contains("not observable")),
+        "the report says what it cannot measure: {:?}",
+        r.not_measured
     );
     assert!(r.dry_run && r.devices.len() == file.instrument.devices.len());
 }
@@ -213,5 +250,101 @@ async fn on_realistic_instruments_the_hidden_timing_is_found_within_ten_percent(
         );
         // A few percent is within the tolerance: the instrument passes.
         assert!(r.failed_keys().is_empty(), "seed {seed}: {:?}", r.failed_keys());
+    }
+}
+
+/// The settle time and backlash the hardware really has (the hidden truth), or the file's claim.
+fn real_axis(
+    truth: &gonio_results::provenance::SimulatorTruth,
+    file: &InstrumentFile,
+    name: &str,
+) -> (f64, f64) {
+    let claimed = file
+        .instrument
+        .axes
+        .iter()
+        .find(|a| a.name == name)
+        .expect("axis");
+    let drawn = truth
+        .actual
+        .as_ref()
+        .and_then(|a| a.axes.iter().find(|a| a.name == name));
+    (
+        drawn.and_then(|a| a.settle_s).unwrap_or(claimed.settle_s),
+        drawn.and_then(|a| a.backlash_deg).unwrap_or(claimed.backlash_deg),
+    )
+}
+
+#[tokio::test(start_paused = true)]
+async fn on_realistic_instruments_settle_and_backlash_are_found_within_ten_percent() {
+    for seed in [16u64, 3, 11, 29] {
+        let text = realistic_with_seed(seed);
+        let file = InstrumentFile::parse(&text, "realistic.toml").expect("valid");
+        let truth = gonio_engine::rig::simulator_truth(&text, true, 0).expect("hidden truth");
+        let r = selftest_of(&file).await;
+        for name in ["detector", "light", "tilt"] {
+            let (settle, backlash) = real_axis(&truth, &file, name);
+            let s = measured(&r, &format!("axes.{name}.settle_s"));
+            let b = measured(&r, &format!("axes.{name}.backlash_deg"));
+            // `cargo test -p gonio-engine --test selftest -- --nocapture` prints the figures.
+            eprintln!(
+                "seed {seed} {name}: settle {s:.4} s (true {settle:.4}), backlash {b:.5} deg (true {backlash:.5})"
+            );
+            assert!(
+                (s / settle - 1.0).abs() < 0.10,
+                "seed {seed} {name}: settle {s} s for {settle}"
+            );
+            // The tilt has no play: within a count of its encoder of none.
+            let allowed = (0.10 * backlash).max(0.000_25);
+            assert!(
+                (b - backlash).abs() < allowed,
+                "seed {seed} {name}: backlash {b} deg for {backlash}"
+            );
+        }
+        assert!(r.failed_keys().is_empty(), "seed {seed}: {:?}", r.failed_keys());
+        assert!(
+            r.not_measured
+                .iter()
+                .any(|m| m.starts_with("axes.rotation.settle_s") && m.contains("not observable")),
+            "seed {seed}: {:?}",
+            r.not_measured
+        );
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_longer_settle_or_a_larger_backlash_than_claimed_fails_naming_the_key() {
+    for (extra, key, want) in [
+        (
+            "[simulator.actual.axes.light]\nsettle_s = 0.2\n",
+            "axes.light.settle_s",
+            0.2,
+        ),
+        (
+            "[simulator.actual.axes.detector]\nsettle_s = 0.2\n",
+            "axes.detector.settle_s",
+            0.2,
+        ),
+        (
+            "[simulator.actual.axes.tilt]\nsettle_s = 0.2\n",
+            "axes.tilt.settle_s",
+            0.2,
+        ),
+        (
+            "[simulator.actual.axes.detector]\nbacklash_deg = 0.03\n",
+            "axes.detector.backlash_deg",
+            0.03,
+        ),
+        (
+            "[simulator.actual.axes.tilt]\nbacklash_deg = 0.004\n",
+            "axes.tilt.backlash_deg",
+            0.004,
+        ),
+    ] {
+        let r = selftest_of(&with_actual(extra)).await;
+        assert_eq!(r.failed_keys(), vec![key], "{extra}: {:#?}", r.checks);
+        let got = measured(&r, key);
+        eprintln!("{key}: measured {got:.5} for {want}");
+        assert!((got / want - 1.0).abs() < 0.10, "{extra}: {got} for {want}");
     }
 }

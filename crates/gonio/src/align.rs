@@ -14,6 +14,7 @@ use gonio_engine::Control;
 use gonio_engine::align::file::CalibrationFile;
 use gonio_engine::align::{AlignOptions, AlignmentReport, OperatorStep, Placement, run_alignment};
 use gonio_engine::characterise::{CharacterisationReport, CharacteriseOptions};
+use gonio_engine::rig::SampleHolder;
 use gonio_scheduler::timing::TimeModel;
 
 use crate::CliError;
@@ -22,7 +23,7 @@ use crate::instrument_arg::{InstrumentArg, connect, in_process, read_instrument}
 /// Device operations are retried this many times during the alignment.
 const RETRIES: u32 = 2;
 /// The simulated alignment mirror's radius (mm).
-const MIRROR_RADIUS_MM: f64 = 25.0;
+pub const MIRROR_RADIUS_MM: f64 = 25.0;
 
 #[derive(Debug, clap::Args)]
 pub struct AlignArgs {
@@ -91,15 +92,7 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
         // The answer is ready when the closure returns: a person's Enter is read right there (this command has
         // nothing else to do meanwhile).
         let operator = |p: Placement| -> OperatorStep<'_> {
-            let done = match &holder {
-                Some(h) => {
-                    eprintln!("simulated operator: {}", p.instruction());
-                    h.hold(p.held());
-                    Ok(())
-                }
-                None => prompt(p),
-            };
-            Box::pin(std::future::ready(done))
+            Box::pin(std::future::ready(operator_step(holder.as_deref(), p)))
         };
         let mut motion = gonio_engine::motion::Motion::new(
             &rig,
@@ -126,6 +119,19 @@ pub fn run(args: AlignArgs) -> Result<(), CliError> {
         .map_err(|e| CliError::io(format!("cannot write {}", args.out.display()), e))?;
     eprintln!("wrote the calibration to {}", args.out.display());
     Ok(())
+}
+
+/// The operator's step `p` of the alignment's procedure (also the self-test's): done by the simulated operator
+/// on a dry-run's `holder`, else prompted on the terminal.
+pub fn operator_step(holder: Option<&dyn SampleHolder>, p: Placement) -> Result<(), String> {
+    match holder {
+        Some(h) => {
+            eprintln!("simulated operator: {}", p.instruction());
+            h.hold(p.held());
+            Ok(())
+        }
+        None => prompt(p),
+    }
 }
 
 /// Ask the operator to make `placement` and wait for Enter (hardware).

@@ -1,7 +1,9 @@
 //! `gonio selftest [--instrument FILE] [--json REPORT.json] [--write FILE]`: the instrument file held against
 //! the hardware (`gonio_engine::selftest`). Prints each figure measured against configured with a verdict,
 //! exits 1 naming each key the hardware contradicts, and with `--write` writes the instrument file with the
-//! measured values (and a comment of when they were measured).
+//! measured values (and a comment of when they were measured). The settle times and backlash need the holder
+//! emptied and then the alignment mirror mounted: prompted on hardware, done by the simulated operator on a
+//! dry-run (as `gonio align` does).
 
 use std::path::PathBuf;
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -11,7 +13,11 @@ use gonio_engine::selftest::{DEFAULT_TOLERANCE, SelftestReport, Verdict, run_sel
 use gonio_results::provenance_summary::iso8601_utc;
 use gonio_scheduler::timing::TimeModel;
 
+use gonio_brdf::material::Material;
+use gonio_engine::align::Placement;
+
 use crate::CliError;
+use crate::align::{MIRROR_RADIUS_MM, operator_step};
 use crate::instrument_arg::{InstrumentArg, connect, in_process, read_instrument};
 
 /// Device operations are retried this many times during the self-test.
@@ -44,13 +50,18 @@ pub fn run(args: SelftestArgs) -> Result<(), CliError> {
     let runtime = crate::run::instrument_runtime(in_process(&file))?;
     let report = runtime.block_on(async {
         let rig = connect(&file).await?;
+        let mirror = Material::preset("mirror").map_err(|e| CliError::input(e.to_string()))?;
+        let holder = rig
+            .alignment_holder(&mirror, None, MIRROR_RADIUS_MM)
+            .map_err(|e| CliError::input(e.to_string()))?;
+        let operator = |p: Placement| operator_step(holder.as_deref(), p);
         let mut motion = gonio_engine::motion::Motion::new(
             &rig,
             TimeModel::new(&file.instrument),
             RETRIES,
             Control::new(),
         );
-        run_selftest(&mut motion, args.tolerance)
+        run_selftest(&mut motion, args.tolerance, &operator)
             .await
             .map_err(|e| CliError::input(format!("self-test stopped: {e}")))
     })?;
@@ -131,7 +142,14 @@ fn measured_file(text: &str, r: &SelftestReport) -> Result<String, String> {
     let mut doc: toml::Table = toml::from_str(text).map_err(|e| format!("the instrument file: {e}"))?;
     let mut written = Vec::new();
     for c in r.checks.iter().filter(|c| c.configured.is_some()) {
-        if set_key(&mut doc, &c.key, c.measured) {
+        // A backlash or a settle time measured a hair below zero is none within the measurement's noise; the
+        // file takes no negative value.
+        let value = if c.key.ends_with(".backlash_deg") || c.key.ends_with(".settle_s") {
+            c.measured.max(0.0)
+        } else {
+            c.measured
+        };
+        if set_key(&mut doc, &c.key, value) {
             written.push(c.key.clone());
         }
     }

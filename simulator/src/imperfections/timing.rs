@@ -1,10 +1,12 @@
-//! The hardware's real timing: each axis's top speed and acceleration and the wheel's time per position, drawn
-//! about what the instrument file claims.
+//! The hardware's real timing: each axis's top speed, acceleration, settle time and backlash and the wheel's time
+//! per position, drawn about what the instrument file claims.
 //!
 //! # Model (magnitudes from `[simulator.imperfections.timing]`)
 //! Each axis's real top speed is `max_speed_deg_s (1 + speed_sd z)`, its acceleration `accel_deg_s2 (1 +
-//! accel_sd z')`, the wheel's time per position `seconds_per_position (1 + wheel_sd z'')`, each `z ~ N(0, 1)`
-//! drawn from the seed, clamped to within three standard deviations. A real speed above the claimed one is never
+//! accel_sd z')`, its settle time `settle_s (1 + settle_sd z'')` and its backlash `backlash_deg (1 + backlash_sd
+//! z''')`, the wheel's time per position `seconds_per_position (1 + wheel_sd z'''')`, each `z ~ N(0, 1)` drawn
+//! from the seed, clamped to within three standard deviations. (The settle time is what the load's ringing
+//! takes to die down within the axis's tolerance: crate::motion::settling.) A real speed above the claimed one is never
 //! seen (the drivers command the claimed value); one below it is: the mechanics do not follow. The real
 //! instrument these make ([`TimingTruth::apply`]) is what the simulated devices are built from; stated values
 //! in `[simulator.actual]` then win over the draws.
@@ -20,6 +22,8 @@ pub struct AxisTiming {
     pub name: String,
     pub speed_factor: f64,
     pub accel_factor: f64,
+    pub settle_factor: f64,
+    pub backlash_factor: f64,
 }
 
 /// The hidden timing of the hardware (module doc).
@@ -44,10 +48,14 @@ impl TimingTruth {
             .enumerate()
             .map(|(i, a)| {
                 let (zs, za) = draws.normal_pair("timing-axis", i as u64);
+                // Their own stream: the speed and acceleration drawn before settle and backlash were stay.
+                let (zt, zb) = draws.normal_pair("timing-axis-settle", i as u64);
                 AxisTiming {
                     name: a.name.clone(),
                     speed_factor: factor(settings.speed_sd, zs),
                     accel_factor: factor(settings.accel_sd, za),
+                    settle_factor: factor(settings.settle_sd, zt),
+                    backlash_factor: factor(settings.backlash_sd, zb),
                 }
             })
             .collect();
@@ -60,10 +68,12 @@ impl TimingTruth {
 
     pub fn is_ideal(&self) -> bool {
         self.wheel_factor == 1.0
-            && self
-                .axes
-                .iter()
-                .all(|a| a.speed_factor == 1.0 && a.accel_factor == 1.0)
+            && self.axes.iter().all(|a| {
+                a.speed_factor == 1.0
+                    && a.accel_factor == 1.0
+                    && a.settle_factor == 1.0
+                    && a.backlash_factor == 1.0
+            })
     }
 
     /// The real hardware: `inst` with the drawn factors applied.
@@ -72,6 +82,8 @@ impl TimingTruth {
             if let Some(t) = self.axes.iter().find(|t| t.name == a.name) {
                 a.max_speed_deg_s *= t.speed_factor;
                 a.accel_deg_s2 *= t.accel_factor;
+                a.settle_s *= t.settle_factor;
+                a.backlash_deg *= t.backlash_factor;
             }
         }
         if let Some(w) = inst.filter_wheel.as_mut() {
@@ -92,6 +104,8 @@ mod tests {
             speed_sd: 0.02,
             accel_sd: 0.03,
             wheel_sd: 0.05,
+            settle_sd: 0.04,
+            backlash_sd: 0.05,
         };
         let a = TimingTruth::draw(&settings, &file.instrument, 7);
         assert_eq!(
@@ -105,7 +119,17 @@ mod tests {
             assert!(
                 (t.speed_factor - 1.0).abs() <= 0.06 + 1e-12 && (t.accel_factor - 1.0).abs() <= 0.09 + 1e-12
             );
+            assert!(
+                (t.settle_factor - 1.0).abs() <= 0.12 + 1e-12
+                    && (t.backlash_factor - 1.0).abs() <= 0.15 + 1e-12
+            );
         }
+        assert!(
+            a.axes
+                .iter()
+                .any(|t| t.settle_factor != 1.0 && t.backlash_factor != 1.0),
+            "settle and backlash drawn"
+        );
         let off = TimingTruth::draw(&TimingImperfections::default(), &file.instrument, 7);
         assert!(off.is_ideal());
         // Over many seeds the spread is the magnitude's.
@@ -128,5 +152,8 @@ mod tests {
             .map(|w| w.seconds_per_position)
             .unwrap_or_default();
         assert!((w - claimed * a.wheel_factor).abs() < 1e-12);
+        let (real, claim) = (&inst.axes[0], &file.instrument.axes[0]);
+        assert!((real.settle_s - claim.settle_s * a.axes[0].settle_factor).abs() < 1e-15);
+        assert!((real.backlash_deg - claim.backlash_deg * a.axes[0].backlash_factor).abs() < 1e-15);
     }
 }

@@ -9,10 +9,10 @@ use super::centre::{CentreError, Located, centre, edge, plateau_and_base, rough_
 use crate::motion::{Device, Motion};
 
 /// Scan widths and steps (deg). The coarse scan must hold the whole profile; the fine scans cover each edge.
-pub(super) const DETECTOR_HALF_WIDTH_DEG: f64 = 1.5;
+pub(crate) const DETECTOR_HALF_WIDTH_DEG: f64 = 1.5;
 const COARSE_STEP_DEG: f64 = 0.1;
 /// The reflection rises by `2 cos(theta_i)` times the tilt: the detector's width over that.
-pub(super) fn tilt_half_width_deg(theta_i_deg: f64) -> f64 {
+pub(crate) fn tilt_half_width_deg(theta_i_deg: f64) -> f64 {
     DETECTOR_HALF_WIDTH_DEG / (2.0 * theta_i_deg.to_radians().cos()).max(0.5)
 }
 /// Readings on each fine edge scan.
@@ -45,16 +45,29 @@ pub(super) async fn read_along(
     Ok(out)
 }
 
-/// A scan of `role` about `nominal` (deg, within `half_width`): coarse, then fine across each edge. The centre
-/// and the number of readings taken.
-pub(super) async fn scan(
+/// What one scan found: the profile's centre and its two half-height edges (deg), its plateau and baseline (W),
+/// the width of an edge from 15 % to 85 % of the way up (deg: from the coarse readings, or the narrower window a
+/// sharp edge needed for enough fine readings on it) and the readings taken.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Profile {
+    pub centre: Located,
+    pub low: Located,
+    pub high: Located,
+    pub plateau_w: f64,
+    pub base_w: f64,
+    pub edge_width_deg: f64,
+    pub readings: usize,
+}
+
+/// A scan of `role` about `nominal` (deg, within `half_width`): coarse, then fine across each edge.
+pub(crate) async fn scan(
     motion: &mut Motion<'_>,
     name: &str,
     role: AxisRole,
     nominal: f64,
     half_width: f64,
     at: &(dyn Fn(f64) -> Pose + Sync),
-) -> Result<(Located, usize), AlignError> {
+) -> Result<Profile, AlignError> {
     let fail = |cause| AlignError::Scan {
         scan: name.to_string(),
         cause,
@@ -92,6 +105,8 @@ pub(super) async fn scan(
     };
     let mut n = coarse.len();
     let mut found = Vec::with_capacity(2);
+    // The narrowest window an edge needed (a sharp edge is narrowed until enough readings fall on it).
+    let mut fine_width = width;
     for (x0, side) in [(l, "low"), (r, "high")] {
         // A sharp edge (a top-hat beam) may hold too few readings at the first fine step: narrow the window
         // about the edge's latest crossing and read again, a few times at most.
@@ -116,6 +131,7 @@ pub(super) async fn scan(
             }
         };
         found.push(located);
+        fine_width = fine_width.min(width);
     }
     let (left, right) = (found[0], found[1]);
     // The read-back positions are quantised to the axis's encoder resolution: a centre from some ten readings
@@ -128,7 +144,15 @@ pub(super) async fn scan(
         .map_or(0.0, |a| a.encoder_resolution_deg);
     let mut c = centre(left, right);
     c.u = c.u.max(0.1 * resolution).max(1e-6);
-    Ok((c, n))
+    Ok(Profile {
+        centre: c,
+        low: left,
+        high: right,
+        plateau_w: plateau,
+        base_w: base,
+        edge_width_deg: fine_width,
+        readings: n,
+    })
 }
 
 /// The readings' scatter at the ends of a scan (W): the rms of consecutive differences over the first and the
@@ -154,6 +178,6 @@ fn crossing(samples: &[(f64, f64)], level: f64) -> Option<f64> {
 }
 
 /// The meter's ranges (full scale, W) as the instrument file gives them.
-fn meter_ranges_w<'m>(motion: &'m Motion<'_>) -> &'m [f64] {
+pub(crate) fn meter_ranges_w<'m>(motion: &'m Motion<'_>) -> &'m [f64] {
     &motion.rig().file().instrument.detector.ranges_w
 }

@@ -58,14 +58,51 @@ impl SelftestReport {
 
 /// A measured figure against a claimed one: pass within `tolerance` (relative), fail beyond.
 pub fn against(key: String, what: &str, unit: &str, configured: f64, measured: f64, tolerance: f64) -> Check {
-    let within = (measured - configured).abs() <= tolerance * configured.abs();
+    within(
+        key,
+        what,
+        unit,
+        configured,
+        measured,
+        tolerance * configured.abs(),
+    )
+}
+
+/// A measured figure against a claimed one: pass within `allowed` (absolute, in the figure's unit), fail beyond.
+/// For a figure whose claim may be 0 (a backlash), where a relative tolerance would allow nothing.
+pub fn within(key: String, what: &str, unit: &str, configured: f64, measured: f64, allowed: f64) -> Check {
+    line(
+        key,
+        what,
+        unit,
+        configured,
+        measured,
+        (measured - configured).abs() <= allowed,
+    )
+}
+
+/// A measured figure against a claimed upper bound: pass when it is at most the claim plus `tolerance`
+/// (relative), fail when the hardware needs more. For a wait the engine makes (a settle time): hardware that
+/// needs less than the file waits for is not wrong, only slower than it could be.
+pub fn at_most(key: String, what: &str, unit: &str, configured: f64, measured: f64, tolerance: f64) -> Check {
+    line(
+        key,
+        what,
+        unit,
+        configured,
+        measured,
+        measured <= configured * (1.0 + tolerance),
+    )
+}
+
+fn line(key: String, what: &str, unit: &str, configured: f64, measured: f64, pass: bool) -> Check {
     Check {
         key,
         what: what.to_string(),
         unit: unit.to_string(),
         configured: Some(configured),
         measured,
-        verdict: if within { Verdict::Pass } else { Verdict::Fail },
+        verdict: if pass { Verdict::Pass } else { Verdict::Fail },
     }
 }
 

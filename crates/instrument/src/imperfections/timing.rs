@@ -1,7 +1,8 @@
 //! `[simulator.imperfections.timing]`: how far the simulated hardware's timing is from what the instrument file
-//! claims, as relative standard deviations. The simulator draws each axis's real top speed and acceleration and
-//! the wheel's real time per position from them (simulator/src/imperfections/timing.rs); `gonio selftest` should
-//! find each.
+//! claims, as relative standard deviations. The simulator draws each axis's real top speed, acceleration, settle
+//! time and backlash and the wheel's real time per position from them (simulator/src/imperfections/timing.rs);
+//! `gonio selftest` should find each. A non-zero `settle_sd` also makes every axis's load ring after each move
+//! (simulator/src/motion/settling.rs), dying down within the axis's real settle time.
 
 use serde::{Deserialize, Serialize};
 
@@ -20,11 +21,21 @@ pub struct TimingImperfections {
     /// The wheel's real time per position about its `seconds_per_position`.
     #[serde(default)]
     pub wheel_sd: f64,
+    /// Each axis's real settle time about its `settle_s`; non-zero: the loads ring after each move.
+    #[serde(default)]
+    pub settle_sd: f64,
+    /// Each axis's real backlash about its `backlash_deg`.
+    #[serde(default)]
+    pub backlash_sd: f64,
 }
 
 impl TimingImperfections {
     pub fn is_ideal(&self) -> bool {
-        self.speed_sd == 0.0 && self.accel_sd == 0.0 && self.wheel_sd == 0.0
+        self.speed_sd == 0.0
+            && self.accel_sd == 0.0
+            && self.wheel_sd == 0.0
+            && self.settle_sd == 0.0
+            && self.backlash_sd == 0.0
     }
 
     pub fn validate(&self) -> Result<(), ImperfectionsError> {
@@ -33,6 +44,8 @@ impl TimingImperfections {
             ("speed_sd", self.speed_sd),
             ("accel_sd", self.accel_sd),
             ("wheel_sd", self.wheel_sd),
+            ("settle_sd", self.settle_sd),
+            ("backlash_sd", self.backlash_sd),
         ] {
             check(
                 G,
