@@ -27,6 +27,7 @@
 
 mod actual;
 pub mod imperfections;
+pub mod responsivity;
 mod validate;
 
 use std::path::Path;
