@@ -300,8 +300,11 @@ mod tests {
         // 5e-4 W at 550 nm would fill the 5e-4 W range: read at 750 nm it is 3.3e-4 W, 67 % of it.
         let got = best_setting(&r, 550.0, 5.0e-4, &[5.0e-5, 5.0e-4, 5.0e-3], [400.0, 1100.0]);
         assert_eq!(got, Some((750.0, 5.0e-4)));
-        // Outside the sensor's limits a wavelength is not offered.
+        // Outside the sensor's limits a wavelength is not offered: read at 400 nm it is 1.5e-3 W, 30 % of the
+        // 5e-3 W range (at 550 nm 10 %).
         let got = best_setting(&r, 550.0, 5.0e-4, &[5.0e-5, 5.0e-4, 5.0e-3], [400.0, 700.0]);
+        assert_eq!(got, Some((400.0, 5.0e-3)));
+        let got = best_setting(&r, 550.0, 5.0e-4, &[5.0e-5, 5.0e-4, 5.0e-3], [500.0, 700.0]);
         assert_eq!(got, Some((550.0, 5.0e-3)));
         assert_eq!(best_setting(&r, 550.0, 1.0, &[5.0e-4], [400.0, 1100.0]), None);
     }
