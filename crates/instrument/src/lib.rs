@@ -27,6 +27,7 @@
 
 mod actual;
 pub mod imperfections;
+pub mod meter_noise;
 pub mod responsivity;
 mod validate;
 

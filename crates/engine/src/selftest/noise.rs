@@ -13,9 +13,11 @@
 //!   in a row. The differences of consecutive readings remove the slow drift (and the source's warm-up and
 //!   wander); their variance is twice the reading's. The meter's own noise at that level (shot noise of the
 //!   current, Johnson noise of the range's feedback resistor, the converter's quantisation: [`meter_floor_w2`])
-//!   is subtracted; at the direct beam it is a few percent of the source's at most.
+//!   is subtracted (gonio_instrument::meter_noise, the figures the simulated meter uses too); at the direct beam
+//!   it is a few percent of the source's at most.
 
 use gonio_driver::{DetectorConfig, PowerRange};
+use gonio_instrument::meter_noise;
 use gonio_instrument::responsivity::Responsivity;
 use gonio_scheduler::kinematics::Pose;
 
@@ -33,15 +35,6 @@ pub const NOISE_READINGS: usize = 800;
 pub const AMBIENT_ALLOWANCE: f64 = 0.6;
 /// The direct beam's largest share of the range's full scale: its noise and drift must not overload it.
 pub const MAX_FILL: f64 = 0.75;
-
-/// The PM100's figures for its own noise (Thorlabs PM100USB; as simulator/src/pm100 models them): about 3 ms
-/// per sample, a 16-bit converter over the range, the transimpedance amplifier's 2 V at full scale.
-const SAMPLE_S: f64 = 0.003;
-const ADC_COUNTS: f64 = 65_536.0;
-const FULL_SCALE_V: f64 = 2.0;
-const ELEMENTARY_CHARGE_C: f64 = 1.602_176_634e-19;
-const BOLTZMANN_J_K: f64 = 1.380_649e-23;
-const TEMPERATURE_K: f64 = 295.0;
 
 /// The file's responsivity, or why there is none to convert with.
 fn responsivity(motion: &Motion<'_>) -> Result<Responsivity, String> {
@@ -170,13 +163,10 @@ fn dark_current_check(claimed_a: f64, measured_a: f64, tolerance: f64) -> Check 
 /// The variance (W^2) the meter itself adds to one sample of `power_w` on a range of `full_scale_w`, set to a
 /// wavelength where the head delivers `a_per_w` (module doc).
 pub fn meter_floor_w2(power_w: f64, full_scale_w: f64, a_per_w: f64) -> f64 {
-    let bandwidth_hz = 1.0 / (2.0 * SAMPLE_S);
-    let current_a = power_w.abs() * a_per_w;
-    let full_scale_a = full_scale_w * a_per_w;
-    let shot_a2 = 2.0 * ELEMENTARY_CHARGE_C * current_a * bandwidth_hz;
-    let johnson_a2 = 4.0 * BOLTZMANN_J_K * TEMPERATURE_K * bandwidth_hz * full_scale_a / FULL_SCALE_V;
-    let lsb_w = full_scale_w / ADC_COUNTS;
-    (shot_a2 + johnson_a2) / (a_per_w * a_per_w) + lsb_w * lsb_w / 12.0
+    let current_a2 =
+        meter_noise::shot_a2(power_w * a_per_w) + meter_noise::johnson_a2(full_scale_w * a_per_w);
+    let lsb_w = meter_noise::lsb(full_scale_w);
+    current_a2 / (a_per_w * a_per_w) + lsb_w * lsb_w / 12.0
 }
 
 /// The set wavelength and range that put a beam read as `power_w` at `band_nm` highest below [`MAX_FILL`] of
