@@ -73,15 +73,25 @@ fn selftest_passes_on_the_ideal_instrument_and_names_what_the_hardware_contradic
         .iter()
         .find(|a| a.name == "tilt")
         .expect("tilt");
-    let tilt_line = |key: &str| {
+    let report_line = |key: &str| {
         report["checks"]
             .as_array()
             .and_then(|c| c.iter().find(|c| c["key"] == key))
             .and_then(|c| c["measured"].as_f64())
-            .expect("the tilt's line")
+            .expect("the line")
     };
-    assert_eq!(tilt.backlash_deg, tilt_line("axes.tilt.backlash_deg").max(0.0));
-    assert_eq!(tilt.settle_s, tilt_line("axes.tilt.settle_s").max(0.0));
+    assert_eq!(tilt.backlash_deg, report_line("axes.tilt.backlash_deg").max(0.0));
+    assert_eq!(tilt.settle_s, report_line("axes.tilt.settle_s").max(0.0));
+    // The noise figures measured are written too: the dark (with whatever ambient light reaches the head) and
+    // the source's white relative noise, each as the report has it.
+    assert_eq!(
+        file.instrument.detector.dark_current_a,
+        report_line("detector.dark_current_a")
+    );
+    assert_eq!(
+        file.instrument.source.relative_noise,
+        report_line("source.relative_noise")
+    );
     assert!(
         std::fs::read_to_string(&written)
             .expect("text")

@@ -394,7 +394,9 @@ impl Rig {
             ));
         }
         let hidden = self.inner.sim.as_ref().and_then(|s| s.hidden_truth());
-        Ok(Optics::new(&self.inner.file.instrument, sample, seed)
+        // The source as it really is (its hidden relative noise, `[simulator.actual.source]`).
+        let real = gonio_simulator::imperfections::HiddenTruth::real_instrument(&self.inner.file, hidden);
+        Ok(Optics::new(&real, sample, seed)
             .map_err(|e| EngineError::Instrument(format!("simulated optics: {e}")))?
             // The instrument's hidden imperfections stay inside the simulator's optics.
             .with_hidden_truth(hidden))

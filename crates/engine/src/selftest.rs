@@ -13,7 +13,9 @@
 //!   fixed cost of each turn cancels), after a full turn through every position.
 //! - Reply latency: ten position queries of each device, timed.
 //! - Dark and noise: the blank in the beam, the meter fixed on each of its ranges in turn, readings' mean and
-//!   spread.
+//!   spread; the head's dark current (`detector.dark_current_a`) from the smallest range's, and the source's
+//!   white relative noise (`source.relative_noise`) from readings of the direct beam at averaging 1 while the
+//!   holder is empty for the settle times (`noise`: how, and what ambient light does to a dark).
 //!
 //! - Settle time and backlash: the meter on a sharp edge in the beam, the direct beam's for the arms and a
 //!   mirror's reflection for the tilt (`settle`, the fit in `ringdown`); the rotation's are not observable that
@@ -21,14 +23,15 @@
 //!   waits (a shorter one is not wrong); the backlash fails either way.
 
 mod fit;
+mod noise;
 mod report;
 mod ringdown;
 mod settle;
 
+pub use noise::{AMBIENT_ALLOWANCE, MAX_FILL, NOISE_READINGS};
 pub use report::{Check, SelftestReport, Verdict, against, at_most, info, within};
 pub use settle::{SETTLE_REPEATS, STEP_DEG};
 
-use gonio_driver::{DetectorConfig, PowerRange};
 use gonio_instrument::AxisRole;
 use gonio_scheduler::kinematics::Pose;
 
@@ -39,8 +42,6 @@ use fit::{Sample, cruise_speed, mean_std, ramp_acceleration};
 
 /// Relative tolerance of a measured figure against the file's, unless told otherwise.
 pub const DEFAULT_TOLERANCE: f64 = 0.10;
-/// Readings per meter range for its dark and noise.
-const READINGS_PER_RANGE: usize = 20;
 /// Position queries per device for its latency.
 const LATENCY_QUERIES: usize = 10;
 /// The measured moves stay this far (deg) inside each axis's travel and beyond the arms' safety separation.
@@ -105,7 +106,7 @@ pub async fn run_selftest(
         }
     }
     checks.extend(measure_latency(motion).await?);
-    let (meter, missing) = measure_meter(motion).await?;
+    let (meter, missing) = noise::measure_meter(motion, tolerance).await?;
     checks.extend(meter);
     not_measured.extend(missing);
     let settling = settle::measure_settling(motion, operator, tolerance, &accelerations).await?;
@@ -389,64 +390,4 @@ async fn measure_latency(motion: &Motion<'_>) -> Result<Vec<Check>, MotionError>
         out.push(info(format!("latency.{name}"), "reply to *IDN?", "ms", mean));
     }
     Ok(out)
-}
-
-/// The meter's dark and noise on each range, with the blank in the beam.
-async fn measure_meter(motion: &Motion<'_>) -> Result<(Vec<Check>, Vec<String>), MotionError> {
-    let rig = motion.rig();
-    let inst = &rig.file().instrument;
-    let mut missing = Vec::new();
-    let blank = inst
-        .filter_wheel
-        .as_ref()
-        .and_then(|w| w.positions.iter().find(|p| p.blank))
-        .map(|p| p.position);
-    match (rig.wheel(), blank) {
-        (Some(w), Some(p)) => {
-            motion.device(Device::Wheel, "the blank into the beam", || w.go_to(p)).await?;
-        }
-        _ => missing.push(
-            "detector dark: no blank on the wheel, so the readings below include whatever light reaches the meter"
-                .to_string(),
-        ),
-    }
-    let nm = inst.bands_nm().first().copied().unwrap_or(550.0);
-    let det = rig.detector();
-    let mut out = Vec::new();
-    for (i, range_w) in inst.detector.ranges_w.iter().enumerate() {
-        let config = DetectorConfig {
-            wavelength_nm: nm,
-            averaging: inst.detector.averaging,
-            range: PowerRange::Fixed {
-                full_scale_w: *range_w,
-            },
-        };
-        motion
-            .device(Device::Detector, "configure the meter's range", || {
-                det.configure(config)
-            })
-            .await?;
-        let mut values = Vec::new();
-        for _ in 0..READINGS_PER_RANGE {
-            let r = motion
-                .device(Device::Detector, "read the meter", || det.read_power())
-                .await?;
-            values.push(r.power_w);
-        }
-        if let Some((mean, std)) = mean_std(&values) {
-            out.push(info(
-                format!("detector.ranges_w[{i}].dark_w"),
-                &format!("dark on the {range_w:e} W range"),
-                "W",
-                mean,
-            ));
-            out.push(info(
-                format!("detector.ranges_w[{i}].noise_w"),
-                &format!("noise (1 sigma) on the {range_w:e} W range"),
-                "W",
-                std,
-            ));
-        }
-    }
-    Ok((out, missing))
 }

@@ -45,7 +45,7 @@ fn measured(r: &SelftestReport, key: &str) -> f64 {
     r.checks
         .iter()
         .find(|c| c.key == key)
-        .unwrap_or_else(|| panic!("no {key} in {:#?}", r.checks))
+        .unwrap_or_else(|| panic!("no {key} in {:#?}; not measured: {:?}", r.checks, r.not_measured))
         .measured
 }
 
@@ -80,6 +80,17 @@ async fn the_ideal_instrument_measures_as_its_file_says() {
             .any(|c| c.key.starts_with("latency.") && c.measured > 0.0),
         "{:#?}",
         r.checks
+    );
+    // The ideal instrument's noise figures are its file's: no ambient light, no hidden difference.
+    let noise = measured(&r, "source.relative_noise");
+    assert!(
+        (noise / file.instrument.source.relative_noise - 1.0).abs() < 0.10,
+        "{noise}"
+    );
+    let dark = measured(&r, "detector.dark_current_a");
+    assert!(
+        (dark / file.instrument.detector.dark_current_a - 1.0).abs() < 0.03,
+        "{dark} A"
     );
     let ranges = file.instrument.detector.ranges_w.len();
     assert_eq!(
@@ -345,6 +356,97 @@ async fn a_longer_settle_or_a_larger_backlash_than_claimed_fails_naming_the_key(
         assert_eq!(r.failed_keys(), vec![key], "{extra}: {:#?}", r.checks);
         let got = measured(&r, key);
         eprintln!("{key}: measured {got:.5} for {want}");
+        assert!((got / want - 1.0).abs() < 0.10, "{extra}: {got} for {want}");
+    }
+}
+
+/// The ambient light's photocurrent (A) over the first `span_s` of the instrument's time, (least, most), from
+/// the hidden truth; (0, 0) without ambient light.
+fn ambient_span_a(truth: &gonio_results::provenance::SimulatorTruth, span_s: f64) -> (f64, f64) {
+    let Some(d) = &truth.detector else {
+        return (0.0, 0.0);
+    };
+    let at = |t: f64| {
+        let arg = std::f64::consts::TAU * t / d.ambient_period_s + d.ambient_phase_deg.to_radians();
+        (d.ambient_a * (1.0 + d.ambient_variation * arg.sin())).max(0.0)
+    };
+    let steps = 1000;
+    (0..=steps)
+        .map(|k| at(span_s * f64::from(k) / f64::from(steps)))
+        .fold((f64::INFINITY, 0.0f64), |(lo, hi), a| (lo.min(a), hi.max(a)))
+}
+
+#[tokio::test(start_paused = true)]
+async fn on_realistic_instruments_the_hidden_noise_figures_are_found_within_ten_percent() {
+    for seed in [16u64, 3, 11, 29] {
+        let text = realistic_with_seed(seed);
+        let file = InstrumentFile::parse(&text, "realistic.toml").expect("valid");
+        let truth = gonio_engine::rig::simulator_truth(&text, true, 0).expect("hidden truth");
+        let actual = truth.actual.as_ref().expect("hidden differences drawn");
+        let dark = actual
+            .detector_dark_current_a
+            .expect("a dark current drawn from the seed");
+        let noise = actual
+            .source_relative_noise
+            .expect("a relative noise drawn from the seed");
+        let (claimed_dark, claimed_noise) = (
+            file.instrument.detector.dark_current_a,
+            file.instrument.source.relative_noise,
+        );
+        assert!(
+            dark != claimed_dark && (dark / claimed_dark - 1.0).abs() < 0.1,
+            "a few percent off: {dark}"
+        );
+        assert!(
+            noise != claimed_noise && (noise / claimed_noise - 1.0).abs() < 0.1,
+            "a few percent off: {noise}"
+        );
+        let r = selftest_of(&file).await;
+        let got_noise = measured(&r, "source.relative_noise");
+        let got_dark = measured(&r, "detector.dark_current_a");
+        // The dark reading holds the room light too (the self-test reports "dark + ambient"): against the true
+        // dark current plus the ambient light at some time during the test.
+        let (amb_lo, amb_hi) = ambient_span_a(&truth, r.instrument_s + 60.0);
+        eprintln!(
+            "seed {seed}: relative noise {got_noise:.4e} (true {noise:.4e}, claimed {claimed_noise:.1e}); dark + \
+             ambient {got_dark:.4e} A (true dark {dark:.4e} + ambient {amb_lo:.3e}..{amb_hi:.3e}); {:.0} s",
+            r.instrument_s
+        );
+        assert!(
+            (got_noise / noise - 1.0).abs() < 0.10,
+            "seed {seed}: relative noise {got_noise} for {noise}"
+        );
+        assert!(
+            got_dark > 0.9 * (dark + amb_lo) && got_dark < 1.1 * (dark + amb_hi),
+            "seed {seed}: dark {got_dark} A for {dark} + {amb_lo}..{amb_hi}"
+        );
+        assert!(r.failed_keys().is_empty(), "seed {seed}: {:?}", r.failed_keys());
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_noisier_source_or_a_darker_head_than_claimed_fails_naming_the_key() {
+    let file = InstrumentFile::simulated();
+    let (noise, dark) = (
+        file.instrument.source.relative_noise,
+        file.instrument.detector.dark_current_a,
+    );
+    for (extra, key, want) in [
+        (
+            format!("[simulator.actual.source]\nrelative_noise = {:e}\n", 3.0 * noise),
+            "source.relative_noise",
+            3.0 * noise,
+        ),
+        (
+            format!("[simulator.actual.detector]\ndark_current_a = {:e}\n", 2.0 * dark),
+            "detector.dark_current_a",
+            2.0 * dark,
+        ),
+    ] {
+        let r = selftest_of(&with_actual(&extra)).await;
+        assert_eq!(r.failed_keys(), vec![key], "{extra}: {:#?}", r.checks);
+        let got = measured(&r, key);
+        eprintln!("{key}: measured {got:.4e} for {want:.4e}");
         assert!((got / want - 1.0).abs() < 0.10, "{extra}: {got} for {want}");
     }
 }

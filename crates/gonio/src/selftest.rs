@@ -107,10 +107,7 @@ pub fn report_text(r: &SelftestReport) -> String {
         "key", "configured", "measured"
     ));
     for c in &r.checks {
-        let configured = c
-            .configured
-            .map(|v| format!("{v:.4}"))
-            .unwrap_or_else(|| "-".into());
+        let configured = c.configured.map(format_value).unwrap_or_else(|| "-".into());
         let verdict = match c.verdict {
             Verdict::Pass => "ok",
             Verdict::Fail => "FAIL",

@@ -99,10 +99,13 @@ fn build_optics(file: &InstrumentFile, material: &str) -> Result<Arc<Optics>, Cl
         radius_mm: file.instrument.sample_holder.max_sample_radius_mm,
         orientation_deg: 0.0,
     };
-    let optics = Optics::new(&file.instrument, sample, file.simulator.seed)
+    // The same hidden imperfections the in-process simulator draws from this file and seed, and the source as it
+    // really is.
+    let hidden = gonio_simulator::imperfections::HiddenTruth::draw(file);
+    let real = gonio_simulator::imperfections::HiddenTruth::real_instrument(file, hidden.as_ref());
+    let optics = Optics::new(&real, sample, file.simulator.seed)
         .map_err(|e| CliError::input(format!("simulated optics: {e}")))?
-        // The same hidden imperfections the in-process simulator draws from this file and seed.
-        .with_hidden_truth(gonio_simulator::imperfections::HiddenTruth::draw(file).as_ref());
+        .with_hidden_truth(hidden.as_ref());
     Ok(Arc::new(optics))
 }
 

@@ -12,6 +12,10 @@
 //! max_speed_deg_s = 10.0
 //! [simulator.actual.axes.light]
 //! settle_s = 0.2
+//! [simulator.actual.detector]
+//! dark_current_a = 1.0e-10
+//! [simulator.actual.source]
+//! relative_noise = 3.0e-4
 //! ```
 //!
 //! The simulated devices run the actual values ([`InstrumentFile::actual_instrument`]); the engine plans with
@@ -33,6 +37,26 @@ pub struct Actual {
     /// By axis name.
     #[serde(default)]
     pub axes: BTreeMap<String, ActualAxis>,
+    #[serde(default)]
+    pub detector: Option<ActualDetector>,
+    #[serde(default)]
+    pub source: Option<ActualSource>,
+}
+
+/// `[simulator.actual.detector]`.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ActualDetector {
+    /// The head's real dark current (A).
+    pub dark_current_a: Option<f64>,
+}
+
+/// `[simulator.actual.source]`.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ActualSource {
+    /// The source's real white relative noise (1 sigma, a fraction).
+    pub relative_noise: Option<f64>,
 }
 
 /// `[simulator.actual.filter_wheel]`.
@@ -64,6 +88,8 @@ impl Actual {
             .as_ref()
             .is_none_or(|w| w.seconds_per_position.is_none())
             && self.axes.values().all(|a| a == &ActualAxis::default())
+            && self.detector.as_ref().is_none_or(|d| d.dark_current_a.is_none())
+            && self.source.as_ref().is_none_or(|s| s.relative_noise.is_none())
     }
 
     /// Every value names an axis the file has and is a positive (zero for settle and backlash), finite
@@ -101,6 +127,20 @@ impl Actual {
             positive(key("accel_deg_s2"), a.accel_deg_s2, false)?;
             positive(key("settle_s"), a.settle_s, true)?;
             positive(key("backlash_deg"), a.backlash_deg, true)?;
+        }
+        if let Some(d) = &self.detector {
+            positive(
+                "simulator.actual.detector.dark_current_a".into(),
+                d.dark_current_a,
+                true,
+            )?;
+        }
+        if let Some(s) = &self.source {
+            positive(
+                "simulator.actual.source.relative_noise".into(),
+                s.relative_noise,
+                true,
+            )?;
         }
         Ok(())
     }
@@ -143,6 +183,12 @@ impl Actual {
                 axis.backlash_deg = v;
             }
         }
+        if let Some(v) = actual.detector.as_ref().and_then(|d| d.dark_current_a) {
+            inst.detector.dark_current_a = v;
+        }
+        if let Some(v) = actual.source.as_ref().and_then(|s| s.relative_noise) {
+            inst.source.relative_noise = v;
+        }
     }
 }
 
@@ -159,7 +205,9 @@ mod tests {
     fn the_actual_hardware_overrides_the_files_claims_by_the_same_keys() {
         let file = simulated_with(
             "[simulator.actual.filter_wheel]\nseconds_per_position = 2.0\n\
-             [simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\nsettle_s = 0.4\n",
+             [simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\nsettle_s = 0.4\n\
+             [simulator.actual.detector]\ndark_current_a = 1.0e-10\n\
+             [simulator.actual.source]\nrelative_noise = 3.0e-4\n",
         )
         .expect("valid");
         let actual = file.actual_instrument();
@@ -173,6 +221,8 @@ mod tests {
             .find(|a| a.name == "detector")
             .expect("detector");
         assert_eq!((det.max_speed_deg_s, det.settle_s), (10.0, 0.4));
+        assert_eq!(actual.detector.dark_current_a, 1.0e-10);
+        assert_eq!(actual.source.relative_noise, 3.0e-4);
         let claimed = file
             .instrument
             .axes
@@ -210,6 +260,14 @@ mod tests {
                 "seconds_per_position",
             ),
             ("[simulator.actual.axes.light]\ntop_speed = 3.0\n", "top_speed"),
+            (
+                "[simulator.actual.detector]\ndark_current_a = -1e-9\n",
+                "simulator.actual.detector.dark_current_a",
+            ),
+            (
+                "[simulator.actual.source]\nrelative_noise = inf\n",
+                "simulator.actual.source.relative_noise",
+            ),
         ] {
             let e = simulated_with(extra).expect_err(extra).to_string();
             assert!(e.contains(says), "{extra}: {e}");

@@ -27,6 +27,8 @@
 
 mod actual;
 pub mod imperfections;
+pub mod meter_noise;
+pub mod responsivity;
 mod validate;
 
 use std::path::Path;

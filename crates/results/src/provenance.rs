@@ -477,6 +477,8 @@ pub(crate) mod tests {
                     settle_s: None,
                     backlash_deg: None,
                 }],
+                detector_dark_current_a: Some(1.0e-10),
+                source_relative_noise: None,
             }),
         });
         let text = r.to_json_text();

@@ -5,7 +5,10 @@
 //! Each axis's real top speed is `max_speed_deg_s (1 + speed_sd z)`, its acceleration `accel_deg_s2 (1 +
 //! accel_sd z')`, its settle time `settle_s (1 + settle_sd z'')` and its backlash `backlash_deg (1 + backlash_sd
 //! z''')`, the wheel's time per position `seconds_per_position (1 + wheel_sd z'''')`, each `z ~ N(0, 1)` drawn
-//! from the seed, clamped to within three standard deviations. (The settle time is what the load's ringing
+//! from the seed, clamped to within three standard deviations. The meter's noise figures are drawn the same way
+//! on their own stream (the timing draws stay as they were): the detector's real dark current
+//! `dark_current_a (1 + dark_current_sd z)` and the source's real white relative noise `relative_noise (1 +
+//! relative_noise_sd z')`. (The settle time is what the load's ringing
 //! takes to die down within the axis's tolerance: crate::motion::settling.) A real speed above the claimed one is never
 //! seen (the drivers command the claimed value); one below it is: the mechanics do not follow. The real
 //! instrument these make ([`TimingTruth::apply`]) is what the simulated devices are built from; stated values
@@ -32,6 +35,10 @@ pub struct TimingTruth {
     pub axes: Vec<AxisTiming>,
     /// The wheel's real time per position over the claimed one.
     pub wheel_factor: f64,
+    /// The detector's real dark current over the claimed one.
+    pub dark_current_factor: f64,
+    /// The source's real white relative noise over the claimed one.
+    pub relative_noise_factor: f64,
 }
 
 /// `1 + sd z`, z clamped to three standard deviations.
@@ -60,14 +67,20 @@ impl TimingTruth {
             })
             .collect();
         let (zw, _) = draws.normal_pair("timing-wheel", 0);
+        // Their own stream, like settle and backlash: the timing drawn before the noise figures were stays.
+        let (zd, zn) = draws.normal_pair("timing-noise", 0);
         TimingTruth {
             axes,
             wheel_factor: factor(settings.wheel_sd, zw),
+            dark_current_factor: factor(settings.dark_current_sd, zd),
+            relative_noise_factor: factor(settings.relative_noise_sd, zn),
         }
     }
 
     pub fn is_ideal(&self) -> bool {
         self.wheel_factor == 1.0
+            && self.dark_current_factor == 1.0
+            && self.relative_noise_factor == 1.0
             && self.axes.iter().all(|a| {
                 a.speed_factor == 1.0
                     && a.accel_factor == 1.0
@@ -89,6 +102,8 @@ impl TimingTruth {
         if let Some(w) = inst.filter_wheel.as_mut() {
             w.seconds_per_position *= self.wheel_factor;
         }
+        inst.detector.dark_current_a *= self.dark_current_factor;
+        inst.source.relative_noise *= self.relative_noise_factor;
     }
 }
 
@@ -106,6 +121,8 @@ mod tests {
             wheel_sd: 0.05,
             settle_sd: 0.04,
             backlash_sd: 0.05,
+            dark_current_sd: 0.04,
+            relative_noise_sd: 0.04,
         };
         let a = TimingTruth::draw(&settings, &file.instrument, 7);
         assert_eq!(
@@ -155,5 +172,16 @@ mod tests {
         let (real, claim) = (&inst.axes[0], &file.instrument.axes[0]);
         assert!((real.settle_s - claim.settle_s * a.axes[0].settle_factor).abs() < 1e-15);
         assert!((real.backlash_deg - claim.backlash_deg * a.axes[0].backlash_factor).abs() < 1e-15);
+        assert!(a.dark_current_factor != 1.0 && a.relative_noise_factor != 1.0);
+        assert!(
+            (inst.detector.dark_current_a - file.instrument.detector.dark_current_a * a.dark_current_factor)
+                .abs()
+                < 1e-25
+        );
+        assert!(
+            (inst.source.relative_noise - file.instrument.source.relative_noise * a.relative_noise_factor)
+                .abs()
+                < 1e-18
+        );
     }
 }

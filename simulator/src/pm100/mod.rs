@@ -96,7 +96,7 @@ pub const STATUS_FAILED: u8 = 0x80;
 pub const STATUS_TRANSFER_NOT_IN_PROGRESS: u8 = 0x81;
 
 /// Time per averaged sample (s).
-pub const SAMPLE_S: f64 = 0.003;
+pub const SAMPLE_S: f64 = gonio_instrument::meter_noise::SAMPLE_S;
 /// The value a reading takes in overload under `pm100_overrange = "scpi-overflow"`.
 pub const OVERLOAD_W: f64 = 9.9e37;
 /// Bit 3 of the SCPI questionable status registers: the power reading is over range.

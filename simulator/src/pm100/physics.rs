@@ -1,17 +1,11 @@
 //! The measurement physics: photodiode responsivity, photocurrent of the scene's optical power, noise per
 //! sample, the 16-bit converter on the range in use, and overload.
 
+use gonio_instrument::meter_noise;
 use rand_distr_lite::standard_normal;
 
 use super::{MeterState, Pm100, SAMPLE_S};
 use crate::scene::{Band, Pose};
-
-const ELEMENTARY_CHARGE_C: f64 = 1.602_176_634e-19;
-const BOLTZMANN_J_K: f64 = 1.380_649e-23;
-const TEMPERATURE_K: f64 = 295.0;
-/// Full-scale voltage of the transimpedance amplifier (sets the feedback resistor of each range).
-const FULL_SCALE_V: f64 = 2.0;
-const ADC_COUNTS: f64 = 65_536.0;
 
 /// Minimal normal deviates without another dependency.
 mod rand_distr_lite {
@@ -130,22 +124,13 @@ impl Pm100 {
             // Each sample: shot noise of its current, Johnson noise of the range's feedback resistor and the
             // amplifier's excess current noise (imperfect instrument), then the meter's transfer and the 16-bit
             // converter over the range; the reading is the mean of the quantised samples.
-            let bandwidth_hz = 1.0 / (2.0 * SAMPLE_S);
-            let r_feedback = FULL_SCALE_V / fs;
-            let johnson_var = if d.noise {
-                4.0 * BOLTZMANN_J_K * TEMPERATURE_K * bandwidth_hz / r_feedback
-            } else {
-                0.0
-            };
-            let amplifier_var = amplifier_noise * amplifier_noise * bandwidth_hz;
-            let lsb = fs / ADC_COUNTS;
+            // (gonio_instrument::meter_noise: the figures the self-test subtracts too.)
+            let johnson_var = if d.noise { meter_noise::johnson_a2(fs) } else { 0.0 };
+            let amplifier_var = amplifier_noise * amplifier_noise * meter_noise::bandwidth_hz();
+            let lsb = meter_noise::lsb(fs);
             let mut sum = 0.0;
             for c in &currents {
-                let shot_var = if d.noise {
-                    2.0 * ELEMENTARY_CHARGE_C * c.abs() * bandwidth_hz
-                } else {
-                    0.0
-                };
+                let shot_var = if d.noise { meter_noise::shot_a2(*c) } else { 0.0 };
                 let sample =
                     c + (shot_var + johnson_var + amplifier_var).sqrt() * standard_normal(&mut st.rng);
                 sum += (transfer(sample) / lsb).round() * lsb;

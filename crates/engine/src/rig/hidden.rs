@@ -65,9 +65,17 @@ fn actual_record(claimed: &Instrument, real: &Instrument) -> Option<ActualHardwa
                 || a.backlash_deg.is_some()
         })
         .collect();
-    (wheel_seconds_per_position.is_some() || !axes.is_empty()).then_some(ActualHardwareRecord {
+    let detector_dark_current_a = differs(claimed.detector.dark_current_a, real.detector.dark_current_a);
+    let source_relative_noise = differs(claimed.source.relative_noise, real.source.relative_noise);
+    (wheel_seconds_per_position.is_some()
+        || !axes.is_empty()
+        || detector_dark_current_a.is_some()
+        || source_relative_noise.is_some())
+    .then_some(ActualHardwareRecord {
         wheel_seconds_per_position,
         axes,
+        detector_dark_current_a,
+        source_relative_noise,
     })
 }
 

@@ -95,7 +95,8 @@ pub fn at_most(key: String, what: &str, unit: &str, configured: f64, measured: f
     )
 }
 
-fn line(key: String, what: &str, unit: &str, configured: f64, measured: f64, pass: bool) -> Check {
+/// A measured figure against a claimed one with the caller's verdict.
+pub(super) fn line(key: String, what: &str, unit: &str, configured: f64, measured: f64, pass: bool) -> Check {
     Check {
         key,
         what: what.to_string(),

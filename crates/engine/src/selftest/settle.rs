@@ -218,6 +218,14 @@ pub(super) async fn measure_settling(
         Err(e) => Err(reason(e)?),
     };
     record(&mut out, light, got);
+    // The source's relative noise on the direct beam while the holder is still empty (crate::selftest::noise).
+    match super::noise::source_noise(motion, &at_detector(detector_centre), band_nm, tolerance).await? {
+        Ok(c) => out.checks.push(c),
+        Err(why) => out
+            .not_measured
+            .push(format!("source.relative_noise: not measured ({why})")),
+    }
+    meter.auto(motion).await?;
 
     // The tilt across the mirror's reflection, the detector where the reflection is.
     if let Some(tilt) = tilt {

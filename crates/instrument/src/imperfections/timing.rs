@@ -1,6 +1,7 @@
 //! `[simulator.imperfections.timing]`: how far the simulated hardware's timing is from what the instrument file
 //! claims, as relative standard deviations. The simulator draws each axis's real top speed, acceleration, settle
-//! time and backlash and the wheel's real time per position from them (simulator/src/imperfections/timing.rs);
+//! time and backlash, the wheel's real time per position, the detector's real dark current and the source's real
+//! white relative noise from them (simulator/src/imperfections/timing.rs);
 //! `gonio selftest` should find each. A non-zero `settle_sd` also makes every axis's load ring after each move
 //! (simulator/src/motion/settling.rs), dying down within the axis's real settle time.
 
@@ -27,6 +28,12 @@ pub struct TimingImperfections {
     /// Each axis's real backlash about its `backlash_deg`.
     #[serde(default)]
     pub backlash_sd: f64,
+    /// The detector head's real dark current about `[instrument.detector] dark_current_a`.
+    #[serde(default)]
+    pub dark_current_sd: f64,
+    /// The source's real white relative noise about `[instrument.source] relative_noise`.
+    #[serde(default)]
+    pub relative_noise_sd: f64,
 }
 
 impl TimingImperfections {
@@ -36,6 +43,8 @@ impl TimingImperfections {
             && self.wheel_sd == 0.0
             && self.settle_sd == 0.0
             && self.backlash_sd == 0.0
+            && self.dark_current_sd == 0.0
+            && self.relative_noise_sd == 0.0
     }
 
     pub fn validate(&self) -> Result<(), ImperfectionsError> {
@@ -46,6 +55,8 @@ impl TimingImperfections {
             ("wheel_sd", self.wheel_sd),
             ("settle_sd", self.settle_sd),
             ("backlash_sd", self.backlash_sd),
+            ("dark_current_sd", self.dark_current_sd),
+            ("relative_noise_sd", self.relative_noise_sd),
         ] {
             check(
                 G,

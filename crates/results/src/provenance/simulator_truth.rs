@@ -43,6 +43,12 @@ pub struct ActualHardwareRecord {
     /// The axes that differ, each with only the keys that do.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub axes: Vec<ActualAxisRecord>,
+    /// The detector head's real dark current (A); absent when as claimed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector_dark_current_a: Option<f64>,
+    /// The source's real white relative noise; absent when as claimed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source_relative_noise: Option<f64>,
 }
 
 /// One axis's real limits where they differ from the file (deg/s, deg/s^2, s, deg).

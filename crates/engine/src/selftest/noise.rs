@@ -1,0 +1,338 @@
+//! The meter's and the source's noise figures against the instrument file: the dark and noise of every range
+//! (for the record), the head's dark current (`detector.dark_current_a`) and the source's white relative noise
+//! (`source.relative_noise`).
+//!
+//! - Dark current: the blank in the beam, the meter on its smallest range; the mean reading (W at the set
+//!   wavelength) times the file's responsivity there is the current the head delivers in the dark. Room light
+//!   leaking past the baffles (ambient light) adds to it and cannot be told from it in a test of minutes (it
+//!   varies over tens of minutes, the dark current not at all): the figure is "dark + ambient", and the verdict
+//!   fails a figure below the claim by more than the tolerance, or above it by more than the tolerance plus
+//!   [`AMBIENT_ALLOWANCE`] of the claim.
+//! - Relative noise: the holder empty, the detector on the direct beam, the meter at averaging 1 on a range
+//!   (and a set wavelength) that puts the beam at most [`MAX_FILL`] of full scale; [`NOISE_READINGS`] readings
+//!   in a row. The differences of consecutive readings remove the slow drift (and the source's warm-up and
+//!   wander); their variance is twice the reading's. The meter's own noise at that level (shot noise of the
+//!   current, Johnson noise of the range's feedback resistor, the converter's quantisation: [`meter_floor_w2`])
+//!   is subtracted (gonio_instrument::meter_noise, the figures the simulated meter uses too); at the direct beam
+//!   it is a few percent of the source's at most.
+
+use gonio_driver::{DetectorConfig, PowerRange};
+use gonio_instrument::meter_noise;
+use gonio_instrument::responsivity::Responsivity;
+use gonio_scheduler::kinematics::Pose;
+
+use super::fit::mean_std;
+use super::report::{Check, against, info, line};
+use crate::motion::{Device, Motion, MotionError};
+
+/// Readings per meter range for its dark and noise.
+const READINGS_PER_RANGE: usize = 20;
+/// Direct-beam readings for the source's relative noise: the spread of N - 1 differences is known to about
+/// 1 / sqrt(2 (N - 1)), 2.5 % here.
+pub const NOISE_READINGS: usize = 800;
+/// Ambient light a dark reading may hold on top of the claimed dark current, as a fraction of the claim
+/// (realistic.toml's room light is 40 % of its head's dark current, varying by 20 %).
+pub const AMBIENT_ALLOWANCE: f64 = 0.6;
+/// The direct beam's largest share of the range's full scale: its noise and drift must not overload it.
+pub const MAX_FILL: f64 = 0.75;
+
+/// The file's responsivity, or why there is none to convert with.
+fn responsivity(motion: &Motion<'_>) -> Result<Responsivity, String> {
+    Responsivity::from_detector(&motion.rig().file().instrument.detector)
+}
+
+async fn configure(motion: &Motion<'_>, config: DetectorConfig) -> Result<(), MotionError> {
+    let det = motion.rig().detector();
+    motion
+        .device(Device::Detector, "configure the meter", || det.configure(config))
+        .await
+}
+
+/// `n` readings (W); None when one is an overload.
+async fn readings(motion: &Motion<'_>, n: usize) -> Result<Option<Vec<f64>>, MotionError> {
+    let det = motion.rig().detector();
+    let mut values = Vec::with_capacity(n);
+    for _ in 0..n {
+        let r = motion
+            .device(Device::Detector, "read the meter", || det.read_power())
+            .await?;
+        if r.overload || !r.power_w.is_finite() {
+            return Ok(None);
+        }
+        values.push(r.power_w);
+    }
+    Ok(Some(values))
+}
+
+/// The meter's dark and noise on each range with the blank in the beam, and the head's dark current from the
+/// smallest range (module doc).
+pub(super) async fn measure_meter(
+    motion: &Motion<'_>,
+    tolerance: f64,
+) -> Result<(Vec<Check>, Vec<String>), MotionError> {
+    let rig = motion.rig();
+    let inst = &rig.file().instrument;
+    let mut missing = Vec::new();
+    let blank = inst
+        .filter_wheel
+        .as_ref()
+        .and_then(|w| w.positions.iter().find(|p| p.blank))
+        .map(|p| p.position);
+    let dark = match (rig.wheel(), blank) {
+        (Some(w), Some(p)) => {
+            motion
+                .device(Device::Wheel, "the blank into the beam", || w.go_to(p))
+                .await?;
+            true
+        }
+        _ => {
+            missing.push(
+                "detector.dark_current_a: no blank on the wheel, so the readings below include whatever light \
+                 reaches the meter"
+                    .to_string(),
+            );
+            false
+        }
+    };
+    let nm = inst.bands_nm().first().copied().unwrap_or(550.0);
+    let mut out = Vec::new();
+    let mut smallest = None;
+    for (i, range_w) in inst.detector.ranges_w.iter().enumerate() {
+        configure(
+            motion,
+            DetectorConfig {
+                wavelength_nm: nm,
+                averaging: inst.detector.averaging,
+                range: PowerRange::Fixed {
+                    full_scale_w: *range_w,
+                },
+            },
+        )
+        .await?;
+        let Some(values) = readings(motion, READINGS_PER_RANGE).await? else {
+            missing.push(format!(
+                "detector.ranges_w[{i}]: the dark overloads the {range_w:e} W range"
+            ));
+            continue;
+        };
+        if let Some((mean, std)) = mean_std(&values) {
+            if i == 0 {
+                smallest = Some(mean);
+            }
+            out.push(info(
+                format!("detector.ranges_w[{i}].dark_w"),
+                &format!("dark on the {range_w:e} W range"),
+                "W",
+                mean,
+            ));
+            out.push(info(
+                format!("detector.ranges_w[{i}].noise_w"),
+                &format!("noise (1 sigma) on the {range_w:e} W range"),
+                "W",
+                std,
+            ));
+        }
+    }
+    match (dark, smallest, responsivity(motion)) {
+        (true, Some(mean_w), Ok(r)) => out.push(dark_current_check(
+            inst.detector.dark_current_a,
+            mean_w * r.at(nm),
+            tolerance,
+        )),
+        (true, Some(_), Err(e)) => missing.push(format!("detector.dark_current_a: {e}")),
+        (true, None, _) => missing.push("detector.dark_current_a: no dark on the smallest range".into()),
+        (false, _, _) => {}
+    }
+    Ok((out, missing))
+}
+
+/// The dark current's verdict (module doc): ambient light only adds.
+fn dark_current_check(claimed_a: f64, measured_a: f64, tolerance: f64) -> Check {
+    let low = claimed_a * (1.0 - tolerance);
+    let high = claimed_a * (1.0 + tolerance + AMBIENT_ALLOWANCE);
+    line(
+        "detector.dark_current_a".into(),
+        "dark current + ambient light (blank, smallest range)",
+        "A",
+        claimed_a,
+        measured_a,
+        (low..=high).contains(&measured_a),
+    )
+}
+
+/// The variance (W^2) the meter itself adds to one sample of `power_w` on a range of `full_scale_w`, set to a
+/// wavelength where the head delivers `a_per_w` (module doc).
+pub fn meter_floor_w2(power_w: f64, full_scale_w: f64, a_per_w: f64) -> f64 {
+    let current_a2 =
+        meter_noise::shot_a2(power_w * a_per_w) + meter_noise::johnson_a2(full_scale_w * a_per_w);
+    let lsb_w = meter_noise::lsb(full_scale_w);
+    current_a2 / (a_per_w * a_per_w) + lsb_w * lsb_w / 12.0
+}
+
+/// The set wavelength and range that put a beam read as `power_w` at `band_nm` highest below [`MAX_FILL`] of
+/// full scale: the meter reports `power_w R(band) / R(set)`. None when no range holds it.
+fn best_setting(
+    r: &Responsivity,
+    band_nm: f64,
+    power_w: f64,
+    ranges_w: &[f64],
+    sensor_nm: [f64; 2],
+) -> Option<(f64, f64)> {
+    let mut best: Option<(f64, f64, f64)> = None;
+    let candidates = std::iter::once(band_nm).chain(
+        r.wavelengths_nm()
+            .into_iter()
+            .filter(|nm| (sensor_nm[0]..=sensor_nm[1]).contains(nm)),
+    );
+    for nm in candidates {
+        let reads_w = power_w * r.at(band_nm) / r.at(nm);
+        for &range_w in ranges_w {
+            let fill = reads_w / range_w;
+            if fill <= MAX_FILL && best.is_none_or(|b| fill > b.2) {
+                best = Some((nm, range_w, fill));
+            }
+        }
+    }
+    best.map(|(nm, range_w, _)| (nm, range_w))
+}
+
+/// The source's white relative noise on the direct beam at `pose` (module doc), or why it is not measured.
+pub(super) async fn source_noise(
+    motion: &mut Motion<'_>,
+    pose: &Pose,
+    band_nm: f64,
+    tolerance: f64,
+) -> Result<Result<Check, String>, MotionError> {
+    let inst = motion.rig().file().instrument.clone();
+    let r = match responsivity(motion) {
+        Ok(r) => r,
+        Err(e) => return Ok(Err(e)),
+    };
+    motion.move_to(pose).await?;
+    configure(
+        motion,
+        DetectorConfig {
+            wavelength_nm: band_nm,
+            averaging: 1,
+            range: PowerRange::Auto,
+        },
+    )
+    .await?;
+    let Some(first) = readings(motion, 5).await? else {
+        return Ok(Err("the direct beam overloads the meter".into()));
+    };
+    let power_w = first.iter().sum::<f64>() / first.len() as f64;
+    let ranges = &inst.detector.ranges_w;
+    let Some((nm, range_w)) = best_setting(&r, band_nm, power_w, ranges, inst.detector.sensor_wavelength_nm)
+    else {
+        return Ok(Err(format!(
+            "no range holds the direct beam ({power_w:e} W) below {MAX_FILL} of full scale"
+        )));
+    };
+    tracing::info!(
+        set_nm = nm,
+        range_w,
+        readings = NOISE_READINGS,
+        "self-test: the source's relative noise on the direct beam"
+    );
+    configure(
+        motion,
+        DetectorConfig {
+            wavelength_nm: nm,
+            averaging: 1,
+            range: PowerRange::Fixed {
+                full_scale_w: range_w,
+            },
+        },
+    )
+    .await?;
+    let Some(values) = readings(motion, NOISE_READINGS).await? else {
+        return Ok(Err(format!("the direct beam overloads the {range_w:e} W range")));
+    };
+    let Some(measured) = relative_noise(&values, range_w, r.at(nm), inst.detector.noise) else {
+        return Ok(Err("no direct beam to measure the noise on".into()));
+    };
+    let claimed = inst.source.relative_noise;
+    Ok(Ok(against(
+        "source.relative_noise".into(),
+        "source's white relative noise (direct beam, differences of consecutive readings)",
+        "1",
+        claimed,
+        measured,
+        tolerance,
+    )))
+}
+
+/// The white relative noise of `values` (module doc): consecutive differences, less the meter's own noise when
+/// the file says the meter has it (`noise`). None without a positive mean.
+pub fn relative_noise(values: &[f64], range_w: f64, a_per_w: f64, meter_noise: bool) -> Option<f64> {
+    let (mean, _) = mean_std(values)?;
+    if mean <= 0.0 {
+        return None;
+    }
+    let diffs: Vec<f64> = values.windows(2).map(|w| w[1] - w[0]).collect();
+    let (_, diff_std) = mean_std(&diffs)?;
+    let floor = if meter_noise {
+        meter_floor_w2(mean, range_w, a_per_w)
+    } else {
+        0.0
+    };
+    Some((0.5 * diff_std * diff_std - floor).max(0.0).sqrt() / mean)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_setting_puts_the_beam_highest_below_the_fill() {
+        let r = Responsivity::Table(vec![(400.0, 0.1), (550.0, 0.3), (750.0, 0.45)]);
+        // 5e-4 W at 550 nm would fill the 5e-4 W range: read at 750 nm it is 3.3e-4 W, 67 % of it.
+        let got = best_setting(&r, 550.0, 5.0e-4, &[5.0e-5, 5.0e-4, 5.0e-3], [400.0, 1100.0]);
+        assert_eq!(got, Some((750.0, 5.0e-4)));
+        // Outside the sensor's limits a wavelength is not offered: read at 400 nm it is 1.5e-3 W, 30 % of the
+        // 5e-3 W range (at 550 nm 10 %).
+        let got = best_setting(&r, 550.0, 5.0e-4, &[5.0e-5, 5.0e-4, 5.0e-3], [400.0, 700.0]);
+        assert_eq!(got, Some((400.0, 5.0e-3)));
+        let got = best_setting(&r, 550.0, 5.0e-4, &[5.0e-5, 5.0e-4, 5.0e-3], [500.0, 700.0]);
+        assert_eq!(got, Some((550.0, 5.0e-3)));
+        assert_eq!(best_setting(&r, 550.0, 1.0, &[5.0e-4], [400.0, 1100.0]), None);
+    }
+
+    #[test]
+    fn the_relative_noise_ignores_a_slow_drift_and_subtracts_the_meters_own() {
+        // A deterministic +-1 pattern of relative size 1e-4 on a ramp of 1 % over the series.
+        let n = 1000;
+        let values: Vec<f64> = (0..n)
+            .map(|k| {
+                let drift = 1.0 + 0.01 * k as f64 / n as f64;
+                let white = if (k * 7919) % 13 < 6 { 1.0 } else { -1.0 };
+                1.0e-4 * drift * (1.0 + 1.0e-4 * white)
+            })
+            .collect();
+        let plain = relative_noise(&values, 5.0e-4, 0.3, false).expect("a beam");
+        // The pattern's consecutive differences are not those of white noise; what matters is that the ramp
+        // (1e-5 per reading of 1e-4 W x 1e-2 / 1000) adds nothing and the floor only lowers the figure.
+        let ramp_free: Vec<f64> = (0..n)
+            .map(|k| {
+                let white = if (k * 7919) % 13 < 6 { 1.0 } else { -1.0 };
+                1.0e-4 * (1.0 + 1.0e-4 * white)
+            })
+            .collect();
+        let flat = relative_noise(&ramp_free, 5.0e-4, 0.3, false).expect("a beam");
+        assert!((plain / flat - 1.0).abs() < 0.01, "{plain} vs {flat}");
+        let less = relative_noise(&values, 5.0e-4, 0.3, true).expect("a beam");
+        assert!(less < plain && less > 0.9 * plain, "{less} vs {plain}");
+        assert_eq!(relative_noise(&[0.0; 10], 5.0e-4, 0.3, true), None);
+    }
+
+    #[test]
+    fn the_dark_current_allows_ambient_light_above_the_claim_only() {
+        let c = |m: f64| dark_current_check(5.0e-11, m, 0.1).verdict;
+        use super::super::report::Verdict::{Fail, Pass};
+        assert_eq!(c(5.0e-11), Pass);
+        assert_eq!(c(7.0e-11), Pass, "dark + realistic ambient");
+        assert_eq!(c(4.4e-11), Fail, "below the claim");
+        assert_eq!(c(1.2e-10), Fail, "twice the claim with ambient light");
+    }
+}
