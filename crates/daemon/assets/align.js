@@ -47,6 +47,7 @@
     }
     const busy = a !== null && (a.state === 'running' || a.state === 'waiting-operator');
     $('align-start').disabled = busy || gonio.owner() !== null;
+    $('align-characterise').disabled = $('align-start').disabled;
     $('align-confirm').disabled = a === null || a.state !== 'waiting-operator';
     clearTimeout(timer);
     timer = setTimeout(refresh, busy ? POLL_RUNNING_MS : POLL_IDLE_MS);
@@ -64,7 +65,8 @@
 
   function start() {
     if (!gonio) return;
-    $('align-start').addEventListener('click', () => post('/api/align', {}, 'start the alignment'));
+    $('align-start').addEventListener('click', () =>
+      post('/api/align', { characterise: $('align-characterise').checked }, 'start the alignment'));
     $('align-confirm').addEventListener('click', () => post('/api/align/confirm', {}, 'confirm the operator step'));
     refresh();
   }
