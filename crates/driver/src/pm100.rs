@@ -309,7 +309,12 @@ impl Pm100 {
             format!("SENS:AVER:COUN {}", config.averaging),
         ];
         match config.range {
-            PowerRange::Auto => commands.push("SENS:POW:RANG:AUTO ON".into()),
+            // Through the largest range first: a meter under auto-range may answer SENS:POW:RANG? with the range
+            // last set by hand (the simulated PM100 does), and a reading is held against that for overload.
+            PowerRange::Auto => {
+                commands.push("SENS:POW:RANG MAX".into());
+                commands.push("SENS:POW:RANG:AUTO ON".into());
+            }
             PowerRange::Fixed { full_scale_w } => {
                 commands.push("SENS:POW:RANG:AUTO OFF".into());
                 commands.push(format!("SENS:POW:RANG {full_scale_w:E}"));

@@ -81,9 +81,14 @@ pub fn range_index(r: &PowerReading, ranges_w: &[f64], range: Range) -> Option<u
         .iter()
         .position(|fs| (fs - r.range_w).abs() <= 1e-9 * fs.abs());
     match range {
-        Range::Auto => ranges_w.iter().position(|fs| *fs > r.power_w.abs()).or(reported),
+        Range::Auto => auto_range_index(r.power_w, ranges_w).or(reported),
         Range::FixedW(_) => reported,
     }
+}
+
+/// The range auto-ranging settles on for a reading of `power_w`: the smallest of `ranges_w` holding it.
+pub fn auto_range_index(power_w: f64, ranges_w: &[f64]) -> Option<usize> {
+    ranges_w.iter().position(|fs| *fs > power_w.abs())
 }
 
 /// One supervised reading at `nm` (the meter configured for it first unless `configured_nm` says it is; a meter

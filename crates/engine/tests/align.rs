@@ -1,14 +1,15 @@
 //! The alignment on the simulated realistic instrument (tokio's paused clock): each estimate against the
 //! simulator's hidden truth, on seeds of our own.
 
-use gonio_brdf::material::Material;
-use gonio_engine::align::{AlignmentReport, OperatorStep, Placement, run_alignment};
+use gonio_engine::align::AlignmentReport;
 use gonio_engine::control::Control;
 use gonio_engine::motion::Motion;
 use gonio_engine::rig::Rig;
 use gonio_instrument::{AxisRole, InstrumentFile};
 use gonio_scheduler::timing::TimeModel;
 use gonio_simulator::imperfections::HiddenTruth;
+
+mod common;
 
 const REALISTIC: &str = include_str!("../../../config/instruments/realistic.toml");
 
@@ -139,20 +140,8 @@ async fn a_step_that_cannot_see_what_it_needs_refuses_with_the_cause() {
 /// The alignment with `material` (a preset) standing in for the mirror: the report and the seating tilt of
 /// that mounting, or the refusal's message.
 async fn try_align(file: &InstrumentFile, material: &str) -> Result<(AlignmentReport, [f64; 2]), String> {
-    let rig = Rig::connect_with_time_scale(file, None, 1.0).await.expect("rig");
-    let m = Material::preset(material).expect("preset");
-    let holder = rig
-        .alignment_holder(&m, None, 25.0)
-        .expect("holder")
-        .expect("dry-run");
-    let operator = |p: Placement| -> OperatorStep<'_> {
-        holder.hold(p.held());
-        Box::pin(std::future::ready(Ok(())))
-    };
-    let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
-    let report = run_alignment(&mut motion, &operator, Default::default())
-        .await
-        .map_err(|e| e.to_string())?;
+    let (rig, report) = common::dry_run_alignment(file, material, None, Default::default()).await;
+    let report = report?;
     let seat = rig.optics().expect("optics").seating().1;
     Ok((report, [seat.x_deg, seat.y_deg]))
 }

@@ -2,14 +2,11 @@
 //! sample's own tilt as it sat against the simulator's hidden truth (the holder's tilt plus that mounting's
 //! seating), and the refusal of a sample with no specular peak.
 
-use gonio_brdf::material::Material;
-use gonio_engine::align::{AlignOptions, AlignmentReport, run_alignment};
-use gonio_engine::control::Control;
-use gonio_engine::motion::Motion;
-use gonio_engine::rig::Rig;
+use gonio_engine::align::{AlignOptions, AlignmentReport};
 use gonio_instrument::InstrumentFile;
-use gonio_scheduler::timing::TimeModel;
 use gonio_simulator::imperfections::HiddenTruth;
+
+mod common;
 
 const REALISTIC: &str = include_str!("../../../config/instruments/realistic.toml");
 
@@ -18,25 +15,12 @@ const REALISTIC: &str = include_str!("../../../config/instruments/realistic.toml
 async fn align_on(seed: u64, sample: &str) -> Result<(AlignmentReport, [f64; 2]), String> {
     let text = REALISTIC.replace("seed = 16", &format!("seed = {seed}"));
     let file = InstrumentFile::parse(&text, "realistic.toml").expect("valid");
-    let rig = Rig::connect_with_time_scale(&file, None, 1.0).await.expect("rig");
-    let mirror = Material::preset("mirror").expect("mirror");
-    let sample = Material::preset(sample).expect("preset");
-    let holder = rig
-        .alignment_holder(&mirror, Some(&sample), 25.0)
-        .expect("holder")
-        .expect("dry-run");
-    let operator = |p: gonio_engine::align::Placement| -> gonio_engine::align::OperatorStep<'_> {
-        holder.hold(p.held());
-        Box::pin(std::future::ready(Ok(())))
-    };
-    let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
     let options = AlignOptions {
         characterise: None,
         on_sample: true,
     };
-    let report = run_alignment(&mut motion, &operator, options)
-        .await
-        .map_err(|e| e.to_string())?;
+    let (rig, report) = common::dry_run_alignment(&file, "mirror", Some(sample), options).await;
+    let report = report?;
     // The sample is what the holder shows at the end.
     let seat = rig.optics().expect("optics").seating().1;
     let g = HiddenTruth::draw(&file)

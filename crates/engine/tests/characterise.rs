@@ -2,15 +2,12 @@
 //! realistic instrument with every effect, on seeds of our own: each estimate against the simulator's hidden
 //! truth, which only this test reads.
 
-use gonio_brdf::material::Material;
-use gonio_engine::align::{AlignOptions, AlignmentReport, run_alignment};
+use gonio_engine::align::{AlignOptions, AlignmentReport};
 use gonio_engine::characterise::CharacteriseOptions;
-use gonio_engine::control::Control;
-use gonio_engine::motion::Motion;
-use gonio_engine::rig::Rig;
 use gonio_instrument::InstrumentFile;
-use gonio_scheduler::timing::TimeModel;
 use gonio_simulator::imperfections::HiddenTruth;
+
+mod common;
 
 const REALISTIC: &str = include_str!("../../../config/instruments/realistic.toml");
 
@@ -21,24 +18,13 @@ fn realistic(seed: u64) -> InstrumentFile {
 
 /// The alignment with the characterisation, the mirror and then `sample` in the holder.
 async fn characterise(file: &InstrumentFile, sample: &str) -> AlignmentReport {
-    let rig = Rig::connect_with_time_scale(file, None, 1.0).await.expect("rig");
-    let mirror = Material::preset("mirror").expect("mirror");
-    let sample = Material::preset(sample).expect("preset");
-    let holder = rig
-        .alignment_holder(&mirror, Some(&sample), 25.0)
-        .expect("holder")
-        .expect("dry-run");
-    let operator = |p: gonio_engine::align::Placement| -> gonio_engine::align::OperatorStep<'_> {
-        holder.hold(p.held());
-        Box::pin(std::future::ready(Ok(())))
-    };
-    let mut motion = Motion::new(&rig, TimeModel::new(&file.instrument), 2, Control::new());
     let options = AlignOptions {
         characterise: Some(CharacteriseOptions::default()),
         on_sample: false,
     };
-    run_alignment(&mut motion, &operator, options)
+    common::dry_run_alignment(file, "mirror", Some(sample), options)
         .await
+        .1
         .expect("alignment and characterisation ran")
 }
 

@@ -3,7 +3,8 @@
 //! (`gonio_engine::characterise`) on the instrument, a short report per value, and a dated calibration file: every
 //! value with its standard uncertainty, how it was measured, and the instrument file it belongs to (name and
 //! SHA-256) with the software version. On the simulated instrument the operator's steps (empty the holder, mount
-//! the mirror) are done by the simulated operator; on hardware each is prompted and waits for Enter.
+//! the mirror, then the sample) are done by the simulated operator; on hardware each is prompted and waits for
+//! Enter.
 
 use std::io::{BufRead, Write};
 use std::path::PathBuf;

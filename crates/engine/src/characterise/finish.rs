@@ -1,25 +1,16 @@
 //! From the raw readings to the calibration (pure): the ranges fitted from the darks and every overlap, then
 //! the direct beam, the signature and the NEBRDF with the ranges' correction, and the source's drift.
 
-use gonio_campaign::Range;
-use gonio_driver::PowerReading;
-
 use super::drift::fit_drift;
 use super::empty::EmptyHolder;
 use super::ranges::{Overlap, RangesCalibration, fit_ranges};
 use super::signature::BandSignature;
 use super::{CharacterisationReport, DetectorCalibration};
-use crate::acquisition::range_index;
+use crate::acquisition::auto_range_index;
 
 /// The raw reading `power_w`, read under auto-range, corrected by `ranges` (unchanged without them).
 fn corrected(ranges: Option<&RangesCalibration>, ranges_w: &[f64], power_w: f64) -> f64 {
-    let reading = PowerReading {
-        power_w,
-        range_w: ranges_w.last().copied().unwrap_or(0.0),
-        overload: false,
-        timestamp: std::time::UNIX_EPOCH,
-    };
-    match (ranges, range_index(&reading, ranges_w, Range::Auto)) {
+    match (ranges, auto_range_index(power_w, ranges_w)) {
         (Some(c), Some(k)) => c.correct(power_w, k).0,
         _ => power_w,
     }

@@ -43,30 +43,6 @@ impl Meter {
         config: DetectorConfig,
     ) -> Result<PowerReading, CharacteriseError> {
         let det = motion.rig().detector().clone();
-        if config.range == PowerRange::Auto
-            && matches!(self.configured.map(|c| c.range), Some(PowerRange::Fixed { .. }))
-        {
-            // Back to auto-range from a fixed range: through the largest, which is what the meter reports as its
-            // range under auto-range and what the driver holds a reading against for overload.
-            let largest = motion
-                .rig()
-                .file()
-                .instrument
-                .detector
-                .ranges_w
-                .iter()
-                .copied()
-                .fold(0.0, f64::max);
-            let through = DetectorConfig {
-                range: PowerRange::Fixed {
-                    full_scale_w: largest,
-                },
-                ..config
-            };
-            motion
-                .device(Device::Detector, "configure the meter", || det.configure(through))
-                .await?;
-        }
         if self.configured != Some(config) {
             motion
                 .device(Device::Detector, "configure the meter", || det.configure(config))

@@ -207,11 +207,7 @@ impl Rig {
             return Ok(None);
         }
         let seed = self.file().simulator.seed;
-        let spec = |material: &Material| SampleSpec {
-            material: material.clone(),
-            radius_mm,
-            orientation_deg: 0.0,
-        };
+        let spec = |material: &Material| sample_spec(material, radius_mm);
         let sample = self.mount_sample(spec(sample), seed)?;
         let reference = reference.map(|r| self.build_optics(spec(r), seed)).transpose()?;
         Ok(Some(Arc::new(SimulatedHolder {
@@ -237,11 +233,7 @@ impl Rig {
             return Ok(None);
         }
         let seed = self.file().simulator.seed;
-        let spec = |material: &Material| SampleSpec {
-            material: material.clone(),
-            radius_mm,
-            orientation_deg: 0.0,
-        };
+        let spec = |material: &Material| sample_spec(material, radius_mm);
         let optics = Arc::new(self.unshared_optics(spec(mirror), seed)?.as_alignment_mirror());
         self.show_optics(Arc::clone(&optics));
         let sample = sample.map(|m| self.build_optics(spec(m), seed)).transpose()?;
@@ -250,5 +242,14 @@ impl Rig {
             sample: optics,
             reference: sample,
         })))
+    }
+}
+
+/// A sample of `material`, `radius_mm` in radius, as mounted (no orientation).
+fn sample_spec(material: &Material, radius_mm: f64) -> SampleSpec {
+    SampleSpec {
+        material: material.clone(),
+        radius_mm,
+        orientation_deg: 0.0,
     }
 }

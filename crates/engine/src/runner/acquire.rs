@@ -70,22 +70,7 @@ impl<'a> Run<'a> {
             fixed.range = Range::FixedW(ranges_w[upper]);
             let mut configured = None;
             r = acquisition::read(&self.motion, nm, &fixed, &mut configured).await?;
-            // Back to auto-range at the next reading, through the largest range: what the meter reports as its
-            // range under auto-range, and what the driver holds a reading against for overload.
-            let largest = ranges_w.iter().copied().fold(0.0, f64::max);
-            let det = self.rig.detector();
-            let through = acquisition::meter_config(
-                nm,
-                &gonio_campaign::Acquisition {
-                    range: Range::FixedW(largest),
-                    ..self.c.campaign.acquisition
-                },
-            );
-            self.motion
-                .device(Device::Detector, "configure the detector", || {
-                    det.configure(through)
-                })
-                .await?;
+            // Back to auto-range at the next reading.
             self.configured_nm = None;
         }
         // A characterised meter: the reading as the true signal (crate::characterise::ranges).
