@@ -96,14 +96,15 @@ fn dry_run_matches_ground_truth_and_writes_csv_and_json() {
         lines.next(),
         Some(
             "index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,signal_w,dark_w,incident_w,brdf_sr,brdf_u_sr,\
-             flags,t_s,light_deg,detector_deg,tilt_deg,rotation_deg,brdf_true_sr,brdf_true_aperture_sr"
+             flags,t_s,light_deg,detector_deg,tilt_deg,rotation_deg,brdf_aperture_sr,brdf_u_indep_sr,budget,\
+             brdf_true_sr,brdf_true_aperture_sr"
         )
     );
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.len() as u64, total);
     let mut valid = 0;
     for (i, r) in rows.iter().enumerate() {
-        assert_eq!(r.len(), 19, "row {i}");
+        assert_eq!(r.len(), 22, "row {i}");
         assert_eq!(r[0], i.to_string());
         if !r[11].is_empty() {
             // A flagged point has no value.
@@ -112,7 +113,15 @@ fn dry_run_matches_ground_truth_and_writes_csv_and_json() {
         }
         let f: f64 = r[9].parse().expect("brdf");
         let u: f64 = r[10].parse().expect("u");
-        let truth: f64 = r[18].parse().expect("truth");
+        let truth: f64 = r[21].parse().expect("truth");
+        // The budget names its parts, and its independent part is at most the total.
+        assert!(
+            r[19].contains("signal-noise=") && r[19].contains("@campaign="),
+            "row {i}: budget {}",
+            r[19]
+        );
+        let indep: f64 = r[18].parse().expect("independent u");
+        assert!(indep > 0.0 && indep <= u, "row {i}: independent {indep} of {u}");
         // Noise and drift are the simulator's; the uncertainty claims to cover them: 5 u plus a floor for the
         // optics' integration tolerance (1e-6 relative).
         assert!(
@@ -420,11 +429,19 @@ fn dry_run_with_serial_devices_on_pseudo_terminals_matches_ground_truth() {
     let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.len() as u64, total);
     for (i, r) in rows.iter().enumerate() {
-        assert_eq!(r.len(), 19, "row {i}");
+        assert_eq!(r.len(), 22, "row {i}");
         assert_eq!(r[11], "", "row {i} is flagged: {r:?}");
         let f: f64 = r[9].parse().expect("brdf");
         let u: f64 = r[10].parse().expect("u");
-        let truth: f64 = r[18].parse().expect("truth");
+        let truth: f64 = r[21].parse().expect("truth");
+        // The budget names its parts, and its independent part is at most the total.
+        assert!(
+            r[19].contains("signal-noise=") && r[19].contains("@campaign="),
+            "row {i}: budget {}",
+            r[19]
+        );
+        let indep: f64 = r[18].parse().expect("independent u");
+        assert!(indep > 0.0 && indep <= u, "row {i}: independent {indep} of {u}");
         assert!(
             (f - truth).abs() <= 5.0 * u + 1e-6 * truth.abs(),
             "row {i}: f {f} truth {truth} u {u}"

@@ -46,7 +46,8 @@ pub enum Event {
     /// A point was committed to the store.
     Point {
         campaign: CampaignId,
-        point: PointRecord,
+        /// Boxed: a point with its budget is ten times the size of the other events.
+        point: Box<PointRecord>,
     },
     /// Points done out of total, and the predicted remaining instrument time (s).
     Progress {

@@ -55,6 +55,8 @@ pub fn point(p: &PointRecord, axis_names: &[String]) -> Point {
                 (a.clone(), v.and_then(finite))
             })
             .collect(),
+        brdf_aperture_sr: p.brdf_aperture_sr.and_then(finite),
+        budget: p.budget.clone(),
         truth_point_sr: p.truth_point_sr.and_then(finite),
         truth_aperture_sr: p.truth_aperture_sr.and_then(finite),
     }

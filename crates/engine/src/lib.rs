@@ -25,6 +25,7 @@
 
 pub mod acquisition;
 pub mod align;
+pub mod budget;
 pub mod calibration;
 pub mod characterise;
 pub mod console;

@@ -61,7 +61,7 @@ pub const STORE_FILE: &str = "gonio.sqlite";
 /// Version 4: `predicted_instrument_s`; version 5: `alignment_toml` (the alignment applied to a campaign).
 /// Version 6: `instrument_calibrations` (the daemon's calibrations, dated, never overwritten) and
 /// `campaigns.calibration_id` (which one a campaign was given).
-const SCHEMA_VERSION: i64 = 6;
+const SCHEMA_VERSION: i64 = 7;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

@@ -55,6 +55,8 @@ pub fn column_units(run: &Run) -> Vec<(String, &'static str)> {
                 "brdf_sr" | "brdf_u_sr" => "1/sr",
                 "flags" => "';'-separated reasons, empty for a valid point",
                 "t_s" => "s",
+                "brdf_aperture_sr" | "brdf_u_indep_sr" => "1/sr",
+                "budget" => "';'-separated component[@shared-group]=standard uncertainty in 1/sr",
                 c if points::TRUTH_COLUMNS.contains(&c) => "1/sr",
                 // The remaining columns are the `<axis>_deg` read-backs.
                 _ => "degree",
@@ -65,7 +67,7 @@ pub fn column_units(run: &Run) -> Vec<(String, &'static str)> {
 }
 
 /// The conventions a reader needs, one sentence each.
-pub const CONVENTIONS: [(&str, &str); 6] = [
+pub const CONVENTIONS: [(&str, &str); 7] = [
     (
         "frame",
         "sample frame: z is the surface normal; theta from the normal, phi about it from +x towards +y; \
@@ -75,6 +77,13 @@ pub const CONVENTIONS: [(&str, &str); 6] = [
     (
         "uncertainty",
         "brdf_u_sr is the combined standard uncertainty (k = 1)",
+    ),
+    (
+        "budget",
+        "budget lists brdf_u_sr's components (k = 1, 1/sr; their root sum of squares is brdf_u_sr); a component \
+         named with @group is fully correlated between the points of that group (campaign: every point; band-<nm>: \
+         a band's points; range-<i>: the readings on one meter range), the others are independent from point to \
+         point; brdf_u_indep_sr is the root sum of squares of the independent ones",
     ),
     (
         "readback",
@@ -224,6 +233,11 @@ fn point_json(p: &Point, run: &Run) -> Value {
         .map(|(a, v)| (a.clone(), json!(v)))
         .collect();
     m.insert("readback_deg".into(), Value::Object(readback));
+    m.insert("brdf_aperture_sr".into(), json!(p.brdf_aperture_sr));
+    if !p.budget.entries.is_empty() {
+        m.insert("brdf_u_indep_sr".into(), json!(p.budget.independent_sr()));
+    }
+    m.insert("budget".into(), p.budget.to_json());
     if run.dry_run {
         m.insert("brdf_true_sr".into(), json!(p.truth_point_sr));
         m.insert("brdf_true_aperture_sr".into(), json!(p.truth_aperture_sr));

@@ -14,6 +14,8 @@
 //!   Interchange text of Zemax OpticStudio (about the specular direction, TIS per incidence); [`astm`]: a BRDF
 //!   table after ASTM E1392 / E2387; [`rgl`]: the RGL tensor file of Mitsuba 3's and pbrt-v4's `measured`
 //!   BSDF. Every export carries [`provenance_summary`] (files named by their SHA-256, from the `sha2` crate).
+//! - [`budget`]: a point's uncertainty budget (GUM components in 1/sr, independent or shared by a group) and
+//!   its compact text form; [`budget_summary`]: run.json's `uncertainty`, the budgets over a run.
 //! - [`fit`]: robust, cosine- and uncertainty-weighted least squares of an analytic model, with parameter
 //!   uncertainties, written as a material file.
 //! - [`plot`]: SVG plots (plotters): in-plane polar slices, (theta_o, phi_o) heat maps, measurement against model.
@@ -22,7 +24,10 @@
 //! nothing of the daemon; the daemon turns its store's records into this crate's types (its `export` module)
 //! and the `gonio` binary hands a [`run::Run`] over.
 
+pub mod angular_class;
 pub mod astm;
+pub mod budget;
+pub mod budget_summary;
 pub mod error;
 pub mod export;
 pub mod fit;
@@ -33,6 +38,7 @@ pub mod plot;
 pub mod points;
 pub mod provenance;
 pub mod provenance_summary;
+pub mod report;
 pub mod rgl;
 pub mod run;
 pub mod zemax;

@@ -3,7 +3,8 @@
 //!
 //! Columns: `index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,signal_w,dark_w,incident_w,brdf_sr,
 //! brdf_u_sr,flags,t_s` ([`FIXED_COLUMNS`]), then one `<axis>_deg` read-back column per axis (instrument file
-//! order), then in dry-runs `brdf_true_sr,brdf_true_aperture_sr` ([`TRUTH_COLUMNS`]). The writer puts numbers in
+//! order), then the uncertainty budget's `brdf_aperture_sr,brdf_u_indep_sr,budget` ([`BUDGET_COLUMNS`]), then in
+//! dry-runs `brdf_true_sr,brdf_true_aperture_sr` ([`TRUTH_COLUMNS`]). The writer puts numbers in
 //! shortest round-trip form (`Display`), so the CSV holds exactly what the store holds, and a missing value
 //! (including a failed reading) as an empty field.
 //!
@@ -15,6 +16,7 @@
 
 use std::fmt::Write as _;
 
+use crate::budget::Budget;
 use crate::error::ResultsError;
 
 /// One measured point, as stored. Angles in degrees (the CSV's nominal sample-frame geometry), BRDF in 1/sr.
@@ -38,6 +40,12 @@ pub struct Point {
     pub t_s: Option<f64>,
     /// Read-back axis positions, degrees, in the CSV's column order.
     pub readback_deg: Vec<(String, Option<f64>)>,
+    /// The aperture average the value was corrected from (1/sr): `brdf_sr` is the BRDF at the nominal
+    /// geometry, this is what the detector's aperture saw ([`crate::budget`]'s `aperture` component is the
+    /// correction's own uncertainty). `None`: no correction was made (older runs, or none was possible).
+    pub brdf_aperture_sr: Option<f64>,
+    /// The point's uncertainty budget; `brdf_u_sr` is its total. Empty for older runs.
+    pub budget: Budget,
     /// Dry-runs: the simulator's point value and aperture-averaged value, 1/sr.
     pub truth_point_sr: Option<f64>,
     pub truth_aperture_sr: Option<f64>,
@@ -52,6 +60,16 @@ impl Point {
     /// The BRDF value of a valid point.
     pub fn value(&self) -> Option<f64> {
         if self.is_valid() { self.brdf_sr } else { None }
+    }
+
+    /// The independent part of the point's standard uncertainty (1/sr): the budget's when it has one, else the
+    /// whole `brdf_u_sr` (a run without a budget cannot tell its parts apart).
+    pub fn u_independent_sr(&self) -> Option<f64> {
+        if self.budget.entries.is_empty() {
+            self.brdf_u_sr
+        } else {
+            Some(self.budget.independent_sr())
+        }
     }
 }
 
@@ -94,6 +112,11 @@ const REQUIRED: [&str; 9] = [
     "flags",
 ];
 
+/// The uncertainty budget's columns, after the fixed ones and the read-back axes: the uncorrected aperture
+/// average (1/sr), the independent part of `brdf_u_sr` (1/sr), and the budget in its compact form
+/// ([`crate::budget`]).
+pub const BUDGET_COLUMNS: [&str; 3] = ["brdf_aperture_sr", "brdf_u_indep_sr", "budget"];
+
 /// The dry-run columns, last: the simulator's point value and its aperture average.
 pub const TRUTH_COLUMNS: [&str; 2] = ["brdf_true_sr", "brdf_true_aperture_sr"];
 
@@ -101,6 +124,7 @@ pub const TRUTH_COLUMNS: [&str; 2] = ["brdf_true_sr", "brdf_true_aperture_sr"];
 pub fn columns(axis_names: &[String], dry_run: bool) -> Vec<String> {
     let mut c: Vec<String> = FIXED_COLUMNS.iter().map(|c| c.to_string()).collect();
     c.extend(axis_names.iter().map(|a| format!("{a}_deg")));
+    c.extend(BUDGET_COLUMNS.iter().map(|c| c.to_string()));
     if dry_run {
         c.extend(TRUTH_COLUMNS.iter().map(|c| c.to_string()));
     }
@@ -144,6 +168,14 @@ pub fn write_row(s: &mut String, p: &Point, axis_names: &[String], dry_run: bool
                 .and_then(|(_, v)| *v),
         );
     }
+    s.push(',');
+    opt(s, p.brdf_aperture_sr);
+    s.push(',');
+    if !p.budget.entries.is_empty() {
+        num(s, p.budget.independent_sr());
+    }
+    s.push(',');
+    s.push_str(&p.budget.to_compact());
     if dry_run {
         s.push(',');
         opt(s, p.truth_point_sr);
@@ -238,6 +270,8 @@ struct Layout {
     flags: usize,
     t_s: Option<usize>,
     axes: Vec<(String, usize)>,
+    aperture: Option<usize>,
+    budget: Option<usize>,
     truth_point: Option<usize>,
     truth_aperture: Option<usize>,
     columns: usize,
@@ -286,6 +320,8 @@ impl Layout {
             flags: need("flags"),
             t_s: find("t_s"),
             axes,
+            aperture: find(BUDGET_COLUMNS[0]),
+            budget: find(BUDGET_COLUMNS[2]),
             truth_point: find(TRUTH_COLUMNS[0]),
             truth_aperture: find(TRUTH_COLUMNS[1]),
             columns: header.len(),
@@ -394,6 +430,11 @@ fn parse_row(fields: &[String], layout: &Layout, header: &[String]) -> Result<Po
             "column `brdf_u_sr`: {u} is negative (an uncertainty is >= 0)"
         ));
     }
+    // `brdf_u_indep_sr` is the budget's independent part, recomputed from the budget: not read.
+    let budget = match layout.budget.map(text) {
+        Some(t) => Budget::parse_compact(t).map_err(|e| format!("column `budget`: {}", e.reason))?,
+        None => Budget::default(),
+    };
     let mut readback_deg = Vec::with_capacity(layout.axes.len());
     for (axis, i) in &layout.axes {
         readback_deg.push((axis.clone(), optional(Some(*i))?));
@@ -413,6 +454,8 @@ fn parse_row(fields: &[String], layout: &Layout, header: &[String]) -> Result<Po
         flags,
         t_s: optional(layout.t_s)?,
         readback_deg,
+        brdf_aperture_sr: optional(layout.aperture)?,
+        budget,
         truth_point_sr: optional(layout.truth_point)?,
         truth_aperture_sr: optional(layout.truth_aperture)?,
     })
@@ -425,6 +468,10 @@ mod tests {
 
     const HEADER: &str = "index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,signal_w,dark_w,incident_w,\
                           brdf_sr,brdf_u_sr,flags,t_s,light_deg,detector_deg,brdf_true_sr,brdf_true_aperture_sr";
+    /// What this version writes: the budget columns after the axes.
+    const BUDGET_HEADER: &str = "index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,signal_w,dark_w,\
+                                 incident_w,brdf_sr,brdf_u_sr,flags,t_s,light_deg,detector_deg,brdf_aperture_sr,\
+                                 brdf_u_indep_sr,budget,brdf_true_sr,brdf_true_aperture_sr";
 
     #[test]
     fn reads_the_gonio_run_layout() {
@@ -479,8 +526,8 @@ mod tests {
     #[test]
     fn the_writer_writes_what_the_reader_reads() {
         let text = format!(
-            "{HEADER}\n0,550,30,180,45,0,0.0000001,0.0000000001,0.0005,0.2500000000000001,0.001,,12.5,-30,45,0.2501,0.2502\n\
-             1,550,30,180,60,0,,,,,,failed: meter timeout;saturated,13,,,0.1,\n"
+            "{BUDGET_HEADER}\n0,550,30,180,45,0,0.0000001,0.0000000001,0.0005,0.2500000000000001,0.001,,12.5,-30,45,0.2502,0.0009,signal-noise=0.0009;solid-angle@campaign=0.0004,0.2501,0.2502\n\
+             1,550,30,180,60,0,,,,,,failed: meter timeout;saturated,13,,,,,,0.1,\n"
         );
         let table = parse_points_csv(&text, "x.csv").expect("parses");
         assert_eq!(

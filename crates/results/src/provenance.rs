@@ -21,6 +21,7 @@ pub use simulator_truth::{
     SeatingRecord, SimulatorTruth, SourceTruthRecord,
 };
 
+use crate::budget_summary::{BudgetSummary, summarise};
 use std::collections::BTreeMap;
 
 use serde::de::DeserializeOwned;
@@ -41,6 +42,9 @@ pub struct RunRecord {
     pub calibrations: Vec<CalibrationReading>,
     pub timing: Timing,
     pub truth: TruthSummary,
+    /// The points' uncertainty budgets over the run (crate::budget_summary); absent for runs without budgets.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<BudgetSummary>,
     /// An imperfect simulated instrument's hidden values; absent on the ideal one and on hardware.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub simulator_truth: Option<SimulatorTruth>,
@@ -230,6 +234,7 @@ impl RunRecord {
                 against_aperture_average: truth_errors(points, |p| p.truth_aperture_sr),
                 against_point_value: truth_errors(points, |p| p.truth_point_sr),
             },
+            uncertainty: summarise(points),
             simulator_truth: stored.simulator_truth,
         }
     }
@@ -279,6 +284,10 @@ impl RunRecord {
             calibrations: part(object, "calibrations", &err)?,
             timing: part(object, "timing", &err)?,
             truth: part(object, "truth", &err)?,
+            uncertainty: match object.get("uncertainty") {
+                None => None,
+                Some(_) => Some(part(object, "uncertainty", &err)?),
+            },
             simulator_truth: match object.get("simulator_truth") {
                 None => None,
                 Some(_) => Some(part(object, "simulator_truth", &err)?),
@@ -345,6 +354,8 @@ pub(crate) mod tests {
             flags: flags.iter().map(|s| s.to_string()).collect(),
             t_s: Some(t_s),
             readback_deg: Vec::new(),
+            brdf_aperture_sr: None,
+            budget: Default::default(),
             truth_point_sr: truth,
             truth_aperture_sr: truth,
         }

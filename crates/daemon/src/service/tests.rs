@@ -36,6 +36,8 @@ fn fake_point(index: u64) -> PointRecord {
         truth_point_sr: None,
         truth_aperture_sr: None,
         truth_effects_json: None,
+        brdf_aperture_sr: None,
+        budget: Default::default(),
     }
 }
 

@@ -5,9 +5,24 @@ use gonio_brdf::{Direction, Wavelength};
 
 use super::*;
 use crate::acquisition::{self, EquationInputs, Normalisation, brdf_of_reading, flag_for};
+use crate::budget;
 use crate::characterise::correction::{FLAG_BELOW_NEBRDF, FLAG_NEAR_BEAM, SignatureAt};
 use crate::characterise::ranges::near_range_boundary;
 use gonio_campaign::Range;
+use gonio_results::budget::Budget;
+
+/// A sample reading with its uncertainty in parts (W).
+#[derive(Debug, Clone, Copy)]
+struct SampleReading {
+    power_w: f64,
+    /// The reading's own noise and resolution.
+    noise_w: f64,
+    /// The characterisation's correction of the range's gain and linearity (0 without one).
+    range_u_w: f64,
+    overload: bool,
+    /// Index into the instrument's `ranges_w`.
+    range: Option<usize>,
+}
 
 impl<'a> Run<'a> {
     pub(super) async fn wheel_to(&mut self, position: u8) -> Result<(), Interrupt> {
@@ -51,6 +66,12 @@ impl<'a> Run<'a> {
 
     /// One detector reading at wavelength `nm`: (value, standard uncertainty, overload).
     pub(super) async fn read(&mut self, nm: f64) -> Result<(f64, f64, bool), Interrupt> {
+        let r = self.read_parts(nm).await?;
+        Ok((r.power_w, r.noise_w.hypot(r.range_u_w), r.overload))
+    }
+
+    /// One detector reading at wavelength `nm` with its uncertainty in parts.
+    async fn read_parts(&mut self, nm: f64) -> Result<SampleReading, Interrupt> {
         let mut r = acquisition::read(
             &self.motion,
             nm,
@@ -73,40 +94,47 @@ impl<'a> Run<'a> {
             // Back to auto-range at the next reading.
             self.configured_nm = None;
         }
-        // A characterised meter: the reading as the true signal (crate::characterise::ranges).
-        let (power_w, added_u) = match &self.detector {
+        // A characterised meter: the reading as the true signal (crate::characterise::ranges), the correction's
+        // own uncertainty apart (it is the range's, shared by the readings on it).
+        let (power_w, range_u_w) = match &self.detector {
             Some(d) if !r.overload => d.reading(r.power_w, r.range),
             _ => (r.power_w, 0.0),
         };
-        Ok((power_w, r.std_w.hypot(added_u), r.overload))
+        Ok(SampleReading {
+            power_w,
+            noise_w: r.std_w,
+            range_u_w,
+            overload: r.overload,
+            range: r.range,
+        })
     }
 
     /// A characterised instrument: the signature subtracted from a value and the point flagged where the
     /// signature was not measured or the value is below three NEBRDF (crate::characterise::correction).
+    /// Returns the value and the subtracted signature's standard uncertainty (1/sr; 0 when none was).
     fn less_signature(
         &self,
         value: f64,
-        u: f64,
         step: &Step,
         g: &gonio_scheduler::kinematics::Geometry,
         band_nm: f64,
         flags: &mut Vec<String>,
     ) -> (f64, f64) {
         let Some(d) = &self.detector else {
-            return (value, u);
+            return (value, 0.0);
         };
-        let (value, u) = match d.signature(
+        let (value, u_stray) = match d.signature(
             band_nm,
             step.pose.light_deg,
             step.pose.detector_deg,
             g.theta_o_deg,
         ) {
-            SignatureAt::Subtract { brdf_sr, u_sr } => (value - brdf_sr, u.hypot(u_sr)),
+            SignatureAt::Subtract { brdf_sr, u_sr } => (value - brdf_sr, u_sr),
             SignatureAt::NearBeam => {
                 flags.push(FLAG_NEAR_BEAM.to_string());
-                (value, u)
+                (value, 0.0)
             }
-            SignatureAt::Unknown => (value, u),
+            SignatureAt::Unknown => (value, 0.0),
         };
         let averaging = self.c.campaign.acquisition.averaging;
         if d.nebrdf_sr(band_nm, averaging, g.theta_o_deg)
@@ -114,7 +142,7 @@ impl<'a> Run<'a> {
         {
             flags.push(FLAG_BELOW_NEBRDF.to_string());
         }
-        (value, u)
+        (value, u_stray)
     }
 
     pub(super) async fn measure(&mut self, step: &Step, next_start_s: Option<f64>) -> Result<(), Interrupt> {
@@ -140,12 +168,12 @@ impl<'a> Run<'a> {
             if let Some(p) = step.wheel_position {
                 self.wheel_to(p).await?;
             }
-            self.read(band_nm).await
+            self.read_parts(band_nm).await
         }
         .await;
         let mut flags = Vec::new();
-        let (signal, u_signal, overload) = match acquired {
-            Ok(r) => r,
+        let reading = match acquired {
+            Ok(r) => Some(r),
             Err(Interrupt::Fatal(EngineError::Device(reason))) => {
                 self.failed_in_row += 1;
                 if self.failed_in_row >= MAX_FAILED_IN_ROW {
@@ -156,19 +184,20 @@ impl<'a> Run<'a> {
                 flags.push(format!("failed: {reason}"));
                 // Where the axes are now is uncertain after a failure: ask them.
                 let _ = self.motion.read_positions().await;
-                (f64::NAN, f64::NAN, false)
+                None
             }
             Err(other) => return Err(other),
         };
+        let signal = reading.map_or(f64::NAN, |r| r.power_w);
         let t = self.t();
         let dark = self.dark(band_nm);
         let incident = self.normalisation(band_nm, t).unwrap_or(Reading::exact(f64::NAN));
         let wi = Direction::from_spherical_deg(g.theta_i_deg, g.phi_i_deg);
         let wo = Direction::from_spherical_deg(g.theta_o_deg, g.phi_o_deg);
-        let (mut brdf, mut brdf_u) = (None, None);
-        if flags.is_empty() {
+        let (mut brdf, mut brdf_u, mut budget) = (None, None, Budget::default());
+        if let Some(r) = reading {
             self.failed_in_row = 0;
-            if overload {
+            if r.overload {
                 flags.push("saturated".to_string());
             } else {
                 let inputs = EquationInputs {
@@ -185,12 +214,25 @@ impl<'a> Run<'a> {
                     wi,
                     wo,
                 };
-                match brdf_of_reading(&inputs, Reading::new(signal, u_signal), dark, incident) {
+                match brdf_of_reading(&inputs, Reading::new(signal, r.noise_w), dark, incident) {
                     Ok(v) => {
-                        let (value, u) =
-                            self.less_signature(v.value_per_sr, v.std_per_sr, step, &g, band_nm, &mut flags);
+                        let (value, u_stray) =
+                            self.less_signature(v.value_per_sr, step, &g, band_nm, &mut flags);
+                        let parts = budget::Parts {
+                            equation: &v,
+                            relative: self.reference.is_some(),
+                            band_nm,
+                            range: r.range,
+                            range_rel: if r.power_w != 0.0 {
+                                r.range_u_w / r.power_w.abs()
+                            } else {
+                                0.0
+                            },
+                            stray_light_sr: u_stray,
+                        };
+                        budget = budget::of_point(&parts);
                         brdf = Some(value);
-                        brdf_u = Some(u);
+                        brdf_u = Some(budget.total_sr());
                     }
                     Err(e) => flags.push(flag_for(&e)),
                 }
@@ -223,12 +265,14 @@ impl<'a> Run<'a> {
             truth_point_sr: truth.point_sr,
             truth_aperture_sr: truth.aperture_sr,
             truth_effects_json: truth.effects_json,
+            brdf_aperture_sr: None,
+            budget,
         };
         self.st(|s| s.commit_point(self.id, &point))?;
         self.done += 1;
         self.control.emit(Event::Point {
             campaign: self.id,
-            point,
+            point: Box::new(point),
         });
         self.progress(next_start_s);
         Ok(())

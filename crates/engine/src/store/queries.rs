@@ -1,6 +1,7 @@
 //! Reading and writing campaigns, their states, devices, calibrations and points: one statement (or one
 //! transaction) per call, at the durability the campaign needs.
 
+use gonio_results::budget::Budget;
 use rusqlite::{OptionalExtension, named_params, params};
 
 use super::schema::{INSERT_POINT, SELECT_POINTS_FROM};
@@ -256,6 +257,7 @@ impl Store {
         let readback = serde_json::to_string(&p.readback_deg)
             .map_err(|e| StoreError::Corrupt(format!("cannot encode read-back positions: {e}")))?;
         let flags = p.flags.join(";");
+        let budget = (!p.budget.entries.is_empty()).then(|| p.budget.to_compact());
         self.durability_for_write(Some(id))?;
         // Prepared once per connection (SQLite's parse and plan cost as much as the insert itself).
         let result = self.conn.prepare_cached(&INSERT_POINT).and_then(|mut st| {
@@ -278,6 +280,8 @@ impl Store {
                 ":truth_point_sr": p.truth_point_sr,
                 ":truth_aperture_sr": p.truth_aperture_sr,
                 ":truth_effects_json": p.truth_effects_json,
+                ":brdf_aperture_sr": p.brdf_aperture_sr,
+                ":budget": budget,
             })
         });
         match result {
@@ -433,6 +437,13 @@ fn point_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<PointRecord,
             ))));
         }
     };
+    let budget = match r.get::<_, Option<String>>("budget")? {
+        None => Budget::default(),
+        Some(text) => match Budget::parse_compact(&text) {
+            Ok(b) => b,
+            Err(e) => return Ok(Err(StoreError::Corrupt(e.to_string()))),
+        },
+    };
     Ok(Ok(PointRecord {
         index: from_i64(r.get("idx")?),
         band_nm: r.get("band_nm")?,
@@ -456,6 +467,8 @@ fn point_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<PointRecord,
         truth_point_sr: r.get("truth_point_sr")?,
         truth_aperture_sr: r.get("truth_aperture_sr")?,
         truth_effects_json: r.get("truth_effects_json")?,
+        brdf_aperture_sr: r.get("brdf_aperture_sr")?,
+        budget,
     }))
 }
 

@@ -5,6 +5,7 @@
 use std::fmt;
 use std::str::FromStr;
 
+use gonio_results::budget::Budget;
 use serde::{Deserialize, Serialize};
 
 use super::StoreError;
@@ -176,6 +177,12 @@ pub struct PointRecord {
     /// plus the relative effects derived from them; crates/engine/src/rig/dry_run.rs).
     #[serde(default)]
     pub truth_effects_json: Option<String>,
+    /// The aperture average `brdf_sr` was corrected from (1/sr); `None` when no correction was made.
+    #[serde(default)]
+    pub brdf_aperture_sr: Option<f64>,
+    /// The uncertainty budget (`brdf_u_sr` is its total); empty for points stored before version 7.
+    #[serde(default)]
+    pub budget: Budget,
 }
 
 /// A committed point's geometry and BRDF only: what an adaptive planner reads back (`Store::point_values`).

@@ -33,11 +33,23 @@ const POINT_COLUMNS: &[(&str, &str)] = &[
     ("truth_point_sr", "REAL"),
     ("truth_aperture_sr", "REAL"),
     ("truth_effects_json", "TEXT"),
+    // Version 7: the uncertainty budget (the uncorrected aperture average, 1/sr; the budget's compact text,
+    // gonio_results::budget). NULL for older points.
+    ("brdf_aperture_sr", "REAL"),
+    ("budget", "TEXT"),
 ];
+
+/// How many of [`POINT_COLUMNS`] version 3 had (the rebuild of a version-1 table writes those; later versions'
+/// columns are added by their own steps).
+const V3_POINT_COLUMNS: usize = 18;
 
 /// The points table's body for `CREATE TABLE points (...)`.
 fn points_table_body() -> String {
-    let mut lines: Vec<String> = POINT_COLUMNS
+    points_table_body_of(POINT_COLUMNS)
+}
+
+fn points_table_body_of(columns: &[(&str, &str)]) -> String {
+    let mut lines: Vec<String> = columns
         .iter()
         .map(|(name, decl)| format!("                {name} {decl}"))
         .collect();
@@ -201,7 +213,7 @@ impl Store {
     /// SQLite cannot drop a NOT NULL constraint in place: rebuild the table, keeping every row (with no
     /// attribution: version 1 had none). This goes to version 3 (the points as they are now).
     fn migrate_v1(&mut self) -> Result<(), StoreError> {
-        let body = points_table_body();
+        let body = points_table_body_of(&POINT_COLUMNS[..V3_POINT_COLUMNS]);
         let sql = format!(
             "BEGIN;
             CREATE TABLE points_v2 ({body});
@@ -256,6 +268,14 @@ impl Store {
                     "{INSTRUMENT_CALIBRATIONS} ALTER TABLE campaigns ADD COLUMN calibration_id INTEGER;"
                 ),
                 6,
+            )?;
+            version = 6;
+        }
+        if version == 6 {
+            // Version 7 keeps each point's uncertainty budget and uncorrected aperture average.
+            self.step(
+                "ALTER TABLE points ADD COLUMN brdf_aperture_sr REAL; ALTER TABLE points ADD COLUMN budget TEXT;",
+                7,
             )?;
             return Ok(());
         }

@@ -39,6 +39,8 @@ fn point(index: u64) -> PointRecord {
         truth_point_sr: Some(std::f64::consts::FRAC_1_PI),
         truth_aperture_sr: None,
         truth_effects_json: None,
+        brdf_aperture_sr: None,
+        budget: Default::default(),
     }
 }
 
@@ -136,6 +138,8 @@ fn a_version_1_store_is_migrated_keeping_its_points() {
         .replace("dark_w REAL,", "dark_w REAL NOT NULL,")
         .replace("incident_w REAL,", "incident_w REAL NOT NULL,")
         .replace("truth_effects_json TEXT,", "")
+        .replace("brdf_aperture_sr REAL,", "")
+        .replace("budget TEXT,", "")
         .replace("CREATE TABLE points", "CREATE TABLE points_v1");
     assert!(v1_table.contains("signal_w REAL NOT NULL"), "{v1_table}");
     assert!(!v1_table.contains("truth_effects_json"), "{v1_table}");
@@ -164,7 +168,7 @@ fn a_version_2_store_gains_the_attribution_column() {
     // Version 2: no truth_effects_json column.
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch(
-        "ALTER TABLE points DROP COLUMN truth_effects_json;
+        "ALTER TABLE points DROP COLUMN truth_effects_json; ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; 
          ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 2;",
     )
     .expect("downgrade");
@@ -191,7 +195,7 @@ fn a_version_3_store_gains_the_prediction_and_keeps_its_campaigns() {
         "the prediction is stored with the campaign"
     );
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 3;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 3;")
         .expect("downgrade");
     drop(conn);
     let mut store = Store::open(dir.path()).expect("migrates");
@@ -224,12 +228,32 @@ fn a_version_4_store_gains_the_alignment_column_and_keeps_its_campaigns() {
         store.create_campaign(&new_campaign(2)).expect("create")
     };
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 4;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 4;")
         .expect("downgrade");
     drop(conn);
     let store = Store::open(dir.path()).expect("migrates");
     let old = store.campaign(id).expect("campaign");
     assert_eq!((old.alignment_toml, old.total_points), (None, 2));
+}
+
+#[test]
+fn a_version_6_store_gains_the_budget_columns_and_a_budget_round_trips() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let id = store_with_one_point(dir.path());
+    let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; PRAGMA user_version = 6;")
+        .expect("downgrade");
+    drop(conn);
+    let mut store = Store::open(dir.path()).expect("migrates");
+    assert_eq!(store.points(id).expect("points"), vec![point(0)]);
+    let mut budgeted = point(1);
+    budgeted.brdf_aperture_sr = Some(0.2995);
+    budgeted.budget = gonio_results::budget::Budget::parse_compact(
+        "signal-noise=0.00001;solid-angle@campaign=0.0003;range@range-2=0.00002",
+    )
+    .expect("budget");
+    store.commit_point(id, &budgeted).expect("commit");
+    assert_eq!(store.points(id).expect("points")[1], budgeted);
 }
 
 #[test]

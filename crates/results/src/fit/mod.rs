@@ -54,7 +54,7 @@ use crate::fit::lm::Residuals as _;
 use crate::iso::directions;
 use crate::run::{BAND_TOLERANCE_NM, Run, list_nm};
 
-mod observations;
+pub(crate) mod observations;
 mod params;
 mod report;
 

@@ -48,6 +48,8 @@ fn point(index: u64, value: Option<f64>, flags: &[&str]) -> PointRecord {
         truth_point_sr: Some(0.1),
         truth_aperture_sr: Some(0.1),
         truth_effects_json: None,
+        brdf_aperture_sr: None,
+        budget: Default::default(),
     }
 }
 

@@ -141,6 +141,8 @@ fn point(index: u64, value: f64, truth: f64, json: Option<String>) -> PointRecor
         truth_point_sr: Some(truth),
         truth_aperture_sr: Some(truth),
         truth_effects_json: json,
+        brdf_aperture_sr: None,
+        budget: Default::default(),
     }
 }
 

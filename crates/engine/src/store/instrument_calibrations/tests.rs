@@ -159,7 +159,7 @@ fn a_version_5_store_gains_the_calibrations_and_keeps_its_campaigns() {
     // Back to version 5: no calibrations table, no campaigns.calibration_id.
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch(
-        "DROP TABLE instrument_calibrations; ALTER TABLE campaigns DROP COLUMN calibration_id;
+        "ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; DROP TABLE instrument_calibrations; ALTER TABLE campaigns DROP COLUMN calibration_id;
          PRAGMA user_version = 5;",
     )
     .expect("downgrade");
@@ -170,7 +170,7 @@ fn a_version_5_store_gains_the_calibrations_and_keeps_its_campaigns() {
         .conn
         .query_row("PRAGMA user_version", [], |r| r.get(0))
         .expect("version");
-    assert_eq!(version, 6);
+    assert_eq!(version, 7);
     let old = store.campaign(id).expect("campaign");
     assert_eq!(
         (

@@ -1,0 +1,138 @@
+//! A measured point's uncertainty budget ([`gonio_results::budget`]) from the measurement equation's parts, the
+//! characterisation's corrections and the signature: each component named, and those every point of a group
+//! shares (the solid angle or the reference's certificate by the whole campaign, a band's normalisation by its
+//! points, a range's gain by the readings on it) kept apart from what is independent per point.
+//!
+//! Where each part comes from today:
+//! - `signal-noise`, `dark`: the meter's reading uncertainty (crate::acquisition::meter_reading) through the
+//!   equation.
+//! - `normalisation` (shared by the band): the direct-beam or reference readings interpolated to the point's
+//!   time (crate::calibration), through the equation.
+//! - `solid-angle` (absolute) or `certificate` (relative), shared by the campaign.
+//! - `pointing`: the axes' arrival tolerance through the equation's angular sensitivity.
+//! - `range` (shared by the range): the characterisation's range-gain and linearity correction, relative to
+//!   the reading, carried to the value.
+//! - `stray-light`: the uncertainty of the subtracted signature (characterised instruments).
+
+use gonio_brdf::measurement::BrdfValue;
+use gonio_results::budget::{Budget, components, groups};
+
+/// Everything a point's budget is made of.
+#[derive(Debug, Clone, Copy)]
+pub struct Parts<'a> {
+    /// The measurement equation's value and its per-input contributions.
+    pub equation: &'a BrdfValue,
+    /// Normalised by a reference sample (its certificate is the scale) rather than the direct beam.
+    pub relative: bool,
+    pub band_nm: f64,
+    /// The range the sample reading was taken on (index into the instrument's `ranges_w`).
+    pub range: Option<usize>,
+    /// The characterisation's range correction's relative standard uncertainty on the reading (0 without).
+    pub range_rel: f64,
+    /// The subtracted signature's standard uncertainty (1/sr; 0 when none was subtracted).
+    pub stray_light_sr: f64,
+}
+
+/// The point's budget; its [`Budget::total_sr`] is the point's `brdf_u_sr`.
+pub fn of_point(p: &Parts<'_>) -> Budget {
+    let e = &p.equation.budget;
+    let mut b = Budget::default();
+    let add = |b: &mut Budget, name: &str, u: f64, shared: Option<String>| {
+        if u > 0.0 {
+            b.add(name, u, shared);
+        }
+    };
+    add(&mut b, components::SIGNAL_NOISE, e.signal_per_sr, None);
+    add(&mut b, components::DARK, e.signal_dark_per_sr, None);
+    add(
+        &mut b,
+        components::NORMALISATION,
+        e.normalisation_per_sr.hypot(e.normalisation_dark_per_sr),
+        Some(groups::band(p.band_nm)),
+    );
+    let scale = if p.relative {
+        components::CERTIFICATE
+    } else {
+        components::SOLID_ANGLE
+    };
+    add(&mut b, scale, e.scale_per_sr, Some(groups::CAMPAIGN.to_string()));
+    add(&mut b, components::POINTING, e.angles_per_sr, None);
+    let range_u = (p.equation.value_per_sr * p.range_rel).abs();
+    add(&mut b, components::RANGE, range_u, p.range.map(groups::range));
+    add(&mut b, components::STRAY_LIGHT, p.stray_light_sr, None);
+    b
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gonio_brdf::measurement::UncertaintyBudget;
+
+    fn value() -> BrdfValue {
+        BrdfValue {
+            value_per_sr: 0.3,
+            std_per_sr: 0.0,
+            budget: UncertaintyBudget {
+                signal_per_sr: 3e-5,
+                signal_dark_per_sr: 1e-6,
+                normalisation_per_sr: 4e-5,
+                normalisation_dark_per_sr: 3e-5,
+                scale_per_sr: 3e-4,
+                angles_per_sr: 2e-5,
+            },
+        }
+    }
+
+    #[test]
+    fn every_part_is_named_and_the_shared_ones_grouped() {
+        let v = value();
+        let b = of_point(&Parts {
+            equation: &v,
+            relative: false,
+            band_nm: 550.0,
+            range: Some(3),
+            range_rel: 1e-3,
+            stray_light_sr: 0.0,
+        });
+        let find = |name: &str| b.entries.iter().find(|e| e.component == name).cloned();
+        assert_eq!(find(components::NORMALISATION).unwrap().u_sr, 5e-5);
+        assert_eq!(
+            find(components::NORMALISATION).unwrap().shared.as_deref(),
+            Some("band-550")
+        );
+        assert_eq!(
+            find(components::SOLID_ANGLE).unwrap().shared.as_deref(),
+            Some("campaign")
+        );
+        assert!(find(components::CERTIFICATE).is_none());
+        assert!((find(components::RANGE).unwrap().u_sr - 3e-4).abs() < 1e-15);
+        assert_eq!(
+            find(components::RANGE).unwrap().shared.as_deref(),
+            Some("range-3")
+        );
+        // No signature subtracted: no stray-light entry.
+        assert!(find(components::STRAY_LIGHT).is_none());
+        let independent = (3e-5f64.powi(2) + 1e-6f64.powi(2) + 2e-5f64.powi(2)).sqrt();
+        assert!((b.independent_sr() - independent).abs() < 1e-15);
+        let total = (independent.powi(2) + 5e-5f64.powi(2) + 3e-4f64.powi(2) * 2.0).sqrt();
+        assert!((b.total_sr() - total).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_relative_campaign_names_the_certificate() {
+        let v = value();
+        let b = of_point(&Parts {
+            equation: &v,
+            relative: true,
+            band_nm: 450.0,
+            range: None,
+            range_rel: 0.0,
+            stray_light_sr: 1e-5,
+        });
+        let names: Vec<&str> = b.entries.iter().map(|e| e.component.as_str()).collect();
+        assert!(names.contains(&components::CERTIFICATE), "{names:?}");
+        assert!(!names.contains(&components::SOLID_ANGLE), "{names:?}");
+        assert!(!names.contains(&components::RANGE), "{names:?}");
+        assert!(names.contains(&components::STRAY_LIGHT), "{names:?}");
+    }
+}
