@@ -7,6 +7,9 @@ use std::path::{Path, PathBuf};
 
 use gonio_testkit::{CampaignText, cli, gonio, text};
 
+/// `gonio report`'s tests share this target and its dry-run.
+mod report;
+
 /// A dry-run of coloured plastic at two bands on an isotropic grid (3 incidences, 6 outgoing angles, 3 azimuths).
 fn dry_run(dir: &Path) -> PathBuf {
     let campaign = CampaignText::isotropic(

@@ -6,6 +6,7 @@
 use gonio_instrument::InstrumentFile;
 use gonio_results::points::{self, Point, PointsTable};
 use gonio_results::provenance::{CalibrationReading, DeviceIdentity, RunConfig, RunRecord, StoredCampaign};
+use gonio_results::report::PlanCoverage;
 
 use crate::store::{CampaignRecord, PointRecord, Store, StoreError};
 use gonio_campaign::{self as campaign, Sources};
@@ -143,4 +144,50 @@ fn predicted_s(record: &CampaignRecord) -> Option<f64> {
     .ok()?;
     // The same prediction `gonio plan` prints and the run started with (an adaptive plan: its whole budget).
     Some(prepared.predicted_s())
+}
+
+/// What the planner kept of a run's campaign and what it skipped, by reason: the stored campaign and instrument
+/// texts planned again as a resume plans them (the planner is deterministic); `None` when they no longer plan.
+pub fn plan_coverage(config: &RunConfig) -> Option<PlanCoverage> {
+    let file = InstrumentFile::parse(&config.instrument_toml, "<stored instrument file>").ok()?;
+    let prepared = campaign::load_and_prepare(
+        &config.campaign_toml,
+        "<stored campaign file>",
+        &Sources::Stored,
+        &file,
+    )
+    .ok()?;
+    let plan = &prepared.plan;
+    let mut skipped: Vec<(String, usize)> = plan
+        .skipped
+        .iter()
+        .map(|(reason, n)| {
+            let why = if reason.is_constraint() {
+                "cannot be measured"
+            } else {
+                "need not be measured"
+            };
+            (format!("{} ({why})", reason.name()), *n)
+        })
+        .collect();
+    if prepared.schedule.dropped > 0 {
+        skipped.push((
+            "arm-separation (no safe move found while ordering)".into(),
+            prepared.schedule.dropped,
+        ));
+    }
+    Some(PlanCoverage {
+        requested: plan.requested,
+        kept: plan.kept(),
+        skipped,
+        adaptive: prepared.adaptive.is_some(),
+    })
+}
+
+/// The detector aperture's half-angle seen from the sample (radians), from a run's instrument file: what a fit
+/// averages its model over, as the instrument averages the BRDF. `None` when the file no longer parses.
+pub fn aperture_half_angle_rad(instrument_toml: &str) -> Option<f64> {
+    let file = InstrumentFile::parse(instrument_toml, "<run's instrument file>").ok()?;
+    let d = &file.instrument.detector;
+    (d.aperture_radius_mm > 0.0 && d.distance_mm > 0.0).then(|| d.aperture_radius_mm.atan2(d.distance_mm))
 }

@@ -67,7 +67,9 @@ pub fn run(args: FitArgs) -> Result<(), CliError> {
     } else {
         Masking::HeightCorrelated
     };
-    opts.aperture_half_angle_rad = aperture_half_angle_rad(&run);
+    opts.aperture_half_angle_rad = run
+        .config()
+        .and_then(|c| gonio_engine::export::aperture_half_angle_rad(&c.instrument_toml));
     let report = fit::fit(&run, &opts).map_err(|e| CliError::input(e.to_string()))?;
     let out = args.out.clone().unwrap_or_else(|| {
         let name = match (args.wavelength, &args.source.run) {
@@ -97,12 +99,4 @@ pub fn run(args: FitArgs) -> Result<(), CliError> {
         println!("material: {}", out.display());
     }
     Ok(())
-}
-
-/// The detector aperture's half-angle seen from the sample, from the instrument file the run used.
-fn aperture_half_angle_rad(run: &gonio_results::Run) -> Option<f64> {
-    let text = &run.config()?.instrument_toml;
-    let file = gonio_instrument::InstrumentFile::parse(text, "<run's instrument file>").ok()?;
-    let d = &file.instrument.detector;
-    (d.aperture_radius_mm > 0.0 && d.distance_mm > 0.0).then(|| d.aperture_radius_mm.atan2(d.distance_mm))
 }

@@ -16,6 +16,7 @@ mod fit;
 mod instrument_arg;
 mod plan;
 mod plot;
+mod report;
 mod run;
 mod selftest;
 mod sim;
@@ -63,6 +64,9 @@ enum Command {
     Fit(fit::FitArgs),
     /// Plot a run as SVG: in-plane polar slices, heat maps per incidence, and measurement against a model.
     Plot(plot::PlotArgs),
+    /// Write a run's measurement report: one self-contained HTML page (sample, instrument, plan and coverage,
+    /// calibration, alignment, plots, uncertainty, fitted models, reproduction).
+    Report(report::ReportArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -90,6 +94,7 @@ fn main() -> ExitCode {
         Command::Export(args) => export::run(args),
         Command::Fit(args) => fit::run(args),
         Command::Plot(args) => plot::run(args),
+        Command::Report(args) => report::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -13,7 +13,7 @@
 //! truth (a run on hardware has none and says so in the uncertainty section); how to reproduce the run.
 
 use crate::error::ResultsError;
-use crate::fit::FitReport;
+use crate::fit::{self, FitModel, FitOptions, FitReport};
 use crate::plot::{self, PlotOptions};
 use crate::provenance_summary::{iso8601_utc, sha256_hex};
 use crate::run::{Run, list_nm};
@@ -216,4 +216,105 @@ pub fn render(input: &ReportInput<'_>) -> Result<(String, ReportSummary), Result
 /// The SHA-256 of a configuration text, as the exports name files.
 fn text_sha256(text: &str) -> String {
     sha256_hex(text.as_bytes())
+}
+
+/// Each model fitted as `gonio fit` fits it (every band, the default robust loss, the model averaged over the
+/// detector's aperture when its half-angle is known), best first by the cosine-weighted relative rms
+/// residual; the models that could not be fitted, with the reason. `on_model` hears of each fit as it starts
+/// (a fit takes seconds).
+pub fn fit_models(
+    run: &Run,
+    models: &[FitModel],
+    aperture_half_angle_rad: Option<f64>,
+    mut on_model: impl FnMut(FitModel),
+) -> (Vec<FitReport>, Vec<FitFailure>) {
+    let (mut fits, mut failures) = (Vec::new(), Vec::new());
+    for &model in models {
+        let mut opts = FitOptions::new(model);
+        opts.aperture_half_angle_rad = aperture_half_angle_rad;
+        on_model(model);
+        match fit::fit(run, &opts) {
+            Ok(f) => fits.push(f),
+            Err(e) => failures.push(FitFailure {
+                model: model.name().to_string(),
+                reason: e.to_string(),
+            }),
+        }
+    }
+    let key = |f: &FitReport| {
+        let r = f.residuals.cos_weighted_relative_rms;
+        if r.is_finite() { r } else { f64::INFINITY }
+    };
+    fits.sort_by(|a, b| key(a).total_cmp(&key(b)));
+    (fits, failures)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::budget::Budget;
+    use crate::points::Point;
+
+    /// A run on hardware, read from its CSV alone: Lambertian values at 30 deg incidence, no truth.
+    fn hardware_run() -> Run {
+        let points = (0..12)
+            .map(|k| Point {
+                index: k,
+                band_nm: 550.0,
+                theta_i_deg: 30.0,
+                phi_i_deg: 0.0,
+                theta_o_deg: 5.0 * k as f64,
+                phi_o_deg: 180.0,
+                signal_w: Some(1e-7),
+                dark_w: Some(1e-10),
+                incident_w: Some(5e-4),
+                brdf_sr: Some(0.3),
+                brdf_u_sr: Some(0.0006),
+                flags: Vec::new(),
+                t_s: Some(k as f64),
+                readback_deg: Vec::new(),
+                brdf_aperture_sr: None,
+                budget: Budget::default(),
+                truth_point_sr: None,
+                truth_aperture_sr: None,
+            })
+            .collect();
+        Run {
+            origin: "bench/points.csv".into(),
+            name: "paper".into(),
+            points,
+            axis_names: Vec::new(),
+            dry_run: false,
+            provenance: None,
+        }
+    }
+
+    #[test]
+    fn a_run_on_hardware_claims_no_truth_and_says_what_it_does_not_know() {
+        let run = hardware_run();
+        let (fits, failures) = fit_models(&run, &[FitModel::Lambertian], None, |_| {});
+        assert!(failures.is_empty(), "{failures:?}");
+        let input = ReportInput {
+            run: &run,
+            fits,
+            fit_failures: Vec::new(),
+            plan: None,
+            generated_by: "gonio test".into(),
+            generated_unix_s: 0.0,
+            reproduce_command: None,
+        };
+        let (page, summary) = render(&input).expect("renders");
+        assert!(!summary.sections.contains(&"truth"), "{:?}", summary.sections);
+        assert!(!page.contains("<section id=\"truth\">"));
+        assert!(page.contains("there is no ground truth"), "no hardware note");
+        assert!(
+            page.contains("no run.json"),
+            "the missing provenance is not named"
+        );
+        assert!(page.contains("no per-point uncertainty budget"));
+        // Lambertian at 0.3 1/sr: albedo pi * 0.3.
+        assert!(page.contains("0.942478"), "albedo");
+        assert_eq!(summary.coverage.measured, 12);
+        assert_eq!(summary.coverage.discs_deg, vec![30.0]);
+    }
 }

@@ -138,7 +138,7 @@ fn disc(
         ShapeStyle::from(&grey).stroke_width(1),
     ))
     .map_err(perr)?;
-    let caption = format!("theta_i = {ti} deg");
+    let caption = format!("theta_i = {} deg", super::html::deg(ti));
     area.draw_text(&caption, &("sans-serif", 15).into_text_style(area), (8, 6))
         .map_err(perr)?;
     // The source's direction on the left, the specular direction on the right.

@@ -37,12 +37,18 @@ pub fn num(v: Option<f64>, digits: usize) -> String {
     }
 }
 
-/// A fraction as a percentage with `decimals` decimals.
-pub fn pct(v: Option<f64>, decimals: usize) -> String {
+/// A fraction as a percentage with `digits` significant digits (so that 0.004 % does not read as 0.00 %).
+pub fn pct(v: Option<f64>, digits: usize) -> String {
     match v.filter(|v| v.is_finite()) {
         None => "&ndash;".into(),
-        Some(v) => format!("{:.decimals$} %", v * 100.0),
+        Some(v) => format!("{} %", num(Some(v * 100.0), digits)),
     }
+}
+
+/// An angle in degrees as a person writes it: at most two decimals, no trailing zeros.
+pub fn deg(v: f64) -> String {
+    let r = (v * 100.0).round() / 100.0;
+    format!("{}", r + 0.0)
 }
 
 /// A table: a header row and rows of cells that are already HTML (escape text with [`esc`] first).
@@ -118,7 +124,10 @@ mod tests {
         assert_eq!(num(Some(1.5e-7), 3), "1.50e-7");
         assert_eq!(num(Some(f64::NAN), 3), "&ndash;");
         assert_eq!(num(None, 3), "&ndash;");
-        assert_eq!(pct(Some(0.0512), 1), "5.1 %");
+        assert_eq!(pct(Some(0.0512), 2), "5.1 %");
+        assert_eq!(pct(Some(4.2e-5), 2), "0.0042 %");
+        assert_eq!(deg(14.999999999999998), "15");
+        assert_eq!(deg(-0.0), "0");
         let t = table("x", &["a<b"], &[vec!["1".into()]]);
         assert!(t.contains("<th>a&lt;b</th>") && t.contains("<td>1</td>"), "{t}");
         let f = figure("f", "<?xml version=\"1.0\"?><svg></svg>", "c");

@@ -42,7 +42,14 @@ fn table_facts<'a>(t: Option<&'a Toml>, skip: &[&str]) -> Vec<(&'a str, String)>
         .map(|t| {
             t.iter()
                 .filter(|(k, _)| !skip.contains(&k.as_str()))
-                .map(|(k, v)| (k.as_str(), esc(&toml_text(v))))
+                .map(|(k, v)| {
+                    let text = match v {
+                        // As written when short (12.5), else to five significant digits.
+                        Toml::Float(f) if format!("{f}").len() > 8 => num(Some(*f), 5),
+                        other => esc(&toml_text(other)),
+                    };
+                    (k.as_str(), text)
+                })
                 .collect()
         })
         .unwrap_or_default()
@@ -374,7 +381,7 @@ pub fn plan(run: &Run, plan: Option<&PlanCoverage>, svg: &str, coverage: &Covera
             coverage
                 .discs_deg
                 .iter()
-                .map(|d| format!("{d}"))
+                .map(|d| html::deg(*d))
                 .collect::<Vec<_>>()
                 .join(", "),
             coverage.measured,
@@ -544,7 +551,7 @@ fn class_row(name: String, points: &[&Point], dry_run: bool) -> Vec<String> {
         row.push(if z.is_empty() {
             "&ndash;".into()
         } else {
-            pct(Some(covered as f64 / z.len() as f64), 1)
+            pct(Some(covered as f64 / z.len() as f64), 3)
         });
         row.push(if z.is_empty() {
             "&ndash;".into()
@@ -765,7 +772,7 @@ pub fn truth(run: &Run) -> String {
         s.push_str(&html::p(&format!(
             "The k = 2 intervals hold the point truth for {} of {} points; the rms of (value - truth) / u is {} \
              (1 for an honest budget).",
-            pct(Some(check.coverage_k2), 1).replace("&ndash;", "-"),
+            pct(Some(check.coverage_k2), 3).replace("&ndash;", "-"),
             check.points,
             num(Some(check.rms_z), 3)
         )));

@@ -1,0 +1,91 @@
+//! `gonio report RUN [--out report.html] [--model M,...]`: the run's measurement report, one self-contained
+//! HTML page (gonio_results::report has the layout): the sample, the instrument, the plan and its coverage,
+//! the calibration and drift, the alignment and characterisation, plots, the uncertainty, the fitted models,
+//! in dry-runs the error against the simulator's truth, and how to reproduce the run. The models are fitted as
+//! `gonio fit` fits them (averaged over the run's detector aperture); the best by its cosine-weighted residual
+//! is plotted against the measurement. The page goes to `--out`, by default `report.html` in the run
+//! directory (`<campaign>-report.html` in the current directory for a run read from a daemon's store); its
+//! path is printed on stdout.
+
+use std::path::PathBuf;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use gonio_results::fit::FitModel;
+use gonio_results::report::{self, ReportInput};
+
+use crate::CliError;
+use crate::export::{RunSource, exported_by};
+
+#[derive(Debug, clap::Args)]
+pub struct ReportArgs {
+    #[command(flatten)]
+    pub source: RunSource,
+    /// The HTML file to write (default: report.html in the run directory).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// The models to fit and compare, comma-separated (default: all of them).
+    #[arg(long, value_delimiter = ',', value_parser = ["lambertian", "oren-nayar", "conductor", "plastic", "phong"])]
+    pub models: Vec<String>,
+    /// Fit no model (a faster report; the fit section says none was fitted).
+    #[arg(long, conflicts_with = "models")]
+    pub no_fit: bool,
+}
+
+pub fn run(args: ReportArgs) -> Result<(), CliError> {
+    let run = args.source.load()?;
+    let models: Vec<FitModel> = if args.no_fit {
+        Vec::new()
+    } else if args.models.is_empty() {
+        FitModel::ALL.to_vec()
+    } else {
+        args.models
+            .iter()
+            .map(|m| {
+                FitModel::from_name(m)
+                    .ok_or_else(|| CliError::input(format!("--models: unknown model {m:?}")))
+            })
+            .collect::<Result<_, _>>()?
+    };
+    let aperture = run
+        .config()
+        .and_then(|c| gonio_engine::export::aperture_half_angle_rad(&c.instrument_toml));
+    let (fits, fit_failures) = report::fit_models(&run, &models, aperture, |m| {
+        eprintln!("gonio: fitting {} ...", m.name());
+    });
+    let plan = run.config().and_then(gonio_engine::export::plan_coverage);
+    let input = ReportInput {
+        run: &run,
+        fits,
+        fit_failures,
+        plan,
+        generated_by: exported_by(),
+        generated_unix_s: SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64()),
+        reproduce_command: run.config().map(|c| {
+            let mut cmd = String::from("gonio run campaign.toml --instrument instrument.toml");
+            if c.alignment_toml.is_some() {
+                cmd.push_str(" --calibration calibration.toml");
+            }
+            cmd
+        }),
+    };
+    let (page, summary) = report::render(&input).map_err(|e| CliError::input(e.to_string()))?;
+    let out = args.out.clone().unwrap_or_else(|| {
+        if args.source.run.is_some() {
+            args.source.default_dir().join("report.html")
+        } else {
+            PathBuf::from(format!("{}-report.html", run.name))
+        }
+    });
+    std::fs::write(&out, page).map_err(|e| CliError::io(format!("cannot write {}", out.display()), e))?;
+    eprintln!(
+        "gonio: report of {} ({} points): sections {}; figures {}",
+        run.name,
+        run.points.len(),
+        summary.sections.join(", "),
+        summary.figures.join(", ")
+    );
+    println!("{}", out.display());
+    Ok(())
+}
