@@ -387,6 +387,32 @@
   // ---------------------------------------------------------------------------------------------------------
   // Buttons.
 
+  // The report is fetched with the token (a plain link could not carry it) and saved as a file: it is a
+  // self-contained page the lab keeps, not a view of the daemon.
+  async function downloadReport(id) {
+    status('writing the report of campaign ' + id + ' (the models are fitted: a few seconds)');
+    try {
+      const blob = await (await api('/api/campaigns/' + id + '/report.html')).blob();
+      const c = page.campaigns.get(id);
+      const link = document.createElement('a');
+      link.href = URL.createObjectURL(blob);
+      link.download = (c ? c.name : 'campaign') + '-' + id + '-report.html';
+      link.id = 'report-download';
+      link.hidden = true;
+      document.body.appendChild(link);
+      link.click();
+      setTimeout(() => {
+        URL.revokeObjectURL(link.href);
+        link.remove();
+      }, 60000);
+      status('report of campaign ' + id + ' saved as ' + link.download);
+      log('', 'report of campaign ' + id + ' downloaded (' + blob.size + ' bytes)');
+    } catch (e) {
+      status('cannot write the report: ' + e.message, true);
+      log('warn', 'cannot write the report of campaign ' + id + ': ' + e.message);
+    }
+  }
+
   async function act(action) {
     const id = page.currentId;
     if (id === null) return;
@@ -400,6 +426,10 @@
     }
     disarmAbort();
     status('');
+    if (action === 'report') {
+      await downloadReport(id);
+      return;
+    }
     try {
       const before = new Map(page.changes);
       const view = await (await api('/api/campaigns/' + id + '/' + action, { method: 'POST' })).json();
@@ -518,6 +548,7 @@
       resume: ['pausing', 'paused'].includes(c.state),
       confirm: c.state === 'waiting-operator',
       abort: !FINAL.includes(c.state),
+      report: c.points_done > 0,
     };
     for (const [action, ok] of Object.entries(allowed)) $('btn-' + action).disabled = !ok;
     if (!allowed.abort) disarmAbort();

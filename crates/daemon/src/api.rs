@@ -7,6 +7,8 @@
 //! - `POST /api/campaigns/{id}/pause|resume|abort|confirm` -> 200 with the campaign (409 when its state does not
 //!   allow it)
 //! - `GET /api/campaigns/{id}/points.csv` -> `text/csv`, the columns of `gonio run`
+//! - `GET /api/campaigns/{id}/report.html` -> `text/html`, the campaign's measurement report as `gonio report`
+//!   writes it (every model fitted: seconds)
 //! - `POST /api/estop` -> 200
 //! - `GET /api/events` -> server-sent events, one per engine event, `data` the JSON of
 //!   [`Event`](gonio_engine::control::Event) with its `type`
@@ -49,7 +51,9 @@ use align::{align_action, align_start, align_status, calibration, calibration_re
 use console::{
     console_filter, console_home, console_jog, console_move, console_read, console_readings, console_state,
 };
-use handlers::{action, estop, events, list, method_not_allowed, not_found, points_csv, show, submit};
+use handlers::{
+    action, estop, events, list, method_not_allowed, not_found, points_csv, report_html, show, submit,
+};
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -248,6 +252,7 @@ pub fn router(service: Service, config: &ApiConfig, shutdown: Shutdown) -> Route
         .route("/api/campaigns", post(submit).get(list))
         .route("/api/campaigns/{id}", get(show))
         .route("/api/campaigns/{id}/points.csv", get(points_csv))
+        .route("/api/campaigns/{id}/report.html", get(report_html))
         .route("/api/campaigns/{id}/{action}", post(action))
         .route("/api/estop", post(estop))
         .route("/api/console/state", get(console_state))

@@ -176,6 +176,32 @@ async fn submit_watch_events_complete_and_download_points_csv() {
     assert_eq!(rows.len(), 5);
     assert!(rows.iter().all(|r| r.split(',').count() == columns));
 
+    // The measurement report, as `gonio report` writes it: every section of a dry-run, nothing fetched.
+    let (status, page) = app
+        .send(request(
+            "GET",
+            &format!("/api/campaigns/{id}/report.html"),
+            Body::empty(),
+            None,
+        ))
+        .await;
+    assert_eq!(status, StatusCode::OK);
+    let page = String::from_utf8(page).expect("utf-8");
+    assert!(
+        page.starts_with("<!DOCTYPE html>"),
+        "{}",
+        &page[..page.len().min(200)]
+    );
+    for section in gonio_results::report::SECTIONS {
+        assert!(
+            page.contains(&format!("<section id=\"{section}\">")),
+            "no section {section}"
+        );
+    }
+    assert!(page.contains("BRDF measurement report: first"));
+    assert!(page.contains("5 of 5 done"), "the store's counts");
+    assert!(!page.contains("<script") && !page.contains("src="));
+
     let (status, list) = app.json("GET", "/api/campaigns", "").await;
     assert_eq!(status, StatusCode::OK);
     assert_eq!(list.as_array().map(Vec::len), Some(1));
@@ -398,6 +424,7 @@ async fn unknown_ids_are_404_and_wrong_states_409() {
     for (method, path) in [
         ("GET", "/api/campaigns/42"),
         ("GET", "/api/campaigns/42/points.csv"),
+        ("GET", "/api/campaigns/42/report.html"),
         ("POST", "/api/campaigns/42/pause"),
         ("GET", "/api/campaigns/abc"),
         ("GET", "/api/nothing"),

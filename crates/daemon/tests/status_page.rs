@@ -144,6 +144,7 @@ async fn every_asset_is_served_byte_for_byte_with_its_content_type() {
         "'/api/events'",
         "'/api/campaigns'",
         "'/points.csv'",
+        "'/report.html'",
         "Authorization",
     ] {
         assert!(js.contains(used), "status.js does not use {used}");
@@ -182,7 +183,12 @@ async fn with_a_token_the_page_loads_without_it_but_the_api_it_calls_needs_it() 
         assert!(!String::from_utf8_lossy(&answer.body).contains(TOKEN));
     }
     // What the page fetches: refused without the token or with a wrong one...
-    for path in ["/api/campaigns", "/api/events", "/api/campaigns/1/points.csv"] {
+    for path in [
+        "/api/campaigns",
+        "/api/events",
+        "/api/campaigns/1/points.csv",
+        "/api/campaigns/1/report.html",
+    ] {
         for given in [None, Some("wrong"), Some("")] {
             let answer = app.send("GET", path, given).await;
             assert_eq!(answer.status, StatusCode::UNAUTHORIZED, "{path} with {given:?}");

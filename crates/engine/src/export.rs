@@ -4,9 +4,12 @@
 //! owns the formats (the CSV's columns and writer, the typed run.json); this module only reads the store.
 
 use gonio_instrument::InstrumentFile;
+use gonio_results::Run;
+use gonio_results::error::ResultsError;
+use gonio_results::fit::FitModel;
 use gonio_results::points::{self, Point, PointsTable};
 use gonio_results::provenance::{CalibrationReading, DeviceIdentity, RunConfig, RunRecord, StoredCampaign};
-use gonio_results::report::PlanCoverage;
+use gonio_results::report::{PlanCoverage, ReportInput, ReportSummary};
 
 use crate::store::{CampaignRecord, PointRecord, Store, StoreError};
 use gonio_campaign::{self as campaign, Sources};
@@ -190,4 +193,48 @@ pub fn aperture_half_angle_rad(instrument_toml: &str) -> Option<f64> {
     let file = InstrumentFile::parse(instrument_toml, "<run's instrument file>").ok()?;
     let d = &file.instrument.detector;
     (d.aperture_radius_mm > 0.0 && d.distance_mm > 0.0).then(|| d.aperture_radius_mm.atan2(d.distance_mm))
+}
+
+/// A stored campaign as a run, everything read from `store` (points and run record); `origin` names the store
+/// in messages.
+pub fn run_of(store: &Store, record: &CampaignRecord, origin: &str) -> Result<Run, StoreError> {
+    let (table, provenance) = run_record(store, record)?;
+    Ok(Run::from_parts(
+        format!("{origin}, campaign {}", record.id),
+        record.name.clone(),
+        table,
+        Some(provenance),
+    ))
+}
+
+/// A run's measurement report (gonio_results::report), the one way `gonio report` and the daemon make it:
+/// `models` fitted as `gonio fit` fits them (averaged over the run's detector aperture), the plan's coverage
+/// planned again from the stored texts, written at Unix time `now_s`. `on_model` hears of each fit as it
+/// starts (a fit takes seconds).
+pub fn report(
+    run: &Run,
+    models: &[FitModel],
+    now_s: f64,
+    on_model: impl FnMut(FitModel),
+) -> Result<(String, ReportSummary), ResultsError> {
+    let aperture = run
+        .config()
+        .and_then(|c| aperture_half_angle_rad(&c.instrument_toml));
+    let (fits, fit_failures) = gonio_results::report::fit_models(run, models, aperture, on_model);
+    let input = ReportInput {
+        run,
+        fits,
+        fit_failures,
+        plan: run.config().and_then(plan_coverage),
+        generated_by: crate::software_version(),
+        generated_unix_s: now_s,
+        reproduce_command: run.config().map(|c| {
+            let mut cmd = String::from("gonio run campaign.toml --instrument instrument.toml");
+            if c.alignment_toml.is_some() {
+                cmd.push_str(" --calibration calibration.toml");
+            }
+            cmd
+        }),
+    };
+    gonio_results::report::render(&input)
 }

@@ -92,14 +92,7 @@ fn load_from_store(dir: &Path, campaign: &str) -> Result<Run, CliError> {
             "{origin}: no campaign {campaign:?} (give its id or its name; `gonio ctl status` lists them)"
         ))
     })?;
-    let (table, provenance) =
-        gonio_engine::export::run_record(&store, &record).map_err(|e| store_err(&origin, e))?;
-    Ok(Run::from_parts(
-        format!("{origin}, campaign {}", record.id),
-        record.name.clone(),
-        table,
-        Some(provenance),
-    ))
+    gonio_engine::export::run_of(&store, &record, &origin).map_err(|e| store_err(&origin, e))
 }
 
 /// How the materials a stored campaign text names resolve: a text stored by gonio carries them (a `[resolved]`

@@ -11,10 +11,9 @@ use std::path::PathBuf;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use gonio_results::fit::FitModel;
-use gonio_results::report::{self, ReportInput};
 
 use crate::CliError;
-use crate::export::{RunSource, exported_by};
+use crate::export::RunSource;
 
 #[derive(Debug, clap::Args)]
 pub struct ReportArgs {
@@ -46,31 +45,13 @@ pub fn run(args: ReportArgs) -> Result<(), CliError> {
             })
             .collect::<Result<_, _>>()?
     };
-    let aperture = run
-        .config()
-        .and_then(|c| gonio_engine::export::aperture_half_angle_rad(&c.instrument_toml));
-    let (fits, fit_failures) = report::fit_models(&run, &models, aperture, |m| {
+    let now_s = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64());
+    let (page, summary) = gonio_engine::export::report(&run, &models, now_s, |m| {
         eprintln!("gonio: fitting {} ...", m.name());
-    });
-    let plan = run.config().and_then(gonio_engine::export::plan_coverage);
-    let input = ReportInput {
-        run: &run,
-        fits,
-        fit_failures,
-        plan,
-        generated_by: exported_by(),
-        generated_unix_s: SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0.0, |d| d.as_secs_f64()),
-        reproduce_command: run.config().map(|c| {
-            let mut cmd = String::from("gonio run campaign.toml --instrument instrument.toml");
-            if c.alignment_toml.is_some() {
-                cmd.push_str(" --calibration calibration.toml");
-            }
-            cmd
-        }),
-    };
-    let (page, summary) = report::render(&input).map_err(|e| CliError::input(e.to_string()))?;
+    })
+    .map_err(|e| CliError::input(e.to_string()))?;
     let out = args.out.clone().unwrap_or_else(|| {
         if args.source.run.is_some() {
             args.source.default_dir().join("report.html")

@@ -152,6 +152,23 @@ pub(super) async fn points_csv(
     Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], csv).into_response())
 }
 
+pub(super) async fn report_html(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let id = parse_id(&id)?;
+    let service = state.service.clone();
+    let page = tokio::task::spawn_blocking(move || service.report_html(id))
+        .await
+        .map_err(|e| {
+            ApiError::new(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                format!("report task failed: {e}"),
+            )
+        })??;
+    Ok(([(header::CONTENT_TYPE, "text/html; charset=utf-8")], page).into_response())
+}
+
 pub(super) async fn estop(State(state): State<AppState>) -> Result<Response, ApiError> {
     state.service.estop()?;
     Ok(axum::Json(json!({ "estop": true })).into_response())
