@@ -60,7 +60,8 @@ fn read_points(csv: &Path) -> Result<Vec<ClassPoint>, String> {
         .collect())
 }
 
-fn run(binary: &Path, args: &[&std::ffi::OsStr]) -> Result<(), String> {
+/// `gonio ARGS...` through `binary`, standard input closed; the last line of its error output on failure.
+pub fn run(binary: &Path, args: &[&std::ffi::OsStr]) -> Result<(), String> {
     let out = Command::new(binary)
         .args(args)
         .stdin(Stdio::null())

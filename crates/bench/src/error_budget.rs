@@ -12,9 +12,9 @@
 
 use std::path::Path;
 
-use gonio_brdf::Direction;
 use gonio_engine::store::PointRecord;
 use gonio_instrument::InstrumentFile;
+use gonio_results::angular_class::AngularClass;
 
 use crate::throughput::{self, Throughput};
 
@@ -54,20 +54,13 @@ pub fn variant_text(realistic: &str, keep: &[&str]) -> Result<String, String> {
         .map_err(|e| format!("realistic.toml: {e}"))
 }
 
-/// The class of a nominal geometry (degrees; index into [`CLASSES`]).
+/// The class of a nominal geometry (degrees; index into [`CLASSES`]): gonio_results' angular classes.
 pub fn class_of(theta_i_deg: f64, phi_i_deg: f64, theta_o_deg: f64, phi_o_deg: f64) -> usize {
-    if theta_i_deg >= 70.0 || theta_o_deg >= 70.0 {
-        return 3;
-    }
-    let wi = Direction::from_spherical_deg(theta_i_deg, phi_i_deg);
-    let wo = Direction::from_spherical_deg(theta_o_deg, phi_o_deg);
-    let off_specular_deg = wi.reflect_about_normal().angle_to(&wo).to_degrees();
-    if off_specular_deg <= 2.0 {
-        0
-    } else if off_specular_deg <= 15.0 {
-        1
-    } else {
-        2
+    match AngularClass::of_geometry(theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg) {
+        AngularClass::Specular => 0,
+        AngularClass::NearSpecular => 1,
+        AngularClass::OffSpecular => 2,
+        AngularClass::Grazing => 3,
     }
 }
 

@@ -13,9 +13,11 @@
 //! Writes `BENCHMARKS.md` at the workspace root and SVG plots under `docs/bench/`. Every number is measured by
 //! this run (criterion's and the large stress tier's are read from their own last run, and say so); nothing is
 //! edited by hand. `--quick` shrinks every section (for a smoke run; noisier, smaller plans).
+//! `--accuracy` writes ACCURACY.md instead (issue 29's accuracy table, crate::accuracy).
 //! `--only <readings|campaigns|throughput|budget>` prints one section and leaves BENCHMARKS.md alone; `--only stress-large` runs
 //! the large stress tier and records it (docs/bench/stress-large.txt) without writing the report.
 
+mod accuracy;
 mod campaigns;
 mod criterion_summary;
 mod error_budget;
@@ -61,6 +63,10 @@ const CRITERION: &str = "cargo bench -p gonio-brdf --bench eval && cargo bench -
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let quick = args.iter().any(|a| a == "--quick");
+    if args.iter().any(|a| a == "--accuracy") {
+        write_accuracy(quick);
+        return;
+    }
     if let Some(only) = args.iter().skip_while(|a| *a != "--only").nth(1) {
         run_only(only, quick);
         return;
@@ -362,6 +368,29 @@ fn target_dir() -> PathBuf {
     std::env::var_os("CARGO_TARGET_DIR")
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target"))
+}
+
+/// `--accuracy`: issue 29's accuracy table, written to ACCURACY.md (crate::accuracy).
+fn write_accuracy(quick: bool) {
+    let started = Instant::now();
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let binary = target_dir().join("release/gonio");
+    let n = if quick { 200 } else { accuracy::GEOMETRIES };
+    eprintln!("accuracy: {n} geometries per material...");
+    match accuracy::run(&root, &binary, n) {
+        Ok(runs) => {
+            let md = accuracy::markdown(&runs, n, started.elapsed().as_secs_f64());
+            let path = root.join("ACCURACY.md");
+            match std::fs::write(&path, md) {
+                Ok(()) => eprintln!("wrote {}", path.display()),
+                Err(e) => eprintln!("cannot write {}: {e}", path.display()),
+            }
+        }
+        Err(e) => {
+            eprintln!("accuracy: {e}");
+            std::process::exit(1);
+        }
+    }
 }
 
 /// `--only <section>`: one section, printed (BENCHMARKS.md is not touched). For working on one section.

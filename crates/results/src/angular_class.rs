@@ -7,6 +7,8 @@
 //! - `near-specular`: within [`OFF_SPECULAR_DEG`];
 //! - `off-specular`: beyond it.
 
+use gonio_brdf::Direction;
+
 use crate::iso::directions;
 use crate::points::Point;
 
@@ -57,12 +59,19 @@ impl AngularClass {
         }
     }
 
-    /// The class of a geometry (sample-frame angles in degrees).
+    /// The class of a point's nominal geometry.
     pub fn of(p: &Point) -> AngularClass {
-        if p.theta_i_deg.abs() >= GRAZING_THETA_DEG || p.theta_o_deg.abs() >= GRAZING_THETA_DEG {
+        AngularClass::of_geometry(p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg)
+    }
+
+    /// The class of a geometry (sample-frame angles in degrees).
+    pub fn of_geometry(theta_i_deg: f64, phi_i_deg: f64, theta_o_deg: f64, phi_o_deg: f64) -> AngularClass {
+        if theta_i_deg.abs() >= GRAZING_THETA_DEG || theta_o_deg.abs() >= GRAZING_THETA_DEG {
             return AngularClass::Grazing;
         }
-        let from_specular = specular_offset_deg(p);
+        let wi = Direction::from_spherical_deg(theta_i_deg, phi_i_deg);
+        let wo = Direction::from_spherical_deg(theta_o_deg, phi_o_deg);
+        let from_specular = wo.angle_to(&wi.reflect_about_normal()).to_degrees();
         if from_specular <= NEAR_SPECULAR_DEG {
             AngularClass::Specular
         } else if from_specular <= OFF_SPECULAR_DEG {

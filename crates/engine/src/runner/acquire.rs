@@ -8,8 +8,12 @@ use crate::acquisition::{self, EquationInputs, Normalisation, brdf_of_reading, f
 use crate::budget;
 use crate::characterise::correction::{FLAG_BELOW_NEBRDF, FLAG_NEAR_BEAM, SignatureAt};
 use crate::characterise::ranges::near_range_boundary;
+use crate::motion::MotionError;
 use gonio_campaign::Range;
 use gonio_results::budget::Budget;
+
+/// The flag of a point whose calibrated pose no safe move reaches.
+pub const FLAG_UNREACHABLE: &str = "unreachable";
 
 /// A sample reading with its uncertainty in parts (W).
 #[derive(Debug, Clone, Copy)]
@@ -157,24 +161,39 @@ impl<'a> Run<'a> {
             .band_nm
             .or(self.file.instrument.source.wavelength_nm)
             .unwrap_or(f64::NAN);
-        let acquired = async {
-            // A calibrated instrument: the pose at which the beam and the detector truly make the planned
-            // directions (crate::align::correction); the point keeps its planned geometry.
-            let pose = match &self.correction {
-                Some(c) => c.correct(&step.pose),
-                None => step.pose,
-            };
-            self.motion.move_to(&pose).await?;
-            if let Some(p) = step.wheel_position {
-                self.wheel_to(p).await?;
+        // A calibrated instrument: the pose at which the beam and the detector truly make the planned
+        // directions (crate::align::correction); the point keeps its planned geometry.
+        let pose = match &self.correction {
+            Some(c) => c.correct(&step.pose),
+            None => step.pose,
+        };
+        // The planner checked the planned pose, not the corrected one: a correction may carry a pose at the edge
+        // of the safe region (the arms' separation, an axis limit) out of it. Such a point cannot be measured
+        // on this instrument: it is flagged, nothing moves, and the instrument is not blamed for it (a run of
+        // such points does not pause the campaign as failing devices do).
+        let unreachable = match (&self.correction, self.motion.safe_move(&pose)) {
+            (Some(_), Err(MotionError::Impossible(reason))) => Some(reason),
+            _ => None,
+        };
+        let acquired = match unreachable {
+            Some(reason) => Err(reason),
+            None => Ok(async {
+                self.motion.move_to(&pose).await?;
+                if let Some(p) = step.wheel_position {
+                    self.wheel_to(p).await?;
+                }
+                self.read_parts(band_nm).await
             }
-            self.read_parts(band_nm).await
-        }
-        .await;
+            .await),
+        };
         let mut flags = Vec::new();
         let reading = match acquired {
-            Ok(r) => Some(r),
-            Err(Interrupt::Fatal(EngineError::Device(reason))) => {
+            Err(reason) => {
+                flags.push(format!("{FLAG_UNREACHABLE}: the calibrated pose: {reason}"));
+                None
+            }
+            Ok(Ok(r)) => Some(r),
+            Ok(Err(Interrupt::Fatal(EngineError::Device(reason)))) => {
                 self.failed_in_row += 1;
                 if self.failed_in_row >= MAX_FAILED_IN_ROW {
                     return Err(Interrupt::Pause(format!(
@@ -186,7 +205,7 @@ impl<'a> Run<'a> {
                 let _ = self.motion.read_positions().await;
                 None
             }
-            Err(other) => return Err(other),
+            Ok(Err(other)) => return Err(other),
         };
         let signal = reading.map_or(f64::NAN, |r| r.power_w);
         let t = self.t();
