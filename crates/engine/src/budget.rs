@@ -13,6 +13,12 @@
 //! - `range` (shared by the range): the characterisation's range-gain and linearity correction, relative to
 //!   the reading, carried to the value.
 //! - `stray-light`: the uncertainty of the subtracted signature (characterised instruments).
+//! - `band` (shared by the band): the finite filter band, from the bands measured at the same geometry, added
+//!   when the campaign completes ([`complete`]).
+
+mod complete;
+
+pub use complete::complete;
 
 use gonio_brdf::measurement::BrdfValue;
 use gonio_results::budget::{Budget, components, groups};

@@ -577,6 +577,13 @@ impl<'a> Run<'a> {
         }
         {
             let mut s = lock(&self.store);
+            // The budget's parts that need every point (crate::budget::complete), before the campaign reads as
+            // completed: an export of a completed campaign always has them.
+            if state == CampaignState::Completed
+                && let Err(e) = crate::budget::complete(&mut s, self.id, &self.file.instrument)
+            {
+                tracing::warn!(campaign = %self.id, "cannot complete the points' uncertainty budgets: {e}");
+            }
             let _ = s.set_operator_message(self.id, None);
             if let Err(e) = s.set_state(self.id, state, message.as_deref()) {
                 // A store that cannot be written cannot record the pause: the store shows it from memory (status

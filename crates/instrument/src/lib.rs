@@ -312,6 +312,11 @@ pub struct FilterPosition {
     /// Full width at half maximum (nm).
     #[serde(default)]
     pub bandwidth_nm: Option<f64>,
+    /// Standard uncertainty of the centre wavelength (nm): a catalogue's "+-2 nm" read as two standard
+    /// deviations is 1.0. What the band component of each point's uncertainty is made of (the sample's
+    /// spectral slope times this); absent: [`DEFAULT_FILTER_CENTRE_U_NM`].
+    #[serde(default)]
+    pub centre_u_nm: Option<f64>,
     /// Transmission of the filter in its band (0..1).
     #[serde(default = "unit")]
     pub transmission: f64,
@@ -322,6 +327,17 @@ pub struct FilterPosition {
 
 fn unit() -> f64 {
     1.0
+}
+
+/// A filter's centre-wavelength standard uncertainty when the instrument file does not state it (nm): the
+/// +-2 nm tolerance catalogue bandpass filters of 10 nm are sold with, read as two standard deviations.
+pub const DEFAULT_FILTER_CENTRE_U_NM: f64 = 1.0;
+
+impl FilterPosition {
+    /// The centre wavelength's standard uncertainty (nm): the file's, else [`DEFAULT_FILTER_CENTRE_U_NM`].
+    pub fn centre_u_nm(&self) -> f64 {
+        self.centre_u_nm.unwrap_or(DEFAULT_FILTER_CENTRE_U_NM)
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]

@@ -275,6 +275,14 @@ impl Instrument {
                         p.position
                     ));
                 }
+                if let Some(u) = p.centre_u_nm
+                    && !(u.is_finite() && u >= 0.0)
+                {
+                    return Err(format!(
+                        "[instrument.filter_wheel]: position {}: centre_u_nm must be >= 0 (nm), got {u}",
+                        p.position
+                    ));
+                }
             }
         }
         Ok(())

@@ -26,6 +26,7 @@
 
 pub mod angular_class;
 pub mod astm;
+pub mod band_component;
 pub mod budget;
 pub mod budget_summary;
 pub mod error;

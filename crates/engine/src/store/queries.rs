@@ -302,6 +302,36 @@ impl Store {
         }
     }
 
+    /// Replaces committed points' budgets, and their `brdf_u_sr` with each budget's total, in one transaction:
+    /// the parts of a budget that need the other points (crate::budget::complete). A point's values, geometry
+    /// and readings are never touched; an index not stored changes nothing.
+    pub fn update_budgets(&mut self, id: CampaignId, updates: &[(u64, Budget)]) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
+        let path = self.path.clone();
+        let err = |source| StoreError::Write {
+            path: path.clone(),
+            source,
+        };
+        let tx = self.conn.transaction().map_err(err)?;
+        {
+            let mut st = tx
+                .prepare_cached(
+                    "UPDATE points SET budget = ?1, brdf_u_sr = ?2 WHERE campaign_id = ?3 AND idx = ?4",
+                )
+                .map_err(err)?;
+            for (idx, budget) in updates {
+                st.execute(params![
+                    budget.to_compact(),
+                    budget.total_sr(),
+                    id.0,
+                    to_i64(*idx)
+                ])
+                .map_err(err)?;
+            }
+        }
+        tx.commit().map_err(err)
+    }
+
     /// The first point index not yet committed: where a resumed campaign continues.
     pub fn next_index(&self, id: CampaignId) -> Result<u64, StoreError> {
         // Points are committed in index order, so the count of rows is the next index; check that the rows

@@ -257,6 +257,29 @@ fn a_version_6_store_gains_the_budget_columns_and_a_budget_round_trips() {
 }
 
 #[test]
+fn budgets_are_completed_in_place_and_nothing_else_changes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let id = store_with_one_point(dir.path());
+    let mut store = Store::open(dir.path()).expect("open");
+    store.commit_point(id, &point(1)).expect("commit");
+    let budget = gonio_results::budget::Budget::parse_compact("signal-noise=0.0003;band@band-550=0.0004")
+        .expect("budget");
+    // Index 7 is not stored: nothing happens to it, and nothing fails.
+    store
+        .update_budgets(id, &[(1, budget.clone()), (7, budget.clone())])
+        .expect("update");
+    let points = store.points(id).expect("points");
+    assert_eq!(points.len(), 2);
+    assert_eq!(points[0], point(0), "the other point is untouched");
+    let mut expected = point(1);
+    expected.budget = budget;
+    expected.brdf_u_sr = Some(0.0005);
+    assert_eq!(points[1].budget, expected.budget);
+    assert!((points[1].brdf_u_sr.expect("u") - 0.0005).abs() < 1e-15);
+    assert_eq!(points[1].brdf_sr, expected.brdf_sr, "the value is never touched");
+}
+
+#[test]
 fn a_point_is_never_stored_twice() {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut store = Store::open(dir.path()).expect("open");

@@ -1,0 +1,197 @@
+//! The finite filter band's part of a point's budget ([`crate::budget::components::BAND`]): a band's value is
+//! the sample's reflectance averaged over the filter's passband and quoted at the band's nominal centre, but
+//! the filter's true centre is off its nominal one by up to its catalogue tolerance (the instrument file's
+//! `centre_u_nm`, a standard uncertainty). The value moves by the sample's spectral slope times that offset:
+//! `u = |df/dlambda| u_lambda`, the slope estimated from the neighbouring bands measured at the same geometry
+//! (the data, not a model of the sample): a central difference between the bands on either side, one-sided at
+//! the ends. Bands closer than [`crate::run::BAND_TOLERANCE_NM`] are one band. A geometry measured in one band
+//! has no spectral information: its points get no band component. The error is the filter's, the same for
+//! every point of the band: it is shared by the band's points (group `band-<nm>`).
+//!
+//! Not included, and why (measured with `gonio-bench --accuracy` and a three-band dry-run of construction
+//! paper, whose reflectance rises sevenfold between 550 and 650 nm):
+//! - the passband's width (averaging a curved spectrum, about `f'' sigma^2 / 2`): the curvature from bands
+//!   100 nm apart put it at 0.6 % of the value at 550 nm, where the ideal instrument, on which it is the only
+//!   band effect, measures within 0.01 %: that estimate would only pad the budget;
+//! - out-of-band leakage: a filter's residual transmission far from its band, weighted by the source's
+//!   spectrum and the detector's responsivity there, against a sample far brighter in the red than in the
+//!   blue. It is what leaves realistic.toml's 450 nm values of construction paper outside their intervals; the
+//!   instrument file does not describe the filters' blocking or the source's spectrum, so it cannot be
+//!   estimated yet.
+//!
+//! Neighbouring bands 100 nm apart see a sharp spectral edge as a gentler slope than it has at the edge itself:
+//! the estimate is only as good as the band spacing allows.
+
+use crate::points::Point;
+use crate::run::BAND_TOLERANCE_NM;
+
+/// What the instrument file says of one band's filter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FilterBand {
+    pub band_nm: f64,
+    /// Standard uncertainty of the filter's centre wavelength (nm).
+    pub centre_u_nm: f64,
+}
+
+/// Geometries closer than this (degrees) are the same geometry seen in another band.
+const SAME_GEOMETRY_DEG: f64 = 1e-6;
+
+fn same_geometry(a: &Point, b: &Point) -> bool {
+    (a.theta_i_deg - b.theta_i_deg).abs() < SAME_GEOMETRY_DEG
+        && (a.phi_i_deg - b.phi_i_deg).abs() < SAME_GEOMETRY_DEG
+        && (a.theta_o_deg - b.theta_o_deg).abs() < SAME_GEOMETRY_DEG
+        && (a.phi_o_deg - b.phi_o_deg).abs() < SAME_GEOMETRY_DEG
+}
+
+/// The band component of each point (1/sr, k = 1), `None` where it cannot be estimated (no valid value, one band
+/// at the geometry, or a band the filters do not describe). `filter` looks a band up in the instrument file.
+pub fn band_components(points: &[Point], filter: impl Fn(f64) -> Option<FilterBand>) -> Vec<Option<f64>> {
+    // The valid points grouped by geometry, in index order within each group.
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for (i, p) in points.iter().enumerate() {
+        if p.value().is_none() {
+            continue;
+        }
+        match groups.iter_mut().find(|g| same_geometry(&points[g[0]], p)) {
+            Some(g) => g.push(i),
+            None => groups.push(vec![i]),
+        }
+    }
+    let mut out = vec![None; points.len()];
+    for g in groups {
+        // One value per band (repeats averaged), ascending in wavelength.
+        let mut bands: Vec<(f64, f64, Vec<usize>)> = Vec::new();
+        for &i in &g {
+            let p = &points[i];
+            let f = p.value().unwrap_or(f64::NAN);
+            match bands
+                .iter_mut()
+                .find(|(nm, _, _)| (nm - p.band_nm).abs() <= BAND_TOLERANCE_NM)
+            {
+                Some((_, sum, members)) => {
+                    *sum += f;
+                    members.push(i);
+                }
+                None => bands.push((p.band_nm, f, vec![i])),
+            }
+        }
+        if bands.len() < 2 {
+            continue;
+        }
+        let spectrum: Vec<(f64, f64)> = {
+            let mut s: Vec<(f64, f64)> = bands
+                .iter()
+                .map(|(nm, sum, members)| (*nm, sum / members.len() as f64))
+                .collect();
+            s.sort_by(|a, b| a.0.total_cmp(&b.0));
+            s
+        };
+        for (nm, _, members) in &bands {
+            let Some(k) = spectrum.iter().position(|(b, _)| b == nm) else {
+                continue;
+            };
+            let Some(filter) = filter(*nm) else {
+                continue;
+            };
+            let u = slope(&spectrum, k).abs() * filter.centre_u_nm;
+            if u.is_finite() {
+                for &i in members {
+                    out[i] = Some(u);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The spectral slope (per nm) at `spectrum[k]`: central between its neighbours, one-sided at the ends.
+fn slope(spectrum: &[(f64, f64)], k: usize) -> f64 {
+    let n = spectrum.len();
+    let (lo, hi) = match (k, n) {
+        (0, _) => (0, 1),
+        (k, n) if k + 1 == n => (k - 1, k),
+        (k, _) => (k - 1, k + 1),
+    };
+    (spectrum[hi].1 - spectrum[lo].1) / (spectrum[hi].0 - spectrum[lo].0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::budget::Budget;
+
+    fn point(index: u64, band_nm: f64, theta_o: f64, f: f64) -> Point {
+        Point {
+            index,
+            band_nm,
+            theta_i_deg: 30.0,
+            phi_i_deg: 0.0,
+            theta_o_deg: theta_o,
+            phi_o_deg: 180.0,
+            signal_w: None,
+            dark_w: None,
+            incident_w: None,
+            brdf_sr: Some(f),
+            brdf_u_sr: Some(1e-4),
+            flags: Vec::new(),
+            t_s: None,
+            readback_deg: Vec::new(),
+            brdf_aperture_sr: None,
+            budget: Budget::default(),
+            truth_point_sr: None,
+            truth_aperture_sr: None,
+        }
+    }
+
+    fn filters(nm: f64) -> Option<FilterBand> {
+        (nm != 700.0).then_some(FilterBand {
+            band_nm: nm,
+            centre_u_nm: 1.0,
+        })
+    }
+
+    #[test]
+    fn a_linear_spectrum_gives_slope_times_the_centre_uncertainty() {
+        // f = 0.1 + 0.001 (nm - 450) at two geometries, three bands each; a lone band elsewhere.
+        let mut points = Vec::new();
+        for (g, theta_o) in [10.0, 40.0].into_iter().enumerate() {
+            for (b, nm) in [450.0, 550.0, 650.0].into_iter().enumerate() {
+                let f = 0.1 + 0.001 * (nm - 450.0);
+                points.push(point((g * 3 + b) as u64, nm, theta_o, f));
+            }
+        }
+        points.push(point(6, 550.0, 70.0, 0.3));
+        let u = band_components(&points, filters);
+        for v in &u[..6] {
+            // Slope 0.001 per nm, 1 nm: 0.001; no curvature.
+            assert!((v.expect("estimated") - 0.001).abs() < 1e-12, "{u:?}");
+        }
+        assert_eq!(u[6], None, "one band tells nothing of the spectrum");
+    }
+
+    #[test]
+    fn the_slope_is_central_inside_and_one_sided_at_the_ends_and_unknown_or_invalid_bands_get_none() {
+        // f = 1e-5 (nm - 550)^2 + 0.2 at 450, 550, 650 and 700 nm.
+        let f = |nm: f64| 1e-5 * (nm - 550.0).powi(2) + 0.2;
+        let mut points: Vec<Point> = [450.0, 550.0, 650.0, 700.0]
+            .into_iter()
+            .enumerate()
+            .map(|(k, nm)| point(k as u64, nm, 20.0, f(nm)))
+            .collect();
+        let mut failed = point(4, 500.0, 20.0, 0.0);
+        failed.flags = vec!["failed: timeout".into()];
+        points.push(failed);
+        let u = band_components(&points, filters);
+        // At 550 the central slope over 450..650 is 0.
+        assert_eq!(u[1], Some(0.0), "{u:?}");
+        // At 450: one-sided, (f(550) - f(450)) / 100 nm = -1e-3 per nm, times 1 nm.
+        assert!((u[0].expect("450") - 1e-3).abs() < 1e-12, "{u:?}");
+        // At 650: central over 550..700.
+        assert!(
+            (u[2].expect("650") - (f(700.0) - f(550.0)) / 150.0).abs() < 1e-12,
+            "{u:?}"
+        );
+        // 700 nm is not a filter of the file; a failed reading has no value.
+        assert_eq!((u[3], u[4]), (None, None));
+    }
+}
