@@ -57,9 +57,11 @@ use crate::run::{BAND_TOLERANCE_NM, Run, list_nm};
 pub(crate) mod observations;
 mod params;
 mod report;
+mod shared;
 
 use observations::{Obs, aperture_samples, median, predict, starts};
 use params::{ParamDef, Transform, band_model, final_material, param_defs, phong_split};
+pub use report::chi2_meaning;
 use report::{fix_phong_params, residual_stats};
 
 /// The models that can be fitted.
@@ -176,8 +178,12 @@ pub struct FittedParam {
     /// The band of a spectral parameter.
     pub band_nm: Option<f64>,
     pub value: f64,
-    /// Standard uncertainty (k = 1); `None` when the data do not determine the parameter.
+    /// Standard uncertainty (k = 1) from the points' independent errors (the fit's covariance, scaled by the
+    /// residuals); `None` when the data do not determine the parameter.
     pub std_uncertainty: Option<f64>,
+    /// Standard uncertainty (k = 1) from what the points share (the solid angle, a band's normalisation, ...:
+    /// [`shared`]); `None` when nothing shared is known to move it.
+    pub shared_uncertainty: Option<f64>,
     pub at_bound: bool,
 }
 
@@ -213,8 +219,19 @@ pub struct FitReport {
     pub iterations: usize,
 }
 
-/// Fits the model to the run (module doc).
+/// Fits the model to the run (module doc), each parameter with its uncertainty from the points' independent
+/// errors and, apart, from what they share ([`shared`]).
 pub fn fit(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
+    let mut report = fit_unshared(run, opts)?;
+    let shared = shared::shared_uncertainties(run, opts, &report.params);
+    for (p, u) in report.params.iter_mut().zip(shared) {
+        p.shared_uncertainty = u;
+    }
+    Ok(report)
+}
+
+/// The fit weighted by the points' independent uncertainties, without the shared part.
+fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
     let fail = |message: String| ResultsError::Fit {
         model: opts.model.name().into(),
         origin: run.origin.clone(),
@@ -241,8 +258,10 @@ pub fn fit(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
             if !(wi.is_above_horizon() && wo.is_above_horizon()) {
                 return None;
             }
+            // The independent part: what the points share moves them together and is no scatter
+            // (crate::budget; [`shared`] propagates it apart).
             let u = p
-                .brdf_u_sr
+                .u_independent_sr()
                 .filter(|u| *u > 0.0 && u.is_finite())
                 .unwrap_or(1e-3 * f.abs().max(1e-12));
             Some(Obs {
@@ -436,6 +455,7 @@ pub fn fit(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
                 band_nm: d.band.and_then(|b| bands.get(b).copied()),
                 value: nat[j],
                 std_uncertainty,
+                shared_uncertainty: None,
                 at_bound,
             }
         })

@@ -24,6 +24,19 @@ pub(super) fn fix_phong_params(
     params
 }
 
+/// What a chi2/dof says, in a few words.
+pub fn chi2_meaning(chi2_per_dof: f64) -> &'static str {
+    if !chi2_per_dof.is_finite() {
+        "undefined"
+    } else if chi2_per_dof < 0.5 {
+        "the uncertainties are larger than the scatter: they are conservative, or padded"
+    } else if chi2_per_dof <= 2.0 {
+        "the model describes the points to within their uncertainties"
+    } else {
+        "the model misses structure in the data, or the uncertainties are too small"
+    }
+}
+
 pub(super) fn residual_stats(obs: &[Obs], m: &[f64], p: usize) -> ResidualStats {
     let (mut num, mut den, mut log2, mut max_rel, mut chi2) = (0.0, 0.0, 0.0, 0.0f64, 0.0);
     for (o, m) in obs.iter().zip(m) {
@@ -81,27 +94,42 @@ impl FitReport {
             None => s.push_str("model taken at the point (the detector aperture is unknown)\n"),
         }
         s.push_str(&format!(
-            "{:<22} {:>14} {:>14}\n",
-            "parameter", "value", "std. unc."
+            "{:<22} {:>14} {:>14} {:>14}\n",
+            "parameter", "value", "u independent", "u shared"
         ));
         for p in &self.params {
             let u = p
                 .std_uncertainty
                 .map(|u| format!("{u:.3e}"))
                 .unwrap_or_else(|| "undetermined".into());
+            let shared = p
+                .shared_uncertainty
+                .map(|u| format!("{u:.3e}"))
+                .unwrap_or_else(|| "-".into());
             s.push_str(&format!(
-                "{:<22} {:>14.6} {:>14}{}\n",
+                "{:<22} {:>14.6} {:>14} {:>14}{}\n",
                 FitReport::label(p),
                 p.value,
                 u,
+                shared,
                 if p.at_bound { "  (at its bound)" } else { "" }
             ));
         }
+        s.push_str(
+            "(standard uncertainties, k = 1: independent from the points' scatter about the model; shared from what \
+             the points have in common (solid angle, a band's normalisation, a range's gain), which moves them \
+             together and leaves no residual; combine them in quadrature for the total)\n",
+        );
         let r = &self.residuals;
         s.push_str(&format!(
             "residuals: cos-weighted relative RMS {:.3e}, log RMS {:.3e}, max relative {:.3e}, chi2/dof {:.3} \
-             (against the stated uncertainties), {} points down-weighted as outliers",
-            r.cos_weighted_relative_rms, r.log_rms, r.max_relative, r.chi2_per_dof, self.downweighted
+             against the points' independent uncertainties ({}), {} points down-weighted as outliers",
+            r.cos_weighted_relative_rms,
+            r.log_rms,
+            r.max_relative,
+            r.chi2_per_dof,
+            chi2_meaning(r.chi2_per_dof),
+            self.downweighted
         ));
         s
     }
@@ -120,6 +148,7 @@ impl FitReport {
                 "band_nm": p.band_nm,
                 "value": p.value,
                 "std_uncertainty": p.std_uncertainty,
+                "shared_uncertainty": p.shared_uncertainty,
                 "at_bound": p.at_bound,
             })).collect::<Vec<_>>(),
             "residuals": {

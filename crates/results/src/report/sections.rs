@@ -698,6 +698,7 @@ pub fn fit(input: &ReportInput<'_>) -> String {
                 num(Some(p.value), 6),
                 p.std_uncertainty
                     .map_or("undetermined".into(), |u| num(Some(u), 3)),
+                num(p.shared_uncertainty, 3),
                 if p.at_bound {
                     "at its bound".into()
                 } else {
@@ -708,14 +709,19 @@ pub fn fit(input: &ReportInput<'_>) -> String {
         .collect();
     s.push_str(&table(
         "parameters",
-        &["parameter", "value", "standard uncertainty", ""],
+        &["parameter", "value", "u, independent", "u, shared", ""],
         &rows,
     ));
-    s.push_str(&html::p(
-        "chi2/dof compares the residuals with the points' stated uncertainties: about 1 when the model explains \
-         the data to within them, far below 1 when the uncertainties are larger than the scatter, far above when \
-         the model misses structure or the uncertainties are too small.",
-    ));
+    s.push_str(&html::p(&format!(
+        "Standard uncertainties (k = 1). Independent: from the points' scatter about the model. Shared: from what \
+         the points have in common (the solid angle, a band's normalisation, a range's gain), which moves them \
+         together and leaves no residual; the fit is repeated with each such group moved by its uncertainty. \
+         Combine the two in quadrature for the total. chi2/dof compares the residuals with the points' \
+         independent uncertainties: {:.3} for {}: {}.",
+        best.residuals.chi2_per_dof,
+        best.model.name(),
+        crate::fit::chi2_meaning(best.residuals.chi2_per_dof)
+    )));
     s
 }
 
