@@ -145,7 +145,9 @@ class Daemon:
         rows = []
         for line in lines[1:]:
             cells = dict(zip(header, line.split(",")))
-            rows.append({k: (float(v) if v and k != "flags" else (v or None)) for k, v in cells.items()})
+            # Numbers, but for the text columns (the flags and the uncertainty budget's compact form).
+            rows.append({k: (float(v) if v and k not in ("flags", "budget") else (v or None))
+                         for k, v in cells.items()})
         return rows
 
     def stop(self):

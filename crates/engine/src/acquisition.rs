@@ -19,12 +19,57 @@ use gonio_instrument::Instrument;
 
 use crate::motion::{Device, Motion, MotionError};
 
-/// Relative standard uncertainty of one reading from the source's short-term noise and the meter's linearity.
-pub const READING_REL_STD: f64 = 2.0e-4;
-/// Standard uncertainty of one reading from the range (converter resolution, offset), relative to full scale.
-pub const READING_RANGE_STD: f64 = 2.0e-5;
 /// Relative standard uncertainty of the detector's solid angle (aperture radius and distance as calibrated).
 pub const SOLID_ANGLE_REL_STD: f64 = 1.0e-3;
+
+/// A reading's noise from the instrument file's figures (those `gonio selftest` measures and writes): each of
+/// the reading's `averaging` samples carries the shot noise of its photocurrent (the light's plus the head's
+/// dark current), the Johnson noise of the range's feedback resistor and the converter's quantisation
+/// (gonio_instrument::meter_noise: the PM100's own figures), and the source's white relative noise; the
+/// samples are independent, so the reading's variance is a sample's over `averaging`. Without a responsivity
+/// in the file the currents are unknown: the source's noise and the quantisation, in watts, remain.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReadingNoise {
+    /// A/W at the band; `None` when the file has no responsivity.
+    pub responsivity_a_per_w: Option<f64>,
+    pub dark_current_a: f64,
+    pub source_relative_noise: f64,
+    pub averaging: u32,
+}
+
+impl ReadingNoise {
+    /// The noise of readings at `nm` averaged over `averaging` samples on `instrument`.
+    pub fn new(instrument: &Instrument, nm: f64, averaging: u32) -> ReadingNoise {
+        let responsivity = gonio_instrument::responsivity::Responsivity::from_detector(&instrument.detector)
+            .ok()
+            .map(|r| r.at(nm))
+            .filter(|r| r.is_finite() && *r > 0.0);
+        ReadingNoise {
+            responsivity_a_per_w: responsivity,
+            dark_current_a: instrument.detector.dark_current_a.max(0.0),
+            source_relative_noise: instrument.source.relative_noise.max(0.0),
+            averaging: averaging.max(1),
+        }
+    }
+
+    /// The standard deviation of a reading of `power_w` on a range of full scale `range_w` (W).
+    pub fn std_w(&self, power_w: f64, range_w: f64) -> f64 {
+        use gonio_instrument::meter_noise::{johnson_a2, lsb, shot_a2};
+        let n = f64::from(self.averaging);
+        let source = self.source_relative_noise * power_w.abs();
+        let per_sample_w2 = match self.responsivity_a_per_w {
+            Some(r) => {
+                let current_a = power_w.abs() * r + self.dark_current_a;
+                let full_scale_a = range_w.abs() * r;
+                let meter_a2 =
+                    shot_a2(current_a) + johnson_a2(full_scale_a) + lsb(full_scale_a).powi(2) / 12.0;
+                meter_a2 / (r * r) + source * source
+            }
+            None => lsb(range_w.abs()).powi(2) / 12.0 + source * source,
+        };
+        (per_sample_w2 / n).sqrt()
+    }
+}
 
 /// The meter's configuration for a reading at `nm` with a campaign's acquisition settings.
 pub fn meter_config(nm: f64, acquisition: &Acquisition) -> DetectorConfig {
@@ -48,11 +93,10 @@ pub struct MeterReading {
     pub range: Option<usize>,
 }
 
-/// The standard uncertainty of a meter's reading: a part relative to the reading plus a part relative to the
-/// range's full scale. Under auto-range the meter may report its largest range; the resolution is that of the
-/// smallest of `ranges_w` (the instrument's ranges, W) holding the reading, which is what auto-ranging settles
-/// on.
-pub fn meter_reading(r: &PowerReading, ranges_w: &[f64], range: Range) -> MeterReading {
+/// A meter's reading with its standard uncertainty, the reading's noise ([`ReadingNoise`]). Under auto-range the
+/// meter may report its largest range; the range that sets the noise is the smallest of `ranges_w` (the
+/// instrument's ranges, W) holding the reading, which is what auto-ranging settles on.
+pub fn meter_reading(r: &PowerReading, ranges_w: &[f64], range: Range, noise: &ReadingNoise) -> MeterReading {
     let range_w = match range {
         Range::Auto => ranges_w
             .iter()
@@ -62,7 +106,7 @@ pub fn meter_reading(r: &PowerReading, ranges_w: &[f64], range: Range) -> MeterR
             .min(r.range_w),
         Range::FixedW(_) => r.range_w,
     };
-    let std_w = ((range_w * READING_RANGE_STD).powi(2) + (r.power_w * READING_REL_STD).powi(2)).sqrt();
+    let std_w = noise.std_w(r.power_w, range_w);
     MeterReading {
         power_w: r.power_w,
         std_w,
@@ -120,8 +164,14 @@ pub async fn read(
             r
         })
         .await?;
-    let ranges_w = &motion.rig().file().instrument.detector.ranges_w;
-    Ok(meter_reading(&r, ranges_w, acquisition.range))
+    let instrument = &motion.rig().file().instrument;
+    let noise = ReadingNoise::new(instrument, nm, acquisition.averaging);
+    Ok(meter_reading(
+        &r,
+        &instrument.detector.ranges_w,
+        acquisition.range,
+        &noise,
+    ))
 }
 
 /// What a sample reading is normalised by.

@@ -60,8 +60,9 @@ pub const STORE_FILE: &str = "gonio.sqlite";
 /// Version 3: `truth_effects_json` (a dry-run's per-point attribution of its imperfections).
 /// Version 4: `predicted_instrument_s`; version 5: `alignment_toml` (the alignment applied to a campaign).
 /// Version 6: `instrument_calibrations` (the daemon's calibrations, dated, never overwritten) and
-/// `campaigns.calibration_id` (which one a campaign was given).
-const SCHEMA_VERSION: i64 = 7;
+/// `campaigns.calibration_id` (which one a campaign was given). Version 7: each point's `budget` and
+/// `brdf_aperture_sr`; version 8: `point_budgets` (budgets completed after a campaign, its rows untouched).
+const SCHEMA_VERSION: i64 = 8;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

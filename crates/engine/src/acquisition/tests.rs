@@ -111,13 +111,49 @@ fn reading(power_w: f64, range_w: f64) -> PowerReading {
 #[test]
 fn a_reading_is_resolved_on_the_smallest_range_holding_it_under_auto_range() {
     let ranges = [5.0e-8, 5.0e-7, 5.0e-6, 5.0e-5];
-    let m = meter_reading(&reading(3.0e-6, 5.0e-5), &ranges, Range::Auto);
-    let expected = ((5.0e-6 * READING_RANGE_STD).powi(2) + (3.0e-6 * READING_REL_STD).powi(2)).sqrt();
-    assert!((m.std_w - expected).abs() <= 1e-12 * expected);
+    let noise = ReadingNoise {
+        responsivity_a_per_w: None,
+        dark_current_a: 0.0,
+        source_relative_noise: 0.0,
+        averaging: 3,
+    };
+    // Quantisation alone: one count of the range over sqrt(12) per sample, averaged over 3 samples.
+    let m = meter_reading(&reading(3.0e-6, 5.0e-5), &ranges, Range::Auto, &noise);
+    let expected = 5.0e-6 / 65_536.0 / 36f64.sqrt();
+    assert!(
+        (m.std_w - expected).abs() <= 1e-12 * expected,
+        "{} vs {expected}",
+        m.std_w
+    );
     // A fixed range is resolved on the range the meter reports.
-    let m = meter_reading(&reading(3.0e-6, 5.0e-5), &ranges, Range::FixedW(5.0e-5));
-    let expected = ((5.0e-5 * READING_RANGE_STD).powi(2) + (3.0e-6 * READING_REL_STD).powi(2)).sqrt();
+    let m = meter_reading(&reading(3.0e-6, 5.0e-5), &ranges, Range::FixedW(5.0e-5), &noise);
+    let expected = 5.0e-5 / 65_536.0 / 36f64.sqrt();
     assert!((m.std_w - expected).abs() <= 1e-12 * expected);
+}
+
+#[test]
+fn the_reading_noise_is_the_files_figures_averaged_over_the_samples() {
+    let file = InstrumentFile::simulated();
+    let inst = &file.instrument;
+    let noise = ReadingNoise::new(inst, 550.0, 10);
+    let r = 0.29; // A/W at 550 nm in simulated.toml
+    assert_eq!(noise.responsivity_a_per_w, Some(r));
+    let (p, fs) = (3.0e-4, 5.0e-4);
+    // Written out: shot of the photocurrent and the dark current over half the sample rate, Johnson noise of a
+    // 2 V full-scale transimpedance at 295 K, one count over sqrt(12), the source's 1e-4: per sample, then / 10.
+    let bandwidth = 1.0 / (2.0 * 0.003);
+    let i = p * r + inst.detector.dark_current_a;
+    let shot = 2.0 * 1.602_176_634e-19 * i * bandwidth;
+    let johnson = 4.0 * 1.380_649e-23 * 295.0 * bandwidth * (fs * r) / 2.0;
+    let quantisation = (fs * r / 65_536.0).powi(2) / 12.0;
+    let source = (inst.source.relative_noise * p).powi(2);
+    let expected = (((shot + johnson + quantisation) / (r * r) + source) / 10.0).sqrt();
+    let got = noise.std_w(p, fs);
+    assert!((got - expected).abs() <= 1e-9 * expected, "{got} vs {expected}");
+    // The source's noise dominates a bright reading; four times the samples halve it.
+    assert!(got > inst.source.relative_noise * p / 10f64.sqrt());
+    let more = ReadingNoise::new(inst, 550.0, 40).std_w(p, fs);
+    assert!((more / got - 0.5).abs() < 1e-9);
 }
 
 #[test]

@@ -302,9 +302,10 @@ impl Store {
         }
     }
 
-    /// Replaces committed points' budgets, and their `brdf_u_sr` with each budget's total, in one transaction:
-    /// the parts of a budget that need the other points (crate::budget::complete). A point's values, geometry
-    /// and readings are never touched; an index not stored changes nothing.
+    /// Records completed budgets of committed points, each with its total as the point's `brdf_u_sr`, in one
+    /// transaction: the parts of a budget that need the other points (crate::budget::complete). They are kept
+    /// apart from the committed rows, which are never rewritten, and read in their place ([`Store::points`]); a
+    /// later completion replaces an earlier one. An index not stored is refused by nothing and read by nothing.
     pub fn update_budgets(&mut self, id: CampaignId, updates: &[(u64, Budget)]) -> Result<(), StoreError> {
         self.durability_for_write(Some(id))?;
         let path = self.path.clone();
@@ -316,7 +317,8 @@ impl Store {
         {
             let mut st = tx
                 .prepare_cached(
-                    "UPDATE points SET budget = ?1, brdf_u_sr = ?2 WHERE campaign_id = ?3 AND idx = ?4",
+                    "INSERT OR REPLACE INTO point_budgets (budget, brdf_u_sr, campaign_id, idx) \
+                     VALUES (?1, ?2, ?3, ?4)",
                 )
                 .map_err(err)?;
             for (idx, budget) in updates {

@@ -92,12 +92,29 @@ pub(super) static INSERT_POINT: LazyLock<String> = LazyLock::new(|| {
     )
 });
 
+/// The budgets completed once a campaign has all its points (crate::budget::complete): kept apart, so that a
+/// committed point's row is never rewritten; a point's budget and `brdf_u_sr` are read from here when present.
+const POINT_BUDGETS: &str = "CREATE TABLE point_budgets (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                idx INTEGER NOT NULL,
+                budget TEXT NOT NULL,
+                brdf_u_sr REAL NOT NULL,
+                PRIMARY KEY (campaign_id, idx)
+            );";
+
 /// Every column of a campaign's points from an index on (`?1` the campaign, `?2` the first index), in index
-/// order; read by name.
+/// order, the completed budget (and its total) in place of the committed one where there is one; read by name.
 pub(super) static SELECT_POINTS_FROM: LazyLock<String> = LazyLock::new(|| {
-    let names: Vec<&str> = POINT_COLUMNS.iter().map(|(n, _)| *n).collect();
+    let names: Vec<String> = POINT_COLUMNS
+        .iter()
+        .map(|(n, _)| match *n {
+            "budget" | "brdf_u_sr" => format!("COALESCE(b.{n}, p.{n}) AS {n}"),
+            n => format!("p.{n} AS {n}"),
+        })
+        .collect();
     format!(
-        "SELECT {} FROM points WHERE campaign_id = ?1 AND idx >= ?2 ORDER BY idx",
+        "SELECT {} FROM points p LEFT JOIN point_budgets b ON b.campaign_id = p.campaign_id AND b.idx = p.idx \
+         WHERE p.campaign_id = ?1 AND p.idx >= ?2 ORDER BY p.idx",
         names.join(", ")
     )
 });
@@ -277,6 +294,11 @@ impl Store {
                 "ALTER TABLE points ADD COLUMN brdf_aperture_sr REAL; ALTER TABLE points ADD COLUMN budget TEXT;",
                 7,
             )?;
+            version = 7;
+        }
+        if version == 7 {
+            // Version 8 keeps the budgets completed after a campaign apart from its committed rows.
+            self.step(POINT_BUDGETS, 8)?;
             return Ok(());
         }
         if version != 0 {
@@ -322,6 +344,7 @@ impl Store {
                 PRIMARY KEY (campaign_id, seq)
             );
             CREATE TABLE points ({points});
+            {POINT_BUDGETS}
             {INSTRUMENT_CALIBRATIONS}
             PRAGMA user_version = {SCHEMA_VERSION};
             COMMIT;"

@@ -148,7 +148,7 @@ fn a_version_1_store_is_migrated_keeping_its_points() {
              phi_o_deg, signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json,
              truth_point_sr, truth_aperture_sr FROM points; DROP TABLE points;
              ALTER TABLE points_v1 RENAME TO points;
-             ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 1;"
+             ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; PRAGMA user_version = 1;"
     ))
     .expect("downgrade");
     drop(conn);
@@ -169,7 +169,7 @@ fn a_version_2_store_gains_the_attribution_column() {
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch(
         "ALTER TABLE points DROP COLUMN truth_effects_json; ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; 
-         ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 2;",
+         ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; PRAGMA user_version = 2;",
     )
     .expect("downgrade");
     drop(conn);
@@ -195,7 +195,7 @@ fn a_version_3_store_gains_the_prediction_and_keeps_its_campaigns() {
         "the prediction is stored with the campaign"
     );
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 3;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; PRAGMA user_version = 3;")
         .expect("downgrade");
     drop(conn);
     let mut store = Store::open(dir.path()).expect("migrates");
@@ -228,7 +228,7 @@ fn a_version_4_store_gains_the_alignment_column_and_keeps_its_campaigns() {
         store.create_campaign(&new_campaign(2)).expect("create")
     };
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; PRAGMA user_version = 4;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; PRAGMA user_version = 4;")
         .expect("downgrade");
     drop(conn);
     let store = Store::open(dir.path()).expect("migrates");
@@ -241,7 +241,7 @@ fn a_version_6_store_gains_the_budget_columns_and_a_budget_round_trips() {
     let dir = tempfile::tempdir().expect("tempdir");
     let id = store_with_one_point(dir.path());
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; PRAGMA user_version = 6;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; DROP TABLE point_budgets; PRAGMA user_version = 6;")
         .expect("downgrade");
     drop(conn);
     let mut store = Store::open(dir.path()).expect("migrates");
@@ -257,7 +257,7 @@ fn a_version_6_store_gains_the_budget_columns_and_a_budget_round_trips() {
 }
 
 #[test]
-fn budgets_are_completed_in_place_and_nothing_else_changes() {
+fn completed_budgets_are_read_in_place_of_the_committed_ones_whose_rows_never_change() {
     let dir = tempfile::tempdir().expect("tempdir");
     let id = store_with_one_point(dir.path());
     let mut store = Store::open(dir.path()).expect("open");
@@ -277,6 +277,15 @@ fn budgets_are_completed_in_place_and_nothing_else_changes() {
     assert_eq!(points[1].budget, expected.budget);
     assert!((points[1].brdf_u_sr.expect("u") - 0.0005).abs() < 1e-15);
     assert_eq!(points[1].brdf_sr, expected.brdf_sr, "the value is never touched");
+    // The committed row itself is as it was committed.
+    drop(store);
+    let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
+    let (budget, u): (Option<String>, Option<f64>) = conn
+        .query_row("SELECT budget, brdf_u_sr FROM points WHERE idx = 1", [], |r| {
+            Ok((r.get(0)?, r.get(1)?))
+        })
+        .expect("the row");
+    assert_eq!((budget, u), (None, point(1).brdf_u_sr));
 }
 
 #[test]

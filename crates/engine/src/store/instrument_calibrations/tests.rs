@@ -160,7 +160,7 @@ fn a_version_5_store_gains_the_calibrations_and_keeps_its_campaigns() {
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch(
         "ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; DROP TABLE instrument_calibrations; ALTER TABLE campaigns DROP COLUMN calibration_id;
-         PRAGMA user_version = 5;",
+         DROP TABLE point_budgets; PRAGMA user_version = 5;",
     )
     .expect("downgrade");
     drop(conn);
@@ -170,7 +170,7 @@ fn a_version_5_store_gains_the_calibrations_and_keeps_its_campaigns() {
         .conn
         .query_row("PRAGMA user_version", [], |r| r.get(0))
         .expect("version");
-    assert_eq!(version, 7);
+    assert_eq!(version, 8);
     let old = store.campaign(id).expect("campaign");
     assert_eq!(
         (
