@@ -268,10 +268,26 @@ pub struct Detector {
     /// Enable the simulated noise terms (shot, Johnson, quantisation).
     #[serde(default)]
     pub noise: bool,
+    /// Relative standard uncertainty of each range's gain (its factory calibration) while no characterisation
+    /// (`gonio align`) has measured it; absent: [`DEFAULT_RANGE_GAIN_U`].
+    #[serde(default)]
+    pub range_gain_u: Option<f64>,
     /// The sensor's wavelength limits (nm), which the meter reads from the sensor head and reports for
     /// `SENS:CORR:WAV? MIN` / `MAX`; simulation. Default: 400 to 1100 nm (Thorlabs S120C photodiode sensor).
     #[serde(default = "default_sensor_wavelength_nm")]
     pub sensor_wavelength_nm: [f64; 2],
+}
+
+/// A range's gain uncertainty when the instrument file does not state it: Thorlabs' PM100USB datasheet gives
+/// the photodiode-current accuracy as +-0.2 % of full scale, read as two standard deviations.
+pub const DEFAULT_RANGE_GAIN_U: f64 = 1.0e-3;
+
+impl Detector {
+    /// Each range's relative gain uncertainty before a characterisation: the file's, else
+    /// [`DEFAULT_RANGE_GAIN_U`].
+    pub fn range_gain_u(&self) -> f64 {
+        self.range_gain_u.unwrap_or(DEFAULT_RANGE_GAIN_U)
+    }
 }
 
 fn default_sensor_wavelength_nm() -> [f64; 2] {

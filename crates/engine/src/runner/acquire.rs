@@ -99,10 +99,14 @@ impl<'a> Run<'a> {
             self.configured_nm = None;
         }
         // A characterised meter: the reading as the true signal (crate::characterise::ranges), the correction's
-        // own uncertainty apart (it is the range's, shared by the readings on it).
+        // own uncertainty apart (it is the range's, shared by the readings on it). An uncharacterised one: the
+        // reading as the meter gives it, its range's gain as uncertain as the instrument file says.
         let (power_w, range_u_w) = match &self.detector {
-            Some(d) if !r.overload => d.reading(r.power_w, r.range),
-            _ => (r.power_w, 0.0),
+            Some(d) if !r.overload && d.calibration.ranges.is_some() => d.reading(r.power_w, r.range),
+            _ => (
+                r.power_w,
+                r.power_w.abs() * self.file.instrument.detector.range_gain_u(),
+            ),
         };
         Ok(SampleReading {
             power_w,
