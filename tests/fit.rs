@@ -295,14 +295,36 @@ fn bad_requests_are_refused_with_reasons() {
 }
 
 /// What the points share is propagated apart (gonio_results::fit's shared module): spectralon on the ideal
-/// instrument, whose points all share the solid angle's 0.1 % (the campaign's) and their band's normalisation.
-/// The points' scatter alone pins the albedo to a few parts per million, 12 of those off the true 0.99 before
-/// the shared part was stated; with it, the truth lies within the combined k = 2 interval, and the shared part
-/// is about the solid angle's 0.1 % of the albedo.
+/// instrument with its solid angle stated to 0.1 % (`solid_angle_u`), an error every point of the campaign
+/// shares, and each band's normalisation. The points' scatter alone pins the albedo to a few parts per million;
+/// the shared part is the solid angle's 0.1 % of the albedo, and the truth lies within the combined k = 2
+/// interval.
 #[test]
 fn the_shared_uncertainty_covers_what_the_scatter_cannot_see() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let run = dry_run(dir.path(), "spectralon", "[550.0]", "preset = \"spectralon\"");
+    let instrument = dir.path().join("instrument.toml");
+    let stated = gonio_instrument::SIMULATED_INSTRUMENT_TOML
+        .replace("solid_angle_u = 1.1e-3", "solid_angle_u = 1.0e-3");
+    assert!(stated.contains("solid_angle_u = 1.0e-3"));
+    std::fs::write(&instrument, stated).expect("instrument");
+    let campaign = CampaignText::isotropic(
+        "spectralon",
+        "{ from = 0.0, to = 60.0, step = 20.0 }",
+        "{ from = 0.0, to = 80.0, step = 10.0 }",
+        "{ from = 0.0, to = 180.0, step = 45.0 }",
+    )
+    .bands("[550.0]")
+    .acquisition("averaging = 10")
+    .material("preset = \"spectralon\"");
+    let file = dir.path().join("spectralon.toml");
+    std::fs::write(&file, campaign.to_string()).expect("campaign");
+    let run = dir.path().join("spectralon");
+    let o = cli::quiet_run(&file, &run)
+        .arg("--instrument")
+        .arg(&instrument)
+        .output()
+        .expect("gonio run");
+    assert!(o.status.success(), "{}", text(&o.stderr));
     let report = fit(&run, "lambertian", &[]);
     let p = &report["parameters"][0];
     assert_eq!(p["key"], "albedo");

@@ -19,9 +19,6 @@ use gonio_instrument::Instrument;
 
 use crate::motion::{Device, Motion, MotionError};
 
-/// Relative standard uncertainty of the detector's solid angle (aperture radius and distance as calibrated).
-pub const SOLID_ANGLE_REL_STD: f64 = 1.0e-3;
-
 /// A reading's noise from the instrument file's figures (those `gonio selftest` measures and writes): each of
 /// the reading's `averaging` samples carries the shot noise of its photocurrent (the light's plus the head's
 /// dark current), the Johnson noise of the range's feedback resistor and the converter's quantisation
@@ -255,7 +252,7 @@ pub fn brdf_of_reading(
                     direct_beam: norm,
                     direct_beam_dark: Reading::exact(0.0),
                     detector_solid_angle_sr: omega,
-                    detector_solid_angle_std_sr: omega * SOLID_ANGLE_REL_STD,
+                    detector_solid_angle_std_sr: omega * inst.detector.solid_angle_u(),
                 },
                 &geometry,
                 &footprint,

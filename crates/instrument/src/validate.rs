@@ -224,12 +224,17 @@ impl Instrument {
             ));
         }
         let d = &self.detector;
-        if let Some(u) = d.range_gain_u
-            && !(u.is_finite() && (0.0..1.0).contains(&u))
-        {
-            return Err(format!(
-                "[instrument.detector]: range_gain_u is a relative standard uncertainty in [0, 1), got {u}"
-            ));
+        for (key, value) in [
+            ("range_gain_u", d.range_gain_u),
+            ("solid_angle_u", d.solid_angle_u),
+        ] {
+            if let Some(u) = value
+                && !(u.is_finite() && (0.0..1.0).contains(&u))
+            {
+                return Err(format!(
+                    "[instrument.detector]: {key} is a relative standard uncertainty in [0, 1), got {u}"
+                ));
+            }
         }
         if !(d.dark_current_a.is_finite() && d.dark_current_a >= 0.0) {
             return Err(format!(

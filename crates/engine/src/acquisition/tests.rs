@@ -45,12 +45,22 @@ fn absolute_equation_is_the_net_signal_over_beam_solid_angle_and_cosine() {
         "{} vs {expected}",
         v.value_per_sr
     );
-    // Exact readings still carry the solid angle's calibration and the positioning: at least the former.
+    // Exact readings still carry the solid angle's calibration and the positioning: at least the former, as
+    // the file states it (the ideal instrument's is exact: its positioning alone).
     let rel = v.std_per_sr / v.value_per_sr;
-    assert!(
-        (SOLID_ANGLE_REL_STD..0.01).contains(&rel),
-        "relative uncertainty {rel}"
-    );
+    assert!((0.0..0.01).contains(&rel), "relative uncertainty {rel}");
+    let mut stated = inst.clone();
+    stated.detector.solid_angle_u = Some(2e-3);
+    let w = brdf_of_reading(
+        &inputs(&stated, Normalisation::Absolute, (30.0, 180.0)),
+        Reading::exact(s),
+        Reading::exact(s_dark),
+        Reading::exact(beam),
+    )
+    .expect("a valid geometry");
+    let rel = w.std_per_sr / w.value_per_sr;
+    assert!((2e-3..0.01).contains(&rel), "relative uncertainty {rel}");
+    assert!((w.budget.scale_per_sr / w.value_per_sr - 2e-3).abs() < 1e-12);
 }
 
 #[test]
