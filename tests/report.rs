@@ -193,4 +193,23 @@ fn the_report_of_a_calibrated_run_shows_its_alignment_characterisation_and_budge
     // The realistic instrument's hidden values are in the truth section, folded, as run.json has them.
     assert!(section(&page, "truth").contains("hidden imperfections"));
     assert!(section(&page, "fit").contains("No model was fitted"));
+    // The ASTM export of the same run says the signature was measured and subtracted (not "not measured").
+    let astm = dir.path().join("run.astm.csv");
+    let o = gonio()
+        .args(["export"])
+        .arg(&out)
+        .args(["--format", "astm", "--out"])
+        .arg(&astm)
+        .output()
+        .expect("gonio export");
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let table = std::fs::read_to_string(&astm).expect("astm");
+    let line = table
+        .lines()
+        .find(|l| l.contains("instrument_signature:"))
+        .expect("the signature line");
+    assert!(
+        line.contains("measured by gonio align") && line.contains("subtracted from every value"),
+        "{line}"
+    );
 }

@@ -136,9 +136,37 @@ pub fn export_setup(run: &Run, base_dir: &Path) -> Option<ExportSetup> {
         calibration_reference: calibration.reference.as_ref().map(|r| r.name.clone()),
         // The instrument description has no polariser on either arm.
         polarisation: "unpolarised".into(),
-        // gonio has no instrument-signature measurement (a scan with no sample) yet.
-        signature: None,
+        signature: signature_words(config.alignment_toml.as_deref()),
     })
+}
+
+/// What the ASTM header says of the instrument signature: the characterisation the run applied measured it
+/// (`gonio align`, the holder empty) and every value had it subtracted; `None` (the export's "not measured")
+/// when no calibration with a signature was applied.
+fn signature_words(alignment_toml: Option<&str>) -> Option<String> {
+    let cal =
+        gonio_engine::align::file::CalibrationFile::parse(alignment_toml?, "<run's calibration>").ok()?;
+    let signature = &cal.detector.as_ref()?.signature;
+    if signature.is_empty() {
+        return None;
+    }
+    let bands: Vec<String> = signature.iter().map(|b| format!("{}", b.band_nm)).collect();
+    let (lowest, highest) = signature
+        .iter()
+        .flat_map(|b| b.brdf_sr.iter().copied())
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+    Some(format!(
+        "measured by gonio align on {} with the sample holder empty, in the bands {} nm ({:.2e} to {:.2e} 1/sr \
+         over the arm angles measured), and subtracted from every value; its uncertainty is each point's \
+         stray-light component",
+        cal.calibration.created_utc,
+        bands.join(", "),
+        lowest,
+        highest
+    ))
 }
 
 /// The run's configuration as the campaign parser resolves it (defaults applied, presets expanded into model
