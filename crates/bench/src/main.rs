@@ -171,7 +171,7 @@ fn main() {
         &orderings,
     );
     let through_md = throughput_markdown(&through);
-    let criterion_md = criterion_markdown(&criterion, &target);
+    let criterion_md = criterion_markdown(&criterion);
     let stress_md = stress_markdown(&root);
     // Splice the new sections into the report at their places.
     report = report.replace("<!-- CAMPAIGNS -->", &campaigns_md);

@@ -132,24 +132,24 @@ pub(super) fn throughput_markdown(t: &ThroughputRuns) -> String {
 }
 
 /// The criterion results, read from their last run.
-pub(super) fn criterion_markdown(results: &[criterion_summary::CriterionResult], target: &Path) -> String {
+/// The criterion results (read from the target directory's `criterion/`, named relatively: the report is
+/// committed, and the machine's own paths stay out of it).
+pub(super) fn criterion_markdown(results: &[criterion_summary::CriterionResult]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "### Criterion micro-benchmarks (their last run)\n");
     if results.is_empty() {
         let _ = writeln!(
             s,
-            "No criterion results under {}: run `{CRITERION}` first (they are not run by this command: each takes \
-             minutes of statistics).\n",
-            target.join("criterion").display()
+            "No criterion results under the target directory's `criterion/`: run `{CRITERION}` first (they are \
+             not run by this command: each takes minutes of statistics).\n"
         );
         return s;
     }
     let _ = writeln!(
         s,
-        "Read from {} (written by `{CRITERION}`, run before this report). Time per iteration: criterion's typical \
-         estimate with its 95% interval; per element when the benchmark declares a throughput (the BRDF benches \
-         evaluate 256 direction pairs per iteration).\n",
-        target.join("criterion").display()
+        "Read from the target directory's `criterion/` (written by `{CRITERION}`, run before this report). Time \
+         per iteration: criterion's typical estimate with its 95% interval; per element when the benchmark declares \
+         a throughput (the BRDF benches evaluate 256 direction pairs per iteration).\n"
     );
     let _ = writeln!(
         s,
