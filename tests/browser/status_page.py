@@ -620,8 +620,11 @@ def run(gonio, chromium, workdir):
             if time.monotonic() > deadline:
                 raise Fail(f"Abort did not abort the campaign: {daemon.campaign(second)}")
             time.sleep(0.05)
-        tab.wait_for("'aborted' on the page with the buttons off", """document.getElementById('c-state')
-            .textContent === 'aborted' && [...document.querySelectorAll('#campaign .buttons button')].every((b) => b.disabled)""")
+        # The campaign's actions are off; its report (it has points) stays on.
+        tab.wait_for("'aborted' on the page with the action buttons off and Report on", """document.getElementById(
+            'c-state').textContent === 'aborted' && [...document.querySelectorAll('#campaign .buttons button')]
+            .filter((b) => b.id !== 'btn-report').every((b) => b.disabled)
+            && !document.getElementById('btn-report').disabled""")
         rows = daemon.points(second)
         tab.wait_for("the second campaign's points only",
                      f"document.querySelectorAll('#polar circle.pt').length === {len(rows)}")
