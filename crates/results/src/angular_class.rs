@@ -91,29 +91,9 @@ pub fn specular_offset_deg(p: &Point) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::budget::Budget;
 
     fn at(theta_i: f64, phi_i: f64, theta_o: f64, phi_o: f64) -> Point {
-        Point {
-            index: 0,
-            band_nm: 550.0,
-            theta_i_deg: theta_i,
-            phi_i_deg: phi_i,
-            theta_o_deg: theta_o,
-            phi_o_deg: phi_o,
-            signal_w: None,
-            dark_w: None,
-            incident_w: None,
-            brdf_sr: None,
-            brdf_u_sr: None,
-            flags: Vec::new(),
-            t_s: None,
-            readback_deg: Vec::new(),
-            brdf_aperture_sr: None,
-            budget: Budget::default(),
-            truth_point_sr: None,
-            truth_aperture_sr: None,
-        }
+        Point::at(550.0, [theta_i, phi_i, theta_o, phi_o], 0.1)
     }
 
     #[test]

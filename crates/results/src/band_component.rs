@@ -118,28 +118,11 @@ fn slope(spectrum: &[(f64, f64)], k: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::budget::Budget;
 
     fn point(index: u64, band_nm: f64, theta_o: f64, f: f64) -> Point {
         Point {
             index,
-            band_nm,
-            theta_i_deg: 30.0,
-            phi_i_deg: 0.0,
-            theta_o_deg: theta_o,
-            phi_o_deg: 180.0,
-            signal_w: None,
-            dark_w: None,
-            incident_w: None,
-            brdf_sr: Some(f),
-            brdf_u_sr: Some(1e-4),
-            flags: Vec::new(),
-            t_s: None,
-            readback_deg: Vec::new(),
-            brdf_aperture_sr: None,
-            budget: Budget::default(),
-            truth_point_sr: None,
-            truth_aperture_sr: None,
+            ..Point::at(band_nm, [30.0, 0.0, theta_o, 180.0], f)
         }
     }
 

@@ -129,24 +129,12 @@ mod tests {
 
     fn point(f: f64, truth: Option<f64>, budget: Budget) -> Point {
         Point {
-            index: 0,
-            band_nm: 550.0,
-            theta_i_deg: 0.0,
-            phi_i_deg: 0.0,
-            theta_o_deg: 30.0,
-            phi_o_deg: 180.0,
-            signal_w: None,
-            dark_w: None,
-            incident_w: None,
-            brdf_sr: Some(f),
             brdf_u_sr: Some(budget.total_sr()),
-            flags: Vec::new(),
             t_s: Some(1.0),
-            readback_deg: Vec::new(),
-            brdf_aperture_sr: None,
             budget,
             truth_point_sr: truth,
             truth_aperture_sr: truth,
+            ..Point::at(550.0, [0.0, 0.0, 30.0, 180.0], f)
         }
     }
 

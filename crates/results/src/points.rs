@@ -52,6 +52,32 @@ pub struct Point {
 }
 
 impl Point {
+    /// A valid point of value `f` (1/sr) at a geometry (degrees) in a band, nothing else known: what the tests
+    /// of this crate build on.
+    #[cfg(test)]
+    pub(crate) fn at(band_nm: f64, geometry_deg: [f64; 4], f: f64) -> Point {
+        let [theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg] = geometry_deg;
+        Point {
+            index: 0,
+            band_nm,
+            theta_i_deg,
+            phi_i_deg,
+            theta_o_deg,
+            phi_o_deg,
+            signal_w: None,
+            dark_w: None,
+            incident_w: None,
+            brdf_sr: Some(f),
+            brdf_u_sr: None,
+            flags: Vec::new(),
+            t_s: None,
+            readback_deg: Vec::new(),
+            brdf_aperture_sr: None,
+            budget: Budget::default(),
+            truth_point_sr: None,
+            truth_aperture_sr: None,
+        }
+    }
     /// True when the point carries a usable BRDF value: no flag, a finite value.
     pub fn is_valid(&self) -> bool {
         self.flags.is_empty() && self.brdf_sr.is_some_and(f64::is_finite)

@@ -252,7 +252,6 @@ pub fn fit_models(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::budget::Budget;
     use crate::points::Point;
 
     /// A run on hardware, read from its CSV alone: Lambertian values at 30 deg incidence, no truth.
@@ -260,23 +259,12 @@ mod tests {
         let points = (0..12)
             .map(|k| Point {
                 index: k,
-                band_nm: 550.0,
-                theta_i_deg: 30.0,
-                phi_i_deg: 0.0,
-                theta_o_deg: 5.0 * k as f64,
-                phi_o_deg: 180.0,
                 signal_w: Some(1e-7),
                 dark_w: Some(1e-10),
                 incident_w: Some(5e-4),
-                brdf_sr: Some(0.3),
                 brdf_u_sr: Some(0.0006),
-                flags: Vec::new(),
                 t_s: Some(k as f64),
-                readback_deg: Vec::new(),
-                brdf_aperture_sr: None,
-                budget: Budget::default(),
-                truth_point_sr: None,
-                truth_aperture_sr: None,
+                ..Point::at(550.0, [30.0, 0.0, 5.0 * k as f64, 180.0], 0.3)
             })
             .collect();
         Run {
