@@ -23,15 +23,8 @@ use crate::error_budget::variant_text;
 pub const COMMAND: &str =
     "cargo build --release -p gonio && cargo run --release -p gonio-bench -- --accuracy";
 
-/// The seed materials and spectralon.
-pub const MATERIALS: [&str; 6] = [
-    "mirror",
-    "white-styrofoam",
-    "construction-paper",
-    "coloured-plastic",
-    "gold",
-    "spectralon",
-];
+/// The materials: every preset (the five seed materials and spectralon).
+pub const MATERIALS: &[&str] = gonio_brdf::presets::NAMES;
 /// realistic.toml's own seed and one more.
 pub const SEEDS: [u64; 2] = [16, 3];
 /// Random geometries per material and instrument (each measured in three bands).
@@ -252,7 +245,7 @@ pub fn run(root: &Path, binary: &Path, geometries_per_material: usize) -> Result
                 ],
             )?;
         }
-        for (m, material) in MATERIALS.into_iter().enumerate() {
+        for (m, &material) in MATERIALS.iter().enumerate() {
             eprintln!("    {}: {material}...", setup.name);
             let campaign = here.join(format!("{material}.toml"));
             let geoms = geometries(geometries_per_material, 1000 + m as u64);
