@@ -114,14 +114,7 @@ fn dry_run_matches_ground_truth_and_writes_csv_and_json() {
         let f: f64 = r[9].parse().expect("brdf");
         let u: f64 = r[10].parse().expect("u");
         let truth: f64 = r[21].parse().expect("truth");
-        // The budget names its parts, and its independent part is at most the total.
-        assert!(
-            r[19].contains("signal-noise=") && r[19].contains("@campaign="),
-            "row {i}: budget {}",
-            r[19]
-        );
-        let indep: f64 = r[18].parse().expect("independent u");
-        assert!(indep > 0.0 && indep <= u, "row {i}: independent {indep} of {u}");
+        assert_budget_columns(i, r, u);
         // Noise and drift are the simulator's; the uncertainty claims to cover them: 5 u plus a floor for the
         // optics' integration tolerance (1e-6 relative).
         assert!(
@@ -434,17 +427,22 @@ fn dry_run_with_serial_devices_on_pseudo_terminals_matches_ground_truth() {
         let f: f64 = r[9].parse().expect("brdf");
         let u: f64 = r[10].parse().expect("u");
         let truth: f64 = r[21].parse().expect("truth");
-        // The budget names its parts, and its independent part is at most the total.
-        assert!(
-            r[19].contains("signal-noise=") && r[19].contains("@campaign="),
-            "row {i}: budget {}",
-            r[19]
-        );
-        let indep: f64 = r[18].parse().expect("independent u");
-        assert!(indep > 0.0 && indep <= u, "row {i}: independent {indep} of {u}");
+        assert_budget_columns(i, r, u);
         assert!(
             (f - truth).abs() <= 5.0 * u + 1e-6 * truth.abs(),
             "row {i}: f {f} truth {truth} u {u}"
         );
     }
+}
+
+/// A valid row's budget columns (the layout of a dry-run on the ideal instrument: `brdf_u_indep_sr` at 18,
+/// `budget` at 19): the budget names its parts, and its independent part is at most the total `u`.
+fn assert_budget_columns(i: usize, r: &[&str], u: f64) {
+    assert!(
+        r[19].contains("signal-noise=") && r[19].contains("@campaign="),
+        "row {i}: budget {}",
+        r[19]
+    );
+    let indep: f64 = r[18].parse().expect("independent u");
+    assert!(indep > 0.0 && indep <= u, "row {i}: independent {indep} of {u}");
 }

@@ -140,13 +140,10 @@ pub struct ClassRow {
     pub top: Vec<(String, f64)>,
 }
 
+/// The nearest-rank quantile of `v` (sorted here), as the error budget's tables take it.
 fn quantile(v: &mut [f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
     v.sort_by(f64::total_cmp);
-    let rank = ((q * v.len() as f64).ceil() as usize).clamp(1, v.len());
-    v[rank - 1]
+    crate::error_budget::quantile(v, q)
 }
 
 /// The figures of `points` (valid ones with a truth and an uncertainty).

@@ -64,7 +64,8 @@ pub fn class_of(theta_i_deg: f64, phi_i_deg: f64, theta_o_deg: f64, phi_o_deg: f
     }
 }
 
-fn quantile(sorted: &[f64], q: f64) -> f64 {
+/// The nearest-rank quantile `q` of ascending `sorted`; NaN for none.
+pub(crate) fn quantile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
     }

@@ -68,19 +68,9 @@ pub(super) fn duration(s: Option<f64>) -> String {
     }
 }
 
-/// Median of the finite values; `None` for none.
-pub(super) fn median(mut v: Vec<f64>) -> Option<f64> {
-    v.retain(|x| x.is_finite());
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
+/// Median of the finite values (the fit's, crate::fit::observations); `None` for none.
+pub(super) fn median(v: Vec<f64>) -> Option<f64> {
+    Some(crate::fit::observations::median(v)).filter(|m| m.is_finite())
 }
 
 /// The valid points' relative standard uncertainties (k = 1).
