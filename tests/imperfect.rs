@@ -189,7 +189,9 @@ fn the_geometry_attribution_explains_the_geometric_error() {
     let (mut worst_error, mut worst_residual) = (0.0f64, 0.0f64);
     for p in points.iter().filter(|p| p.brdf_sr.is_some()) {
         let e = effects(p);
-        let measured = p.brdf_sr.expect("BRDF") / p.truth_aperture_sr.expect("truth");
+        // The aperture average the detector saw, before the completed campaign's aperture correction.
+        let seen = p.brdf_aperture_sr.or(p.brdf_sr).expect("BRDF");
+        let measured = seen / p.truth_aperture_sr.expect("truth");
         let geometry = e["relative"]["geometry"].as_f64().expect("geometry");
         let true_theta_o = e["optics"]["true_theta_o_deg"].as_f64().expect("true angle");
         let intercepted = e["optics"]["intercepted_fraction"].as_f64().expect("fraction");

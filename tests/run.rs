@@ -141,12 +141,14 @@ fn committed_count(out: &Path) -> usize {
     }
 }
 
+/// The committed rows as committed (a completed campaign's corrected values are read apart from them, and
+/// never rewrite them: crate::budget::complete).
 fn snapshot(out: &Path) -> Vec<PointRecord> {
     let Ok(store) = Store::open(out) else {
         return Vec::new();
     };
     match store.campaigns().ok().and_then(|c| c.first().map(|c| c.id)) {
-        Some(id) => store.points(id).unwrap_or_default(),
+        Some(id) => store.committed_points(id).unwrap_or_default(),
         None => Vec::new(),
     }
 }

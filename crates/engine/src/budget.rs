@@ -6,19 +6,23 @@
 //! Where each part comes from today:
 //! - `signal-noise`, `dark`: the meter's reading uncertainty (crate::acquisition::meter_reading) through the
 //!   equation.
-//! - `normalisation` (shared by the band): the direct-beam or reference readings interpolated to the point's
-//!   time (crate::calibration), through the equation.
+//! - `normalisation` (shared by the band): the direct-beam or reference readings carried to the point's time
+//!   (crate::calibration), through the equation; when the campaign completes, the value is normalised again
+//!   between the readings around it and the drift's curvature added, independent per point ([`drift`]).
 //! - `solid-angle` (absolute) or `certificate` (relative), shared by the campaign.
 //! - `pointing`: the axes' arrival tolerance through the equation's angular sensitivity.
 //! - `range` (shared by the range): the characterisation's range-gain and linearity correction, relative to
 //!   the reading, carried to the value.
 //! - `stray-light`: the uncertainty of the subtracted signature (characterised instruments).
+//! - `aperture`: the correction from the aperture average to the BRDF at the nominal geometry, or the whole
+//!   bias of a lobe narrower than the aperture, added when the campaign completes ([`complete`]).
 //! - `band` (shared by the band): the finite filter band, from the bands measured at the same geometry, added
 //!   when the campaign completes ([`complete`]).
 
 mod complete;
+mod drift;
 
-pub use complete::complete;
+pub use complete::completions;
 
 use gonio_brdf::measurement::BrdfValue;
 use gonio_results::budget::{Budget, components, groups};

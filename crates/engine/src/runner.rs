@@ -515,6 +515,22 @@ impl<'a> Run<'a> {
         Ok(())
     }
 
+    /// The campaign's completion (crate::budget::complete): the points read and the result written under the
+    /// store's lock, the model fitted between without it (seconds on a large campaign; status requests go on).
+    fn complete_points(&self) -> Result<usize, StoreError> {
+        let (record, committed, calibrations) = {
+            let s = lock(&self.store);
+            (
+                s.campaign(self.id)?,
+                s.committed_points(self.id)?,
+                s.calibrations(self.id)?,
+            )
+        };
+        let updates = crate::budget::completions(&record, &committed, &calibrations, &self.file.instrument);
+        lock(&self.store).update_completions(self.id, &updates)?;
+        Ok(updates.len())
+    }
+
     fn progress(&self, next_start_s: Option<f64>) {
         let later = self.total.saturating_sub(self.pass_end) as f64 * self.s_per_point;
         let eta_s = match next_start_s {
@@ -575,15 +591,15 @@ impl<'a> Run<'a> {
                 tracing::warn!(campaign = %self.id, state = %state, "{m}");
             }
         }
+        // The values' and budgets' parts that need every point (crate::budget::complete), before the campaign
+        // reads as completed: an export of a completed campaign always has them.
+        if state == CampaignState::Completed
+            && let Err(e) = self.complete_points()
+        {
+            tracing::warn!(campaign = %self.id, "cannot complete the points' values and budgets: {e}");
+        }
         {
             let mut s = lock(&self.store);
-            // The budget's parts that need every point (crate::budget::complete), before the campaign reads as
-            // completed: an export of a completed campaign always has them.
-            if state == CampaignState::Completed
-                && let Err(e) = crate::budget::complete(&mut s, self.id, &self.file.instrument)
-            {
-                tracing::warn!(campaign = %self.id, "cannot complete the points' uncertainty budgets: {e}");
-            }
             let _ = s.set_operator_message(self.id, None);
             if let Err(e) = s.set_state(self.id, state, message.as_deref()) {
                 // A store that cannot be written cannot record the pause: the store shows it from memory (status

@@ -43,7 +43,7 @@ mod schema;
 
 pub use records::{
     CalibrationRecord, CampaignId, CampaignRecord, CampaignState, Durability, InstrumentCalibration,
-    InstrumentCalibrationId, NewCampaign, NewInstrumentCalibration, PointRecord, PointValue,
+    InstrumentCalibrationId, NewCampaign, NewInstrumentCalibration, PointCompletion, PointRecord, PointValue,
 };
 
 use std::collections::HashMap;
@@ -61,8 +61,10 @@ pub const STORE_FILE: &str = "gonio.sqlite";
 /// Version 4: `predicted_instrument_s`; version 5: `alignment_toml` (the alignment applied to a campaign).
 /// Version 6: `instrument_calibrations` (the daemon's calibrations, dated, never overwritten) and
 /// `campaigns.calibration_id` (which one a campaign was given). Version 7: each point's `budget` and
-/// `brdf_aperture_sr`; version 8: `point_budgets` (budgets completed after a campaign, its rows untouched).
-const SCHEMA_VERSION: i64 = 8;
+/// `brdf_aperture_sr`; version 8: `point_budgets` (budgets completed after a campaign, its rows untouched);
+/// version 9: `point_budgets` also keeps the value corrected to the nominal geometry, the aperture average it came
+/// from and the flags (crate::budget::complete).
+const SCHEMA_VERSION: i64 = 9;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

@@ -9,7 +9,7 @@ use gonio_brdf::{Direction, Wavelength};
 use gonio_engine::store::{CampaignState, Store};
 use gonio_engine::{Control, Event, Rig, prepare_campaign, run_campaign};
 use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
-use gonio_results::provenance::truth_errors;
+use gonio_results::provenance::{against_aperture_truth, truth_errors};
 
 /// The reference sample's material file, written next to the campaign (config/materials/spectralon.toml).
 const WHITE: &str = r#"
@@ -162,7 +162,9 @@ async fn relative_run() {
     let valid: Vec<_> = points.iter().filter(|p| p.flags.is_empty()).collect();
     assert!(valid.len() >= 16, "{} valid points", valid.len());
     for p in &valid {
-        let (f, u) = (p.brdf_sr.expect("value"), p.brdf_u_sr.expect("uncertainty"));
+        // The aperture average, before the completed campaign's correction to the nominal geometry.
+        let f = p.brdf_aperture_sr.or(p.brdf_sr).expect("value");
+        let u = p.brdf_u_sr.expect("uncertainty");
         let t = p.truth_aperture_sr.expect("truth");
         // The reference's known f is its point value, its reading an aperture average: for a Lambertian
         // reference the result is the sample's aperture average times 2 / (1 + cos beta), beta the aperture's
@@ -186,7 +188,7 @@ async fn relative_run() {
     }
     let record = s.campaign(id).expect("campaign");
     let table = gonio_engine::export::points_table(&record, &points);
-    let errors = truth_errors(&table.points, |p| p.truth_aperture_sr).expect("errors");
+    let errors = truth_errors(&table.points, against_aperture_truth).expect("errors");
     eprintln!("relative dry-run against truth: {errors:?}");
     assert!(
         errors.cos_weighted_relative_rms.is_some_and(|e| e < 5e-4),

@@ -404,13 +404,20 @@ fn write_results(
         "instrument time {:.0} s ({predicted}), wall time {wall_s:.1} s\n",
         record.timing.actual_instrument_s
     ));
-    if let Some(e) = record.truth.against_aperture_average {
+    for (truth, e) in [
+        (
+            "the BRDF at the nominal geometry",
+            &record.truth.against_point_value,
+        ),
+        ("the aperture average", &record.truth.against_aperture_average),
+    ] {
+        let Some(e) = e else { continue };
         let rms = e
             .cos_weighted_relative_rms
             .map(|r| format!("{r:.2e}"))
             .unwrap_or_else(|| "undefined (zero truth)".into());
         summary.push_str(&format!(
-            "dry-run error vs aperture-averaged truth: cos-weighted relative RMS {rms}, log RMS {:.2e}, max relative {:.2e} ({} points)\n",
+            "dry-run error vs {truth}: cos-weighted relative RMS {rms}, log RMS {:.2e}, max relative {:.2e} ({} points)\n",
             e.log_rms, e.max_relative_error, e.points
         ));
     }

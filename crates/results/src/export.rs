@@ -67,7 +67,7 @@ pub fn column_units(run: &Run) -> Vec<(String, &'static str)> {
 }
 
 /// The conventions a reader needs, one sentence each.
-pub const CONVENTIONS: [(&str, &str); 7] = [
+pub const CONVENTIONS: [(&str, &str); 8] = [
     (
         "frame",
         "sample frame: z is the surface normal; theta from the normal, phi about it from +x towards +y; \
@@ -88,6 +88,13 @@ pub const CONVENTIONS: [(&str, &str); 7] = [
     (
         "readback",
         "<axis>_deg are the axes' read-back positions, physical axis angles in degrees",
+    ),
+    (
+        "aperture",
+        "brdf_sr is the BRDF at the nominal geometry: corrected, where brdf_aperture_sr is given, from that average \
+         over the detector aperture (cos-weighted) with a model fitted to the campaign (budget component aperture: \
+         the correction's uncertainty); a point flagged narrow-lobe keeps the average, its lobe being narrower than \
+         the aperture",
     ),
     (
         "time",

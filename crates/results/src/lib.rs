@@ -25,6 +25,7 @@
 //! and the `gonio` binary hands a [`run::Run`] over.
 
 pub mod angular_class;
+pub mod aperture;
 pub mod astm;
 pub mod band_component;
 pub mod budget;

@@ -134,13 +134,25 @@ pub struct TruthErrors {
     pub max_normalised_error: f64,
 }
 
-/// Errors of the valid points against `truth` (picking the aperture-averaged or the point truth); `None`
-/// without such a point.
-pub fn truth_errors(points: &[Point], truth: impl Fn(&Point) -> Option<f64>) -> Option<TruthErrors> {
+/// A valid point's value and the simulator's BRDF at its nominal geometry, for [`truth_errors`].
+pub fn against_point_truth(p: &Point) -> Option<(f64, f64)> {
+    Some((p.value()?, p.truth_point_sr?))
+}
+
+/// A valid point's aperture average (its value before the aperture correction, when it had one) and the
+/// simulator's aperture average, for [`truth_errors`].
+pub fn against_aperture_truth(p: &Point) -> Option<(f64, f64)> {
+    let f = p.value()?;
+    Some((p.brdf_aperture_sr.unwrap_or(f), p.truth_aperture_sr?))
+}
+
+/// Errors of the valid points against their truth, `pair` giving a point's value and its truth
+/// ([`against_point_truth`], [`against_aperture_truth`]); `None` without such a point.
+pub fn truth_errors(points: &[Point], pair: impl Fn(&Point) -> Option<(f64, f64)>) -> Option<TruthErrors> {
     let (mut n, mut num, mut den, mut log2, mut max_rel, mut max_norm) =
         (0u64, 0.0, 0.0, 0.0, 0.0f64, 0.0f64);
     for p in points {
-        let (Some(f), Some(t)) = (p.value(), truth(p)) else {
+        let Some((f, t)) = pair(p) else {
             continue;
         };
         if !t.is_finite() {
@@ -231,8 +243,8 @@ impl RunRecord {
                 actual_instrument_s,
             },
             truth: TruthSummary {
-                against_aperture_average: truth_errors(points, |p| p.truth_aperture_sr),
-                against_point_value: truth_errors(points, |p| p.truth_point_sr),
+                against_aperture_average: truth_errors(points, against_aperture_truth),
+                against_point_value: truth_errors(points, against_point_truth),
             },
             uncertainty: summarise(points),
             simulator_truth: stored.simulator_truth,

@@ -1,21 +1,113 @@
-//! The budget's parts that need the campaign's other points, added once it has completed: today the finite
-//! band (gonio_results::band_component: the sample's spectral slope from the bands measured at the same
-//! geometry, times each filter's centre uncertainty from the instrument file). Each point's budget gains the component, shared by its band's points, and its `brdf_u_sr`
-//! becomes the new total, all in one transaction; running it again gives the same budgets (a resumed
-//! campaign that completes runs it over every point).
+//! What a point's value and budget need the campaign's other points for, done once it has completed:
+//! - the source's drift: each value normalised again between the readings before and after it, the drift's
+//!   curvature in the budget ([`super::drift`]);
+//! - the aperture: each value corrected from the aperture average to the BRDF at the nominal geometry with a
+//!   model fitted to the campaign's data (gonio_results::aperture), the correction's own uncertainty added as
+//!   the `aperture` component, the average kept beside it (`brdf_aperture_sr`); a lobe narrower than the
+//!   aperture is flagged `narrow-lobe` instead and its uncertainty covers the bias;
+//! - the finite band (gonio_results::band_component: the sample's spectral slope from the bands measured at the
+//!   same geometry, times each filter's centre uncertainty from the instrument file), shared by a band's points.
+//!
+//! It always starts again from the committed rows (Store::committed_points) and replaces the campaign's earlier
+//! completion whole, so completing twice (a resumed campaign that completes again) gives the same result. The
+//! work needs no store: [`completions`] is pure, so the runner does it without holding the store's lock
+//! (crate::runner: read with Store::committed_points, written with Store::update_completions).
 
 use gonio_instrument::Instrument;
+use gonio_results::aperture::{Correction, FLAG_NARROW_LOBE, corrections};
 use gonio_results::band_component::{FilterBand, band_components};
 use gonio_results::budget::{components, groups};
-use gonio_results::run::BAND_TOLERANCE_NM;
+use gonio_results::run::{BAND_TOLERANCE_NM, Run};
 
-use crate::store::{CampaignId, Store, StoreError};
+use crate::store::{CalibrationRecord, CampaignRecord, PointCompletion, PointRecord};
 
-/// Completes the budgets of campaign `id` measured on `instrument`; the number of points whose budget changed.
-pub fn complete(store: &mut Store, id: CampaignId, instrument: &Instrument) -> Result<usize, StoreError> {
-    let record = store.campaign(id)?;
-    let stored = store.points(id)?;
-    let table = crate::export::points_table(&record, &stored);
+/// The completion of a campaign's committed points (module doc): one entry per point it changes.
+pub fn completions(
+    record: &CampaignRecord,
+    committed: &[PointRecord],
+    calibrations: &[CalibrationRecord],
+    instrument: &Instrument,
+) -> Vec<PointCompletion> {
+    let table = crate::export::points_table(record, committed);
+    let mut points = table.points;
+    let mut done: Vec<PointCompletion> = committed
+        .iter()
+        .map(|p| PointCompletion {
+            index: p.index,
+            budget: p.budget.clone(),
+            brdf_sr: None,
+            brdf_aperture_sr: None,
+            flags: None,
+        })
+        .collect();
+
+    for ((point, completion), r) in points
+        .iter_mut()
+        .zip(&mut done)
+        .zip(super::drift::renormalise(calibrations, committed))
+    {
+        let (Some(r), Some(value)) = (r, point.brdf_sr) else {
+            continue;
+        };
+        if r.factor == 1.0 && r.curvature_rel == 0.0 {
+            continue;
+        }
+        let renormalised = value * r.factor;
+        completion.budget = completion.budget.scaled(r.factor);
+        completion.budget.add(
+            components::NORMALISATION,
+            (renormalised * r.curvature_rel).abs(),
+            None,
+        );
+        completion.brdf_sr = Some(renormalised);
+        point.brdf_sr = Some(renormalised);
+    }
+
+    let d = &instrument.detector;
+    let half_angle_rad = gonio_brdf::radiometry::aperture_half_angle_rad(d.aperture_radius_mm, d.distance_mm);
+    let run = Run {
+        origin: format!("campaign {} ({})", record.id, record.name),
+        name: record.name.clone(),
+        points: points.clone(),
+        axis_names: Vec::new(),
+        dry_run: false,
+        provenance: None,
+    };
+    if let Some(c) = corrections(&run, half_angle_rad) {
+        tracing::info!(
+            campaign = %record.id,
+            model = c.model.name(),
+            residual_rms = c.residual_rms,
+            "aperture correction from the fitted model"
+        );
+        for ((point, completion), correction) in points.iter_mut().zip(&mut done).zip(&c.points) {
+            let Some(value) = point.brdf_sr else { continue };
+            match correction {
+                Some(Correction::Applied { factor, u_rel }) => {
+                    let corrected = value * factor;
+                    completion.budget = completion.budget.scaled(*factor);
+                    completion
+                        .budget
+                        .set(components::APERTURE, (corrected * u_rel).abs(), None);
+                    completion.brdf_sr = Some(corrected);
+                    completion.brdf_aperture_sr = Some(value);
+                    point.brdf_sr = Some(corrected);
+                }
+                Some(Correction::NarrowLobe { u_rel }) => {
+                    completion
+                        .budget
+                        .set(components::APERTURE, (value * u_rel).abs(), None);
+                    completion.brdf_aperture_sr = Some(value);
+                    let mut flags = point.flags.clone();
+                    flags.push(FLAG_NARROW_LOBE.to_string());
+                    point.flags.clone_from(&flags);
+                    completion.flags = Some(flags);
+                }
+                None => {}
+            }
+        }
+    }
+
     let filter = |nm: f64| {
         instrument
             .filter_wheel
@@ -28,16 +120,16 @@ pub fn complete(store: &mut Store, id: CampaignId, instrument: &Instrument) -> R
                 centre_u_nm: p.centre_u_nm(),
             })
     };
-    let bands = band_components(&table.points, filter);
-    let mut updates = Vec::new();
-    for (p, u) in stored.iter().zip(bands) {
-        let Some(u) = u else { continue };
-        let mut budget = p.budget.clone();
-        budget.set(components::BAND, u, Some(groups::band(p.band_nm)));
-        if budget != p.budget {
-            updates.push((p.index, budget));
+    for ((completion, point), u) in done.iter_mut().zip(&points).zip(band_components(&points, filter)) {
+        if let Some(u) = u {
+            completion
+                .budget
+                .set(components::BAND, u, Some(groups::band(point.band_nm)));
         }
     }
-    store.update_budgets(id, &updates)?;
-    Ok(updates.len())
+    done.into_iter()
+        .zip(committed)
+        .filter(|(c, p)| c.budget != p.budget || c.brdf_sr.is_some() || c.flags.is_some())
+        .map(|(c, _)| c)
+        .collect()
 }

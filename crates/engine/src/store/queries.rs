@@ -4,11 +4,11 @@
 use gonio_results::budget::Budget;
 use rusqlite::{OptionalExtension, named_params, params};
 
-use super::schema::{INSERT_POINT, SELECT_POINTS_FROM};
+use super::schema::{INSERT_POINT, SELECT_COMMITTED_POINTS_FROM, SELECT_POINTS_FROM};
 
 use super::{
     CalibrationRecord, CampaignId, CampaignRecord, CampaignState, InstrumentCalibrationId, NewCampaign,
-    PointRecord, PointValue, Store, StoreError,
+    PointCompletion, PointRecord, PointValue, Store, StoreError,
 };
 
 impl Store {
@@ -302,11 +302,16 @@ impl Store {
         }
     }
 
-    /// Records completed budgets of committed points, each with its total as the point's `brdf_u_sr`, in one
-    /// transaction: the parts of a budget that need the other points (crate::budget::complete). They are kept
-    /// apart from the committed rows, which are never rewritten, and read in their place ([`Store::points`]); a
-    /// later completion replaces an earlier one. An index not stored is refused by nothing and read by nothing.
-    pub fn update_budgets(&mut self, id: CampaignId, updates: &[(u64, Budget)]) -> Result<(), StoreError> {
+    /// Records a campaign's completion (crate::budget::complete) in one transaction, replacing any earlier one
+    /// of the campaign whole: per point its completed budget (its total becomes the point's `brdf_u_sr`) and,
+    /// where the completion changed them, the value corrected to the nominal geometry with the aperture average
+    /// it came from, and the flags. They are kept apart from the committed rows, which are never rewritten, and
+    /// read in their place ([`Store::points`]). An index not stored is refused by nothing and read by nothing.
+    pub fn update_completions(
+        &mut self,
+        id: CampaignId,
+        updates: &[PointCompletion],
+    ) -> Result<(), StoreError> {
         self.durability_for_write(Some(id))?;
         let path = self.path.clone();
         let err = |source| StoreError::Write {
@@ -314,19 +319,24 @@ impl Store {
             source,
         };
         let tx = self.conn.transaction().map_err(err)?;
+        tx.execute("DELETE FROM point_budgets WHERE campaign_id = ?1", [id.0])
+            .map_err(err)?;
         {
             let mut st = tx
                 .prepare_cached(
-                    "INSERT OR REPLACE INTO point_budgets (budget, brdf_u_sr, campaign_id, idx) \
-                     VALUES (?1, ?2, ?3, ?4)",
+                    "INSERT INTO point_budgets (budget, brdf_u_sr, brdf_sr, brdf_aperture_sr, flags, \
+                     campaign_id, idx) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
                 )
                 .map_err(err)?;
-            for (idx, budget) in updates {
+            for u in updates {
                 st.execute(params![
-                    budget.to_compact(),
-                    budget.total_sr(),
+                    u.budget.to_compact(),
+                    u.budget.total_sr(),
+                    u.brdf_sr,
+                    u.brdf_aperture_sr,
+                    u.flags.as_ref().map(|f| f.join(";")),
                     id.0,
-                    to_i64(*idx)
+                    to_i64(u.index)
                 ])
                 .map_err(err)?;
             }
@@ -359,7 +369,17 @@ impl Store {
 
     /// Committed points with index >= `from`, in index order.
     pub fn points_from(&self, id: CampaignId, from: u64) -> Result<Vec<PointRecord>, StoreError> {
-        let mut stmt = self.conn.prepare(&SELECT_POINTS_FROM).map_err(self.read_err())?;
+        self.select_points(&SELECT_POINTS_FROM, id, from)
+    }
+
+    /// The points as they were committed, without what a completion changed (crate::budget::complete starts
+    /// from these again, so that completing twice gives the same result).
+    pub fn committed_points(&self, id: CampaignId) -> Result<Vec<PointRecord>, StoreError> {
+        self.select_points(&SELECT_COMMITTED_POINTS_FROM, id, 0)
+    }
+
+    fn select_points(&self, sql: &str, id: CampaignId, from: u64) -> Result<Vec<PointRecord>, StoreError> {
+        let mut stmt = self.conn.prepare_cached(sql).map_err(self.read_err())?;
         let rows = stmt
             .query_map(params![id.0, to_i64(from)], point_from_row)
             .map_err(self.read_err())?;

@@ -143,6 +143,21 @@ pub struct CampaignRecord {
     pub calibration_id: Option<InstrumentCalibrationId>,
 }
 
+/// What a campaign's completion (crate::budget::complete) records for one point: read in place of the
+/// committed row's columns.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointCompletion {
+    pub index: u64,
+    /// The completed budget; its total is the point's `brdf_u_sr`.
+    pub budget: Budget,
+    /// The value corrected to the nominal geometry (1/sr); `None`: the committed value stands.
+    pub brdf_sr: Option<f64>,
+    /// The aperture average `brdf_sr` was corrected from (1/sr).
+    pub brdf_aperture_sr: Option<f64>,
+    /// The point's flags, when the completion added one; `None`: the committed flags stand.
+    pub flags: Option<Vec<String>>,
+}
+
 /// One measured (or failed) point with everything needed to recompute it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PointRecord {

@@ -102,13 +102,28 @@ const POINT_BUDGETS: &str = "CREATE TABLE point_budgets (
                 PRIMARY KEY (campaign_id, idx)
             );";
 
+/// Version 9: the completion also keeps the value corrected to the nominal geometry (`brdf_sr`), the aperture
+/// average it was corrected from and the point's flags (a narrow lobe): NULL where the committed row's stand.
+const POINT_COMPLETIONS: &str = "ALTER TABLE point_budgets ADD COLUMN brdf_sr REAL;
+            ALTER TABLE point_budgets ADD COLUMN brdf_aperture_sr REAL;
+            ALTER TABLE point_budgets ADD COLUMN flags TEXT;";
+
+/// The columns a completion may replace (crate::budget::complete).
+const COMPLETED_COLUMNS: [&str; 5] = ["budget", "brdf_u_sr", "brdf_sr", "brdf_aperture_sr", "flags"];
+
 /// Every column of a campaign's points from an index on (`?1` the campaign, `?2` the first index), in index
-/// order, the completed budget (and its total) in place of the committed one where there is one; read by name.
-pub(super) static SELECT_POINTS_FROM: LazyLock<String> = LazyLock::new(|| {
+/// order, the completion's columns (the budget and its total, the corrected value, ...) in place of the
+/// committed ones where there is one; read by name.
+pub(super) static SELECT_POINTS_FROM: LazyLock<String> = LazyLock::new(|| select_points(true));
+
+/// The same as committed, without the completions: what a completion starts from again.
+pub(super) static SELECT_COMMITTED_POINTS_FROM: LazyLock<String> = LazyLock::new(|| select_points(false));
+
+fn select_points(completed: bool) -> String {
     let names: Vec<String> = POINT_COLUMNS
         .iter()
         .map(|(n, _)| match *n {
-            "budget" | "brdf_u_sr" => format!("COALESCE(b.{n}, p.{n}) AS {n}"),
+            n if completed && COMPLETED_COLUMNS.contains(&n) => format!("COALESCE(b.{n}, p.{n}) AS {n}"),
             n => format!("p.{n} AS {n}"),
         })
         .collect();
@@ -117,7 +132,7 @@ pub(super) static SELECT_POINTS_FROM: LazyLock<String> = LazyLock::new(|| {
          WHERE p.campaign_id = ?1 AND p.idx >= ?2 ORDER BY p.idx",
         names.join(", ")
     )
-});
+}
 
 impl Store {
     /// Open (creating if needed) the store in a data directory.
@@ -299,6 +314,10 @@ impl Store {
         if version == 7 {
             // Version 8 keeps the budgets completed after a campaign apart from its committed rows.
             self.step(POINT_BUDGETS, 8)?;
+            version = 8;
+        }
+        if version == 8 {
+            self.step(POINT_COMPLETIONS, 9)?;
             return Ok(());
         }
         if version != 0 {
@@ -345,6 +364,7 @@ impl Store {
             );
             CREATE TABLE points ({points});
             {POINT_BUDGETS}
+            {POINT_COMPLETIONS}
             {INSTRUMENT_CALIBRATIONS}
             PRAGMA user_version = {SCHEMA_VERSION};
             COMMIT;"

@@ -265,8 +265,15 @@ fn completed_budgets_are_read_in_place_of_the_committed_ones_whose_rows_never_ch
     let budget = gonio_results::budget::Budget::parse_compact("signal-noise=0.0003;band@band-550=0.0004")
         .expect("budget");
     // Index 7 is not stored: nothing happens to it, and nothing fails.
+    let completion = |index: u64| crate::store::PointCompletion {
+        index,
+        budget: budget.clone(),
+        brdf_sr: None,
+        brdf_aperture_sr: None,
+        flags: None,
+    };
     store
-        .update_budgets(id, &[(1, budget.clone()), (7, budget.clone())])
+        .update_completions(id, &[completion(1), completion(7)])
         .expect("update");
     let points = store.points(id).expect("points");
     assert_eq!(points.len(), 2);
@@ -286,6 +293,80 @@ fn completed_budgets_are_read_in_place_of_the_committed_ones_whose_rows_never_ch
         })
         .expect("the row");
     assert_eq!((budget, u), (None, point(1).brdf_u_sr));
+}
+
+#[test]
+fn a_completion_corrects_values_and_flags_in_place_and_a_later_one_replaces_it_whole() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let id = store_with_one_point(dir.path());
+    let mut store = Store::open(dir.path()).expect("open");
+    store.commit_point(id, &point(1)).expect("commit");
+    let budget =
+        gonio_results::budget::Budget::parse_compact("signal-noise=0.0003;aperture=0.0001").expect("budget");
+    let corrected = crate::store::PointCompletion {
+        index: 0,
+        budget: budget.clone(),
+        brdf_sr: Some(0.034),
+        brdf_aperture_sr: point(0).brdf_sr,
+        flags: None,
+    };
+    let narrow = crate::store::PointCompletion {
+        index: 1,
+        budget: budget.clone(),
+        brdf_sr: None,
+        brdf_aperture_sr: point(1).brdf_sr,
+        flags: Some(vec![
+            "saturated".into(),
+            "overfilled".into(),
+            "narrow-lobe".into(),
+        ]),
+    };
+    store
+        .update_completions(id, &[corrected, narrow.clone()])
+        .expect("complete");
+    let points = store.points(id).expect("points");
+    assert_eq!(points[0].brdf_sr, Some(0.034));
+    assert_eq!(points[0].brdf_aperture_sr, point(0).brdf_sr);
+    assert_eq!(points[0].flags, point(0).flags, "flags not completed stand");
+    assert_eq!(
+        points[1].brdf_sr,
+        point(1).brdf_sr,
+        "a value not completed stands"
+    );
+    assert_eq!(points[1].flags.last().map(String::as_str), Some("narrow-lobe"));
+    assert_eq!(
+        store.committed_points(id).expect("committed"),
+        vec![point(0), point(1)]
+    );
+    // A second completion replaces the first whole: point 0's correction is gone with it.
+    store.update_completions(id, &[narrow]).expect("again");
+    let points = store.points(id).expect("points");
+    assert_eq!(points[0], point(0));
+    assert_eq!(points[1].flags.len(), 3);
+}
+
+#[test]
+fn a_version_8_store_gains_the_completion_columns() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let id = store_with_one_point(dir.path());
+    let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
+    conn.execute_batch(
+        "ALTER TABLE point_budgets DROP COLUMN brdf_sr; ALTER TABLE point_budgets DROP COLUMN brdf_aperture_sr; \
+         ALTER TABLE point_budgets DROP COLUMN flags; PRAGMA user_version = 8;",
+    )
+    .expect("downgrade");
+    drop(conn);
+    let mut store = Store::open(dir.path()).expect("migrates");
+    assert_eq!(store.points(id).expect("points"), vec![point(0)]);
+    let completion = crate::store::PointCompletion {
+        index: 0,
+        budget: Default::default(),
+        brdf_sr: Some(0.5),
+        brdf_aperture_sr: Some(0.49),
+        flags: None,
+    };
+    store.update_completions(id, &[completion]).expect("complete");
+    assert_eq!(store.points(id).expect("points")[0].brdf_sr, Some(0.5));
 }
 
 #[test]

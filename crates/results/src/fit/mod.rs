@@ -33,7 +33,9 @@
 //! lobe by the aperture's angle (a Phong exponent of 60 comes out 0.15% low with a 0.57 degree aperture, far
 //! beyond its statistical uncertainty). When the caller gives the aperture's half-angle, the starts use point
 //! values (cheap) and the refinement averages the model over the aperture with a 7-point disk rule (exact to
-//! degree 5 in the offsets: the lobe's curvature across the aperture is captured).
+//! degree 5 in the offsets: the lobe's curvature across the aperture is captured). A value that a completed
+//! campaign already corrected to the nominal geometry (it has a `brdf_aperture_sr`, crate::aperture) is a point
+//! value and is met by the model's point value.
 
 pub mod lm;
 
@@ -231,7 +233,7 @@ pub fn fit(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
 }
 
 /// The fit weighted by the points' independent uncertainties, without the shared part.
-fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
+pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
     let fail = |message: String| ResultsError::Fit {
         model: opts.model.name().into(),
         origin: run.origin.clone(),
@@ -272,9 +274,11 @@ fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError>
                 u,
                 cos_weight: wi.cos_theta() * wo.cos_theta(),
                 cos_i: wi.cos_theta(),
+                // A value a completed campaign corrected to the nominal geometry (crate::aperture) is a point
+                // value: the model meets it as one.
                 aperture: opts
                     .aperture_half_angle_rad
-                    .filter(|a| *a > 0.0 && a.is_finite())
+                    .filter(|a| *a > 0.0 && a.is_finite() && p.brdf_aperture_sr.is_none())
                     .map(|a| aperture_samples(&wo, a))
                     .unwrap_or_default(),
             })

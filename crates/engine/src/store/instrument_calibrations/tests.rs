@@ -170,7 +170,7 @@ fn a_version_5_store_gains_the_calibrations_and_keeps_its_campaigns() {
         .conn
         .query_row("PRAGMA user_version", [], |r| r.get(0))
         .expect("version");
-    assert_eq!(version, 8);
+    assert_eq!(version, crate::store::SCHEMA_VERSION);
     let old = store.campaign(id).expect("campaign");
     assert_eq!(
         (

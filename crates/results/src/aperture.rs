@@ -1,0 +1,238 @@
+//! From the aperture average to the BRDF at the nominal geometry (issue 29).
+//!
+//! A reading is the BRDF averaged over the detector's aperture, cos-weighted:
+//! `<f> = ∫_cone f cos(theta) d omega / (Omega cos(theta_o))` (gonio_brdf::measurement). Near a lobe's peak that
+//! average lies below the point value (gold's specular lobe: about -0.4 % with a 0.57 degree aperture), on a
+//! lobe's flank above it; a diffuse sample's is within 1e-5 of it. Each point's correction factor is
+//! `c = f_m(nominal) / <f_m>` of a model `f_m` fitted to the campaign's own data: the local curvature that the
+//! aperture averages over is the model's, so the correction is only as good as the model's shape there.
+//!
+//! The model: Oren-Nayar, the microfacet conductor and plastic (GGX, height-correlated masking) and Phong are
+//! fitted to a subset of the valid points ([`MAX_FIT_POINTS`]: the brightest half, where lobes are, and an even
+//! spread of the rest), by plain least squares on point values (cheap; fitting to point values widens a lobe by about
+//! the aperture, which moves a correction of 1 % by about 0.01 %). The model with the smallest cos-weighted
+//! relative rms residual corrects; every model whose residual is within [`ACCEPTABLE_RMS_RATIO`] of it
+//! is an acceptable description too, and the spread of their corrections is the correction's uncertainty, with
+//! a floor of [`CORRECTION_U_FRACTION`] of the correction itself (what no fitted shape is trusted beyond).
+//!
+//! No honest correction (the point is flagged [`FLAG_NARROW_LOBE`] and keeps its aperture average): the model's
+//! lobe is narrower than the aperture (its roughness below the aperture's half-angle: a mirror, or a fit that
+//! ran to its bound) and within reach of it, or the correction exceeds [`NARROW_LIMIT`] (the average no longer
+//! says what the peak is).
+//! Its uncertainty, `u = value x max(1, 2 |c - 1|)` (the point-value fit widens a lobe narrower than the
+//! aperture, so the model's `c` understates the bias), covers a point value anywhere from 0 (a mirror's, delta
+//! lobe excluded) to three times the average; a finite lobe's peak can lie higher, and no average tells how
+//! much: the flag says so.
+
+use gonio_brdf::integrate::{Region, Rule, Tolerance, integrate_adaptive};
+use gonio_brdf::radiometry::cone_solid_angle_sr;
+use gonio_brdf::{Brdf, Direction, Material, Wavelength};
+
+use crate::fit::{FitModel, FitOptions, FitReport, Loss, fit_unshared};
+use crate::iso::directions;
+use crate::points::Point;
+use crate::run::Run;
+
+/// The flag of a point whose lobe is narrower than the aperture: its value is the aperture average.
+pub const FLAG_NARROW_LOBE: &str = "narrow-lobe";
+/// Points the models are fitted to, at most.
+pub const MAX_FIT_POINTS: usize = 300;
+/// A model whose residual is within this factor of the best one's is an acceptable description.
+pub const ACCEPTABLE_RMS_RATIO: f64 = 1.5;
+/// The floor of a correction's relative standard uncertainty, as a fraction of `|c - 1|`.
+pub const CORRECTION_U_FRACTION: f64 = 0.25;
+/// A larger `|c - 1|` is not corrected: the point is flagged.
+pub const NARROW_LIMIT: f64 = 0.1;
+/// The models fitted (module doc).
+pub const MODELS: [FitModel; 4] = [
+    FitModel::OrenNayar,
+    FitModel::Conductor,
+    FitModel::Plastic,
+    FitModel::Phong,
+];
+
+/// One point's correction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Correction {
+    /// `brdf_sr = factor x aperture average`; `u_rel` is the correction's relative standard uncertainty.
+    Applied { factor: f64, u_rel: f64 },
+    /// No honest correction: flagged, the value kept, `u_rel` (relative to the value) covering the bias.
+    NarrowLobe { u_rel: f64 },
+}
+
+/// The corrections of a run's points.
+#[derive(Debug, Clone)]
+pub struct Corrections {
+    /// The model that corrected, with its cos-weighted relative rms residual.
+    pub model: FitModel,
+    pub residual_rms: f64,
+    /// One per point of the run, in its order: `None` for points not corrected (flagged, no value).
+    pub points: Vec<Option<Correction>>,
+}
+
+/// A fitted model ready to evaluate.
+struct Fitted {
+    model: FitModel,
+    material: Material,
+    rms: f64,
+    /// The microfacet roughness (GGX alpha) where the model has one.
+    alpha: Option<f64>,
+}
+
+/// The corrections of `run`'s points for an aperture of `half_angle_rad` (module doc); `None` when no model
+/// could be fitted (too few points, nothing valid) or the aperture is not positive.
+pub fn corrections(run: &Run, half_angle_rad: f64) -> Option<Corrections> {
+    if !(half_angle_rad > 0.0 && half_angle_rad.is_finite()) {
+        return None;
+    }
+    let subset = Run {
+        origin: run.origin.clone(),
+        name: run.name.clone(),
+        points: fit_subset(&run.points),
+        axis_names: run.axis_names.clone(),
+        dry_run: run.dry_run,
+        provenance: None,
+    };
+    let mut fitted: Vec<Fitted> = MODELS
+        .iter()
+        .filter_map(|&model| {
+            let mut opts = FitOptions::new(model);
+            opts.loss = Loss::None;
+            let report = fit_unshared(&subset, &opts).ok()?;
+            fitted_of(report)
+        })
+        .collect();
+    fitted.sort_by(|a, b| a.rms.total_cmp(&b.rms));
+    let best = fitted.first()?;
+    let acceptable: Vec<&Fitted> = fitted
+        .iter()
+        .filter(|f| f.rms <= best.rms * ACCEPTABLE_RMS_RATIO)
+        .collect();
+    let points = run
+        .points
+        .iter()
+        .map(|p| correction(p, half_angle_rad, &acceptable))
+        .collect();
+    Some(Corrections {
+        model: best.model,
+        residual_rms: best.rms,
+        points,
+    })
+}
+
+fn fitted_of(report: FitReport) -> Option<Fitted> {
+    let rms = report.residuals.cos_weighted_relative_rms;
+    if !rms.is_finite() {
+        return None;
+    }
+    let param = |key: &str| report.params.iter().find(|p| p.key == key).map(|p| p.value);
+    // Phong's exponent as the microfacet roughness of the same lobe width (Walter et al. 2007:
+    // alpha_Beckmann = sqrt(2 / (n + 2))).
+    let alpha = param("alpha").or_else(|| param("exponent").map(|n| (2.0 / (n + 2.0)).sqrt()));
+    Some(Fitted {
+        model: report.model,
+        material: report.material,
+        rms,
+        alpha,
+    })
+}
+
+/// The valid points the models are fitted to: all when few, else the brightest half (cos-weighted, where
+/// lobes are) and an even spread of the rest.
+fn fit_subset(points: &[Point]) -> Vec<Point> {
+    let valid: Vec<&Point> = points.iter().filter(|p| p.value().is_some()).collect();
+    if valid.len() <= MAX_FIT_POINTS {
+        return valid.into_iter().cloned().collect();
+    }
+    let weighted = |p: &Point| {
+        let (wi, wo) = directions(p);
+        p.value().unwrap_or(0.0) * wi.cos_theta() * wo.cos_theta()
+    };
+    let mut order: Vec<usize> = (0..valid.len()).collect();
+    order.sort_by(|&a, &b| weighted(valid[b]).total_cmp(&weighted(valid[a])));
+    let bright = MAX_FIT_POINTS / 2;
+    let mut chosen: Vec<usize> = order[..bright].to_vec();
+    let rest = &order[bright..];
+    let step = rest.len() as f64 / (MAX_FIT_POINTS - bright) as f64;
+    chosen
+        .extend((0..MAX_FIT_POINTS - bright).map(|k| rest[((k as f64 * step) as usize).min(rest.len() - 1)]));
+    chosen.sort_unstable();
+    chosen.dedup();
+    chosen.into_iter().map(|k| valid[k].clone()).collect()
+}
+
+/// `f_m(nominal) / <f_m>` of one model at one point; `None` where the model cannot be evaluated.
+fn factor(
+    model: &Material,
+    wi: &Direction,
+    wo: &Direction,
+    wavelength: Wavelength,
+    half_angle_rad: f64,
+) -> Option<f64> {
+    let point = model.eval(wi, wo, wavelength).ok()?;
+    let cos_o = wo.cos_theta();
+    let omega = cone_solid_angle_sr(half_angle_rad);
+    let integral = integrate_adaptive(
+        |w: &Direction| model.eval(wi, w, wavelength).map(|f| f * w.cos_theta().max(0.0)),
+        &Region::cone(*wo, half_angle_rad),
+        Rule::GaussTrapezoid {
+            n_radial: 4,
+            n_azimuth: 8,
+        },
+        Tolerance {
+            rel: 1e-6,
+            abs: 1e-300,
+            max_evaluations: 20_000,
+        },
+    )
+    .ok()?;
+    let average = integral.value / (omega * cos_o);
+    let c = point / average;
+    (c.is_finite() && c > 0.0 && point > 0.0).then_some(c)
+}
+
+/// Whether a lobe of roughness `alpha` about the mirror direction of `wi` can reach the aperture about `wo`:
+/// within two aperture half-angles (the aperture, and as much again for the sample's misalignment and the
+/// beam's divergence) and three lobe widths (2 alpha each: the half vector turns at half the rate) of it.
+fn lobe_within_reach(wi: &Direction, wo: &Direction, alpha: f64, half_angle_rad: f64) -> bool {
+    let mirror = [-wi.x(), -wi.y(), wi.z()];
+    let cos = mirror[0] * wo.x() + mirror[1] * wo.y() + mirror[2] * wo.z();
+    cos.clamp(-1.0, 1.0).acos() <= 2.0 * half_angle_rad + 6.0 * alpha
+}
+
+fn correction(p: &Point, half_angle_rad: f64, models: &[&Fitted]) -> Option<Correction> {
+    p.value()?;
+    let best = models.first()?;
+    let wavelength = Wavelength::from_nm(p.band_nm).ok()?;
+    let (wi, wo) = directions(p);
+    let c = factor(&best.material, &wi, &wo, wavelength, half_angle_rad);
+    let lobe_too_narrow = best
+        .alpha
+        .is_some_and(|a| a < half_angle_rad && lobe_within_reach(&wi, &wo, a, half_angle_rad));
+    let c = match c {
+        Some(c) if !lobe_too_narrow && (c - 1.0).abs() <= NARROW_LIMIT => c,
+        // At least the whole value, and twice the bias the model sees: fitted to point values, a lobe narrower
+        // than the aperture comes out wider than it is, so its `c` understates the bias.
+        Some(c) => {
+            return Some(Correction::NarrowLobe {
+                u_rel: (2.0 * (c - 1.0).abs()).max(1.0),
+            });
+        }
+        None if lobe_too_narrow => return Some(Correction::NarrowLobe { u_rel: 1.0 }),
+        // The model has nothing here (zero or not finite): nothing to correct with.
+        None => return None,
+    };
+    let spread = models[1..]
+        .iter()
+        .filter_map(|m| factor(&m.material, &wi, &wo, wavelength, half_angle_rad))
+        .map(|other| (other - c).abs() / c)
+        .fold(0.0f64, f64::max);
+    let floor = CORRECTION_U_FRACTION * (c - 1.0).abs();
+    Some(Correction::Applied {
+        factor: c,
+        u_rel: spread.max(floor),
+    })
+}
+
+#[cfg(test)]
+mod tests;
