@@ -27,6 +27,7 @@
 
 mod actual;
 pub mod imperfections;
+pub mod leakage;
 pub mod meter_noise;
 pub mod responsivity;
 mod validate;
@@ -240,6 +241,21 @@ pub struct Source {
     /// The wavelength when there is no filter wheel (nm).
     #[serde(default)]
     pub wavelength_nm: Option<f64>,
+    /// The source's spectrum as a black body's colour temperature (K): what weights the light a filter leaks
+    /// outside its band (crate::leakage); absent: [`DEFAULT_COLOUR_TEMPERATURE_K`].
+    #[serde(default)]
+    pub colour_temperature_k: Option<f64>,
+}
+
+/// A source's colour temperature when the instrument file does not state it (K): a quartz-tungsten-halogen lamp
+/// at its usual operating point (they run at 2800-3400 K).
+pub const DEFAULT_COLOUR_TEMPERATURE_K: f64 = 3000.0;
+
+impl Source {
+    /// The source's colour temperature (K): the file's, else [`DEFAULT_COLOUR_TEMPERATURE_K`].
+    pub fn colour_temperature_k(&self) -> f64 {
+        self.colour_temperature_k.unwrap_or(DEFAULT_COLOUR_TEMPERATURE_K)
+    }
 }
 
 /// The photodiode detector behind a circular aperture.
@@ -349,6 +365,11 @@ pub struct FilterPosition {
     /// Transmission of the filter in its band (0..1).
     #[serde(default = "unit")]
     pub transmission: f64,
+    /// Absolute transmission outside the band, where the detector is sensitive: the datasheet's blocking
+    /// (optical density 5 is 1e-5); absent: [`DEFAULT_OUT_OF_BAND_TRANSMISSION`]. What each point's leakage
+    /// uncertainty is made of (crate::leakage).
+    #[serde(default)]
+    pub out_of_band_transmission: Option<f64>,
     /// True for the opaque blank.
     #[serde(default)]
     pub blank: bool,
@@ -362,10 +383,20 @@ fn unit() -> f64 {
 /// +-2 nm tolerance catalogue bandpass filters of 10 nm are sold with, read as two standard deviations.
 pub const DEFAULT_FILTER_CENTRE_U_NM: f64 = 1.0;
 
+/// A filter's blocking when the instrument file does not state it: hard-coated catalogue bandpass filters are
+/// sold with an optical density above 5 outside their band (Thorlabs, "Hard-Coated UV/VIS Bandpass Filters").
+pub const DEFAULT_OUT_OF_BAND_TRANSMISSION: f64 = 1.0e-5;
+
 impl FilterPosition {
     /// The centre wavelength's standard uncertainty (nm): the file's, else [`DEFAULT_FILTER_CENTRE_U_NM`].
     pub fn centre_u_nm(&self) -> f64 {
         self.centre_u_nm.unwrap_or(DEFAULT_FILTER_CENTRE_U_NM)
+    }
+
+    /// The absolute transmission outside the band: the file's, else [`DEFAULT_OUT_OF_BAND_TRANSMISSION`].
+    pub fn out_of_band_transmission(&self) -> f64 {
+        self.out_of_band_transmission
+            .unwrap_or(DEFAULT_OUT_OF_BAND_TRANSMISSION)
     }
 }
 

@@ -110,3 +110,45 @@ fn a_bad_imperfection_is_refused_with_the_file_and_the_key() {
         "{msg}"
     );
 }
+
+#[test]
+fn the_leakage_figures_are_checked_and_default_to_a_catalogue_filter_and_a_halogen_lamp() {
+    let file = InstrumentFile::parse(SIMULATED_INSTRUMENT_TOML, "simulated.toml").expect("valid");
+    let wheel = file.instrument.filter_wheel.as_ref().expect("wheel");
+    assert!(
+        wheel
+            .positions
+            .iter()
+            .filter(|p| !p.blank)
+            .all(|p| p.out_of_band_transmission == Some(0.0))
+    );
+    let mut bare = wheel.positions[0].clone();
+    bare.out_of_band_transmission = None;
+    assert_eq!(bare.out_of_band_transmission(), DEFAULT_OUT_OF_BAND_TRANSMISSION);
+    assert_eq!(
+        file.instrument.source.colour_temperature_k(),
+        DEFAULT_COLOUR_TEMPERATURE_K
+    );
+
+    let text = SIMULATED_INSTRUMENT_TOML.replacen(
+        "out_of_band_transmission = 0.0",
+        "out_of_band_transmission = 2.0",
+        1,
+    );
+    let msg = InstrumentFile::parse(&text, "x.toml")
+        .expect_err("above 1")
+        .to_string();
+    assert!(
+        msg.contains("out_of_band_transmission") && msg.contains("position 1"),
+        "{msg}"
+    );
+    let text = SIMULATED_INSTRUMENT_TOML.replacen(
+        "[instrument.source]",
+        "[instrument.source]\ncolour_temperature_k = 30.0",
+        1,
+    );
+    let msg = InstrumentFile::parse(&text, "x.toml")
+        .expect_err("too cold")
+        .to_string();
+    assert!(msg.contains("colour_temperature_k"), "{msg}");
+}

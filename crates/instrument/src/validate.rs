@@ -223,6 +223,13 @@ impl Instrument {
                 "[instrument.source]: wavelength_nm must be > 0, got {nm}"
             ));
         }
+        if let Some(t) = s.colour_temperature_k
+            && !(t.is_finite() && (500.0..=20_000.0).contains(&t))
+        {
+            return Err(format!(
+                "[instrument.source]: colour_temperature_k must be between 500 and 20000 (K), got {t}"
+            ));
+        }
         let d = &self.detector;
         for (key, value) in [
             ("range_gain_u", d.range_gain_u),
@@ -292,6 +299,15 @@ impl Instrument {
                 {
                     return Err(format!(
                         "[instrument.filter_wheel]: position {}: centre_u_nm must be >= 0 (nm), got {u}",
+                        p.position
+                    ));
+                }
+                if let Some(t) = p.out_of_band_transmission
+                    && !(t.is_finite() && (0.0..1.0).contains(&t))
+                {
+                    return Err(format!(
+                        "[instrument.filter_wheel]: position {}: out_of_band_transmission must be in [0, 1) \
+                         (absolute: optical density 5 is 1e-5), got {t}",
                         p.position
                     ));
                 }

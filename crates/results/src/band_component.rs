@@ -8,16 +8,19 @@
 //! has no spectral information: its points get no band component. The error is the filter's, the same for
 //! every point of the band: it is shared by the band's points (group `band-<nm>`).
 //!
+//! Out-of-band leakage joins it: the filter passes a fraction `L` of light from outside its band
+//! (gonio_instrument::leakage, from the file's blocking, the source's colour temperature and the detector's
+//! responsivity), which the direct beam divides out for a grey sample but not for one whose reflectance outside
+//! the band differs by `rho_far / rho - 1`. The measured bands at the same geometry bound that ratio: the
+//! largest `|f_j / f - 1|` over them (the spectrum beyond the reddest band taken as no further from this band's
+//! value than the bands measured: the leak is mostly red and near infrared). The component is
+//! `hypot(|f'| u_lambda, f L max |f_j / f - 1|)`.
+//!
 //! Not included, and why (measured with `gonio-bench --accuracy` and a three-band dry-run of construction
-//! paper, whose reflectance rises sevenfold between 550 and 650 nm):
-//! - the passband's width (averaging a curved spectrum, about `f'' sigma^2 / 2`): the curvature from bands
-//!   100 nm apart put it at 0.6 % of the value at 550 nm, where the ideal instrument, on which it is the only
-//!   band effect, measures within 0.01 %: that estimate would only pad the budget;
-//! - out-of-band leakage: a filter's residual transmission far from its band, weighted by the source's
-//!   spectrum and the detector's responsivity there, against a sample far brighter in the red than in the
-//!   blue. It is what leaves realistic.toml's 450 nm values of construction paper outside their intervals; the
-//!   instrument file does not describe the filters' blocking or the source's spectrum, so it cannot be
-//!   estimated yet.
+//! paper, whose reflectance rises sevenfold between 550 and 650 nm): the passband's width (averaging a curved
+//! spectrum, about `f'' sigma^2 / 2`): the curvature from bands 100 nm apart put it at 0.6 % of the value at
+//! 550 nm, where the ideal instrument, on which it is the only band effect, measures within 0.01 %: that
+//! estimate would only pad the budget.
 //!
 //! Neighbouring bands 100 nm apart see a sharp spectral edge as a gentler slope than it has at the edge itself:
 //! the estimate is only as good as the band spacing allows.
@@ -31,6 +34,8 @@ pub struct FilterBand {
     pub band_nm: f64,
     /// Standard uncertainty of the filter's centre wavelength (nm).
     pub centre_u_nm: f64,
+    /// The light the filter leaks outside its band, relative to the band's own (gonio_instrument::leakage).
+    pub leakage: f64,
 }
 
 /// Geometries closer than this (degrees) are the same geometry seen in another band.
@@ -93,7 +98,15 @@ pub fn band_components(points: &[Point], filter: impl Fn(f64) -> Option<FilterBa
             let Some(filter) = filter(*nm) else {
                 continue;
             };
-            let u = slope(&spectrum, k).abs() * filter.centre_u_nm;
+            let centre = slope(&spectrum, k).abs() * filter.centre_u_nm;
+            // The leak, as far as the measured bands tell the spectrum outside this one: the largest relative
+            // difference from this band's value.
+            let value = spectrum[k].1;
+            let far = spectrum
+                .iter()
+                .map(|(_, f)| (f / value - 1.0).abs())
+                .fold(0.0f64, f64::max);
+            let u = centre.hypot(value.abs() * filter.leakage * far);
             if u.is_finite() {
                 for &i in members {
                     out[i] = Some(u);
@@ -130,6 +143,7 @@ mod tests {
         (nm != 700.0).then_some(FilterBand {
             band_nm: nm,
             centre_u_nm: 1.0,
+            leakage: 0.0,
         })
     }
 
@@ -150,6 +164,27 @@ mod tests {
             assert!((v.expect("estimated") - 0.001).abs() < 1e-12, "{u:?}");
         }
         assert_eq!(u[6], None, "one band tells nothing of the spectrum");
+    }
+
+    #[test]
+    fn leakage_adds_the_largest_relative_difference_to_the_other_bands() {
+        // A red sample: 0.05 at 450, 0.1 at 550, 0.5 at 650 nm; 2 % leaks at 450, nothing elsewhere.
+        let points: Vec<Point> = [(450.0, 0.05), (550.0, 0.1), (650.0, 0.5)]
+            .into_iter()
+            .enumerate()
+            .map(|(k, (nm, f))| point(k as u64, nm, 20.0, f))
+            .collect();
+        let leaky = |nm: f64| {
+            Some(FilterBand {
+                band_nm: nm,
+                centre_u_nm: 0.0,
+                leakage: if nm == 450.0 { 0.02 } else { 0.0 },
+            })
+        };
+        let u = band_components(&points, leaky);
+        // 0.05 x 0.02 x (0.5 / 0.05 - 1) = 0.009: the blue value could be 18 % high.
+        assert!((u[0].expect("450") - 0.009).abs() < 1e-12, "{u:?}");
+        assert_eq!((u[1], u[2]), (Some(0.0), Some(0.0)));
     }
 
     #[test]

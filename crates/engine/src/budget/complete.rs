@@ -6,7 +6,8 @@
 //!   the `aperture` component, the average kept beside it (`brdf_aperture_sr`); a lobe narrower than the
 //!   aperture is flagged `narrow-lobe` instead and its uncertainty covers the bias;
 //! - the finite band (gonio_results::band_component: the sample's spectral slope from the bands measured at the
-//!   same geometry, times each filter's centre uncertainty from the instrument file), shared by a band's points.
+//!   same geometry, times each filter's centre uncertainty from the instrument file, and the light each filter
+//!   leaks outside its band against how different the other bands are), shared by a band's points.
 //!
 //! It always starts again from the committed rows (Store::committed_points) and replaces the campaign's earlier
 //! completion whole, so completing twice (a resumed campaign that completes again) gives the same result. The
@@ -54,11 +55,12 @@ pub fn completions(
         }
         let renormalised = value * r.factor;
         completion.budget = completion.budget.scaled(r.factor);
-        completion.budget.add(
-            components::NORMALISATION,
-            (renormalised * r.curvature_rel).abs(),
-            None,
-        );
+        let curvature_u = (renormalised * r.curvature_rel).abs();
+        if curvature_u > 0.0 {
+            completion
+                .budget
+                .add(components::NORMALISATION, curvature_u, None);
+        }
         completion.brdf_sr = Some(renormalised);
         point.brdf_sr = Some(renormalised);
     }
@@ -118,6 +120,7 @@ pub fn completions(
             .map(|p| FilterBand {
                 band_nm: nm,
                 centre_u_nm: p.centre_u_nm(),
+                leakage: gonio_instrument::leakage::out_of_band_fraction(instrument, p).unwrap_or(0.0),
             })
     };
     for ((completion, point), u) in done.iter_mut().zip(&points).zip(band_components(&points, filter)) {

@@ -1,0 +1,98 @@
+//! What a filter leaks outside its band: the part of a band's reading that comes from elsewhere in the
+//! spectrum, from the instrument file's own figures.
+//!
+//! A bandpass filter blocks the rest of the spectrum to its `out_of_band_transmission` (absolute; a datasheet's
+//! optical density 5 is 1e-5), not to zero, and the detector (silicon: `sensor_wavelength_nm`, 400-1100 nm) sees
+//! all of it. With the source a black body at `colour_temperature_k` (`S`) and the photodiode's responsivity `R`
+//! (the file's table, constant beyond its ends), the leaked photocurrent relative to the band's own is
+//!
+//! `L = (t_oob / T) ∫ S R d lambda / (S(c) R(c) B)`
+//!
+//! over the detector's range, `T` the filter's peak transmission, `c` its centre and `B` its width (FWHM): the
+//! band as a top hat. A halogen lamp and a silicon photodiode are both red-heavy, so blue bands leak most
+//! (about 2 % at 450 nm through OD 5 from a 3000 K lamp). A grey sample leaks as the direct beam does and the
+//! ratio cancels it; a sample whose reflectance differs outside the band by `rho_far / rho - 1` is off by `L`
+//! times that (gonio_results::band_component).
+
+use crate::responsivity::Responsivity;
+use crate::{FilterPosition, Instrument};
+
+/// Second radiation constant `h c / k_B` (nm K), CODATA 2018: 1.438 776 877e-2 m K.
+const C2_NM_K: f64 = 1.438_776_877e7;
+/// Integration step over the detector's range (nm).
+const STEP_NM: f64 = 1.0;
+
+/// Planck's spectral radiance at `nm` and `temperature_k`, up to a constant.
+fn planck(nm: f64, temperature_k: f64) -> f64 {
+    1.0 / (nm.powi(5) * (C2_NM_K / (nm * temperature_k)).exp_m1())
+}
+
+/// The leaked fraction `L` of `position`'s band on `instrument` (module doc); `None` for a position without a
+/// band and a width, a blank, or figures that give no finite answer.
+pub fn out_of_band_fraction(instrument: &Instrument, position: &FilterPosition) -> Option<f64> {
+    let (c, b) = (position.band_nm?, position.bandwidth_nm?);
+    if position.blank || !(position.transmission > 0.0 && b > 0.0) {
+        return None;
+    }
+    let responsivity = Responsivity::from_detector(&instrument.detector).ok()?;
+    let t = instrument.source.colour_temperature_k();
+    let light = |nm: f64| planck(nm, t) * responsivity.at(nm);
+    let [lo, hi] = instrument.detector.sensor_wavelength_nm;
+    let steps = ((hi - lo) / STEP_NM).ceil().max(2.0) as usize;
+    let h = (hi - lo) / steps as f64;
+    // Trapezoids: the integrand is smooth and the step a tenth of any feature in it.
+    let total: f64 = (0..=steps)
+        .map(|i| {
+            let w = if i == 0 || i == steps { 0.5 } else { 1.0 };
+            w * light(lo + i as f64 * h)
+        })
+        .sum::<f64>()
+        * h;
+    let band = light(c) * b;
+    let l = position.out_of_band_transmission() / position.transmission * total / band;
+    (l.is_finite() && l >= 0.0).then_some(l)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::InstrumentFile;
+
+    /// The simulated instrument: a 3000 K lamp by default and the file's silicon responsivity.
+    fn wheel() -> (Instrument, Vec<FilterPosition>) {
+        let inst = InstrumentFile::simulated().instrument;
+        let positions = inst.filter_wheel.as_ref().expect("wheel").positions.clone();
+        (inst, positions)
+    }
+
+    #[test]
+    fn blue_bands_leak_most_and_the_blocking_scales_it() {
+        let (mut inst, mut positions) = wheel();
+        inst.source.colour_temperature_k = None;
+        let at = |positions: &[FilterPosition], nm: f64| {
+            let p = positions.iter().find(|p| p.band_nm == Some(nm)).expect("band");
+            out_of_band_fraction(&inst, p).expect("fraction")
+        };
+        for p in positions.iter_mut() {
+            p.out_of_band_transmission = Some(1e-5);
+        }
+        let (blue, green, red) = (
+            at(&positions, 450.0),
+            at(&positions, 550.0),
+            at(&positions, 650.0),
+        );
+        // 3000 K through OD 5 with a 10 nm band at half transmission: about 2 % in the blue.
+        assert!((0.005..0.05).contains(&blue), "{blue}");
+        assert!(blue > green && green > red, "{blue} {green} {red}");
+        for p in positions.iter_mut() {
+            p.out_of_band_transmission = Some(1e-6);
+        }
+        assert!((at(&positions, 450.0) / blue - 0.1).abs() < 1e-9);
+        for p in positions.iter_mut() {
+            p.out_of_band_transmission = Some(0.0);
+        }
+        assert_eq!(at(&positions, 450.0), 0.0);
+        let blank = positions.iter().find(|p| p.blank).expect("blank");
+        assert_eq!(out_of_band_fraction(&inst, blank), None);
+    }
+}
