@@ -303,8 +303,8 @@ fn bad_requests_are_refused_with_reasons() {
 fn the_shared_uncertainty_covers_what_the_scatter_cannot_see() {
     let dir = tempfile::tempdir().expect("tempdir");
     let instrument = dir.path().join("instrument.toml");
-    let stated = gonio_instrument::SIMULATED_INSTRUMENT_TOML
-        .replace("solid_angle_u = 1.1e-3", "solid_angle_u = 1.0e-3");
+    let stated =
+        gonio_instrument::SIMULATED_INSTRUMENT_TOML.replace("solid_angle_u = 0.0", "solid_angle_u = 1.0e-3");
     assert!(stated.contains("solid_angle_u = 1.0e-3"));
     std::fs::write(&instrument, stated).expect("instrument");
     let campaign = CampaignText::isotropic(

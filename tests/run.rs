@@ -113,7 +113,8 @@ fn dry_run_matches_ground_truth_and_writes_csv_and_json() {
         }
         let f: f64 = r[9].parse().expect("brdf");
         let u: f64 = r[10].parse().expect("u");
-        let truth: f64 = r[21].parse().expect("truth");
+        // brdf_true_sr: a completed campaign's values are the BRDF at the nominal geometry.
+        let truth: f64 = r[20].parse().expect("truth");
         assert_budget_columns(i, r, u);
         // Noise and drift are the simulator's; the uncertainty claims to cover them: 5 u plus a floor for the
         // optics' integration tolerance (1e-6 relative).
@@ -428,7 +429,8 @@ fn dry_run_with_serial_devices_on_pseudo_terminals_matches_ground_truth() {
         assert_eq!(r[11], "", "row {i} is flagged: {r:?}");
         let f: f64 = r[9].parse().expect("brdf");
         let u: f64 = r[10].parse().expect("u");
-        let truth: f64 = r[21].parse().expect("truth");
+        // brdf_true_sr: a completed campaign's values are the BRDF at the nominal geometry.
+        let truth: f64 = r[20].parse().expect("truth");
         assert_budget_columns(i, r, u);
         assert!(
             (f - truth).abs() <= 5.0 * u + 1e-6 * truth.abs(),
@@ -441,7 +443,7 @@ fn dry_run_with_serial_devices_on_pseudo_terminals_matches_ground_truth() {
 /// `budget` at 19): the budget names its parts, and its independent part is at most the total `u`.
 fn assert_budget_columns(i: usize, r: &[&str], u: f64) {
     assert!(
-        r[19].contains("signal-noise=") && r[19].contains("@campaign="),
+        r[19].contains("signal-noise=") && r[19].contains("normalisation@band-"),
         "row {i}: budget {}",
         r[19]
     );

@@ -582,9 +582,11 @@ def run(gonio, chromium, workdir):
         rows = daemon.points(first)
         if len(rows) != view["points_done"] or view["points_done"] != total:
             raise Fail(f"completed with {len(rows)} stored points, {view['points_done']} done of {total}")
+        # The completed campaign's values (its completion corrects them) are read once more and drawn.
         tab.wait_for("'completed' with every point", f"""document.getElementById('c-state').textContent ===
             'completed' && document.querySelectorAll('#polar circle.pt').length === {total}
-            && document.getElementById('c-progress').value === {total}""", daemon=daemon)
+            && document.getElementById('c-progress').value === {total}
+            && document.body.dataset.finalPoints === '{first}'""", daemon=daemon)
         if os.environ.get("GONIO_BROWSER_SCREENSHOT"):
             shot = tab.call("Page.captureScreenshot", {"format": "png", "captureBeyondViewport": True})
             with open(os.environ["GONIO_BROWSER_SCREENSHOT"], "wb") as f:

@@ -193,15 +193,18 @@
     loadPoints(id).catch((e) => log('warn', 'cannot load the points of campaign ' + id + ': ' + e.message));
   }
 
-  // The points already stored, from the CSV export; events add the ones that follow.
-  async function loadPoints(id) {
+  // The points already stored, from the CSV export; events add the ones that follow. `final`: the campaign has
+  // completed, and its completion (values normalised again between references and corrected to the nominal
+  // geometry, budgets completed) replaces what the events said; body[data-final-points] names it once drawn.
+  async function loadPoints(id, final = false) {
     const text = await (await api('/api/campaigns/' + id + '/points.csv')).text();
     if (page.pointsFor !== id) return;
     for (const point of parsePointsCsv(text)) {
-      if (!page.points.has(point.index)) page.points.set(point.index, point);
+      if (final || !page.points.has(point.index)) page.points.set(point.index, point);
     }
     if (page.latestIndex === null && page.points.size > 0) page.latestIndex = largest(page.points.keys());
     queueRender();
+    if (final) document.body.dataset.finalPoints = String(id);
   }
 
   function parsePointsCsv(text) {
@@ -348,6 +351,9 @@
         );
         if (page.follow && ON_INSTRUMENT.includes(event.state) && event.campaign !== page.currentId) {
           selectCampaign(event.campaign);
+        }
+        if (event.state === 'completed' && event.campaign === page.pointsFor) {
+          loadPoints(event.campaign, true).catch((e) => log('warn', 'cannot read the completed points: ' + e.message));
         }
         // The view holds more than the event (last error, ETA): fetch it.
         refreshSoon();

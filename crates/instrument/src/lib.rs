@@ -68,6 +68,24 @@ pub struct Instrument {
     pub filter_wheel: Option<FilterWheel>,
     pub sample_holder: SampleHolder,
     pub safety: Safety,
+    /// How well the angles are known while no alignment (`gonio align`) is applied: the standard uncertainty
+    /// of the arms' zeros and of the sample's normal (degrees), as the lab's mechanical set-up gives them; what
+    /// each point's pointing uncertainty is made of then. Absent: [`DEFAULT_ALIGNMENT_U_DEG`].
+    #[serde(default)]
+    pub alignment_u_deg: Option<f64>,
+}
+
+/// The angles' standard uncertainty without an alignment when the instrument file does not state it (deg):
+/// zeros found by eye against the beam and a sample pressed against its holder's face, a few hundredths of a
+/// degree each, within the 0.1 degree a reflectance goniometer is typically specified to (Fiorentin & Scroccaro,
+/// IEEE Trans. Instrum. Meas. 57(11), 2008).
+pub const DEFAULT_ALIGNMENT_U_DEG: f64 = 0.05;
+
+impl Instrument {
+    /// The angles' standard uncertainty without an alignment (deg): the file's, else [`DEFAULT_ALIGNMENT_U_DEG`].
+    pub fn alignment_u_deg(&self) -> f64 {
+        self.alignment_u_deg.unwrap_or(DEFAULT_ALIGNMENT_U_DEG)
+    }
 }
 
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]

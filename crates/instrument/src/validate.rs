@@ -223,6 +223,13 @@ impl Instrument {
                 "[instrument.source]: wavelength_nm must be > 0, got {nm}"
             ));
         }
+        if let Some(u) = self.alignment_u_deg
+            && !(u.is_finite() && (0.0..=10.0).contains(&u))
+        {
+            return Err(format!(
+                "[instrument]: alignment_u_deg is a standard uncertainty in degrees, in [0, 10], got {u}"
+            ));
+        }
         if let Some(t) = s.colour_temperature_k
             && !(t.is_finite() && (500.0..=20_000.0).contains(&t))
         {

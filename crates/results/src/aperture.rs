@@ -43,6 +43,9 @@ pub const ACCEPTABLE_RMS_RATIO: f64 = 1.5;
 pub const CORRECTION_U_FRACTION: f64 = 0.25;
 /// A larger `|c - 1|` is not corrected: the point is flagged.
 pub const NARROW_LIMIT: f64 = 0.1;
+/// The angle step of the slopes' central differences (deg): small against every lobe the models fit, large
+/// against rounding.
+pub const SLOPE_STEP_DEG: f64 = 0.01;
 /// The models fitted (module doc).
 pub const MODELS: [FitModel; 4] = [
     FitModel::OrenNayar,
@@ -68,6 +71,10 @@ pub struct Corrections {
     pub residual_rms: f64,
     /// One per point of the run, in its order: `None` for points not corrected (flagged, no value).
     pub points: Vec<Option<Correction>>,
+    /// One per point: the model's relative slopes `d ln f` per radian of `theta_i`, of `theta_o` and of arc
+    /// across it (`d phi_o sin theta_o`), where the model has a value; what an angle's uncertainty does to the
+    /// value (the pointing component, gonio_engine::budget).
+    pub slopes: Vec<Option<[f64; 3]>>,
 }
 
 /// A fitted model ready to evaluate.
@@ -113,11 +120,36 @@ pub fn corrections(run: &Run, half_angle_rad: f64) -> Option<Corrections> {
         .iter()
         .map(|p| correction(p, half_angle_rad, &acceptable))
         .collect();
+    let slopes = run.points.iter().map(|p| slopes(p, &best.material)).collect();
     Some(Corrections {
         model: best.model,
         residual_rms: best.rms,
         points,
+        slopes,
     })
+}
+
+/// The model's relative slopes at a valid point (see [`Corrections::slopes`]), by central differences of
+/// [`SLOPE_STEP_DEG`].
+fn slopes(p: &Point, model: &Material) -> Option<[f64; 3]> {
+    p.value()?;
+    let wavelength = Wavelength::from_nm(p.band_nm).ok()?;
+    let f = |ti: f64, to: f64, po: f64| {
+        let wi = Direction::from_spherical_deg(ti, p.phi_i_deg);
+        let wo = Direction::from_spherical_deg(to, po);
+        model.eval(&wi, &wo, wavelength).ok().filter(|v| v.is_finite())
+    };
+    let (ti, to, po) = (p.theta_i_deg, p.theta_o_deg, p.phi_o_deg);
+    let centre = f(ti, to, po).filter(|v| *v > 0.0)?;
+    let h = SLOPE_STEP_DEG;
+    let step_rad = 2.0 * h.to_radians();
+    let d = |a: Option<f64>, b: Option<f64>| Some((a? - b?) / centre / step_rad);
+    let sin_o = to.to_radians().sin().max(1e-3);
+    Some([
+        d(f(ti + h, to, po), f(ti - h, to, po))?,
+        d(f(ti, to + h, po), f(ti, to - h, po))?,
+        d(f(ti, to, po + h), f(ti, to, po - h))? / sin_o,
+    ])
 }
 
 fn fitted_of(report: FitReport) -> Option<Fitted> {

@@ -37,6 +37,7 @@ use std::collections::BTreeMap;
 
 use gonio_engine::store::PointRecord;
 use gonio_instrument::InstrumentFile;
+use gonio_results::budget::components;
 use serde_json::Value;
 
 /// Standard deviations the bounds from the file's magnitudes span (the hidden values are drawn as Gaussians with
@@ -146,6 +147,9 @@ pub struct PointCheck {
     pub unexplained: Vec<String>,
     /// Largest |f - truth| / u over the valid points.
     pub max_error_in_u: f64,
+    /// Largest |f - truth| over the reading's own noise (the budget's `signal-noise` and `dark`): how far the
+    /// imperfections move a value beyond what noise alone would.
+    pub max_error_in_noise: f64,
     /// Largest |f - truth| / |truth| over the valid points.
     pub max_error_rel: f64,
     /// Largest |f - truth| over its bound (noise plus allowance) over the valid points: below 1 by definition.
@@ -188,7 +192,10 @@ pub fn check_points(points: &[PointRecord], tol: &Tolerance) -> PointCheck {
                 p.index, p.band_nm, p.theta_i_deg, p.theta_o_deg, p.phi_o_deg
             )
         };
-        match (failed, p.brdf_sr, p.brdf_u_sr, p.truth_aperture_sr) {
+        // The aperture average the detector saw (before a completed campaign's correction to the nominal
+        // geometry, gonio_engine::budget), against the simulator's aperture truth.
+        let seen = p.brdf_aperture_sr.or(p.brdf_sr);
+        match (failed, seen, p.brdf_u_sr, p.truth_aperture_sr) {
             (Some(reason), None, _, _) => {
                 *c.failed.entry(reason_class(reason)).or_default() += 1;
             }
@@ -230,6 +237,19 @@ pub fn check_points(points: &[PointRecord], tol: &Tolerance) -> PointCheck {
                 if f.is_finite() && u.is_finite() && u > 0.0 && err <= bound && pose_ok {
                     c.valid += 1;
                     c.max_error_in_u = c.max_error_in_u.max(err / u);
+                    let noise = p
+                        .budget
+                        .entries
+                        .iter()
+                        .filter(|e| {
+                            e.component == components::SIGNAL_NOISE || e.component == components::DARK
+                        })
+                        .map(|e| e.u_sr * e.u_sr)
+                        .sum::<f64>()
+                        .sqrt();
+                    if noise > 0.0 {
+                        c.max_error_in_noise = c.max_error_in_noise.max(err / noise);
+                    }
                     if t != 0.0 {
                         c.max_error_rel = c.max_error_rel.max(err / t.abs());
                     }

@@ -91,7 +91,7 @@ fn on_the_realistic_instrument_faults_lose_nothing_and_values_stay_within_the_at
     // The imperfections were on: the points carry their attribution, and the values really are off their truth
     // by more than the noise somewhere (else this test would not exercise the allowance).
     assert!(p.valid > 200, "{}", p.valid);
-    assert!(p.max_error_in_u > 5.0, "{}", p.max_error_in_u);
+    assert!(p.max_error_in_noise > 5.0, "{}", p.max_error_in_noise);
     assert!(p.max_pose_deg > 0.0 && p.allowance_median_rel > 0.0);
 
     let store = Store::open(&data).expect("store");

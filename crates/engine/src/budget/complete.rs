@@ -1,6 +1,8 @@
 //! What a point's value and budget need the campaign's other points for, done once it has completed:
 //! - the source's drift: each value normalised again between the readings before and after it, the drift's
 //!   curvature in the budget ([`super::drift`]);
+//! - pointing: the angles' uncertainty (an applied alignment's, else the instrument file's `alignment_u_deg`)
+//!   times the fitted model's slope, and the absolute equation's `tan(theta_o)`, added to `pointing`;
 //! - the aperture: each value corrected from the aperture average to the BRDF at the nominal geometry with a
 //!   model fitted to the campaign's data (gonio_results::aperture), the correction's own uncertainty added as
 //!   the `aperture` component, the average kept beside it (`brdf_aperture_sr`); a lobe narrower than the
@@ -21,6 +23,26 @@ use gonio_results::budget::{components, groups};
 use gonio_results::run::{BAND_TOLERANCE_NM, Run};
 
 use crate::store::{CalibrationRecord, CampaignRecord, PointCompletion, PointRecord};
+
+/// The angles' standard uncertainty (deg): an applied alignment's (the root sum of squares of the uncertainties
+/// of its observable zeros and sample tilts), else the instrument file's `alignment_u_deg`.
+fn angle_u_deg(record: &CampaignRecord, instrument: &Instrument) -> f64 {
+    let applied = record
+        .alignment_toml
+        .as_deref()
+        .and_then(|text| crate::align::file::CalibrationFile::parse(text, "the stored alignment").ok());
+    match applied {
+        Some(cal) => cal
+            .values
+            .iter()
+            .filter(|v| v.observable && v.unit == "deg")
+            .filter(|v| v.name.ends_with("_zero_deg") || v.name.starts_with("sample_tilt_"))
+            .map(|v| v.u * v.u)
+            .sum::<f64>()
+            .sqrt(),
+        None => instrument.alignment_u_deg(),
+    }
+}
 
 /// The completion of a campaign's committed points (module doc): one entry per point it changes.
 pub fn completions(
@@ -82,6 +104,34 @@ pub fn completions(
             residual_rms = c.residual_rms,
             "aperture correction from the fitted model"
         );
+        let angle_u_rad = angle_u_deg(record, instrument).to_radians();
+        // Normalised by a reference sample: its budgets name the certificate (crate::budget::of_point).
+        let absolute = !committed.iter().any(|p| {
+            p.budget
+                .entries
+                .iter()
+                .any(|e| e.component == components::CERTIFICATE)
+        });
+        for (((point, completion), slopes), committed) in
+            points.iter().zip(&mut done).zip(&c.slopes).zip(committed)
+        {
+            let (Some([gi, go, gphi]), Some(value)) = (slopes, point.brdf_sr) else {
+                continue;
+            };
+            // The absolute equation divides by the nominal cos(theta_o): a detector angle off by d moves the
+            // value by -tan(theta_o) d besides the BRDF's own slope.
+            let tan_o = if absolute {
+                committed.theta_o_deg.to_radians().tan()
+            } else {
+                0.0
+            };
+            let rel = angle_u_rad * gi.hypot(go - tan_o).hypot(*gphi);
+            if rel.is_finite() && rel > 0.0 {
+                completion
+                    .budget
+                    .add(components::POINTING, (value * rel).abs(), None);
+            }
+        }
         for ((point, completion), correction) in points.iter_mut().zip(&mut done).zip(&c.points) {
             let Some(value) = point.brdf_sr else { continue };
             match correction {

@@ -156,3 +156,27 @@ fn no_aperture_no_correction() {
     assert!(corrections(&run, 0.0).is_none());
     assert!(corrections(&run, f64::NAN).is_none());
 }
+
+#[test]
+fn the_slopes_follow_the_lobe() {
+    let gold = Material::preset("gold").expect("preset");
+    let (run, _) = run_of(&gold);
+    let c = corrections(&run, HALF_ANGLE_RAD).expect("a model fits");
+    for (p, s) in run.points.iter().zip(&c.slopes) {
+        let [gi, go, _] = s.expect("a slope at every valid point");
+        // In the plane of incidence, on either side of the mirror direction, the lobe falls away from it.
+        if p.phi_o_deg == 180.0 && (p.theta_o_deg - p.theta_i_deg).abs() > 1.0 && p.theta_o_deg < 60.0 {
+            let away = (p.theta_o_deg - p.theta_i_deg).signum();
+            assert!(
+                go * away < -1.0,
+                "{:?}: d ln f / d theta_o = {go}",
+                (p.theta_i_deg, p.theta_o_deg)
+            );
+            assert!(
+                gi * away > 0.0,
+                "{:?}: d ln f / d theta_i = {gi}",
+                (p.theta_i_deg, p.theta_o_deg)
+            );
+        }
+    }
+}
