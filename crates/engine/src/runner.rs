@@ -526,7 +526,13 @@ impl<'a> Run<'a> {
                 s.calibrations(self.id)?,
             )
         };
-        let updates = crate::budget::completions(&record, &committed, &calibrations, &self.file.instrument);
+        let updates = crate::budget::completions(
+            &record,
+            &committed,
+            &calibrations,
+            &self.file.instrument,
+            self.reference.is_some(),
+        );
         lock(&self.store).update_completions(self.id, &updates)?;
         Ok(updates.len())
     }

@@ -22,8 +22,9 @@ const C2_NM_K: f64 = 1.438_776_877e7;
 /// Integration step over the detector's range (nm).
 const STEP_NM: f64 = 1.0;
 
-/// Planck's spectral radiance at `nm` and `temperature_k`, up to a constant.
-fn planck(nm: f64, temperature_k: f64) -> f64 {
+/// Planck's spectral radiance at `nm` and `temperature_k`, up to a constant (the simulated optics weight a
+/// filter band with it too).
+pub fn planck_relative(nm: f64, temperature_k: f64) -> f64 {
     1.0 / (nm.powi(5) * (C2_NM_K / (nm * temperature_k)).exp_m1())
 }
 
@@ -36,7 +37,7 @@ pub fn out_of_band_fraction(instrument: &Instrument, position: &FilterPosition) 
     }
     let responsivity = Responsivity::from_detector(&instrument.detector).ok()?;
     let t = instrument.source.colour_temperature_k();
-    let light = |nm: f64| planck(nm, t) * responsivity.at(nm);
+    let light = |nm: f64| planck_relative(nm, t) * responsivity.at(nm);
     let [lo, hi] = instrument.detector.sensor_wavelength_nm;
     let steps = ((hi - lo) / STEP_NM).ceil().max(2.0) as usize;
     let h = (hi - lo) / steps as f64;

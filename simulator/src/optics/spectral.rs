@@ -18,23 +18,18 @@ use std::sync::{Arc, OnceLock};
 
 use crate::imperfections::{FilterTruth, FiltersTruth};
 use crate::responsivity::Responsivity;
+/// Planck's law, as the instrument file's leakage estimate weights a band (one formula for both).
+pub use gonio_instrument::leakage::planck_relative;
 
 use gonio_brdf::{Brdf, Direction};
 
 use super::resolved::Resolved;
 use super::{Optics, OpticsError};
 
-/// Second radiation constant `h c / k_B` (nm K), CODATA 2018: 1.438 776 877e-2 m K.
-const C2_NM_K: f64 = 1.438_776_877e7;
 /// Fine step of the weights' integration (nm).
 const FINE_STEP_NM: f64 = 0.05;
 /// Spacing of the nodes away from the passband (nm).
 const FAR_NODE_STEP_NM: f64 = 50.0;
-
-/// Planck's spectral radiance at `nm` and `temperature_k`, up to a constant.
-pub fn planck_relative(nm: f64, temperature_k: f64) -> f64 {
-    1.0 / (nm.powi(5) * (C2_NM_K / (nm * temperature_k)).exp_m1())
-}
 
 /// An N-cavity passband relative to its peak, centred on `centre_nm` with full width at half maximum `width_nm`.
 pub fn passband(nm: f64, centre_nm: f64, width_nm: f64, cavities: u32) -> f64 {

@@ -44,15 +44,24 @@ fn angle_u_deg(record: &CampaignRecord, instrument: &Instrument) -> f64 {
     }
 }
 
-/// The completion of a campaign's committed points (module doc): one entry per point it changes.
+/// The completion of a campaign's committed points (module doc): one entry per point it changes. `relative`:
+/// normalised by a reference sample rather than the direct beam.
 pub fn completions(
     record: &CampaignRecord,
     committed: &[PointRecord],
     calibrations: &[CalibrationRecord],
     instrument: &Instrument,
+    relative: bool,
 ) -> Vec<PointCompletion> {
-    let table = crate::export::points_table(record, committed);
-    let mut points = table.points;
+    // The points as a run, which the aperture's model is fitted to; each step below updates its values.
+    let mut run = Run {
+        origin: format!("campaign {} ({})", record.id, record.name),
+        name: record.name.clone(),
+        points: crate::export::points_table(record, committed).points,
+        axis_names: Vec::new(),
+        dry_run: false,
+        provenance: None,
+    };
     let mut done: Vec<PointCompletion> = committed
         .iter()
         .map(|p| PointCompletion {
@@ -64,7 +73,8 @@ pub fn completions(
         })
         .collect();
 
-    for ((point, completion), r) in points
+    for ((point, completion), r) in run
+        .points
         .iter_mut()
         .zip(&mut done)
         .zip(super::drift::renormalise(calibrations, committed))
@@ -89,14 +99,6 @@ pub fn completions(
 
     let d = &instrument.detector;
     let half_angle_rad = gonio_brdf::radiometry::aperture_half_angle_rad(d.aperture_radius_mm, d.distance_mm);
-    let run = Run {
-        origin: format!("campaign {} ({})", record.id, record.name),
-        name: record.name.clone(),
-        points: points.clone(),
-        axis_names: Vec::new(),
-        dry_run: false,
-        provenance: None,
-    };
     if let Some(c) = corrections(&run, half_angle_rad) {
         tracing::info!(
             campaign = %record.id,
@@ -105,22 +107,15 @@ pub fn completions(
             "aperture correction from the fitted model"
         );
         let angle_u_rad = angle_u_deg(record, instrument).to_radians();
-        // Normalised by a reference sample: its budgets name the certificate (crate::budget::of_point).
-        let absolute = !committed.iter().any(|p| {
-            p.budget
-                .entries
-                .iter()
-                .any(|e| e.component == components::CERTIFICATE)
-        });
         for (((point, completion), slopes), committed) in
-            points.iter().zip(&mut done).zip(&c.slopes).zip(committed)
+            run.points.iter().zip(&mut done).zip(&c.slopes).zip(committed)
         {
             let (Some([gi, go, gphi]), Some(value)) = (slopes, point.brdf_sr) else {
                 continue;
             };
             // The absolute equation divides by the nominal cos(theta_o): a detector angle off by d moves the
             // value by -tan(theta_o) d besides the BRDF's own slope.
-            let tan_o = if absolute {
+            let tan_o = if !relative {
                 committed.theta_o_deg.to_radians().tan()
             } else {
                 0.0
@@ -132,7 +127,7 @@ pub fn completions(
                     .add(components::POINTING, (value * rel).abs(), None);
             }
         }
-        for ((point, completion), correction) in points.iter_mut().zip(&mut done).zip(&c.points) {
+        for ((point, completion), correction) in run.points.iter_mut().zip(&mut done).zip(&c.points) {
             let Some(value) = point.brdf_sr else { continue };
             match correction {
                 Some(Correction::Applied { factor, u_rel }) => {
@@ -173,7 +168,11 @@ pub fn completions(
                 leakage: gonio_instrument::leakage::out_of_band_fraction(instrument, p).unwrap_or(0.0),
             })
     };
-    for ((completion, point), u) in done.iter_mut().zip(&points).zip(band_components(&points, filter)) {
+    for ((completion, point), u) in done
+        .iter_mut()
+        .zip(&run.points)
+        .zip(band_components(&run.points, filter))
+    {
         if let Some(u) = u {
             completion
                 .budget
