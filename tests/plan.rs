@@ -61,19 +61,39 @@ fn plan_demo_prints_a_summary_and_writes_the_csv() {
     assert_eq!(
         lines.next(),
         Some(
-            "index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,light_deg,detector_deg,tilt_deg,rotation_deg,move_s"
+            "index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,light_deg,detector_deg,tilt_deg,rotation_deg,move_s,\
+             motion_s,settle_s,wheel_s,reading_s,end_s"
         )
     );
     let rows: Vec<&str> = lines.collect();
     assert_eq!(rows.len(), kept);
+    let mut previous_end = 0.0;
     for (i, row) in rows.iter().enumerate() {
         let cols: Vec<&str> = row.split(',').collect();
-        assert_eq!(cols.len(), 11, "{row}");
+        assert_eq!(cols.len(), 16, "{row}");
         assert_eq!(cols[0], i.to_string());
         assert!(["450", "550", "650"].contains(&cols[1]), "{row}");
         // Gold is isotropic: the sample rotation never moves.
         assert_eq!(cols[9].parse::<f64>().expect("rotation"), 0.0, "{row}");
-        assert!(cols[10].parse::<f64>().expect("move_s") >= 0.0);
+        let num = |k: usize| cols[k].parse::<f64>().expect("a number");
+        let (move_s, motion_s, settle_s, wheel_s, reading_s, end_s) =
+            (num(10), num(11), num(12), num(13), num(14), num(15));
+        assert!(
+            move_s >= 0.0 && motion_s >= 0.0 && settle_s >= 0.0 && wheel_s >= 0.0,
+            "{row}"
+        );
+        assert!(
+            (move_s - motion_s - settle_s).abs() < 2e-6,
+            "the move is its motion and settle: {row}"
+        );
+        assert!(reading_s > 0.0, "every step reads: {row}");
+        // The step ends after the previous one by at least its own move, filter change and reading (more when a
+        // calibration step came between them).
+        assert!(
+            end_s - previous_end >= move_s + wheel_s + reading_s - 4e-6,
+            "{row}"
+        );
+        previous_end = end_s;
     }
 }
 

@@ -9,12 +9,18 @@ use tokio::time::Instant;
 
 use crate::error::DriverError;
 
+/// How long after the predicted end of a move the question that should find it over goes out: the clock's tick,
+/// so that a move ending on time (to rounding) is over when asked, not a hair short of it, which would cost a
+/// whole [`PollSchedule`] `min_gap` more.
+pub const ARRIVAL_MARGIN: Duration = Duration::from_millis(1);
+
 /// When to ask a controller again whether a move is over.
 ///
 /// The first question goes out at once (a move that is already over, or a fault at the start, is seen without
-/// any wait). While the move is predicted to run, the pause is up to the predicted end but never longer than
-/// `max_gap`: a stall or a limit is noticed within `max_gap`, which matters when another axis is moving in the
-/// same phase and must be stopped. From the predicted end on, the pause starts at `min_gap` and doubles up to
+/// any wait). While the move is predicted to run, the pauses split the time up to [`ARRIVAL_MARGIN`] after the
+/// predicted end into equal parts no longer than `max_gap`: a stall or a limit is noticed within `max_gap`,
+/// which matters when another axis is moving in the same phase and must be stopped, and the last question goes
+/// out just after the predicted end rather than a capped pause short of it. From the predicted end on, the pause starts at `min_gap` and doubles up to
 /// `max_gap`, so a move that ends on time is seen within `min_gap` of its end and one that runs late costs a
 /// handful of questions, not a flood. `min_gap` is the shortest pause between two status questions to one
 /// controller: no schedule asks faster than the controller answers.
@@ -42,7 +48,11 @@ impl PollSchedule {
     /// The pause before the next question, asked at `now` after an answer "still moving".
     pub fn next_pause(&mut self, now: Instant) -> Duration {
         if now < self.predicted_end {
-            return (self.predicted_end - now).clamp(self.min_gap, self.max_gap);
+            let remaining = self.predicted_end + ARRIVAL_MARGIN - now;
+            let parts = (remaining.as_secs_f64() / self.max_gap.as_secs_f64())
+                .ceil()
+                .max(1.0);
+            return remaining.div_f64(parts).max(self.min_gap);
         }
         let pause = self.late_gap;
         self.late_gap = (self.late_gap * 2).min(self.max_gap);
@@ -151,10 +161,11 @@ mod tests {
         let ms = Duration::from_millis;
         let mut p = PollSchedule::new(t0 + ms(120), ms(10), ms(50));
         assert!(!p.expect_over(t0));
-        // During the move: at most the cap, and exactly up to the predicted end for the last step.
-        assert_eq!(p.next_pause(t0), ms(50));
-        assert_eq!(p.next_pause(t0 + ms(50)), ms(50));
-        assert_eq!(p.next_pause(t0 + ms(100)), ms(20));
+        // During the move: equal parts of at most the cap up to the margin after the predicted end (121 ms in
+        // three), recomputed from each question (after a 2 ms exchange, 79 ms in two), the last exactly there.
+        assert_eq!(p.next_pause(t0), ms(121).div_f64(3.0));
+        assert_eq!(p.next_pause(t0 + ms(42)), ms(79).div_f64(2.0));
+        assert_eq!(p.next_pause(t0 + ms(100)), ms(21));
         // Never shorter than the minimum gap, even just before the end.
         assert_eq!(p.next_pause(t0 + ms(118)), ms(10));
         // Late: 10, 20, 40, then capped at 50.
@@ -179,7 +190,7 @@ mod tests {
             Ok::<(), DriverError>(())
         };
         poll.pause(stop).await.expect("within the deadline");
-        assert_eq!(Instant::now() - t0, ms(30), "up to the predicted end");
+        assert_eq!(Instant::now() - t0, ms(31), "up to just after the predicted end");
         assert!(!poll.is_first() && poll.expect_over());
         // A device estimate lengthens the deadline, never shortens it.
         poll.lengthen(ms(120));
@@ -191,7 +202,7 @@ mod tests {
                 Err(e) => break e,
             }
         };
-        // 10, 20, 40, 20 (cut at the deadline, 120 ms): four pauses, then the stop and the timeout.
+        // 10, 20, 40, 19 (cut at the deadline, 120 ms): four pauses, then the stop and the timeout.
         assert_eq!(pauses, 4);
         assert_eq!(Instant::now() - t0, ms(120));
         assert_eq!(stops.get(), 1, "the axis was stopped once");

@@ -2,7 +2,10 @@
 //!
 //! CSV columns: `index,band_nm,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg`, then `<axis>_deg` per instrument
 //! axis in file order (CONTROLLER positions, i.e. after zero offset and direction: what the daemon commands),
-//! then `move_s`: the predicted move time into the point from the previous step, settle included. One row per
+//! then `move_s`: the predicted move time into the point from the previous step, settle included; then its parts
+//! and the rest of the step: `motion_s`, `settle_s`, `wheel_s` (the filter change), `reading_s`, and `end_s`, the
+//! predicted instrument time at which the step's reading ends (seconds from the start of the run, calibration
+//! steps included: what a run's points.csv records as `t_s`, so the two compare step by step). One row per
 //! measurement step in run order (calibration steps are not rows); with `repeats = N` every point appears N times.
 
 use std::fmt::Write as _;
@@ -203,7 +206,7 @@ pub fn points_csv(sched: &Schedule, time: &TimeModel) -> String {
     for name in time.axis_names() {
         let _ = write!(s, ",{name}_deg");
     }
-    s.push_str(",move_s\n");
+    s.push_str(",move_s,motion_s,settle_s,wheel_s,reading_s,end_s\n");
     for (i, step) in sched.measure_steps().enumerate() {
         let Some(g) = step.geometry else { continue };
         let band = step.band_nm.map(|b| b.to_string()).unwrap_or_default();
@@ -218,7 +221,18 @@ pub fn points_csv(sched: &Schedule, time: &TimeModel) -> String {
         for c in &step.controller_deg {
             let _ = write!(s, ",{:.9}", c + 0.0);
         }
-        let _ = writeln!(s, ",{:.6}", step.movement.total_s());
+        let m = &step.movement;
+        let end_s = step.start_s + m.total_s() + step.wheel_s + step.reading_s;
+        let _ = writeln!(
+            s,
+            ",{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
+            m.total_s(),
+            m.motion_s,
+            m.settle_s,
+            step.wheel_s,
+            step.reading_s,
+            end_s
+        );
     }
     s
 }

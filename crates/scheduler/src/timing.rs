@@ -17,16 +17,22 @@
 //! - Filter wheel: `seconds_per_position` per step, the shortest way round. The wheel has 6 slots when no
 //!   configured position exceeds 6, else 12 (the FW102C's two models).
 //! - Reading: `averaging x` [`DETECTOR_SAMPLE_S`], plus the driver's range query ([`reading_time_s`]).
-//! - Driver overheads the daemon really pays: arrival seen at the next status poll
-//!   ([`ARRIVAL_POLL_LATENCY_S`] per waypoint), about [`EXCHANGE_S`] per request/reply (a filter change is five).
+//! - Driver overheads the daemon really pays: each leg's exchanges before its motion starts and until its end is
+//!   seen, by protocol and line speed (`legs`: the SMC100's pause after a move command, the status question at
+//!   the predicted end, the read-back); axes of one controller chain moving in one phase start one after the other
+//!   (each leg's opening exchanges hold the line); about [`EXCHANGE_S`] per request/reply of the meter and the
+//!   wheel (a filter change is five).
 //! - The wheel and the axes do not move at the same time (the daemon changes the filter once the axes have
 //!   settled), so the parts of the breakdown add up.
 
 //!
-//! The single-axis and wheel models are in `profile`; the whole instrument's model and the move planner here.
+//! The single-axis and wheel models are in `profile`, the drivers' exchanges around a leg in `legs`; the whole
+//! instrument's model and the move planner here.
 
+mod legs;
 mod profile;
 
+pub use legs::{LegTiming, SMC100_SET_GAP_S, exchange_s};
 use profile::Segment;
 pub use profile::{AxisModel, WheelModel, trapezoid_time_s};
 
@@ -37,12 +43,6 @@ use crate::kinematics::{Pose, ROLES};
 
 /// Time for one detector sample: the PM100 takes about 3 ms per averaged sample.
 pub const DETECTOR_SAMPLE_S: f64 = 0.003;
-
-/// How late the daemon sees an axis arrive at one commanded waypoint: the motion drivers (SMC100, Zaber) ask
-/// the controller's status at the predicted arrival (then every 10 ms, doubling to 50 ms), and a move that ends on
-/// time is seen by that first status exchange. Part of the move as the daemon executes it (the next phase, the
-/// settle wait and the reading start from the seen arrival).
-pub const ARRIVAL_POLL_LATENCY_S: f64 = EXCHANGE_S;
 
 /// Longest time the engine takes to see that an arm stopped short: while a move is predicted to run, the motion
 /// drivers ask the controller's status at least every 50 ms.
@@ -146,6 +146,12 @@ impl TimeModel {
                     settle_s: axis.settle_s,
                     zero_offset_deg: axis.zero_offset_deg,
                     direction: f64::from(axis.direction),
+                    leg: LegTiming::of_axis(instrument, index),
+                    chain: instrument
+                        .devices
+                        .iter()
+                        .position(|d| d.name == axis.device)
+                        .unwrap_or(usize::MAX),
                 });
             }
         }
@@ -233,9 +239,11 @@ impl TimeModel {
         t
     }
 
-    /// The motions of one phase moving `roles` from `from` to `to`, starting at time 0 of the phase.
+    /// The motions of one phase moving `roles` from `from` to `to`, starting at time 0 of the phase. Each axis's
+    /// duration is as the daemon drives it ([`AxisModel::driven_time_s`]), after the opening exchanges of the axes
+    /// before it on the same controller chain (the engine starts a phase's axes in [`ROLES`] order).
     fn phase(&self, from: &Pose, to: &Pose, roles: &[AxisRole]) -> Vec<(AxisMotion, Vec<Segment>)> {
-        let mut out = Vec::new();
+        let mut moving = Vec::new();
         for m in self.axes.iter().flatten() {
             if !roles.contains(&m.role) {
                 continue;
@@ -243,16 +251,25 @@ impl TimeModel {
             let a = m.controller_deg(from.get(m.role));
             let b = m.controller_deg(to.get(m.role));
             let waypoints = m.waypoints(a, b);
-            if waypoints.is_empty() {
-                continue;
+            if !waypoints.is_empty() {
+                moving.push((m, a, waypoints));
             }
-            let segments = m.segments(a, &waypoints, 0.0);
-            let duration_s = m.travel_time_s(a, &waypoints) + ARRIVAL_POLL_LATENCY_S * waypoints.len() as f64;
+        }
+        let alone = moving.len() == 1;
+        let mut out = Vec::with_capacity(moving.len());
+        for (k, (m, a, waypoints)) in moving.iter().enumerate() {
+            let queued: f64 = moving[..k]
+                .iter()
+                .filter(|(o, _, _)| o.chain == m.chain)
+                .map(|(o, _, _)| o.leg.command_s)
+                .sum();
+            let segments = m.segments(*a, waypoints, 0.0);
+            let duration_s = queued + m.driven_time_s(*a, waypoints, alone);
             out.push((
                 AxisMotion {
                     role: m.role,
                     axis_index: m.axis_index,
-                    waypoints_deg: waypoints,
+                    waypoints_deg: waypoints.clone(),
                     duration_s,
                 },
                 segments,
@@ -426,28 +443,19 @@ impl TimeModel {
     /// The same duration as [`TimeModel::move_cost_s`], without allocating when the arms' swept ranges are
     /// clearly apart (the common case); the ordering search calls this millions of times.
     pub fn fast_cost_s(&self, from: &Pose, to: &Pose) -> f64 {
-        let mut motion: f64 = 0.0;
-        let mut total: f64 = 0.0;
+        // (controller start, controller end, backlash reach) of each moving axis, in ROLES order.
+        let mut legs: [Option<(f64, f64, f64)>; 4] = [None; 4];
         let mut swept = [(0.0, 0.0); 2];
         for (k, m) in self.axes.iter().enumerate() {
             let Some(m) = m else { continue };
             let (p0, p1) = (from.get(m.role), to.get(m.role));
             let (a, b) = (m.controller_deg(p0), m.controller_deg(p1));
             let mut reach = 0.0;
-            let t = if (b - a).abs() <= STILL_DEG {
-                0.0
-            } else if m.backlash_deg > 0.0 && b < a {
-                let o = BACKLASH_OVERSHOOT * m.backlash_deg;
-                reach = o;
-                trapezoid_time_s(b - o - a, m.max_speed_deg_s, m.accel_deg_s2)
-                    + trapezoid_time_s(o, m.max_speed_deg_s, m.accel_deg_s2)
-                    + 2.0 * ARRIVAL_POLL_LATENCY_S
-            } else {
-                trapezoid_time_s(b - a, m.max_speed_deg_s, m.accel_deg_s2) + ARRIVAL_POLL_LATENCY_S
-            };
-            if t > 0.0 {
-                motion = motion.max(t);
-                total = total.max(t + m.settle_s);
+            if (b - a).abs() > STILL_DEG {
+                if m.backlash_deg > 0.0 && b < a {
+                    reach = BACKLASH_OVERSHOOT * m.backlash_deg;
+                }
+                legs[k] = Some((a, b, reach));
             }
             if k < 2 {
                 swept[k] = (p0.min(p1) - reach, p0.max(p1) + reach);
@@ -461,6 +469,36 @@ impl TimeModel {
             && approaches_multiple_of_360(l.0 - d.1, l.1 - d.0, sep)
         {
             return self.move_cost_s(from, to);
+        }
+        // The same arithmetic as `phase` over one phase of every moving axis, without the waypoint vectors.
+        let alone = legs.iter().flatten().count() == 1;
+        let mut motion: f64 = 0.0;
+        let mut total: f64 = 0.0;
+        let mut queued = [(usize::MAX, 0.0); 4];
+        for (k, m) in self.axes.iter().enumerate() {
+            let (Some(m), Some((a, b, reach))) = (m, legs[k]) else {
+                continue;
+            };
+            let wait: f64 = queued[..k]
+                .iter()
+                .filter(|(c, _)| *c == m.chain)
+                .map(|(_, s)| s)
+                .sum();
+            queued[k] = (m.chain, m.leg.command_s);
+            let t = wait
+                + if reach > 0.0 {
+                    let via = b - reach;
+                    (if alone { m.leg.position_read_s } else { 0.0 })
+                        + m.leg
+                            .leg_s(trapezoid_time_s(via - a, m.max_speed_deg_s, m.accel_deg_s2))
+                        + m.leg
+                            .leg_s(trapezoid_time_s(reach, m.max_speed_deg_s, m.accel_deg_s2))
+                } else {
+                    m.leg
+                        .leg_s(trapezoid_time_s(b - a, m.max_speed_deg_s, m.accel_deg_s2))
+                };
+            motion = motion.max(t);
+            total = total.max(t + m.settle_s);
         }
         total.max(motion)
     }

@@ -21,8 +21,9 @@ use crate::transport::LinePort;
 pub struct Smc100Axis {
     ctl: Controller,
     core: AxisCore,
-    /// When the last `PA` went out: the wait that follows counts the move's predicted time from there (the
-    /// pause after the set command is already part of the move).
+    /// When the last `PA` went out (the write of the PA line itself, not the start of the exchange carrying it):
+    /// the wait that follows counts the move's predicted time from there (the pause after the set command is
+    /// already part of the move), so that its first question after the predicted end finds the move over.
     pa_sent: Mutex<Option<tokio::time::Instant>>,
     /// Whether the last move was over at its first status question (see [`wait_state`]).
     early_finish: AtomicBool,
@@ -281,6 +282,10 @@ impl AxisDriver for Smc100Axis {
             .await;
         match start {
             Ok(start) => {
+                // The move is under way since the PA itself went out, after the two reads before it.
+                if let (Ok(mut g), Some(sent)) = (self.pa_sent.lock(), ctl.chain.last_set_sent(ctl.addr)) {
+                    *g = Some(sent);
+                }
                 self.core
                     .set_start(match (number_at(&start, 0), number_at(&start, 1)) {
                         (Some(a), Some(b)) if self.reads_agree(a, b, false) => Some(b),

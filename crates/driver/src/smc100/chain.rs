@@ -33,6 +33,8 @@ impl From<TransportError> for Failed {
 #[derive(Debug)]
 struct Pacing {
     next_send: std::collections::BTreeMap<u8, Instant>,
+    /// When the last set command to each controller was written.
+    last_set: std::collections::BTreeMap<u8, Instant>,
     gap: Duration,
     /// The pause configured: widening starts from it and stops at the same multiple of it as [`MAX_SET_GAP`] is
     /// of [`SET_GAP`] (so a chain pausing in a faster clock widens in that clock too).
@@ -63,6 +65,7 @@ impl Smc100Chain {
             port,
             pacing: Mutex::new(Pacing {
                 next_send: Default::default(),
+                last_set: Default::default(),
                 gap,
                 base: gap,
             }),
@@ -91,10 +94,22 @@ impl Smc100Chain {
     /// write (waiting for the port, the scheduler), so the next command waits the whole gap from now.
     fn sent_set(&self, addr: u8) {
         if let Ok(mut p) = self.pacing.lock() {
-            let after = Instant::now() + p.gap;
+            let now = Instant::now();
+            p.last_set.insert(addr, now);
+            let after = now + p.gap;
             let next = p.next_send.entry(addr).or_insert(after);
             *next = (*next).max(after);
         }
+    }
+
+    /// When the last set command to controller `addr` was written (`None`: none yet). A move starts when its
+    /// `PA` arrives, not when the exchange carrying it began: the queries before it in the same exchange take
+    /// their own time on the line.
+    pub(super) fn last_set_sent(&self, addr: u8) -> Option<Instant> {
+        self.pacing
+            .lock()
+            .ok()
+            .and_then(|p| p.last_set.get(&addr).copied())
     }
 
     /// The line after a set command went unanswered: perhaps the controller was still busy. Pause longer.

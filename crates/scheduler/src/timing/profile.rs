@@ -3,6 +3,7 @@
 
 use gonio_instrument::AxisRole;
 
+use super::legs::LegTiming;
 use super::{BACKLASH_OVERSHOOT, EXCHANGE_S, STILL_DEG, WHEEL_EXCHANGES};
 
 /// Duration of a trapezoidal profile over `distance` (any sign; its magnitude is used).
@@ -75,6 +76,10 @@ pub struct AxisModel {
     pub settle_s: f64,
     pub zero_offset_deg: f64,
     pub direction: f64,
+    /// What the axis's driver spends around each leg (`super::legs`).
+    pub leg: LegTiming,
+    /// Index of the axis's device (controller chain) in the instrument file: axes on one chain share its line.
+    pub chain: usize,
 }
 
 impl AxisModel {
@@ -117,12 +122,20 @@ impl AxisModel {
         out
     }
 
-    /// Time to travel through the waypoints.
-    pub fn travel_time_s(&self, from_ctrl_deg: f64, waypoints: &[f64]) -> f64 {
+    /// Time the daemon takes to drive the axis through the waypoints, from its first exchange until it has seen
+    /// the last arrival: each leg's motion and the driver's exchanges around it ([`LegTiming::leg_s`]). An axis
+    /// `alone` in its phase with a backlash approach first reads where it is (the driver plans the approach).
+    pub fn driven_time_s(&self, from_ctrl_deg: f64, waypoints: &[f64], alone: bool) -> f64 {
         let mut at = from_ctrl_deg;
-        let mut t = 0.0;
+        let mut t = if alone && waypoints.len() > 1 {
+            self.leg.position_read_s
+        } else {
+            0.0
+        };
         for w in waypoints {
-            t += trapezoid_time_s(w - at, self.max_speed_deg_s, self.accel_deg_s2);
+            t += self
+                .leg
+                .leg_s(trapezoid_time_s(w - at, self.max_speed_deg_s, self.accel_deg_s2));
             at = *w;
         }
         t
