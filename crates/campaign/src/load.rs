@@ -173,6 +173,9 @@ pub fn load(
         instrument.detector.averaging,
         &at,
     )?;
+    // The relative method reads its reference at a geometry: the schedule predicts that move, not the direct beam's.
+    let mut plan_spec = doc.plan.clone();
+    plan_spec.calibration.reference_geometry = calibration.reference.as_ref().map(|r| r.geometry);
     let resolved = Resolved {
         material: material.as_ref().map(Material::spec),
         reference: calibration.reference.as_ref().map(|r| r.material.spec()),
@@ -184,7 +187,7 @@ pub fn load(
         material,
         calibration,
         acquisition,
-        plan_spec: doc.plan.clone(),
+        plan_spec,
         dry_run,
         resolved,
         file: doc,

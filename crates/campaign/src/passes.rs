@@ -135,6 +135,54 @@ impl AdaptivePlan {
     }
 }
 
+/// The stand-in sample of a rehearsal when the campaign names none: a glossy dielectric (a lobe the planner
+/// refines and a diffuse floor), the commonest kind of sample.
+const STAND_IN_PRESET: &str = "coloured-plastic";
+
+/// What an adaptive campaign's later passes will take, planned before it runs: its passes placed in turn, each
+/// from the values a stand-in sample gives at the points before it, exactly as the run places them from the
+/// values it measures. The stand-in is the campaign's `[material]` (a dry-run's simulated sample; for a real
+/// sample, what the lab declared) or, without one, a glossy plastic. Returns the predicted instrument time of
+/// every pass, the first included, and the points they measure. How far the real passes differ depends on how
+/// far the sample differs from its stand-in: the planner refines where the sample's BRDF varies.
+pub fn rehearse(
+    adaptive: &AdaptivePlan,
+    first: &Schedule,
+    material: Option<&gonio_brdf::material::Material>,
+) -> (f64, u64) {
+    use gonio_brdf::{Brdf, Wavelength};
+    let fallback = gonio_brdf::material::Material::preset(STAND_IN_PRESET).ok();
+    let Some(sample) = material.or(fallback.as_ref()) else {
+        return (first.breakdown.total_s(), first.measure_steps().count() as u64);
+    };
+    let value = |step: &gonio_scheduler::schedule::Step| -> (Geometry, Option<f64>) {
+        let g = step.geometry.unwrap_or_else(|| Geometry::new(0.0, 0.0, 0.0, 0.0));
+        let (wi, wo) = g.directions();
+        let v = step
+            .band_nm
+            .and_then(|nm| Wavelength::from_nm(nm).ok())
+            .or_else(|| Wavelength::from_nm(550.0).ok())
+            .and_then(|wl| sample.eval(&wi, &wo, wl).ok());
+        (g, v)
+    };
+    let mut points: Vec<(Geometry, Option<f64>)> = first.measure_steps().map(value).collect();
+    let mut elapsed_s = first.breakdown.total_s();
+    let mut previous = first.clone();
+    // Every pass measures at least one point and the budget is finite; the bound is a guard, not a limit.
+    for _ in 0..adaptive.budget_points() {
+        let measured = measured_geometries(points.iter().copied());
+        match adaptive.next_pass(&measured, elapsed_s, &previous) {
+            NextPass::Pass { schedule, .. } => {
+                elapsed_s += schedule.breakdown.total_s();
+                points.extend(schedule.measure_steps().map(value));
+                previous = schedule;
+            }
+            NextPass::Done { .. } => break,
+        }
+    }
+    (elapsed_s, points.len() as u64)
+}
+
 /// One value per geometry for the planner, from points in measurement order: `(geometry, BRDF in 1/sr or None
 /// for a failed or saturated reading)`. A geometry's value is the mean of its valid values (over bands and
 /// repeats); geometries without one are left out. Order: each geometry's first appearance.

@@ -28,6 +28,9 @@ pub struct Prepared {
     pub time: TimeModel,
     /// An adaptive plan's later passes, placed at run time from the points measured.
     pub adaptive: Option<AdaptivePlan>,
+    /// An adaptive plan rehearsed on a stand-in sample ([`crate::passes::rehearse`]): the predicted instrument
+    /// time of all its passes (s) and the points they measure.
+    pub rehearsal: Option<(f64, u64)>,
 }
 
 impl Prepared {
@@ -40,16 +43,12 @@ impl Prepared {
         }
     }
 
-    /// Predicted instrument time (s): the schedule's; for an adaptive plan, its first pass plus the rest of the
-    /// budget at the first pass's time per point (the later passes are placed at run time).
+    /// Predicted instrument time (s): the schedule's; for an adaptive plan, every pass as rehearsed on a stand-in
+    /// sample (the later passes are placed at run time from the values measured).
     pub fn predicted_s(&self) -> f64 {
-        let first = self.schedule.breakdown.total_s();
-        match &self.adaptive {
-            Some(a) => {
-                let n = self.schedule.measure_steps().count() as u64;
-                first + a.budget_points().saturating_sub(n) as f64 * first / n.max(1) as f64
-            }
-            None => first,
+        match self.rehearsal {
+            Some((s, _)) => s,
+            None => self.schedule.breakdown.total_s(),
         }
     }
 
@@ -140,12 +139,16 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
         check_reference(r, &bands, instrument, campaign.sample_radius_mm)
             .map_err(|(key, e)| at.err("calibration", key, e))?;
     }
+    let rehearsal = adaptive
+        .as_ref()
+        .map(|a| crate::passes::rehearse(a, &schedule, campaign.material.as_ref()));
     Ok(Prepared {
         campaign,
         plan,
         schedule,
         time,
         adaptive,
+        rehearsal,
     })
 }
 

@@ -107,3 +107,31 @@ fn an_adaptive_plan_built_with_its_defaults_matches_an_empty_table() {
     };
     assert_eq!(read.plan, plan);
 }
+
+#[test]
+fn the_relative_method_schedules_its_references_at_the_reference_geometry() {
+    use gonio_scheduler::kinematics::{Geometry, Kinematics};
+    use gonio_scheduler::schedule::StepKind;
+    let dir = campaigns_dir();
+    let file = InstrumentFile::simulated();
+    let text = std::fs::read_to_string(dir.join("relative.toml")).expect("relative.toml");
+    let p = load_and_prepare(&text, "relative.toml", &Sources::Local(dir), &file).expect("prepares");
+    // relative.toml reads its Spectralon at 0/45.
+    let (wi_r, wo_r) = Geometry::new(0.0, 0.0, 45.0, 180.0).directions();
+    let kin = Kinematics::new(&file.instrument);
+    let references: Vec<_> = p
+        .schedule
+        .steps
+        .iter()
+        .filter(|s| s.kind == StepKind::Reference)
+        .collect();
+    assert!(references.len() >= 6, "{} reference readings", references.len());
+    for step in references {
+        let (wi, wo) = kin.forward(&step.pose);
+        assert!(
+            wi.angle_to(&wi_r).to_degrees() < 1e-6 && wo.angle_to(&wo_r).to_degrees() < 1e-6,
+            "a reference reading at {:?} does not read 0/45",
+            step.pose
+        );
+    }
+}

@@ -126,10 +126,14 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
             "arm-separation", sched.dropped
         );
     }
-    if p.adaptive.is_some() {
+    if let Some((_, points)) = p.rehearsal {
+        let stand_in = match &p.campaign.material {
+            Some(_) => "the campaign's [material]",
+            None => "a glossy plastic (the campaign names no [material])",
+        };
         let _ = writeln!(
             out,
-            "predicted duration: {:.1} s ({}) for the whole budget, at the first pass's time per point",
+            "predicted duration: {:.1} s ({}) for {points} points, every pass rehearsed on {stand_in}",
             p.predicted_s(),
             hms(p.predicted_s())
         );

@@ -211,6 +211,17 @@ fn check_schedule(inst: &Instrument, plan: &Plan, sched: &Schedule) -> Result<()
             );
         }
         prop_assert!(step.pose.arm_separation_deg() >= inst.safety.min_arm_separation_deg - 1e-9);
+        if let Some(p) = prev
+            && tm.lower_bound_s(&p, &step.pose) > 0.0
+        {
+            // A step at another pose than the one before it carries the move there (its time is predicted).
+            prop_assert!(
+                step.movement.total_s() >= tm.lower_bound_s(&p, &step.pose) - 1e-9,
+                "{} step at {:?} after {p:?} predicts no move",
+                step.kind.name(),
+                step.pose
+            );
+        }
         if let Some(p) = prev {
             let seen = min_separation_during(inst, &p, &step.movement, 1e-3);
             prop_assert!(
@@ -258,6 +269,53 @@ fn check_schedule(inst: &Instrument, plan: &Plan, sched: &Schedule) -> Result<()
         b.total_s()
     );
     Ok(())
+}
+
+#[test]
+fn a_calibration_between_two_bands_of_one_geometry_is_followed_by_the_move_back() {
+    // A fast wheel measures every band at each geometry; references every 4 points fall between the bands of one
+    // geometry, which must then be reached again from the direct-beam pose (the walk once predicted no move).
+    let mut inst = simulated();
+    if let Some(w) = inst.filter_wheel.as_mut() {
+        w.seconds_per_position = 0.01;
+    }
+    let text = format!(
+        "{}[plan.calibration]\nreference_every_points = 4\ndark_every_points = 5\n",
+        iso_grid(20.0, 60.0, 60.0)
+    );
+    let plan = build(&text, &inst, ISO).expect("plan");
+    let sched = schedule::schedule(&plan, &TimeModel::new(&inst), None);
+    assert_eq!(sched.mode, BandMode::PerGeometry);
+    let between_bands = sched.steps.windows(3).filter(|w| {
+        w[0].kind == StepKind::Measure
+            && w[1].kind == StepKind::Reference
+            && w.iter().filter(|s| s.kind == StepKind::Measure).count() == 1
+    });
+    let mut seen = 0;
+    for (k, step) in sched.steps.iter().enumerate().skip(1) {
+        let before = &sched.steps[k - 1];
+        if step.kind == StepKind::Measure
+            && before.kind == StepKind::Reference
+            && sched.steps[..k]
+                .iter()
+                .rev()
+                .find(|s| s.kind == StepKind::Measure)
+                .is_some_and(|m| m.geometry_index == step.geometry_index)
+        {
+            seen += 1;
+            let back = TimeModel::new(&inst).move_cost_s(&before.pose, &step.pose);
+            assert!(
+                (step.movement.total_s() - back).abs() < 1e-9,
+                "step {k}: {} s predicted, the move back takes {back} s",
+                step.movement.total_s()
+            );
+        }
+    }
+    assert!(
+        seen > 0 && between_bands.count() > 0,
+        "no calibration fell between two bands of one geometry"
+    );
+    check_schedule(&inst, &plan, &sched).expect("a valid schedule");
 }
 
 fn grid_strategy() -> impl Strategy<Value = String> {

@@ -4,7 +4,7 @@
 use gonio_brdf::Wavelength;
 
 use crate::calibration::net_of_dark;
-use gonio_scheduler::kinematics::{Kinematics, Pose};
+use gonio_scheduler::kinematics::Pose;
 
 use super::*;
 
@@ -122,21 +122,11 @@ impl<'a> Run<'a> {
         )
         .await?;
         let result = async {
-            let (geometry, pose) = {
-                let r = self.reference.as_ref().ok_or_else(|| {
-                    Interrupt::Fatal(EngineError::Device("the reference went missing".into()))
-                })?;
-                let kinematics = Kinematics::new(&self.file.instrument);
-                (
-                    r.geometry,
-                    reference::pose_for(&kinematics, &self.c.time, &r.geometry, self.motion.current()),
-                )
-            };
+            let current = *self.motion.current();
+            let pose = self.c.plan.calibration.reference_target(&current, &self.c.time);
             let pose = pose.ok_or_else(|| {
-                Interrupt::Pause(format!(
-                    "no safe move from {:?} to the reference geometry {geometry:?}",
-                    *self.motion.current()
-                ))
+                let geometry = self.reference.as_ref().map(|r| r.geometry);
+                Interrupt::Pause(format!("no safe move from {current:?} to the reference geometry {geometry:?}"))
             })?;
             self.motion.move_to(&pose).await?;
             let tol_deg = self.file.instrument.axes.iter().map(|a| a.tolerance_deg).fold(0.0f64, f64::max);

@@ -18,8 +18,7 @@
 
 use gonio_brdf::material::Material;
 use gonio_brdf::{Brdf, Direction, SpectrumError, Wavelength};
-use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
-use gonio_scheduler::timing::TimeModel;
+use gonio_scheduler::kinematics::Geometry;
 
 /// Step of the central differences for the positioning sensitivity (rad).
 const STEP_RAD: f64 = 1e-5;
@@ -87,25 +86,6 @@ impl Brdf for Transfer {
     fn is_spectrally_flat(&self) -> bool {
         self.material.is_spectrally_flat()
     }
-}
-
-/// The pose reading `geometry`, of those within the axis limits the one reached fastest (by a safe move) from
-/// `current`; None when no solution can be reached safely.
-pub(crate) fn pose_for(
-    kinematics: &Kinematics,
-    time: &TimeModel,
-    geometry: &Geometry,
-    current: &Pose,
-) -> Option<Pose> {
-    let (wi, wo) = geometry.directions();
-    kinematics
-        .solutions(&wi, &wo, current)
-        .ok()?
-        .into_iter()
-        .map(|p| (time.move_cost_s(current, &p), p))
-        .filter(|(cost, _)| cost.is_finite())
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map(|(_, p)| p)
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@ use gonio_instrument::{GeometryKind, Instrument};
 use super::grid::{Request, key, requests};
 use super::{
     Calibration, CalibrationSpec, MAX_PLANNED_READINGS, Plan, PlanError, PlanSpec, PlannedGeometry,
-    SampleTraits, Served, invalid,
+    ReferenceAt, SampleTraits, Served, invalid,
 };
 use crate::constraints::{Constraints, Reason};
 use crate::kinematics::{Geometry, Kinematics, KinematicsError, Pose};
@@ -83,6 +83,7 @@ pub fn calibration(spec: &CalibrationSpec, instrument: &Instrument) -> Result<Ca
         reference_every_points: spec.reference_every_points,
         reference_every_s: spec.reference_every_s,
         reference_overrides: Vec::new(),
+        reference_at: None,
     };
     if cal.darks()
         && instrument
@@ -95,6 +96,14 @@ pub fn calibration(spec: &CalibrationSpec, instrument: &Instrument) -> Result<Ca
             "dark_every_points",
             "dark readings need a blank position on the filter wheel",
         ));
+    }
+    if let Some(geometry) = spec.reference_geometry {
+        // The relative method: no direct-beam pose to validate (the campaign loader refuses one).
+        cal.reference_at = Some(ReferenceAt {
+            geometry,
+            kinematics: Kinematics::new(instrument),
+        });
+        return Ok(cal);
     }
     let pose = match &spec.reference_pose_deg {
         Some(p) => p.clone(),
@@ -241,11 +250,12 @@ pub fn build_from_geometries(
     let n_bands = bands_all.len();
     let mut skipped: BTreeMap<Reason, usize> = BTreeMap::new();
 
-    // Anchor: the start pose, else the reference pose fixes which side each arm is on.
+    // Anchor: the start pose, else the direct-beam pose fixes which side each arm is on. (A relative method's
+    // reference geometry has poses on both sides: the side that keeps more points is chosen, and the reference is
+    // then read from that side.)
     let default_hint = Pose::new(0.0, 0.0, 0.0, spec.rotation_deg);
     let anchor = ctx.start.or_else(|| {
-        calibration
-            .references()
+        (calibration.references() && calibration.reference_at.is_none())
             .then(|| calibration.reference_pose(&default_hint))
     });
     let hint = anchor.unwrap_or(default_hint);

@@ -131,6 +131,11 @@ pub struct CalibrationSpec {
     pub reference_every_s: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference_pose_deg: Option<BTreeMap<String, f64>>,
+    /// Not a key of `[plan.calibration]`: the relative method's reference geometry (`[calibration]
+    /// reference_geometry_deg`, set by the campaign loader). Reference readings are then taken on the
+    /// reference sample at this geometry instead of the direct beam at `reference_pose_deg`.
+    #[serde(skip)]
+    pub reference_geometry: Option<Geometry>,
 }
 
 /// Validated calibration settings.
@@ -142,6 +147,22 @@ pub struct Calibration {
     pub reference_every_s: Option<f64>,
     /// Physical angles overriding the current pose for direct-beam readings, per role.
     pub reference_overrides: Vec<(gonio_instrument::AxisRole, f64)>,
+    /// The relative method: reference readings on the reference sample at a geometry (none: the direct beam).
+    pub reference_at: Option<ReferenceAt>,
+}
+
+/// Where the relative method reads its reference sample: a geometry, reached by the cheapest of its poses.
+#[derive(Debug, Clone)]
+pub struct ReferenceAt {
+    pub geometry: Geometry,
+    pub(crate) kinematics: crate::kinematics::Kinematics,
+}
+
+impl PartialEq for ReferenceAt {
+    /// The kinematics is the plan's instrument's, the same on both sides of any comparison of one plan.
+    fn eq(&self, other: &ReferenceAt) -> bool {
+        self.geometry == other.geometry
+    }
 }
 
 impl Calibration {
@@ -151,7 +172,25 @@ impl Calibration {
     pub fn references(&self) -> bool {
         self.reference_every_points.is_some() || self.reference_every_s.is_some()
     }
-    /// The reference pose reached from `current`.
+    /// Where the next reference reading is taken from `current`: the reference geometry's pose cheapest to reach
+    /// (the relative method; `None` when no safe move reaches any), else the direct-beam pose. The schedule
+    /// predicts, and the daemon moves, by this one rule.
+    pub fn reference_target(&self, current: &Pose, time: &crate::timing::TimeModel) -> Option<Pose> {
+        let Some(at) = &self.reference_at else {
+            return Some(self.reference_pose(current));
+        };
+        let (wi, wo) = at.geometry.directions();
+        at.kinematics
+            .solutions(&wi, &wo, current)
+            .ok()?
+            .into_iter()
+            .map(|p| (time.move_cost_s(current, &p), p))
+            .filter(|(cost, _)| cost.is_finite())
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, p)| p)
+    }
+
+    /// The direct-beam pose reached from `current`.
     pub fn reference_pose(&self, current: &Pose) -> Pose {
         let mut p = *current;
         for (role, v) in &self.reference_overrides {

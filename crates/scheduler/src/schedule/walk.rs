@@ -114,8 +114,12 @@ impl<'a> Walker<'a> {
 
     fn reference(&mut self, at: Pose) {
         let from = self.pose.unwrap_or(at);
-        let target = self.plan.calibration.reference_pose(&from);
-        let Ok(mut movement) = self.time.plan_move(&from, &target) else {
+        let planned = self
+            .plan
+            .calibration
+            .reference_target(&from, self.time)
+            .map(|target| (target, self.time.plan_move(&from, &target)));
+        let Some((target, Ok(mut movement))) = planned else {
             // Unreachable reference pose (arms would cross): skip it rather than risk the arms.
             self.points_since_reference = 0;
             self.last_reference_s = self.t;
@@ -256,12 +260,11 @@ impl<'a> Walker<'a> {
             self.calibrate_if_due(pose);
             let wheel_position = self.band_position(band);
             let wheel_s = self.wheel_to(wheel_position);
-            // After a calibration step the move starts from wherever that left the arms.
+            // After a calibration step the move starts from wherever that left the arms, also when the
+            // calibration fell between two bands of this geometry (the move into it was already made).
+            let after_calibration = self.steps.last().is_some_and(|s| s.kind != StepKind::Measure);
             let m = match (movement.take(), self.pose) {
-                (Some(m), Some(cur))
-                    if cur != pose && self.steps.last().is_some_and(|s| s.kind != StepKind::Measure) =>
-                {
-                    let _ = m;
+                (_, Some(cur)) if cur != pose && after_calibration => {
                     self.time.plan_move(&cur, &pose).unwrap_or_else(|_| empty())
                 }
                 (Some(m), _) => m,
