@@ -56,6 +56,32 @@ fn plan_demo_prints_a_summary_and_writes_the_csv() {
     let requested = number_after(&stdout, "points requested:");
     let skipped = number_after(&stdout, "points skipped:");
     assert_eq!(kept + skipped, requested, "{stdout}");
+    // The band: 2 % either side of the prediction, and the operator steps the model does not time.
+    let seconds = |line: &str, label: &str| -> f64 {
+        line.split(label)
+            .nth(1)
+            .and_then(|r| r.split_whitespace().next())
+            .and_then(|w| w.parse().ok())
+            .unwrap_or_else(|| panic!("no number after {label:?} in {line:?}"))
+    };
+    let predicted_line = stdout
+        .lines()
+        .find(|l| l.starts_with("predicted duration:"))
+        .expect("prediction");
+    let predicted = seconds(predicted_line, "predicted duration:");
+    let band = stdout
+        .lines()
+        .find(|l| l.starts_with("expected between"))
+        .expect("a band line");
+    let (low, high) = (seconds(band, "between"), seconds(band, "and"));
+    assert!(
+        (low - 0.98 * predicted).abs() < 0.1 && (high - 1.02 * predicted).abs() < 0.1,
+        "{band}"
+    );
+    assert!(
+        band.contains("operator steps") && band.contains("retries"),
+        "{band}"
+    );
     let text = std::fs::read_to_string(&csv).expect("csv written");
     let mut lines = text.lines();
     assert_eq!(

@@ -13,8 +13,11 @@
 //! Writes `BENCHMARKS.md` at the workspace root and SVG plots under `docs/bench/`. Every number is measured by
 //! this run (criterion's and the large stress tier's are read from their own last run, and say so); nothing is
 //! edited by hand. `--quick` shrinks every section (for a smoke run; noisier, smaller plans).
+//! (6) the time model: predicted against dry-run instrument time for every shipped campaign, the demo's grid at
+//! three densities and campaigns not in the repository, on both instrument files ([`time_model`]; `--before
+//! BINARY` also runs each through a gonio built from an earlier commit, side by side).
 //! `--accuracy` writes ACCURACY.md instead (issue 29's accuracy table, crate::accuracy).
-//! `--only <readings|campaigns|throughput|budget>` prints one section and leaves BENCHMARKS.md alone; `--only stress-large` runs
+//! `--only <readings|campaigns|throughput|budget|timing>` prints one section and leaves BENCHMARKS.md alone; `--only stress-large` runs
 //! the large stress tier and records it (docs/bench/stress-large.txt) without writing the report.
 
 mod accuracy;
@@ -26,6 +29,7 @@ mod plot;
 mod readings;
 mod stress;
 mod throughput;
+mod time_model;
 
 use std::fmt::Write as _;
 use std::hint::black_box;
@@ -119,6 +123,10 @@ fn main() {
     loads.push(("5 realistic error budget", load_average()));
     let budget_md = budget_section(&root, &target, quick);
 
+    eprintln!("(6) the time model against dry-runs...");
+    loads.push(("6 time model", load_average()));
+    let timing_md = timing_section(&root, &target, before_binary(&args).as_deref(), quick);
+
     eprintln!("(4) micro-benchmarks...");
     loads.push(("4 micro-benchmarks", load_average()));
     let eval_rate = eval_throughput(&root, if quick { 200_000 } else { 2_000_000 });
@@ -180,6 +188,8 @@ fn main() {
     report = report.replace("<!-- STRESS -->", &stress_md);
     report.push('\n');
     report.push_str(&budget_md);
+    report.push('\n');
+    report.push_str(&timing_md);
     let mut load_lines = String::new();
     for (section, load) in &loads {
         let _ = writeln!(
@@ -204,6 +214,40 @@ fn main() {
 }
 
 /// Section 5: the realistic instrument's error budget and its throughput beside the ideal one's.
+/// `--before BINARY`: a gonio built from an earlier commit, for the time model's side-by-side columns.
+fn before_binary(args: &[String]) -> Option<PathBuf> {
+    args.iter()
+        .skip_while(|a| *a != "--before")
+        .nth(1)
+        .map(PathBuf::from)
+}
+
+/// Section 6: the time model against dry-runs through the release binary (crate::time_model).
+fn timing_section(root: &Path, target: &Path, before: Option<&Path>, quick: bool) -> String {
+    let binary = target.join("release/gonio");
+    let mut s = String::from("## 6. The time model: predicted against dry-run instrument time\n\n");
+    if !binary.exists() {
+        s.push_str(&format!(
+            "Not measured: no release binary at {} (build it with `cargo build --release -p gonio`).\n",
+            binary.display()
+        ));
+        return s;
+    }
+    s.push_str(&time_model::section(root, &binary, before, quick));
+    s.push('\n');
+    match before {
+        Some(b) => s.push_str(&format!(
+            "The before columns: the same campaigns through `{}` (passed as `--before`), a gonio built from an \
+             earlier commit (its run.json's instrument time ends at its last reading).\n",
+            b.file_name().map_or_else(|| b.display().to_string(), |n| n.to_string_lossy().into_owned())
+        )),
+        None => s.push_str(
+            "No before columns: `-- --before BINARY` (a gonio built from an earlier commit) adds them.\n",
+        ),
+    }
+    s
+}
+
 fn budget_section(root: &Path, target: &Path, quick: bool) -> String {
     /// Issue 16's target for an in-process dry-run on the realistic instrument.
     const TARGET_PPS: f64 = 2000.0;
@@ -465,6 +509,14 @@ fn run_only(section: &str, quick: bool) {
                 quick
             )
         ),
+        "timing" => {
+            let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+            let args: Vec<String> = std::env::args().collect();
+            print!(
+                "{}",
+                timing_section(&root, &target_dir(), before_binary(&args).as_deref(), quick)
+            );
+        }
         "stress-large" => {
             let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
             print!("{}", stress::run_and_record(&root, &load_average()));

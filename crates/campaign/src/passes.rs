@@ -180,6 +180,11 @@ pub fn rehearse(
             NextPass::Done { .. } => break,
         }
     }
+    // The daemon closes the beam when the run ends: a last turn of the wheel to its blank.
+    let blank = adaptive.time.wheel.as_ref().and_then(|w| w.blank);
+    if previous.end.wheel.is_some() {
+        elapsed_s += adaptive.time.wheel_time_s(previous.end.wheel, blank);
+    }
     (elapsed_s, points.len() as u64)
 }
 

@@ -122,6 +122,7 @@ pub fn run_record(store: &Store, record: &CampaignRecord) -> Result<(PointsTable
         devices,
         // Recorded when the campaign was prepared; campaigns stored before that are prepared once more here.
         predicted_instrument_s: record.predicted_instrument_s.or_else(|| predicted_s(record)),
+        ended_instrument_s: record.ended_instrument_s,
         // A function of the stored instrument file, like everything else here; absent on the ideal instrument.
         simulator_truth: crate::rig::simulator_truth(
             &record.instrument_toml,

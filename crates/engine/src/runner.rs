@@ -566,6 +566,8 @@ impl<'a> Run<'a> {
                 Err(_) => tracing::warn!("closing the beam: the filter wheel did not answer in 10 s"),
             }
         }
+        // The instrument is free from here (what follows is computation).
+        let ended_s = self.t();
         // What a person asked for (an abort, a pause) is news, not a warning; everything else, the emergency stop
         // included, is for an operator to look at.
         let requested = matches!(outcome, Err(Interrupt::Abort | Interrupt::PauseRequested(_)));
@@ -607,6 +609,11 @@ impl<'a> Run<'a> {
         {
             let mut s = lock(&self.store);
             let _ = s.set_operator_message(self.id, None);
+            // How long the instrument was held, the closing wheel turn and operator step included (no reading
+            // records them): what the time model predicts.
+            if let Err(e) = s.set_ended_instrument_s(self.id, ended_s) {
+                tracing::warn!("cannot record when the run ended: {e}");
+            }
             if let Err(e) = s.set_state(self.id, state, message.as_deref()) {
                 // A store that cannot be written cannot record the pause: the store shows it from memory (status
                 // requests see it), and the file still says "running", which a restart resumes.

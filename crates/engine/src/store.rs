@@ -64,7 +64,7 @@ pub const STORE_FILE: &str = "gonio.sqlite";
 /// `brdf_aperture_sr`; version 8: `point_budgets` (budgets completed after a campaign, its rows untouched);
 /// version 9: `point_budgets` also keeps the value corrected to the nominal geometry, the aperture average it came
 /// from and the flags (crate::budget::complete).
-const SCHEMA_VERSION: i64 = 9;
+const SCHEMA_VERSION: i64 = 10;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

@@ -1,7 +1,8 @@
 //! The scheduler's predicted instrument time against a simulator dry-run of the same plan (issue #5: within 2%).
 //! In process, under tokio's paused clock, so the simulated instrument time is exact and the test is fast.
 //! The run's instrument time counts from the end of start-up (homing and the move to the schedule's first
-//! pose, which depend on where the devices were found) to its last record (the schedule's final calibration).
+//! pose, which depend on where the devices were found) to the end of the run as the store records it (after the
+//! schedule's final calibration, its last wheel turn included).
 
 use std::sync::{Arc, Mutex};
 
@@ -14,8 +15,8 @@ const RELATIVE: &str = include_str!("../../../config/campaigns/relative.toml");
 const ADAPTIVE: &str = include_str!("../../../config/campaigns/adaptive.toml");
 const REALISTIC_TOML: &str = include_str!("../../../config/instruments/realistic.toml");
 
-/// Run `text` to completion on the simulated instrument; returns (predicted s, instrument time s at the last
-/// point or calibration record).
+/// Run `text` to completion on the simulated instrument; returns (predicted s, instrument time s at which the
+/// run ended).
 async fn dry_run(text: &str) -> (f64, f64) {
     dry_run_on(text, SIMULATED_INSTRUMENT_TOML).await
 }
@@ -37,26 +38,33 @@ async fn dry_run_on(text: &str, instrument_toml: &str) -> (f64, f64) {
         let (store, rig, control) = (Arc::clone(&store), rig.clone(), control.clone());
         tokio::spawn(async move { run_campaign(store, id, &rig, control).await })
     };
-    let mut last_point_s = 0.0f64;
     let state = loop {
         match rx.recv().await.expect("event") {
-            Event::Point { point, .. } => last_point_s = last_point_s.max(point.t_s),
             Event::State { state, .. } if state.is_final() || state == CampaignState::Paused => break state,
             _ => {}
         }
     };
     task.await.expect("join").expect("run");
     assert_eq!(state, CampaignState::Completed);
-    // The run ends with the schedule's final calibration, after the last point.
-    let last_cal_s = store
-        .lock()
-        .expect("store lock")
-        .calibrations(id)
-        .expect("calibrations")
+    let s = store.lock().expect("store lock");
+    let last_record_s = s
+        .points(id)
+        .expect("points")
         .iter()
-        .map(|c| c.t_s)
+        .map(|p| p.t_s)
+        .chain(s.calibrations(id).expect("calibrations").iter().map(|c| c.t_s))
         .fold(0.0f64, f64::max);
-    (prepared.predicted_s, last_point_s.max(last_cal_s))
+    let ended_s = s
+        .campaign(id)
+        .expect("campaign")
+        .ended_instrument_s
+        .expect("the run's end is recorded");
+    // The end comes after every reading: the closing calibration's last wheel turn.
+    assert!(
+        ended_s >= last_record_s,
+        "ended {ended_s} s before its last record at {last_record_s} s"
+    );
+    (prepared.predicted_s, ended_s)
 }
 
 /// A plan exercising repeats, frequent darks and direct-beam references (operator sessions with the wheel

@@ -15,7 +15,7 @@ use gonio_brdf::Brdf;
 use gonio_campaign::{Prepared, Sources};
 use gonio_instrument::InstrumentFile;
 use gonio_scheduler::plan;
-use gonio_scheduler::schedule::{BandMode, Schedule};
+use gonio_scheduler::schedule::{BandMode, Schedule, StepKind};
 use gonio_scheduler::timing::TimeModel;
 
 use crate::CliError;
@@ -144,7 +144,55 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
         "predicted duration"
     };
     print_times(&mut out, sched, label);
+    let _ = writeln!(out, "{}", band_line(p));
     out
+}
+
+/// How far the model's own agreement with dry-runs reaches (BENCHMARKS.md section 6: every campaign there within
+/// it), and the fraction an adaptive campaign's rehearsal on a stand-in sample adds.
+const MODEL_BAND: f64 = 0.02;
+const REHEARSAL_BAND: f64 = 0.03;
+
+/// The prediction's band: what the model knows to within its benchmark, and what it does not know at all (the
+/// operator's own time at each sample change, retries after device faults).
+fn band_line(p: &Prepared) -> String {
+    let predicted = p.predicted_s();
+    let rel = MODEL_BAND + if p.adaptive.is_some() { REHEARSAL_BAND } else { 0.0 };
+    // Each run of reference readings is one session: the sample out (or the reference in) and back.
+    let sessions = p
+        .schedule
+        .steps
+        .windows(2)
+        .filter(|w| w[1].kind == StepKind::Reference && w[0].kind != StepKind::Reference)
+        .count()
+        + usize::from(
+            p.schedule
+                .steps
+                .first()
+                .is_some_and(|s| s.kind == StepKind::Reference),
+        );
+    let operator = match (
+        sessions,
+        p.campaign.calibration.simulate_operator && p.campaign.dry_run,
+    ) {
+        (0, _) => "no operator steps".to_string(),
+        (n, true) => format!("{} operator steps, done at once by the simulated operator", 2 * n),
+        (n, false) => format!(
+            "plus {} operator steps ({n} sample changes, out and back) at the operator's own pace",
+            2 * n
+        ),
+    };
+    format!(
+        "expected between {:.1} s and {:.1} s (±{:.0} %: {}); {operator}; plus retries after device faults",
+        predicted * (1.0 - rel),
+        predicted * (1.0 + rel),
+        100.0 * rel,
+        if p.adaptive.is_some() {
+            "the model's agreement with dry-runs, and the later passes placed on the real sample, not the stand-in"
+        } else {
+            "the model's agreement with dry-runs, BENCHMARKS.md section 6"
+        }
+    )
 }
 
 fn iso_word(iso: bool) -> &'static str {
@@ -183,6 +231,7 @@ fn print_times(out: &mut String, sched: &Schedule, label: &str) {
         ("filter wheel", b.wheel_s),
         ("integration", b.integration_s),
         ("calibration steps", b.calibration_s),
+        ("closing the beam", b.closing_s),
     ] {
         let _ = writeln!(out, "  {name:<18} {v:>10.1} s");
     }

@@ -108,7 +108,8 @@ pub struct CalibrationReading {
 pub struct Timing {
     /// The time model's prediction for the stored configuration; `None` when that no longer parses.
     pub predicted_instrument_s: Option<f64>,
-    /// The last point's or calibration's instrument time (the run ends with its final calibration).
+    /// When the last run ended (its closing wheel turn and operator step included), else the last point's or
+    /// calibration reading's instrument time: what the time model predicts.
     pub actual_instrument_s: f64,
 }
 
@@ -195,6 +196,9 @@ pub struct StoredCampaign {
     pub devices: Vec<DeviceIdentity>,
     pub calibrations: Vec<CalibrationReading>,
     pub predicted_instrument_s: Option<f64>,
+    /// Instrument time (s) at which the last run ended (after its closing wheel turn and operator step), if
+    /// recorded.
+    pub ended_instrument_s: Option<f64>,
     /// The simulated instrument's hidden imperfections (a function of the stored instrument file).
     pub simulator_truth: Option<SimulatorTruth>,
 }
@@ -218,6 +222,7 @@ impl RunRecord {
             .iter()
             .filter_map(|p| p.t_s)
             .chain(stored.calibrations.iter().map(|c| c.t_s))
+            .chain(stored.ended_instrument_s)
             .filter(|t| t.is_finite())
             .fold(0.0f64, f64::max);
         RunRecord {
@@ -341,6 +346,7 @@ pub(crate) mod tests {
                 u_w: 1e-7,
             }],
             predicted_instrument_s: Some(20.5),
+            ended_instrument_s: None,
             simulator_truth: None,
         }
     }

@@ -16,6 +16,8 @@
 //!   geometry, passes repeated as they are. The ordered schedule is never longer: if it were, raster order would
 //!   be used.
 //! - No start pose: the instrument is assumed to be at the first step's pose, and the wheel on its first band.
+//! - A complete schedule ends with the wheel on its blank, as the daemon leaves it (the beam closed): that last
+//!   turn is the breakdown's `closing_s`, not a step.
 
 //!
 //! The records, the wheel's covering walk and the choice between orders are here; the walk that turns an order

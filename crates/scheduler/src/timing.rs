@@ -123,11 +123,18 @@ pub struct Breakdown {
     pub integration_s: f64,
     /// Everything spent in dark and reference steps (their moves, wheel changes and readings).
     pub calibration_s: f64,
+    /// The wheel's last turn to its blank when the run ends (the daemon closes the beam): no step's.
+    pub closing_s: f64,
 }
 
 impl Breakdown {
     pub fn total_s(&self) -> f64 {
-        self.motion_s + self.settle_s + self.wheel_s + self.integration_s + self.calibration_s
+        self.motion_s
+            + self.settle_s
+            + self.wheel_s
+            + self.integration_s
+            + self.calibration_s
+            + self.closing_s
     }
 }
 

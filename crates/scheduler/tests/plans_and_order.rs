@@ -12,7 +12,7 @@ use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
 use gonio_scheduler::order;
 use gonio_scheduler::plan::{self, BuildContext, Plan, PlanSpec, SampleTraits};
 use gonio_scheduler::schedule::{self, BandMode, Schedule, StepKind};
-use gonio_scheduler::timing::TimeModel;
+use gonio_scheduler::timing::{EXCHANGE_S, TimeModel};
 use proptest::prelude::*;
 
 const ISO: SampleTraits = SampleTraits {
@@ -251,10 +251,22 @@ fn check_schedule(inst: &Instrument, plan: &Plan, sched: &Schedule) -> Result<()
     // The plan keeps room for backlash overshoots, so every transition has a safe move: nothing is dropped.
     prop_assert_eq!(sched.dropped, 0);
     prop_assert_eq!(measured, plan.kept() * plan.repeats as usize);
+    // The run ends with the beam closed: a last turn of the wheel to its blank, in the breakdown but no step.
     let b = &sched.breakdown;
+    let blank = tm.wheel.as_ref().and_then(|w| w.blank);
+    match (&tm.wheel, blank) {
+        // At most half a turn of the wheel, and its exchanges.
+        (Some(w), Some(_)) => prop_assert!(
+            b.closing_s >= 0.0
+                && b.closing_s <= f64::from(w.slots / 2) * w.seconds_per_position + 5.0 * EXCHANGE_S + 1e-9,
+            "closing turn {} s",
+            b.closing_s
+        ),
+        _ => prop_assert_eq!(b.closing_s, 0.0),
+    }
     prop_assert!(
-        (b.total_s() - t).abs() < 1e-6 * (1.0 + t),
-        "breakdown adds up to the step times"
+        (b.total_s() - t - b.closing_s).abs() < 1e-6 * (1.0 + t),
+        "breakdown adds up to the step times and the closing turn of the wheel"
     );
     prop_assert!(
         b.total_s() <= sched.raster.total_s() + 1e-9,

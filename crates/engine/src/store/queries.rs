@@ -174,6 +174,18 @@ impl Store {
         Ok(from_i64(n))
     }
 
+    /// Record the instrument time (s) at which a run of campaign `id` ended.
+    pub fn set_ended_instrument_s(&mut self, id: CampaignId, t_s: f64) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
+        self.conn
+            .execute(
+                "UPDATE campaigns SET ended_instrument_s = ?1 WHERE id = ?2",
+                rusqlite::params![t_s, id.0],
+            )
+            .map_err(self.write_err())?;
+        Ok(())
+    }
+
     pub fn set_operator_message(&mut self, id: CampaignId, message: Option<&str>) -> Result<(), StoreError> {
         self.durability_for_write(Some(id))?;
         self.conn
@@ -433,7 +445,7 @@ impl Store {
 const CAMPAIGN_SELECT: &str = "SELECT c.id, c.name, c.state, c.campaign_toml, c.instrument_toml, c.total_points,
     (SELECT COUNT(*) FROM points p WHERE p.campaign_id = c.id), c.dry_run, c.software_version, c.created_unix_s,
     c.last_error, c.operator_message, c.predicted_instrument_s, c.alignment_toml,
-    c.calibration_id FROM campaigns c";
+    c.calibration_id, c.ended_instrument_s FROM campaigns c";
 
 fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignRecord, StoreError>> {
     let state: String = r.get(2)?;
@@ -455,6 +467,7 @@ fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignR
         predicted_instrument_s: None,
         alignment_toml: None,
         calibration_id: None,
+        ended_instrument_s: None,
     };
     let state = match state.parse::<CampaignState>() {
         Ok(s) => s,
@@ -473,6 +486,7 @@ fn campaign_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Result<CampaignR
         predicted_instrument_s: r.get(12)?,
         alignment_toml: r.get(13)?,
         calibration_id: r.get::<_, Option<i64>>(14)?.map(InstrumentCalibrationId),
+        ended_instrument_s: r.get(15)?,
         ..record(state)
     }))
 }

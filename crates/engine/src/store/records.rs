@@ -141,6 +141,10 @@ pub struct CampaignRecord {
     /// Which stored instrument calibration that is; None when none was applied or it was not a stored one (and
     /// for campaigns stored before version 6).
     pub calibration_id: Option<InstrumentCalibrationId>,
+    /// Instrument time (s) at which the campaign's last run ended: after its closing calibration's last turn of
+    /// the wheel and operator step, which no reading records. None before a run ended (and for campaigns stored
+    /// before version 10).
+    pub ended_instrument_s: Option<f64>,
 }
 
 /// What a campaign's completion (crate::budget::complete) records for one point: read in place of the

@@ -318,6 +318,11 @@ impl Store {
         }
         if version == 8 {
             self.step(POINT_COMPLETIONS, 9)?;
+            version = 9;
+        }
+        if version == 9 {
+            // Version 10 records when a campaign's last run ended (absent for older campaigns).
+            self.step("ALTER TABLE campaigns ADD COLUMN ended_instrument_s REAL;", 10)?;
             return Ok(());
         }
         if version != 0 {
@@ -344,7 +349,8 @@ impl Store {
                 operator_message TEXT,
                 predicted_instrument_s REAL,
                 alignment_toml TEXT,
-                calibration_id INTEGER
+                calibration_id INTEGER,
+                ended_instrument_s REAL
             );
             CREATE TABLE devices (
                 campaign_id INTEGER NOT NULL REFERENCES campaigns(id),

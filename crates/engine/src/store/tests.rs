@@ -148,7 +148,7 @@ fn a_version_1_store_is_migrated_keeping_its_points() {
              phi_o_deg, signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json,
              truth_point_sr, truth_aperture_sr FROM points; DROP TABLE points;
              ALTER TABLE points_v1 RENAME TO points;
-             ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; PRAGMA user_version = 1;"
+             ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 1;"
     ))
     .expect("downgrade");
     drop(conn);
@@ -169,7 +169,7 @@ fn a_version_2_store_gains_the_attribution_column() {
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch(
         "ALTER TABLE points DROP COLUMN truth_effects_json; ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; 
-         ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; PRAGMA user_version = 2;",
+         ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 2;",
     )
     .expect("downgrade");
     drop(conn);
@@ -195,7 +195,7 @@ fn a_version_3_store_gains_the_prediction_and_keeps_its_campaigns() {
         "the prediction is stored with the campaign"
     );
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; PRAGMA user_version = 3;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 3;")
         .expect("downgrade");
     drop(conn);
     let mut store = Store::open(dir.path()).expect("migrates");
@@ -228,7 +228,7 @@ fn a_version_4_store_gains_the_alignment_column_and_keeps_its_campaigns() {
         store.create_campaign(&new_campaign(2)).expect("create")
     };
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; PRAGMA user_version = 4;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 4;")
         .expect("downgrade");
     drop(conn);
     let store = Store::open(dir.path()).expect("migrates");
@@ -241,7 +241,7 @@ fn a_version_6_store_gains_the_budget_columns_and_a_budget_round_trips() {
     let dir = tempfile::tempdir().expect("tempdir");
     let id = store_with_one_point(dir.path());
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; DROP TABLE point_budgets; PRAGMA user_version = 6;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 6;")
         .expect("downgrade");
     drop(conn);
     let mut store = Store::open(dir.path()).expect("migrates");
@@ -352,7 +352,7 @@ fn a_version_8_store_gains_the_completion_columns() {
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch(
         "ALTER TABLE point_budgets DROP COLUMN brdf_sr; ALTER TABLE point_budgets DROP COLUMN brdf_aperture_sr; \
-         ALTER TABLE point_budgets DROP COLUMN flags; PRAGMA user_version = 8;",
+         ALTER TABLE point_budgets DROP COLUMN flags; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 8;",
     )
     .expect("downgrade");
     drop(conn);
@@ -592,5 +592,27 @@ fn a_constraint_violation_is_not_disk_trouble() {
     assert!(
         matches!(e, StoreError::Write { .. }) && !e.is_write_failure(),
         "{e}"
+    );
+}
+
+#[test]
+fn a_version_9_store_gains_the_end_of_the_run_and_it_round_trips() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let id = store_with_one_point(dir.path());
+    let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
+    conn.execute_batch("ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 9;")
+        .expect("back to version 9");
+    drop(conn);
+    let mut store = Store::open(dir.path()).expect("migrates");
+    let before = store.campaign(id).expect("campaign");
+    assert_eq!(
+        before.ended_instrument_s, None,
+        "not recorded by a version 9 store"
+    );
+    assert_eq!(before.points_done, 1, "the point survives");
+    store.set_ended_instrument_s(id, 123.25).expect("records the end");
+    assert_eq!(
+        store.campaign(id).expect("campaign").ended_instrument_s,
+        Some(123.25)
     );
 }

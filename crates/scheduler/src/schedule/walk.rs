@@ -305,6 +305,16 @@ impl<'a> Walker<'a> {
         if close && self.plan.calibration.references() {
             self.reference(first);
         }
+        if close {
+            // The daemon closes the beam when a run ends: a last turn of the wheel to its blank, no step.
+            let blank = self.time.wheel.as_ref().and_then(|w| w.blank);
+            let closing_s = self.wheel_to(blank);
+            self.breakdown.closing_s += closing_s;
+            self.t += closing_s;
+            if blank.is_some() {
+                self.wheel = blank;
+            }
+        }
         let end = Cadence {
             points_since_dark: self.points_since_dark,
             points_since_reference: self.points_since_reference,
