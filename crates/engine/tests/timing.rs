@@ -155,3 +155,72 @@ async fn an_adaptive_campaign_is_predicted_from_its_passes_rehearsed_within_2_pe
         assert_within_2_percent(what, predicted_s, actual_s);
     }
 }
+
+#[tokio::test(start_paused = true)]
+async fn the_eta_follows_an_instrument_slower_than_its_file() {
+    // The simulated hardware turns its wheel at 2 s a position and moves the arms at half speed, while the file
+    // says 1 s and 20 deg/s: the model's prediction is short, and the ETA learns the pace from the steps measured.
+    let slow = format!(
+        "{SIMULATED_INSTRUMENT_TOML}\n[simulator.actual.filter_wheel]\nseconds_per_position = 2.0\n\
+         [simulator.actual.axes.light]\nmax_speed_deg_s = 10.0\n[simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\n"
+    );
+    let file = InstrumentFile::parse(&slow, "slow").expect("instrument file");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let prepared = prepare_campaign(DEMO, "demo.toml", dir.path(), &file).expect("valid campaign");
+    let mut store = Store::open(dir.path()).expect("store");
+    let id = store
+        .create_campaign(&prepared.new_campaign(DEMO, &slow))
+        .expect("create");
+    let store = Arc::new(Mutex::new(store));
+    let rig = Rig::connect_with_time_scale(&file, None, 1.0).await.expect("rig");
+    let control = Control::new();
+    let mut rx = control.subscribe();
+    let task = {
+        let (store, rig, control) = (Arc::clone(&store), rig.clone(), control.clone());
+        tokio::spawn(async move { run_campaign(store, id, &rig, control).await })
+    };
+    let total = prepared.total_points;
+    let half = total / 2;
+    let (mut t_half, mut eta_half) = (None, None);
+    let mut last_t = 0.0;
+    loop {
+        match rx.recv().await.expect("event") {
+            Event::Point { point, .. } => last_t = point.t_s,
+            Event::Progress { done, eta_s, .. } if done == half && t_half.is_none() => {
+                t_half = Some(last_t);
+                eta_half = eta_s;
+            }
+            Event::State { state, .. } if state.is_final() || state == CampaignState::Paused => break,
+            _ => {}
+        }
+    }
+    task.await.expect("join").expect("run");
+    let ended_s = store
+        .lock()
+        .expect("store")
+        .campaign(id)
+        .expect("campaign")
+        .ended_instrument_s
+        .expect("ended");
+    let (t_half, eta) = (t_half.expect("half-way"), eta_half.expect("an ETA half-way"));
+    let truth = ended_s - t_half;
+    // What the model alone predicted was left after that point (the same plan, prepared again).
+    let sources = gonio_campaign::Sources::Local(dir.path().to_path_buf());
+    let plan = gonio_campaign::load_and_prepare(DEMO, "demo.toml", &sources, &file).expect("prepares");
+    let step = plan
+        .schedule
+        .measure_steps()
+        .nth(usize::try_from(half - 1).expect("index"))
+        .expect("the half-way step");
+    let model_left =
+        prepared.predicted_s - (step.start_s + step.movement.total_s() + step.wheel_s + step.reading_s);
+    eprintln!("half-way: {truth:.1} s left, the ETA said {eta:.1} s, the model alone {model_left:.1} s");
+    assert!(
+        truth > 1.2 * model_left,
+        "the hardware is not slower than its file: {truth} s against {model_left} s"
+    );
+    assert!(
+        (eta - truth).abs() < 0.1 * truth,
+        "the ETA {eta:.1} s is more than 10 % from the {truth:.1} s left"
+    );
+}

@@ -104,6 +104,7 @@ impl<'a> Run<'a> {
     /// the budget at the predicted time per point of the passes placed so far.
     pub(super) fn follow_pass(&mut self, pass: &Pass) {
         self.pass_total_s = pass.schedule.breakdown.total_s();
+        self.pass_start_s = pass.elapsed_s - self.pass_total_s;
         self.pass_end = pass.end_index();
         self.s_per_point = pass.elapsed_s / pass.end_index().max(1) as f64;
     }
