@@ -9,6 +9,11 @@
 //! repository ([`OFF_REPO`]: other densities, bands, averaging, repeats, settling, the relative method, an
 //! adaptive plan on another material). With `--before BINARY` (a gonio built from an earlier commit) every
 //! campaign also runs through that binary, side by side: its instrument time per point and its wall time.
+//!
+//! A third instrument file is realistic.toml as a lab would bring it up: its dynamics measured by `gonio selftest
+//! --write` ([`self_tested`]). The simulated hardware behind it must stay the same (the simulator draws its
+//! hidden imperfections about the file's claims), so the bench, which may know the simulator's truth, pins it
+//! with `[simulator.actual]` from a dry-run's run.json: the same hardware, its file as measured.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -159,6 +164,69 @@ pub fn dry_run(binary: &Path, text: &str, instrument: Option<&Path>) -> Result<R
     result
 }
 
+/// realistic.toml with the dynamics `gonio selftest --write` measured on its simulated hardware, that hardware
+/// pinned by `[simulator.actual]` (module doc). Written under `dir`.
+fn self_tested(binary: &Path, root: &Path, dir: &Path) -> Result<PathBuf, String> {
+    let realistic = root.join("config/instruments/realistic.toml");
+    let measured = dir.join("realistic-self-tested.toml");
+    let o = std::process::Command::new(binary)
+        .arg("selftest")
+        .arg("--instrument")
+        .arg(&realistic)
+        .arg("--write")
+        .arg(&measured)
+        .output()
+        .map_err(|e| format!("cannot run gonio selftest: {e}"))?;
+    if !measured.exists() {
+        return Err(format!(
+            "gonio selftest wrote no file: {}",
+            String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or("")
+        ));
+    }
+    // The hardware's truth, from a dry-run's run.json.
+    let demo = std::fs::read_to_string(root.join("config/campaigns/demo.toml")).map_err(|e| e.to_string())?;
+    let campaign = dir.join("demo.toml");
+    std::fs::write(&campaign, demo).map_err(|e| e.to_string())?;
+    let out = dir.join("truth");
+    let o = std::process::Command::new(binary)
+        .arg("run")
+        .arg(&campaign)
+        .arg("--instrument")
+        .arg(&realistic)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .output()
+        .map_err(|e| format!("cannot run gonio: {e}"))?;
+    if !o.status.success() {
+        return Err(format!(
+            "the dry-run for the truth failed: {}",
+            String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or("")
+        ));
+    }
+    let run: serde_json::Value = std::fs::read_to_string(out.join("run.json"))
+        .map_err(|e| format!("no run.json for the truth: {e}"))
+        .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))?;
+    let actual = &run["simulator_truth"]["actual"];
+    let mut pinned = std::fs::read_to_string(&measured).map_err(|e| e.to_string())?;
+    if let Some(w) = actual["wheel_seconds_per_position"].as_f64() {
+        pinned.push_str(&format!(
+            "\n[simulator.actual.filter_wheel]\nseconds_per_position = {w:?}\n"
+        ));
+    }
+    for axis in actual["axes"].as_array().into_iter().flatten() {
+        let name = axis["name"].as_str().ok_or("an axis of the truth has no name")?;
+        pinned.push_str(&format!("\n[simulator.actual.axes.{name}]\n"));
+        for key in ["max_speed_deg_s", "accel_deg_s2", "settle_s", "backlash_deg"] {
+            if let Some(v) = axis[key].as_f64() {
+                pinned.push_str(&format!("{key} = {v:?}\n"));
+            }
+        }
+    }
+    std::fs::write(&measured, pinned).map_err(|e| e.to_string())?;
+    Ok(measured)
+}
+
 /// One row: a campaign on an instrument, now and (optionally) before.
 struct Row {
     campaign: String,
@@ -204,13 +272,22 @@ fn campaigns(root: &Path, quick: bool) -> Vec<(String, String, bool)> {
 
 /// The section's markdown.
 pub fn section(root: &Path, binary: &Path, before: Option<&Path>, quick: bool) -> String {
-    let instruments: [(&'static str, Option<PathBuf>); 2] = [
+    let scratch = std::env::temp_dir().join(format!("gonio-bench-selftest-{}", std::process::id()));
+    let _ = std::fs::create_dir_all(&scratch);
+    let mut instruments: Vec<(&'static str, Option<PathBuf>)> = vec![
         ("simulated", None),
         ("realistic", Some(root.join("config/instruments/realistic.toml"))),
     ];
+    let mut notes = String::new();
+    match self_tested(binary, root, &scratch) {
+        Ok(path) => instruments.push(("realistic, self-tested", Some(path))),
+        Err(e) => notes.push_str(&format!("realistic, self-tested: not measured ({e}).\n")),
+    }
     let mut rows = Vec::new();
-    for (label, text, _) in campaigns(root, quick) {
+    for (label, text, shipped) in campaigns(root, quick) {
+        let label = if shipped { label } else { format!("{label} *") };
         for (name, path) in &instruments {
+            let name: &'static str = name;
             eprintln!("    {label} on {name}...");
             rows.push(Row {
                 campaign: label.clone(),
@@ -220,7 +297,10 @@ pub fn section(root: &Path, binary: &Path, before: Option<&Path>, quick: bool) -
             });
         }
     }
-    markdown(&rows, before.is_some())
+    let _ = std::fs::remove_dir_all(&scratch);
+    let mut md = markdown(&rows, before.is_some());
+    md.push_str(&notes);
+    md
 }
 
 fn markdown(rows: &[Row], with_before: bool) -> String {
@@ -230,9 +310,11 @@ fn markdown(rows: &[Row], with_before: bool) -> String {
         s,
         "Predicted: what `gonio plan` prints and run.json keeps (`timing.predicted_instrument_s`). Dry-run: the run's \
          instrument time in run.json (`timing.actual_instrument_s`: from the end of homing until the run ended, its \
-         closing calibration and last wheel turn included). Both instrument files: simulated.toml (the ideal \
+         closing calibration and last wheel turn included). Instrument files: simulated.toml (the ideal \
          instrument) and realistic.toml (its hardware a few per cent slower or faster than the file claims: the \
-         prediction uses the file). Campaigns marked * are not in the repository (crates/bench/src/time_model.rs \
+         prediction uses the file), and realistic.toml as `gonio selftest --write` measured it on the same \
+         simulated hardware (realistic, self-tested: the model then uses the measured speeds, accelerations, \
+         settle times and wheel). Campaigns marked * are not in the repository (crates/bench/src/time_model.rs \
          writes them). Target: every row within {:.0} %.",
         100.0 * TARGET
     );
