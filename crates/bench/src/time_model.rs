@@ -209,6 +209,10 @@ fn self_tested(binary: &Path, root: &Path, dir: &Path) -> Result<PathBuf, String
         .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))?;
     let actual = &run["simulator_truth"]["actual"];
     let mut pinned = std::fs::read_to_string(&measured).map_err(|e| e.to_string())?;
+    if pinned.contains("[simulator.actual") {
+        // Appending a second table of the same name would not parse; and the file would pin its own hardware.
+        return Err("realistic.toml states [simulator.actual] itself: nothing to pin".into());
+    }
     if let Some(w) = actual["wheel_seconds_per_position"].as_f64() {
         pinned.push_str(&format!(
             "\n[simulator.actual.filter_wheel]\nseconds_per_position = {w:?}\n"
