@@ -300,9 +300,10 @@ fn report(
         s,
         "Written by `{COMMAND}`{} (issue 7). Every number below was measured by that run, except the criterion \
          table (read from criterion's last run: `{CRITERION}` beforehand refreshes it) and the large stress tier's \
-         record (`-- --stress-large` reruns it first); none is edited by hand. The run takes about 4 minutes on \
-         an idle 2-core machine and much longer under load (its duration is under Machine); `-- --quick` is a \
-         one-minute smoke run with smaller plans and shorter windows.\n",
+         record (`-- --stress-large` reruns it first); none is edited by hand. The run takes about 5 minutes on \
+         an idle 2-core machine (section 6 runs every campaign once more with `-- --before BINARY`, a gonio built \
+         from an earlier commit, for its before columns) and much longer under load (its duration is under \
+         Machine); `-- --quick` is a one-minute smoke run with smaller plans and shorter windows.\n",
         if quick {
             " -- --quick (smaller plans, short timing windows: noisier)"
         } else {
