@@ -237,37 +237,5 @@ pub fn over_ptys(text: &str) -> Result<Throughput, String> {
 
 /// `gonio run` of a campaign through the release binary: (points, wall s), or why not measured.
 pub fn gonio_run(binary: &Path, text: &str) -> Result<(u64, f64), String> {
-    let dir = scratch_dir("run");
-    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
-    let campaign = dir.join("campaign.toml");
-    std::fs::write(&campaign, text).map_err(|e| e.to_string())?;
-    let out = dir.join("out");
-    let start = Instant::now();
-    let o = std::process::Command::new(binary)
-        .arg("run")
-        .arg(&campaign)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .output()
-        .map_err(|e| format!("cannot run {}: {e}", binary.display()))?;
-    let wall_s = start.elapsed().as_secs_f64();
-    let result = if o.status.success() {
-        std::fs::read_to_string(out.join("run.json"))
-            .map_err(|e| e.to_string())
-            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).map_err(|e| e.to_string()))
-            .and_then(|v| {
-                v["campaign"]["total_points"]
-                    .as_u64()
-                    .ok_or_else(|| "run.json has no campaign.total_points".to_string())
-            })
-            .map(|n| (n, wall_s))
-    } else {
-        Err(format!(
-            "gonio run failed: {}",
-            String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or("")
-        ))
-    };
-    let _ = std::fs::remove_dir_all(&dir);
-    result
+    crate::time_model::dry_run(binary, text, None).map(|r| (r.points, r.wall_s))
 }

@@ -21,8 +21,19 @@ async fn dry_run(text: &str) -> (f64, f64) {
     dry_run_on(text, SIMULATED_INSTRUMENT_TOML).await
 }
 
-/// [`dry_run`] on the instrument file `instrument_toml`.
-async fn dry_run_on(text: &str, instrument_toml: &str) -> (f64, f64) {
+/// A campaign started in process on the simulated clock: what the tests watch and wait for.
+struct Launched {
+    predicted_s: f64,
+    total_points: u64,
+    store: Arc<Mutex<Store>>,
+    id: gonio_engine::store::CampaignId,
+    rx: tokio::sync::broadcast::Receiver<Event>,
+    task: tokio::task::JoinHandle<Result<CampaignState, gonio_engine::EngineError>>,
+    _dir: tempfile::TempDir,
+}
+
+/// Store `text` and start running it on the instrument file `instrument_toml`.
+async fn launch(text: &str, instrument_toml: &str) -> Launched {
     let file = InstrumentFile::parse(instrument_toml, "timing-instrument").expect("instrument file");
     let dir = tempfile::tempdir().expect("tempdir");
     let prepared = prepare_campaign(text, "timing.toml", dir.path(), &file).expect("valid campaign");
@@ -33,11 +44,33 @@ async fn dry_run_on(text: &str, instrument_toml: &str) -> (f64, f64) {
     let store = Arc::new(Mutex::new(store));
     let rig = Rig::connect_with_time_scale(&file, None, 1.0).await.expect("rig");
     let control = Control::new();
-    let mut rx = control.subscribe();
+    let rx = control.subscribe();
     let task = {
         let (store, rig, control) = (Arc::clone(&store), rig.clone(), control.clone());
         tokio::spawn(async move { run_campaign(store, id, &rig, control).await })
     };
+    Launched {
+        predicted_s: prepared.predicted_s,
+        total_points: prepared.total_points,
+        store,
+        id,
+        rx,
+        task,
+        _dir: dir,
+    }
+}
+
+/// [`dry_run`] on the instrument file `instrument_toml`.
+async fn dry_run_on(text: &str, instrument_toml: &str) -> (f64, f64) {
+    let Launched {
+        predicted_s,
+        store,
+        id,
+        mut rx,
+        task,
+        _dir,
+        ..
+    } = launch(text, instrument_toml).await;
     let state = loop {
         match rx.recv().await.expect("event") {
             Event::State { state, .. } if state.is_final() || state == CampaignState::Paused => break state,
@@ -64,7 +97,7 @@ async fn dry_run_on(text: &str, instrument_toml: &str) -> (f64, f64) {
         ended_s >= last_record_s,
         "ended {ended_s} s before its last record at {last_record_s} s"
     );
-    (prepared.predicted_s, ended_s)
+    (predicted_s, ended_s)
 }
 
 /// A plan exercising repeats, frequent darks and direct-beam references (operator sessions with the wheel
@@ -164,22 +197,15 @@ async fn the_eta_follows_an_instrument_slower_than_its_file() {
         "{SIMULATED_INSTRUMENT_TOML}\n[simulator.actual.filter_wheel]\nseconds_per_position = 2.0\n\
          [simulator.actual.axes.light]\nmax_speed_deg_s = 10.0\n[simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\n"
     );
-    let file = InstrumentFile::parse(&slow, "slow").expect("instrument file");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let prepared = prepare_campaign(DEMO, "demo.toml", dir.path(), &file).expect("valid campaign");
-    let mut store = Store::open(dir.path()).expect("store");
-    let id = store
-        .create_campaign(&prepared.new_campaign(DEMO, &slow))
-        .expect("create");
-    let store = Arc::new(Mutex::new(store));
-    let rig = Rig::connect_with_time_scale(&file, None, 1.0).await.expect("rig");
-    let control = Control::new();
-    let mut rx = control.subscribe();
-    let task = {
-        let (store, rig, control) = (Arc::clone(&store), rig.clone(), control.clone());
-        tokio::spawn(async move { run_campaign(store, id, &rig, control).await })
-    };
-    let total = prepared.total_points;
+    let Launched {
+        total_points: total,
+        predicted_s,
+        store,
+        id,
+        mut rx,
+        task,
+        _dir,
+    } = launch(DEMO, &slow).await;
     let half = total / 2;
     let (mut t_half, mut eta_half) = (None, None);
     let mut last_t = 0.0;
@@ -205,15 +231,15 @@ async fn the_eta_follows_an_instrument_slower_than_its_file() {
     let (t_half, eta) = (t_half.expect("half-way"), eta_half.expect("an ETA half-way"));
     let truth = ended_s - t_half;
     // What the model alone predicted was left after that point (the same plan, prepared again).
-    let sources = gonio_campaign::Sources::Local(dir.path().to_path_buf());
+    let file = InstrumentFile::parse(&slow, "slow").expect("instrument file");
+    let sources = gonio_campaign::Sources::Local(_dir.path().to_path_buf());
     let plan = gonio_campaign::load_and_prepare(DEMO, "demo.toml", &sources, &file).expect("prepares");
     let step = plan
         .schedule
         .measure_steps()
         .nth(usize::try_from(half - 1).expect("index"))
         .expect("the half-way step");
-    let model_left =
-        prepared.predicted_s - (step.start_s + step.movement.total_s() + step.wheel_s + step.reading_s);
+    let model_left = predicted_s - (step.start_s + step.movement.total_s() + step.wheel_s + step.reading_s);
     eprintln!("half-way: {truth:.1} s left, the ETA said {eta:.1} s, the model alone {model_left:.1} s");
     assert!(
         truth > 1.2 * model_left,
