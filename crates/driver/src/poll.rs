@@ -20,9 +20,9 @@ pub const ARRIVAL_MARGIN: Duration = Duration::from_millis(1);
 /// any wait). While the move is predicted to run, the pauses split the time up to [`ARRIVAL_MARGIN`] after the
 /// predicted end into equal parts no longer than `max_gap`: a stall or a limit is noticed within `max_gap`,
 /// which matters when another axis is moving in the same phase and must be stopped, and the last question goes
-/// out just after the predicted end rather than a capped pause short of it. From the predicted end on, the pause starts at `min_gap` and doubles up to
-/// `max_gap`, so a move that ends on time is seen within `min_gap` of its end and one that runs late costs a
-/// handful of questions, not a flood. `min_gap` is the shortest pause between two status questions to one
+/// out just after the predicted end rather than a capped pause short of it. From the predicted end on, the pause
+/// starts at `min_gap` and doubles up to `max_gap`, so a move that ends on time is seen within `min_gap` of its
+/// end and one that runs late costs a handful of questions, not a flood. `min_gap` is the shortest pause between two status questions to one
 /// controller: no schedule asks faster than the controller answers.
 #[derive(Debug, Clone)]
 pub struct PollSchedule {
