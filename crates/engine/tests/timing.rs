@@ -250,3 +250,17 @@ async fn the_eta_follows_an_instrument_slower_than_its_file() {
         "the ETA {eta:.1} s is more than 10 % from the {truth:.1} s left"
     );
 }
+
+#[test]
+fn the_time_model_waits_as_long_as_the_drivers_do() {
+    // The scheduler cannot depend on the drivers, so it states their pauses itself: held equal here, where both
+    // are visible, so that a driver's pacing cannot change without the prediction following it.
+    assert_eq!(
+        gonio_scheduler::timing::SMC100_SET_GAP_S,
+        gonio_driver::smc100::SET_GAP.as_secs_f64()
+    );
+    assert_eq!(
+        gonio_scheduler::timing::ARRIVAL_MARGIN_S,
+        gonio_driver::poll::ARRIVAL_MARGIN.as_secs_f64()
+    );
+}

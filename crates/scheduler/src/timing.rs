@@ -32,7 +32,7 @@
 mod legs;
 mod profile;
 
-pub use legs::{LegTiming, SMC100_SET_GAP_S, exchange_s};
+pub use legs::{ARRIVAL_MARGIN_S, LegTiming, SMC100_SET_GAP_S, exchange_s};
 use profile::Segment;
 pub use profile::{AxisModel, WheelModel, trapezoid_time_s};
 
