@@ -100,27 +100,30 @@ pub fn corrections(run: &Run, half_angle_rad: f64) -> Option<Corrections> {
         dry_run: run.dry_run,
         provenance: None,
     };
-    let mut fitted: Vec<Fitted> = MODELS
-        .iter()
-        .filter_map(|&model| {
-            let mut opts = FitOptions::new(model);
-            opts.loss = Loss::None;
-            let report = fit_unshared(&subset, &opts).ok()?;
-            fitted_of(report)
-        })
-        .collect();
+    // The fits and the points are independent of each other: on the machine's cores (crate::parallel).
+    let mut fitted: Vec<Fitted> = crate::parallel::map(&MODELS, |&model| {
+        let mut opts = FitOptions::new(model);
+        opts.loss = Loss::None;
+        let report = fit_unshared(&subset, &opts).ok()?;
+        fitted_of(report)
+    })
+    .into_iter()
+    .flatten()
+    .collect();
     fitted.sort_by(|a, b| a.rms.total_cmp(&b.rms));
     let best = fitted.first()?;
     let acceptable: Vec<&Fitted> = fitted
         .iter()
         .filter(|f| f.rms <= best.rms * ACCEPTABLE_RMS_RATIO)
         .collect();
-    let points = run
-        .points
-        .iter()
-        .map(|p| correction(p, half_angle_rad, &acceptable))
-        .collect();
-    let slopes = run.points.iter().map(|p| slopes(p, &best.material)).collect();
+    let (points, slopes) = crate::parallel::map(&run.points, |p| {
+        (
+            correction(p, half_angle_rad, &acceptable),
+            slopes(p, &best.material),
+        )
+    })
+    .into_iter()
+    .unzip();
     Some(Corrections {
         model: best.model,
         residual_rms: best.rms,

@@ -51,15 +51,31 @@ fn same_geometry(a: &Point, b: &Point) -> bool {
 /// The band component of each point (1/sr, k = 1), `None` where it cannot be estimated (no valid value, one band
 /// at the geometry, or a band the filters do not describe). `filter` looks a band up in the instrument file.
 pub fn band_components(points: &[Point], filter: impl Fn(f64) -> Option<FilterBand>) -> Vec<Option<f64>> {
-    // The valid points grouped by geometry, in index order within each group.
+    // The valid points grouped by geometry, in index order within each group: a point joins the first group
+    // (in creation order) whose first point is at its geometry. The groups are found through buckets of
+    // theta_o one tolerance wide (a group at this geometry sits in this bucket or a neighbour), so a campaign
+    // of thousands of points is not compared with every group (quadratic: a fifth of a 6,000-point
+    // completion's time).
+    let bucket = |p: &Point| (p.theta_o_deg / SAME_GEOMETRY_DEG).floor() as i64;
+    let mut by_bucket: std::collections::HashMap<i64, Vec<usize>> = std::collections::HashMap::new();
     let mut groups: Vec<Vec<usize>> = Vec::new();
     for (i, p) in points.iter().enumerate() {
         if p.value().is_none() {
             continue;
         }
-        match groups.iter_mut().find(|g| same_geometry(&points[g[0]], p)) {
-            Some(g) => g.push(i),
-            None => groups.push(vec![i]),
+        let b = bucket(p);
+        let found = (b.saturating_sub(1)..=b.saturating_add(1))
+            .filter_map(|k| by_bucket.get(&k))
+            .flatten()
+            .copied()
+            .filter(|&g| same_geometry(&points[groups[g][0]], p))
+            .min();
+        match found {
+            Some(g) => groups[g].push(i),
+            None => {
+                by_bucket.entry(b).or_default().push(groups.len());
+                groups.push(vec![i]);
+            }
         }
     }
     let mut out = vec![None; points.len()];
@@ -185,6 +201,23 @@ mod tests {
         // 0.05 x 0.02 x (0.5 / 0.05 - 1) = 0.009: the blue value could be 18 % high.
         assert!((u[0].expect("450") - 0.009).abs() < 1e-12, "{u:?}");
         assert_eq!((u[1], u[2]), (Some(0.0), Some(0.0)));
+    }
+
+    #[test]
+    fn a_geometry_within_the_tolerance_across_a_bucket_edge_is_one_geometry() {
+        // Two points 0.6 tolerances apart in theta_o on either side of a bucket edge (one tolerance wide, from
+        // 0), in two bands; a third geometry 2.7 tolerances away stays apart.
+        let edge = 20.0 + SAME_GEOMETRY_DEG;
+        let points = vec![
+            point(0, 450.0, edge - 0.3 * SAME_GEOMETRY_DEG, 0.1),
+            point(1, 550.0, edge + 0.3 * SAME_GEOMETRY_DEG, 0.2),
+            point(2, 550.0, edge + 3.0 * SAME_GEOMETRY_DEG, 0.2),
+        ];
+        let u = band_components(&points, filters);
+        // Slope 0.1 / 100 nm, times 1 nm, for both points of the pair; the lone band has none.
+        assert!((u[0].expect("paired") - 1e-3).abs() < 1e-12, "{u:?}");
+        assert!((u[1].expect("paired") - 1e-3).abs() < 1e-12, "{u:?}");
+        assert_eq!(u[2], None, "{u:?}");
     }
 
     #[test]

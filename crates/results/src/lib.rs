@@ -36,6 +36,7 @@ pub mod fit;
 pub mod hemispherical;
 pub mod iso;
 pub mod merl_export;
+pub mod parallel;
 pub mod plot;
 pub mod points;
 pub mod provenance;

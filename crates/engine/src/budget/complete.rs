@@ -155,17 +155,24 @@ pub fn completions(
         }
     }
 
+    // Each filter's leakage once (an integral over the spectra), not once per geometry.
+    let filters: Vec<(f64, f64, f64)> = instrument
+        .filter_wheel
+        .iter()
+        .flat_map(|w| &w.positions)
+        .filter_map(|p| {
+            let leakage = gonio_instrument::leakage::out_of_band_fraction(instrument, p).unwrap_or(0.0);
+            Some((p.band_nm?, p.centre_u_nm(), leakage))
+        })
+        .collect();
     let filter = |nm: f64| {
-        instrument
-            .filter_wheel
-            .as_ref()?
-            .positions
+        filters
             .iter()
-            .find(|p| p.band_nm.is_some_and(|b| (b - nm).abs() <= BAND_TOLERANCE_NM))
-            .map(|p| FilterBand {
+            .find(|(b, _, _)| (b - nm).abs() <= BAND_TOLERANCE_NM)
+            .map(|&(_, centre_u_nm, leakage)| FilterBand {
                 band_nm: nm,
-                centre_u_nm: p.centre_u_nm(),
-                leakage: gonio_instrument::leakage::out_of_band_fraction(instrument, p).unwrap_or(0.0),
+                centre_u_nm,
+                leakage,
             })
     };
     for ((completion, point), u) in done
