@@ -221,7 +221,7 @@ pub fn markdown(pairs: &Result<Vec<Pair>, String>, ideal: Option<&Variant>) -> S
          - **The sample's seating.** The alignment finds the sample's tilt as it sat during the alignment; every \
            mounting sits differently (realistic.toml: 0.01 deg per component), and a campaign remounts the sample \
            after each direct-beam reading. Near the specular direction and at grazing angles that is much of the \
-           error left (`cargo test -p gonio --test align -- --ignored --nocapture` prints the demo on a sample \
+           error left (`cargo test -p gonio --test cli align -- --ignored --nocapture` prints the demo on a sample \
            that seats the same way every time).\n\
          - **The smallest ranges' gains.** Every BRDF is a reading on the smallest ranges over a direct beam on \
            the largest; the gains between them are chained through overlaps, and a top-hat beam's edge gives the \

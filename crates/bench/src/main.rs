@@ -398,11 +398,11 @@ fn report(
     let _ = writeln!(s, "## Numerical stability stress suite\n");
     let _ = writeln!(
         s,
-        "Fast tier (in CI, seconds): `cargo test -p gonio-brdf --test stress`, `cargo test -p gonio-simulator --test \
-         stress`, `cargo test -p gonio-scheduler --test stress`.\n\
+        "Fast tier (in CI, seconds): `cargo test -p gonio-brdf --test stress`, `cargo test -p gonio-simulator --test it \
+         stress`, `cargo test -p gonio-scheduler --test it stress`.\n\
          Large tier (10,000,000 random model/geometry pairs, 40 random models per kind, albedo integrals for 12 per \
          kind): `GONIO_STRESS=large cargo test --release -p gonio-brdf --test stress`.\n\
-         What they check is written at the top of each file.\n"
+         What they check is written at the top of each suite.\n"
     );
     let _ = writeln!(s, "<!-- STRESS -->");
     s

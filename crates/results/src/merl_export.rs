@@ -17,7 +17,7 @@
 //! about 1 degree in theta_d and phi_d, and 0.02 to 2 degrees in theta_h); between nodes the linear interpolation
 //! error of the measurement grid applies. Reading the file back (trilinear between cell centres) reproduces
 //! each measured value to within the spread of the measured values around it; the test
-//! `merl_round_trip_reproduces_the_measurement` in tests/export.rs quantifies it for the seed's materials.
+//! `merl_round_trip_reproduces_the_measurement` in tests/cli/export.rs quantifies it for the seed's materials.
 
 use gonio_brdf::geometry::IsotropicAngles;
 use gonio_brdf::merl::{self, CELLS, MerlChannel, MerlData, PHI_D_BINS, THETA_D_BINS, THETA_H_BINS};

@@ -27,7 +27,7 @@
 //! [`IsoGrid::eval_held`]). Without it the renderer's bilinear cells across the edge of the measured region (and
 //! around the retro-reflection hole) mix the 0 of the unmeasured node into measured directions: on the export
 //! tests' plan (10 degree polar, 45 degree azimuth steps) that put the file up to 58 % below the measurement at
-//! measured nodes beside the hole and up to 38 % below it at theta_o = 80 degrees (tests/export_rgl.rs). With
+//! measured nodes beside the hole and up to 38 % below it at theta_o = 80 degrees (tests/cli/export_rgl.rs). With
 //! it the measured directions keep their values up to the edge, and the renderer fades to 0 within one cell
 //! beyond it (at most 5.7 degrees of theta_o, about 11 degrees of delta_phi away from the pole), as the
 //! description says. Tables for every measured band; `luminance` is their mean over the bands (with a floor of

@@ -26,7 +26,7 @@
 //! TIS: the directional-hemispherical reflectance of the same interpolant over the measured region
 //! ([`crate::hemispherical`]). The table's own quadrature (trapezoid rule in r and a with weight
 //! `sin r cos theta_s`) is written in the comments beside it; on the grids used they agree to a few parts in a
-//! thousand for smooth data (tests/export.rs checks it with a reader written from the specification).
+//! thousand for smooth data (tests/cli/export.rs checks it with a reader written from the specification).
 
 use std::fmt::Write as _;
 

@@ -293,7 +293,7 @@ impl Kinematics {
             };
             // The component of h perpendicular to wi, as wi x (h x wi) rather than h - (h . wi) wi: when h is nearly
             // parallel to wi the subtraction cancels (1 - 1 = 0 where the true value is 1e-18), leaving an arm plane
-            // that misses wi by up to its elevation (tests/stress.rs: wi 1e-9 rad above the horizon, forward
+            // that misses wi by up to its elevation (tests/it/stress.rs: wi 1e-9 rad above the horizon, forward
             // kinematics 1e-9 rad off). The double cross product has no cancellation.
             let w = [wi.x(), wi.y(), wi.z()];
             let c = [

@@ -1,6 +1,6 @@
 //! The project's check of ARCHITECTURE.md's rule that files import in one direction only: if a.rs uses b.rs,
 //! nothing b.rs uses (directly or through others) uses a.rs. [`import_loops`] reads every source file of every
-//! crate in a workspace and returns each loop with the names that tie it; crates/testkit/tests/no_import_loops.rs
+//! crate in a workspace and returns each loop with the names that tie it; crates/testkit/tests/it/no_import_loops.rs
 //! runs it on this workspace.
 //!
 //! What counts as an edge from a file to another file of the same crate:

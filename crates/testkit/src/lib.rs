@@ -9,10 +9,10 @@
 //! - [`directions`]: hostile directions for the numerical stress suites; [`nm`]: a wavelength in a test.
 //! - [`load`]: every core kept busy ([`CpuLoad`]), for timing that must hold on a loaded machine.
 //! - [`imports`]: the import-loop check of ARCHITECTURE.md's rule ([`imports::import_loops`]), run on the
-//!   workspace by tests/no_import_loops.rs.
+//!   workspace by tests/it/no_import_loops.rs.
 //!
 //! The daemon's in-process API set-up is not here: it needs the daemon, whose own tests use it, so it lives in
-//! crates/daemon/tests/common (one copy for all the daemon's tests).
+//! crates/daemon/tests/it/common (one copy for all the daemon's tests).
 
 pub mod campaign;
 pub mod cli;

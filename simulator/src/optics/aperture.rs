@@ -43,8 +43,8 @@
 //! kink in the BRDF (Oren-Nayar has two: at cos(phi_o - phi_i) = 0 and at theta_o = theta_i) makes the
 //! differences fall irregularly and can fool any extrapolation from one ratio. The latitude sequence is guarded
 //! besides: it never reports less than a tenth of the previous difference. These rules were set against random geometries: 9,000 above the horizon and 14,000 across
-//! it, each reading within the tolerance with an estimate that covers its error (tests/optics/estimates.rs,
-//! tests/horizon.rs; the environment variables there widen the search).
+//! it, each reading within the tolerance with an estimate that covers its error (tests/it/optics/estimates.rs,
+//! tests/it/horizon.rs; the environment variables there widen the search).
 //!
 //! Where the code is: the cone, the plans and [`integrate`] here; the rules in `tensor.rs` (above the horizon),
 //! `across.rs` (across it, in the coordinates of `latitude.rs`) and `adaptive.rs` (Genz-Malik), on the

@@ -210,7 +210,7 @@ impl Optics {
 /// three-cavity band's weight lies), every 50 nm elsewhere (at least 25 nm from the passband's nodes), and both
 /// ends. At least two. Linear interpolation between nodes `h` apart costs about `h^2 f'' / 8` of a smooth
 /// spectrum: 4.7e-5 of a red edge's value at twelfths of a 10 nm band, and across 50 nm of the same edge 7e-4
-/// of a reading that leakage doubles (simulator/tests/imperfections/filters.rs). The far nodes fall on
+/// of a reading that leakage doubles (simulator/tests/it/imperfections/filters.rs). The far nodes fall on
 /// multiples of 50 nm from the range's start, where the seed materials' tables have their entries.
 fn nodes(lo: f64, hi: f64, centre: f64, width: f64) -> Vec<f64> {
     let (band_lo, band_hi) = (centre - 1.5 * width, centre + 1.5 * width);

@@ -1,7 +1,7 @@
 //! The analytic reflectance models, one file each, all implementing [`crate::Brdf`] with the definitions of
 //! shared/reference/radiometry-and-materials.md ("Models").
 //!
-//! Shared guarantees (checked by `tests/models.rs`): `eval` is finite and >= 0 for any pair of unit directions,
+//! Shared guarantees (checked by `tests/it/models.rs`): `eval` is finite and >= 0 for any pair of unit directions,
 //! exactly 0 when either cosine is <= 0 (tested before any division), and reciprocal: the formulas are written
 //! so that swapping `wi` and `wo` performs the same floating-point operations on swapped operands, which makes
 //! `eval(wi, wo) == eval(wo, wi)` hold bit for bit.

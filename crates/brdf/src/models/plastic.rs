@@ -19,7 +19,7 @@
 //! masking x alpha in [0.02, 1] x anisotropy ratio up to 30 x ior in [1.05, 4] x theta_i in [0, 89] degrees)
 //! found the largest admissible factor to be 0.9976 for isotropic coats and 0.9874 for an anisotropy ratio of
 //! 30. Hence `COAT_BOUND = 0.98` and plastic accepts anisotropy ratios up to [`ANISOTROPY_MAX`] = 10. This is
-//! an empirical bound, re-checked by `plastic_albedo_is_bounded` in tests/models.rs; it darkens the base by 2%
+//! an empirical bound, re-checked by `plastic_albedo_is_bounded` in tests/it/models.rs; it darkens the base by 2%
 //! relative to the physical derivation, which is within the spread of real plastics.
 
 use std::f64::consts::PI;

@@ -1,7 +1,7 @@
 //! What only a dry-run has, as the engine sees it: a sample holder that the (simulated) operator's actions
 //! change, the ground truth of the sample in it, and the instrument's clock. The engine (crates/engine/src/runner)
 //! drives a dry-run through these alone and never names the simulator, so a dry-run looks like hardware to it
-//! (checked by crates/engine/tests/layering.rs). What the simulator knows and the instrument would not tell (the
+//! (checked by crates/engine/tests/it/layering.rs). What the simulator knows and the instrument would not tell (the
 //! true BRDF) leaves here only as [`SampleHolder::truth`], which the engine stores beside each point for tests
 //! and run.json and never uses in a measurement.
 

@@ -1,6 +1,6 @@
 //! A dry-run's hidden truth for run.json: the simulated instrument's imperfections as the simulator drew them
 //! from the stored instrument file and its seed. It goes to the run record and nowhere else: the engine, the
-//! drivers and the calibration never see it (crates/engine/tests/layering.rs keeps the simulator inside the rig).
+//! drivers and the calibration never see it (crates/engine/tests/it/layering.rs keeps the simulator inside the rig).
 
 use gonio_instrument::{Instrument, InstrumentFile};
 use gonio_results::provenance::{

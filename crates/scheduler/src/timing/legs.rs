@@ -24,11 +24,11 @@
 use gonio_instrument::{Instrument, Protocol};
 
 /// The SMC100 driver's pause after a set command before the next command to the same controller
-/// (`gonio_driver::smc100::SET_GAP`; crates/engine/tests/timing.rs holds the two equal).
+/// (`gonio_driver::smc100::SET_GAP`; crates/engine/tests/it/timing.rs holds the two equal).
 pub const SMC100_SET_GAP_S: f64 = 0.065;
 
 /// How long after a move's predicted end the driver asks whether it is over (`gonio_driver::poll::ARRIVAL_MARGIN`;
-/// crates/engine/tests/timing.rs holds the two equal).
+/// crates/engine/tests/it/timing.rs holds the two equal).
 pub const ARRIVAL_MARGIN_S: f64 = 0.001;
 
 /// Bytes of a typical SMC100 reply (`1TS000028\r\n`, `1TP-45.02\r\n`).

@@ -460,7 +460,7 @@ impl Report {
              - A read-only store is not soaked here: the soak may run as root, whom file permissions do not stop, \
              so only the full store (SQLite's own SQLITE_FULL through `max_page_count`) is reproducible everywhere. \
              Both take the same path in the engine (a store write failure pauses the campaign); the daemon's test \
-             suite covers the full store too (`crates/daemon/tests/disk.rs`).\n\
+             suite covers the full store too (`crates/daemon/tests/it/disk.rs`).\n\
              - Fuzzing of the HTTP API bodies and of every parser at scale has its own harnesses (the daemon's \
              `api_fuzz` and `loaders_fuzz` tests); the census above is a sample.\n\
              - Wall times depend on the machine; instrument times and counts depend only on the seed (and the \

@@ -1,0 +1,126 @@
+//! `first_pass_theta_i_deg` of `[plan.adaptive]`: a hostile list is refused at once with a clear message, and
+//! repeated incidences or reciprocal geometries give no repeated point (checked by brute force here).
+
+use crate::common;
+
+use common::simulated;
+use gonio_instrument::Instrument;
+use gonio_scheduler::adaptive::{Adaptive, MAX_FIRST_PASS_INCIDENCES};
+use gonio_scheduler::kinematics::Geometry;
+use gonio_scheduler::plan::AdaptiveSpec;
+use gonio_scheduler::plan::{BuildContext, PlanError, SampleTraits};
+
+fn ctx(inst: &Instrument) -> BuildContext<'_> {
+    BuildContext {
+        instrument: inst,
+        traits: SampleTraits {
+            isotropic: true,
+            spectrally_flat: false,
+        },
+        sample_radius_mm: None,
+        start: None,
+    }
+}
+
+/// A large budget, so that the first pass is not thinned to a quarter of it.
+fn spec(incidences: Option<toml::Value>) -> AdaptiveSpec {
+    AdaptiveSpec {
+        budget_points: 100_000,
+        budget_s: None,
+        batch_points: 20,
+        target_error: 0.0,
+        first_pass_step_deg: 10.0,
+        first_pass_theta_i_deg: incidences,
+        resolution_deg: 10.0,
+    }
+}
+
+fn list(angles: &[f64]) -> toml::Value {
+    toml::Value::Array(angles.iter().map(|a| toml::Value::Float(*a)).collect())
+}
+
+fn build(incidences: Option<toml::Value>) -> Result<Adaptive, PlanError> {
+    let inst = simulated();
+    Adaptive::new(&spec(incidences), &ctx(&inst))
+}
+
+fn message(r: Result<Adaptive, PlanError>) -> String {
+    match r {
+        Ok(_) => panic!("accepted"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn a_huge_incidence_list_is_refused_with_its_size() {
+    let huge = list(&vec![30.0; 1_000_000]);
+    let m = message(build(Some(huge)));
+    assert!(
+        m.contains("first_pass_theta_i_deg") && m.contains("1000000 incidences") && m.contains("at most 181"),
+        "{m}"
+    );
+    // One past the limit is refused too; the limit itself is accepted.
+    let over: Vec<f64> = (0..=MAX_FIRST_PASS_INCIDENCES).map(|k| k as f64 * 0.25).collect();
+    assert!(message(build(Some(list(&over)))).contains("at most 181"));
+    let at: Vec<f64> = (0..MAX_FIRST_PASS_INCIDENCES).map(|k| k as f64 * 0.5).collect();
+    let a = build(Some(list(&at))).expect("181 incidences, 0 to 90 deg");
+    assert!(!a.first_pass().is_empty());
+}
+
+#[test]
+fn a_range_with_too_many_incidences_is_refused() {
+    let range: toml::Value = toml::from_str::<toml::Table>("r = { from = 0.0, to = 90.0, step = 0.1 }")
+        .expect("toml")
+        .remove("r")
+        .expect("r");
+    let m = message(build(Some(range)));
+    assert!(
+        m.contains("range gives 901 incidences") && m.contains("at most 181"),
+        "{m}"
+    );
+}
+
+#[test]
+fn a_non_finite_incidence_is_refused() {
+    for bad in [f64::NAN, f64::INFINITY] {
+        let m = message(build(Some(list(&[30.0, bad]))));
+        assert!(m.contains("finite"), "{m}");
+    }
+}
+
+/// The canonical form of an isotropic geometry (reciprocity: theta_i and theta_o in either order), to the
+/// nanodegree: two geometries with the same key are one measurement.
+fn key(g: &Geometry) -> (i64, i64, i64) {
+    let (a, b) = (g.theta_i_deg.min(g.theta_o_deg), g.theta_i_deg.max(g.theta_o_deg));
+    let dp = (g.phi_o_deg - g.phi_i_deg).rem_euclid(360.0);
+    let q = |x: f64| (x * 1e9).round() as i64;
+    (q(a), q(b), q(dp))
+}
+
+#[test]
+fn repeated_incidences_and_reciprocal_geometries_give_no_repeated_point() {
+    let plain = build(Some(list(&[30.0, 0.0, 60.0]))).expect("valid").first_pass();
+    // The same angles repeated, one of them off by rounding (0.1 + 0.2 - 0.3 is not 0 in floating point).
+    let repeated = build(Some(list(&[30.0, 0.0, 30.0, 60.0, 0.0, 0.1 + 0.2 - 0.3, 60.0])))
+        .expect("valid")
+        .first_pass();
+    assert_eq!(repeated, plain, "repeats change nothing, order kept");
+    // Brute force: no two points are the same measurement.
+    for (i, a) in plain.iter().enumerate() {
+        for b in &plain[i + 1..] {
+            assert_ne!(key(a), key(b), "{a:?} and {b:?}");
+        }
+    }
+    // Reciprocity merged the sweeps: (30 -> 60) and (60 -> 30) in the plane are measured once, at its first
+    // occurrence (the 30-degree sweep comes first).
+    let in_plane = |ti: f64, to: f64| Geometry::new(ti, 0.0, to, 180.0);
+    assert!(plain.iter().any(|g| key(g) == key(&in_plane(30.0, 60.0))));
+    assert!(plain.contains(&in_plane(30.0, 60.0)));
+    assert!(!plain.contains(&in_plane(60.0, 30.0)));
+    // And the order of the incidences is the order given.
+    let first_ti = |p: &[Geometry]| p.first().map(|g| g.theta_i_deg);
+    assert_eq!(first_ti(&plain), Some(30.0));
+    let reordered = build(Some(list(&[0.0, 30.0, 60.0]))).expect("valid").first_pass();
+    assert_eq!(first_ti(&reordered), Some(0.0));
+    assert_eq!(reordered.len(), plain.len());
+}

@@ -1,0 +1,19 @@
+//! Integration tests of gonio-scheduler: one test binary.
+//!
+//! - `adaptive`: adaptive plans against a uniform grid of the same size, reconstructed with the same
+//!   interpolation and compared with a dense reference.
+//! - `adaptive_first_pass`: `first_pass_theta_i_deg` of `[plan.adaptive]`.
+//! - `kinematics_and_moves`: kinematics round trips, constraint checks and the move planner, against
+//!   independent expectations.
+//! - `plans_and_order`: plans, schedules (constraints on every point and move), ordering against raster order
+//!   and a brute-force optimum, and the lower bound.
+//! - `stress`: the numerical stability stress suite for the kinematics (`cargo test -p gonio-scheduler --test
+//!   it stress`).
+
+mod common;
+
+mod adaptive;
+mod adaptive_first_pass;
+mod kinematics_and_moves;
+mod plans_and_order;
+mod stress;
