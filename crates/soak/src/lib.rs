@@ -1,6 +1,11 @@
 //! gonio-soak: the reliability soaks of issue 8, shared by the `gonio-soak` command (which writes
 //! `RELIABILITY.md`) and the CI-sized tests in `tests/`, so that both run the same code.
 //!
+//! Each soak's tests are a test binary of their own (the workspace's other crates have one each): a soak judges
+//! the daemon under load it makes itself (SIGKILLed worker processes, a store filled to SQLite's limit, hostile
+//! connections on the real clock), and run in one process with another soak beside it, its verdict would be
+//! about both.
+//!
 //! Module map:
 //! - [`setup`]: the soak campaigns (an exact number of points) and the instrument ([`setup::SoakInstrument`]:
 //!   the ideal `simulated.toml` or the imperfect `realistic.toml`) with `[simulator.faults]` set.
