@@ -270,7 +270,7 @@ fn run_with_the_alignment_applied_takes_out_the_geometric_error() {
     );
 }
 
-/// The alignment's effect on the demo per seed and variant, the figures README.md's "Bring-up" paragraph
+/// The alignment's effect on the demo per seed and variant, the figures behind docs/methods/alignment.md's
 /// quotes: `cargo test -p gonio --test cli align -- --ignored --nocapture` prints them. A report, not a target:
 /// it asserts only that every variant aligns and runs.
 #[test]

@@ -7,6 +7,8 @@ mod align;
 mod brdf_check;
 mod brdf_eval;
 mod calibration;
+#[cfg(test)]
+mod cli_reference;
 mod ctl;
 mod daemon;
 mod devices;
