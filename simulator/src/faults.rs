@@ -53,6 +53,11 @@ pub enum ReplyFate {
     Drop,
 }
 
+/// A `[simulator.faults]` value out of its range; the message names the key.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct InvalidFaults(pub String);
+
 impl FaultInjector {
     pub fn new(cfg: Faults) -> FaultInjector {
         FaultInjector {
@@ -63,7 +68,11 @@ impl FaultInjector {
     }
 
     /// Check the rates and times; the message names the key.
-    pub fn validate(cfg: &Faults) -> Result<(), String> {
+    pub fn validate(cfg: &Faults) -> Result<(), InvalidFaults> {
+        Self::check(cfg).map_err(InvalidFaults)
+    }
+
+    fn check(cfg: &Faults) -> Result<(), String> {
         for (key, v) in [
             ("garble_rate", cfg.garble_rate),
             ("drop_rate", cfg.drop_rate),
@@ -487,7 +496,7 @@ mod tests {
                 "delay_jitter_ms",
             ),
         ] {
-            let msg = FaultInjector::validate(&cfg).expect_err("refused");
+            let msg = FaultInjector::validate(&cfg).expect_err("refused").0;
             assert!(msg.contains(key), "{msg}");
         }
     }
@@ -498,7 +507,7 @@ mod tests {
             drop_rate: 1.5,
             ..Faults::default()
         };
-        let msg = FaultInjector::validate(&cfg).expect_err("out of range");
+        let msg = FaultInjector::validate(&cfg).expect_err("out of range").0;
         assert!(msg.contains("drop_rate"), "{msg}");
     }
 }

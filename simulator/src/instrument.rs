@@ -76,8 +76,8 @@ impl SimInstrument {
                 "time scale must be finite and > 0, got {time_scale}"
             )));
         }
-        file.instrument.validate().map_err(SimError::Invalid)?;
-        FaultInjector::validate(&file.simulator.faults).map_err(SimError::Invalid)?;
+        file.instrument.validate().map_err(|e| SimError::Invalid(e.0))?;
+        FaultInjector::validate(&file.simulator.faults).map_err(|e| SimError::Invalid(e.0))?;
         file.simulator.imperfections.validate()?;
         let hidden = crate::imperfections::HiddenTruth::draw(file);
         // The devices are the hardware as it really is (hidden timing, `[simulator.actual]`); the engine plans

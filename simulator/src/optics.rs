@@ -269,7 +269,7 @@ impl Optics {
             material: sample.material,
             bands: RwLock::new(Vec::new()),
             responsivity: crate::responsivity::Responsivity::from_detector(det)
-                .map_err(OpticsError::Responsivity)?,
+                .map_err(|e| OpticsError::Responsivity(e.0))?,
             spectral: Vec::new(),
         };
         for nm in instrument.bands_nm() {

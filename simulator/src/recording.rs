@@ -386,6 +386,21 @@ pub fn check_arm_separation(
     d: &[Piece],
     min_separation_deg: f64,
     separation_ok: impl Fn(f64) -> bool,
+) -> Result<f64, SeparationViolation> {
+    separation(l, d, min_separation_deg, separation_ok).map_err(SeparationViolation)
+}
+
+/// Where two arms' trajectories broke the separation rule ([`check_arm_separation`]): the stretch, the
+/// separation reached and the rule's minimum.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct SeparationViolation(pub String);
+
+fn separation(
+    l: &[Piece],
+    d: &[Piece],
+    min_separation_deg: f64,
+    separation_ok: impl Fn(f64) -> bool,
 ) -> Result<f64, String> {
     let mut apart = false;
     let mut min_seen = f64::INFINITY;
@@ -452,7 +467,7 @@ mod tests {
             piece(1.0, 2.0, 20.0, 0.0, 0.0),
         ];
         let err = check(&light, &detector).expect_err("too close at t = 0.5");
-        assert!(err.contains("9.5"), "{err}");
+        assert!(err.0.contains("9.5"), "{err}");
         // The same swing kept at 10.5 deg at its closest is fine, and the minimum is measured exactly.
         let detector = vec![
             piece(0.0, 1.0, 20.0, -38.0, 76.0),
@@ -463,7 +478,7 @@ mod tests {
         // Arms that start together may only separate until they are apart.
         let detector = vec![piece(0.0, 1.0, 0.0, 12.0, 0.0), piece(1.0, 2.0, 12.0, -4.0, 0.0)];
         let err = check(&light, &detector).expect_err("came back");
-        assert!(err.contains("8.0"), "{err}");
+        assert!(err.0.contains("8.0"), "{err}");
     }
 
     /// A SplitMix64 stream: reproducible pseudo-random numbers without a dependency.

@@ -32,6 +32,9 @@ pub enum RglError {
     Read { path: PathBuf, source: std::io::Error },
     #[error("{}: not a usable RGL material file: {message}", path.display())]
     Invalid { path: PathBuf, message: String },
+    /// Bytes that are not a usable RGL file (no file named: [`RglBrdf::from_bytes`]).
+    #[error("not a usable RGL material file: {message}")]
+    Malformed { message: String },
 }
 
 /// A field: type code, shape, raw bytes.
@@ -307,14 +310,18 @@ impl RglBrdf {
             path: path.to_path_buf(),
             source,
         })?;
-        RglBrdf::from_bytes(&bytes).map_err(|message| RglError::Invalid {
+        RglBrdf::parse(&bytes).map_err(|message| RglError::Invalid {
             path: path.to_path_buf(),
             message,
         })
     }
 
     /// Reads the bytes of an RGL file; the error says what is wrong.
-    pub fn from_bytes(bytes: &[u8]) -> Result<RglBrdf, String> {
+    pub fn from_bytes(bytes: &[u8]) -> Result<RglBrdf, RglError> {
+        RglBrdf::parse(bytes).map_err(|message| RglError::Malformed { message })
+    }
+
+    fn parse(bytes: &[u8]) -> Result<RglBrdf, String> {
         let fields = parse_fields(bytes)?;
         let get = |name: &str, dtype: u8, rank: usize| -> Result<&RawField, String> {
             let f = fields

@@ -219,7 +219,7 @@ fn calibration(
                     .reference
                     .as_ref()
                     .ok_or_else(|| "the stored campaign has no [resolved] reference".to_string())
-                    .and_then(sources::material_from_stored),
+                    .and_then(|spec| sources::material_from_stored(spec).map_err(|e| e.to_string())),
                 None => materials::reference_material(r, sources, base),
             }
             .map_err(|e| at.err("calibration", "reference", e))?;

@@ -66,14 +66,14 @@ pub fn resolved_trailer(r: &Resolved) -> String {
 
 /// Rebuild a material from its stored description. A measured material's `file` is absolute (resolved at
 /// submission); `/` is only the base of a relative path written by hand.
-pub fn material_from_stored(spec: &MaterialSpec) -> Result<Material, String> {
-    Material::from_spec(spec, Path::new("/")).map_err(|e| e.to_string())
+pub fn material_from_stored(spec: &MaterialSpec) -> Result<Material, gonio_brdf::material::MaterialError> {
+    Material::from_spec(spec, Path::new("/"))
 }
 
 /// A path named in a campaign, checked against the policy: the file to read.
 /// `relative_to` is the directory a relative name resolves against (the campaign file's or, for a file named in
 /// a reference material file, that file's directory).
-pub fn file_path(sources: &Sources, relative_to: &Path, name: &str) -> Result<PathBuf, String> {
+pub(crate) fn file_path(sources: &Sources, relative_to: &Path, name: &str) -> Result<PathBuf, String> {
     match sources {
         Sources::Local(_) | Sources::Stored => {
             let p = Path::new(name);
@@ -89,7 +89,7 @@ pub fn file_path(sources: &Sources, relative_to: &Path, name: &str) -> Result<Pa
 
 /// The directory relative names resolve against at the top of a campaign: absolute, so that what is stored
 /// (measured data files) does not depend on the current directory later.
-pub fn base_dir(sources: &Sources) -> Result<PathBuf, String> {
+pub(crate) fn base_dir(sources: &Sources) -> Result<PathBuf, String> {
     match sources {
         Sources::Local(dir) => {
             let dir = if dir.as_os_str().is_empty() {
@@ -111,7 +111,7 @@ fn canonical_root(root: &Path) -> Result<PathBuf, String> {
 
 /// `name` (relative to `relative_to`, or absolute) as a canonical path inside `root`, or why not. The error says
 /// what the rule is and never where a link outside leads.
-pub fn confine(root: &Path, relative_to: &Path, name: &str) -> Result<PathBuf, String> {
+pub(crate) fn confine(root: &Path, relative_to: &Path, name: &str) -> Result<PathBuf, String> {
     let root = canonical_root(root)?;
     let rule = format!(
         "a campaign submitted to the daemon may only name material presets or files inside its data directory {}",

@@ -105,7 +105,7 @@ impl From<StoreError> for ServiceError {
 }
 
 /// A future the runner returns, boxed so that [`CampaignRunner`] stays object-safe.
-pub type RunFuture = Pin<Box<dyn Future<Output = Result<CampaignState, String>> + Send>>;
+pub type RunFuture = Pin<Box<dyn Future<Output = Result<CampaignState, gonio_engine::EngineError>> + Send>>;
 
 /// A validated submission: the record the store keeps, and the campaign as the engine prepared it, which the
 /// queue keeps with its entry for the campaign's first run (so that it is not planned and ordered twice).
@@ -118,10 +118,10 @@ pub struct Submission {
 /// What the service needs from the campaign engine: validate a submission, run a stored campaign, export its
 /// points. The daemon uses [`EngineRunner`]; tests of the queue logic use a fake.
 pub trait CampaignRunner: Send + Sync + 'static {
-    /// Validate a submitted campaign file and resolve it into what the store keeps. The error is the message a
-    /// person reads (file, line, key, what was expected).
+    /// Validate a submitted campaign file and resolve it into what the store keeps. A refusal is
+    /// [`ServiceError::Invalid`] with the message a person reads (file, line, key, what was expected).
     /// `origin` names the file in messages (the client's file name, or "submitted campaign").
-    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, String>;
+    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, ServiceError>;
 
     /// Run (or resume from its first uncommitted point) a stored campaign until it is final or paused. The
     /// engine keeps the store's state up to date and reports through `control`. `prepared`: what
@@ -135,7 +135,7 @@ pub trait CampaignRunner: Send + Sync + 'static {
     ) -> RunFuture;
 
     /// The campaign's points as CSV (the columns of `gonio run`).
-    fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String>;
+    fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, StoreError>;
 
     /// The connected instrument, for a person who takes it ([`Service::take_instrument`]); None for a runner
     /// without one (the queue tests' fake).

@@ -122,7 +122,7 @@ impl Rig {
         time_scale: f64,
     ) -> Result<Rig, EngineError> {
         let inst = &file.instrument;
-        inst.validate().map_err(EngineError::Instrument)?;
+        inst.validate().map_err(|e| EngineError::Instrument(e.0))?;
         let scene = Arc::new(SwitchScene {
             optics: RwLock::new(None),
         });

@@ -94,7 +94,11 @@ impl Actual {
 
     /// Every value names an axis the file has and is a positive (zero for settle and backlash), finite
     /// number; the message names the key as the file spells it.
-    pub fn validate(&self, instrument: &Instrument) -> Result<(), String> {
+    pub fn validate(&self, instrument: &Instrument) -> Result<(), crate::InvalidInstrument> {
+        self.check(instrument).map_err(crate::InvalidInstrument)
+    }
+
+    fn check(&self, instrument: &Instrument) -> Result<(), String> {
         let positive = |key: String, v: Option<f64>, zero_ok: bool| -> Result<(), String> {
             match v {
                 Some(x) if !x.is_finite() || x < 0.0 || (x == 0.0 && !zero_ok) => Err(format!(

@@ -494,6 +494,11 @@ pub struct Faults {
     pub saturate: bool,
 }
 
+/// What is wrong with an instrument description that parsed: the message names the table and key.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct InvalidInstrument(pub String);
+
 /// Why an instrument description was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum InstrumentError {
@@ -531,12 +536,10 @@ impl InstrumentFile {
             path: origin.to_string(),
             message: e.to_string(),
         })?;
-        file.instrument
-            .validate()
-            .map_err(|message| InstrumentError::Invalid {
-                path: origin.to_string(),
-                message,
-            })?;
+        file.instrument.validate().map_err(|e| InstrumentError::Invalid {
+            path: origin.to_string(),
+            message: e.0,
+        })?;
         file.simulator
             .imperfections
             .validate()
@@ -547,9 +550,9 @@ impl InstrumentFile {
         file.simulator
             .actual
             .validate(&file.instrument)
-            .map_err(|message| InstrumentError::Invalid {
+            .map_err(|e| InstrumentError::Invalid {
                 path: origin.to_string(),
-                message,
+                message: e.0,
             })?;
         Ok(file)
     }

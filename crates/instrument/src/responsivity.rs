@@ -13,7 +13,12 @@ pub enum Responsivity {
 }
 
 impl Responsivity {
-    pub fn from_detector(d: &Detector) -> Result<Responsivity, String> {
+    /// The table of `[instrument.detector] responsivity_a_per_w`, or why it is not one.
+    pub fn from_detector(d: &Detector) -> Result<Responsivity, crate::InvalidInstrument> {
+        Responsivity::read(d).map_err(crate::InvalidInstrument)
+    }
+
+    fn read(d: &Detector) -> Result<Responsivity, String> {
         match &d.responsivity_a_per_w {
             None => Ok(Responsivity::Constant(0.5)),
             Some(toml::Value::Float(x)) if *x > 0.0 => Ok(Responsivity::Constant(*x)),

@@ -4,11 +4,15 @@
 
 use std::collections::BTreeSet;
 
-use crate::{AxisRole, GeometryKind, Instrument, Protocol};
+use crate::{AxisRole, GeometryKind, Instrument, InvalidInstrument, Protocol};
 
 impl Instrument {
     /// Consistency checks that serde cannot express. The message names the table and key.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidInstrument> {
+        self.check().map_err(InvalidInstrument)
+    }
+
+    fn check(&self) -> Result<(), String> {
         let mut names = BTreeSet::new();
         for d in &self.devices {
             if !names.insert(d.name.as_str()) {

@@ -223,7 +223,7 @@ pub fn write_points_csv(table: &PointsTable) -> String {
 
 /// Splits one CSV line into fields. Quoted fields may hold commas and doubled quotes; a quote must close on
 /// the same line.
-pub fn split_record(line: &str) -> Result<Vec<String>, String> {
+pub(crate) fn split_record(line: &str) -> Result<Vec<String>, String> {
     let mut fields = Vec::new();
     let mut field = String::new();
     let mut chars = line.chars().peekable();

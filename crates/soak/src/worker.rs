@@ -240,7 +240,11 @@ struct ProbeRunner {
 }
 
 impl CampaignRunner for ProbeRunner {
-    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, String> {
+    fn prepare(
+        &self,
+        campaign_toml: &str,
+        origin: &str,
+    ) -> Result<Submission, gonio_daemon::service::ServiceError> {
         self.inner.prepare(campaign_toml, origin)
     }
 
@@ -257,7 +261,11 @@ impl CampaignRunner for ProbeRunner {
         self.inner.run(store, id, control, prepared)
     }
 
-    fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
+    fn points_csv(
+        &self,
+        store: &Store,
+        record: &CampaignRecord,
+    ) -> Result<String, gonio_engine::store::StoreError> {
         self.inner.points_csv(store, record)
     }
 }

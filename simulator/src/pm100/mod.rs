@@ -219,7 +219,7 @@ impl Pm100 {
         imperfections: Option<crate::imperfections::DetectorTruth>,
     ) -> Result<Pm100, String> {
         let detector = inst.detector.clone();
-        let responsivity = Responsivity::from_detector(&detector)?;
+        let responsivity = Responsivity::from_detector(&detector).map_err(|e| e.0)?;
         let seed = sim.seed ^ 0x504d_3130_3055_5342;
         let state = Mutex::new(Self::power_up_state(&detector, seed, 0.0));
         Ok(Pm100 {

@@ -5,12 +5,12 @@ use std::sync::{Arc, Mutex};
 
 use gonio_instrument::InstrumentFile;
 
-use super::{CampaignRunner, RunFuture, Submission};
+use super::{CampaignRunner, RunFuture, ServiceError, Submission};
 use gonio_engine::align::correction::PoseCorrection;
 use gonio_engine::align::file::CalibrationFile;
 use gonio_engine::control::Control;
 use gonio_engine::rig::Rig;
-use gonio_engine::store::{CampaignId, CampaignRecord, Store};
+use gonio_engine::store::{CampaignId, CampaignRecord, Store, StoreError};
 use gonio_engine::{PreparedCampaign, prepare_submitted_campaign, run_prepared_campaign};
 
 /// The real runner: the campaign engine on one connected instrument.
@@ -46,9 +46,9 @@ impl EngineRunner {
 }
 
 impl CampaignRunner for EngineRunner {
-    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, String> {
+    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, ServiceError> {
         let p = prepare_submitted_campaign(campaign_toml, origin, &self.base_dir, &self.instrument)
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| ServiceError::Invalid(e.to_string()))?;
         // The service adds the current calibration (`Service::submit`).
         Ok(Submission {
             campaign: p.new_campaign(campaign_toml, &self.instrument_toml),
@@ -69,7 +69,6 @@ impl CampaignRunner for EngineRunner {
                 Some(p) => run_prepared_campaign(store, id, &rig, control, p).await,
                 None => gonio_engine::run_campaign(store, id, &rig, control).await,
             }
-            .map_err(|e| e.to_string())
         })
     }
 
@@ -87,8 +86,8 @@ impl CampaignRunner for EngineRunner {
         Some(PoseCorrection::new(&self.instrument.instrument, cal.params()))
     }
 
-    fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
-        let points = store.points(record.id).map_err(|e| e.to_string())?;
+    fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, StoreError> {
+        let points = store.points(record.id)?;
         Ok(gonio_engine::export::points_csv(record, &points))
     }
 }

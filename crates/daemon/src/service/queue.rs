@@ -113,8 +113,9 @@ impl Service {
         };
         match result {
             Ok(state) => tracing::info!(campaign = %id, %state, "campaign run returned"),
-            Err(message) => {
+            Err(e) => {
                 // The engine could not even keep the store up to date: record the failure ourselves.
+                let message = e.to_string();
                 tracing::error!(campaign = %id, "campaign run failed: {message}");
                 let store_state = lock(&self.shared.store).campaign(id).map(|c| c.state);
                 if !matches!(store_state, Ok(s) if s.is_final() || s == CampaignState::Paused)

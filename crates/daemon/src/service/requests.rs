@@ -12,11 +12,7 @@ impl Service {
         let Submission {
             campaign: mut new,
             prepared,
-        } = self
-            .shared
-            .runner
-            .prepare(campaign_toml, origin)
-            .map_err(ServiceError::Invalid)?;
+        } = self.shared.runner.prepare(campaign_toml, origin)?;
         // The current calibration goes with the campaign (the run loop applies what is stored with it).
         if let Some(c) = self.current_calibration() {
             new.alignment_toml = Some(c.toml);
@@ -59,7 +55,7 @@ impl Service {
         self.shared
             .runner
             .points_csv(&store, &record)
-            .map_err(ServiceError::Internal)
+            .map_err(ServiceError::from)
     }
 
     /// A campaign's measurement report, as `gonio report --data DIR --campaign ID` writes it (every model fitted):

@@ -6,6 +6,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use tokio::sync::mpsc;
 
 use super::*;
+use gonio_engine::EngineError;
 use gonio_engine::store::PointRecord;
 
 /// A stand-in engine: one point per simulated second, obeying pause/abort/estop at safe points like the
@@ -42,11 +43,13 @@ fn fake_point(index: u64) -> PointRecord {
 }
 
 impl CampaignRunner for FakeRunner {
-    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, String> {
+    fn prepare(&self, campaign_toml: &str, origin: &str) -> Result<Submission, ServiceError> {
         let points: u64 = campaign_toml
             .strip_prefix("points = ")
             .and_then(|n| n.trim().parse().ok())
-            .ok_or_else(|| format!("{origin}:1: key `points`: expected `points = N`"))?;
+            .ok_or_else(|| {
+                ServiceError::Invalid(format!("{origin}:1: key `points`: expected `points = N`"))
+            })?;
         Ok(Submission {
             campaign: NewCampaign {
                 name: format!("fake {points}"),
@@ -80,21 +83,21 @@ impl CampaignRunner for FakeRunner {
             let set = |state, msg: Option<&str>| {
                 lock(&store)
                     .set_state(id, state, msg)
-                    .map_err(|e| e.to_string())?;
+                    .map_err(EngineError::from)?;
                 control.emit(Event::State {
                     campaign: id,
                     state,
                     message: msg.map(str::to_string),
                 });
-                Ok::<_, String>(state)
+                Ok::<_, EngineError>(state)
             };
             let result = async {
                 set(CampaignState::Running, None)?;
                 let (next, total) = {
                     let s = lock(&store);
                     (
-                        s.next_index(id).map_err(|e| e.to_string())?,
-                        s.campaign(id).map_err(|e| e.to_string())?.total_points,
+                        s.next_index(id).map_err(EngineError::from)?,
+                        s.campaign(id).map_err(EngineError::from)?.total_points,
                     )
                 };
                 for index in next..total {
@@ -110,7 +113,7 @@ impl CampaignRunner for FakeRunner {
                     tokio::time::sleep(Duration::from_secs(1)).await;
                     lock(&store)
                         .commit_point(id, &fake_point(index))
-                        .map_err(|e| e.to_string())?;
+                        .map_err(EngineError::from)?;
                     control.emit(Event::Progress {
                         campaign: id,
                         done: index + 1,
@@ -126,8 +129,8 @@ impl CampaignRunner for FakeRunner {
         })
     }
 
-    fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, String> {
-        let points = store.points(record.id).map_err(|e| e.to_string())?;
+    fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, StoreError> {
+        let points = store.points(record.id)?;
         Ok(gonio_engine::export::points_csv(record, &points))
     }
 }

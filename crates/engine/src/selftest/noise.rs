@@ -38,7 +38,7 @@ pub const MAX_FILL: f64 = 0.75;
 
 /// The file's responsivity, or why there is none to convert with.
 fn responsivity(motion: &Motion<'_>) -> Result<Responsivity, String> {
-    Responsivity::from_detector(&motion.rig().file().instrument.detector)
+    Responsivity::from_detector(&motion.rig().file().instrument.detector).map_err(|e| e.0)
 }
 
 async fn configure(motion: &Motion<'_>, config: DetectorConfig) -> Result<(), MotionError> {

@@ -9,6 +9,7 @@ pub fn check_separation(l: &[Piece], d: &[Piece], constraints: &Constraints) -> 
     check_arm_separation(l, d, constraints.min_arm_separation_deg, |s| {
         constraints.separation_ok(s)
     })
+    .map_err(|e| e.0)
 }
 
 /// What one case measured.
