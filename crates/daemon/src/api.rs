@@ -42,6 +42,7 @@ mod console;
 mod handlers;
 mod origin;
 mod server;
+pub mod wire;
 
 pub use connections::ConnectionLimits;
 pub use origin::HostPolicy;

@@ -56,7 +56,7 @@ use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tokio::sync::{Notify, broadcast};
 
 use gonio_engine::PreparedCampaign;
@@ -161,7 +161,7 @@ pub trait CampaignRunner: Send + Sync + 'static {
 }
 
 /// A campaign as the API shows it: the stored record without the (long) configuration texts, plus the ETA.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CampaignView {
     pub id: CampaignId,
     pub name: String,

@@ -23,7 +23,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tokio::sync::{Notify, broadcast};
 
 use crate::rig::Rig;
@@ -34,7 +34,7 @@ use crate::store::{CampaignId, CampaignState, PointRecord};
 pub const EVENT_CAPACITY: usize = 4096;
 
 /// What the engine reports while it runs. Serialised with a `type` tag: `{"type":"state",...}`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "kebab-case")]
 pub enum Event {
     /// The campaign changed state; `message` says why (operator instructions, the pause reason, the error).

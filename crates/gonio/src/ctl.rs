@@ -16,6 +16,10 @@ use http_body_util::BodyExt;
 use hyper::Method;
 use serde_json::Value;
 
+use gonio_daemon::api::wire::{CampaignView, StreamItem, StreamNotice, Submitted};
+use gonio_engine::control::Event;
+use gonio_engine::store::CampaignState;
+
 use crate::CliError;
 use client::{Client, collect, parse_sse_data, server_error};
 
@@ -136,32 +140,27 @@ async fn execute(client: &Client, command: CtlCommand) -> Result<(), CliError> {
             let text = std::fs::read(&file)
                 .map_err(|e| CliError::io(format!("cannot read {}", file.display()), e))?;
             let origin = file.display().to_string();
-            let body = client
-                .json(
+            let Submitted { id } = client
+                .typed(
                     Method::POST,
                     "/api/campaigns",
                     Some((text, "application/toml", origin)),
                 )
                 .await?;
-            let id = body
-                .get("id")
-                .and_then(Value::as_i64)
-                .ok_or_else(|| bad_reply("no id", &body))?;
             println!("submitted campaign {id} ({})", file.display());
         }
         CtlCommand::Status { id: None } => {
-            let body = client.json(Method::GET, "/api/campaigns", None).await?;
-            let list = body.as_array().ok_or_else(|| bad_reply("not a list", &body))?;
+            let list: Vec<CampaignView> = client.typed(Method::GET, "/api/campaigns", None).await?;
             if list.is_empty() {
                 println!("no campaigns");
             }
-            for c in list {
+            for c in &list {
                 println!("{}", summary_line(c));
             }
         }
         CtlCommand::Status { id: Some(id) } => {
-            let c = client
-                .json(Method::GET, &format!("/api/campaigns/{id}"), None)
+            let c: CampaignView = client
+                .typed(Method::GET, &format!("/api/campaigns/{id}"), None)
                 .await?;
             print!("{}", details(&c));
         }
@@ -221,60 +220,49 @@ async fn execute(client: &Client, command: CtlCommand) -> Result<(), CliError> {
 }
 
 async fn action(client: &Client, id: i64, what: &str) -> Result<(), CliError> {
-    let c = client
-        .json(Method::POST, &format!("/api/campaigns/{id}/{what}"), None)
+    let c: CampaignView = client
+        .typed(Method::POST, &format!("/api/campaigns/{id}/{what}"), None)
         .await?;
-    println!(
-        "campaign {id}: {what} accepted (state {})",
-        str_field(&c, "state")
-    );
+    println!("campaign {id}: {what} accepted (state {})", c.state);
     Ok(())
 }
 
-fn str_field<'a>(v: &'a Value, key: &str) -> &'a str {
-    v.get(key).and_then(Value::as_str).unwrap_or("?")
-}
-
-fn u64_field(v: &Value, key: &str) -> u64 {
-    v.get(key).and_then(Value::as_u64).unwrap_or(0)
-}
-
-fn summary_line(c: &Value) -> String {
-    let id = c.get("id").and_then(Value::as_i64).unwrap_or(0);
-    let (done, total) = (u64_field(c, "points_done"), u64_field(c, "total_points"));
+fn summary_line(c: &CampaignView) -> String {
     let mut line = format!(
-        "{id:>4}  {:<16}  {done:>6}/{total:<6}  {}",
-        str_field(c, "state"),
-        str_field(c, "name")
+        "{:>4}  {:<16}  {:>6}/{:<6}  {}",
+        c.id.0,
+        c.state.to_string(),
+        c.points_done,
+        c.total_points,
+        c.name
     );
-    if let Some(eta) = c.get("eta_s").and_then(Value::as_f64) {
+    if let Some(eta) = c.eta_s {
         line.push_str(&format!("  ETA {}", duration_text(eta)));
     }
     line
 }
 
-fn details(c: &Value) -> String {
+fn details(c: &CampaignView) -> String {
     let mut s = String::new();
-    let id = c.get("id").and_then(Value::as_i64).unwrap_or(0);
-    s.push_str(&format!("campaign {id}: {}\n", str_field(c, "name")));
-    s.push_str(&format!("  state:  {}\n", str_field(c, "state")));
-    let (done, total) = (u64_field(c, "points_done"), u64_field(c, "total_points"));
-    s.push_str(&format!("  points: {done}/{total}\n"));
-    if let Some(eta) = c.get("eta_s").and_then(Value::as_f64) {
+    s.push_str(&format!("campaign {}: {}\n", c.id.0, c.name));
+    s.push_str(&format!("  state:  {}\n", c.state));
+    s.push_str(&format!("  points: {}/{}\n", c.points_done, c.total_points));
+    if let Some(eta) = c.eta_s {
         s.push_str(&format!("  ETA:    {}\n", duration_text(eta)));
     }
-    if c.get("dry_run").and_then(Value::as_bool) == Some(true) {
+    if c.dry_run {
         s.push_str("  dry-run on the simulator\n");
     }
-    if let Some(cal) = c.get("calibration_id").and_then(Value::as_i64) {
+    if let Some(cal) = c.calibration_id {
+        let cal = cal.0;
         s.push_str(&format!(
             "  calibration {cal} applied (`gonio ctl calibrations {cal}`)\n"
         ));
     }
-    if let Some(m) = c.get("operator_message").and_then(Value::as_str) {
+    if let Some(m) = &c.operator_message {
         s.push_str(&format!("  operator: {m}\n"));
     }
-    if let Some(e) = c.get("last_error").and_then(Value::as_str) {
+    if let Some(e) = &c.last_error {
         s.push_str(&format!("  last error: {e}\n"));
     }
     s
@@ -304,11 +292,11 @@ async fn watch(client: &Client, id: Option<i64>) -> Result<(), CliError> {
         return Err(server_error(status, &body));
     }
     if let Some(id) = id {
-        let c = client
-            .json(Method::GET, &format!("/api/campaigns/{id}"), None)
+        let c: CampaignView = client
+            .typed(Method::GET, &format!("/api/campaigns/{id}"), None)
             .await?;
         println!("{}", summary_line(&c));
-        if let Some(end) = final_outcome(id, str_field(&c, "state")) {
+        if let Some(end) = final_outcome(id, c.state) {
             return end;
         }
     }
@@ -335,10 +323,13 @@ async fn watch(client: &Client, id: Option<i64>) -> Result<(), CliError> {
         buffer.push_str(&String::from_utf8_lossy(&data).replace('\r', ""));
         while let Some(end) = buffer.find("\n\n") {
             let block: String = buffer.drain(..end + 2).collect();
-            let Some(event) = parse_sse_data(&block) else {
+            // An item this client does not know (a newer daemon's) is left out, not misread.
+            let Some(item) =
+                parse_sse_data(&block).and_then(|v| serde_json::from_value::<StreamItem>(v).ok())
+            else {
                 continue;
             };
-            if let Some(done) = print_event(&event, id) {
+            if let Some(done) = print_event(&item, id) {
                 return done;
             }
         }
@@ -346,60 +337,73 @@ async fn watch(client: &Client, id: Option<i64>) -> Result<(), CliError> {
 }
 
 /// Print one event (when it concerns the watched campaign); `Some` ends the watch with that result.
-fn print_event(event: &Value, watched: Option<i64>) -> Option<Result<(), CliError>> {
-    let campaign = event.get("campaign").and_then(Value::as_i64);
-    if watched.is_some() && campaign.is_some() && campaign != watched {
+fn print_event(item: &StreamItem, watched: Option<i64>) -> Option<Result<(), CliError>> {
+    let event = match item {
+        StreamItem::Notice(StreamNotice::Lagged { missed }) => {
+            println!("(missed {missed} events: too slow)");
+            return None;
+        }
+        StreamItem::Event(event) => event,
+    };
+    let campaign = match event {
+        Event::State { campaign, .. }
+        | Event::Point { campaign, .. }
+        | Event::Progress { campaign, .. }
+        | Event::Fault { campaign, .. } => campaign.0,
+    };
+    if watched.is_some_and(|w| w != campaign) {
         return None;
     }
-    let c = campaign.map(|c| c.to_string()).unwrap_or_else(|| "-".into());
-    match str_field(event, "type") {
-        "state" => {
-            let state = str_field(event, "state");
-            match event.get("message").and_then(Value::as_str) {
+    let c = campaign;
+    match event {
+        Event::State { state, message, .. } => {
+            match message {
                 Some(m) => println!("campaign {c}: {state}: {m}"),
                 None => println!("campaign {c}: {state}"),
             }
-            if state == "waiting-operator" {
+            if *state == CampaignState::WaitingOperator {
                 println!("campaign {c}: when done, run `gonio ctl confirm {c}`");
             }
-            if let (Some(id), Some(w)) = (campaign, watched)
-                && id == w
-            {
-                return final_outcome(id, state);
+            if watched == Some(campaign) {
+                return final_outcome(campaign, *state);
             }
         }
-        "progress" => {
-            let (done, total) = (u64_field(event, "done"), u64_field(event, "total"));
-            let percent = if total > 0 {
-                100.0 * done as f64 / total as f64
+        Event::Progress {
+            done, total, eta_s, ..
+        } => {
+            let percent = if *total > 0 {
+                100.0 * *done as f64 / *total as f64
             } else {
                 0.0
             };
-            let eta = event
-                .get("eta_s")
-                .and_then(Value::as_f64)
-                .map(|e| format!(", ETA {}", duration_text(e)));
+            let eta = eta_s.map(|e| format!(", ETA {}", duration_text(e)));
             println!(
                 "campaign {c}: {done}/{total} points ({percent:.0}%){}",
                 eta.unwrap_or_default()
             );
         }
-        "fault" => println!("campaign {c}: fault: {}", str_field(event, "message")),
-        "lagged" => println!("(missed {} events: too slow)", u64_field(event, "missed")),
+        Event::Fault { message, .. } => println!("campaign {c}: fault: {message}"),
         // Every point also comes with a progress event: that is the line to show.
-        _ => {}
+        Event::Point { .. } => {}
     }
     let _ = std::io::stdout().flush();
     None
 }
 
 /// For a watched campaign: `Some` once it is in a final state (Ok when completed).
-fn final_outcome(id: i64, state: &str) -> Option<Result<(), CliError>> {
+fn final_outcome(id: i64, state: CampaignState) -> Option<Result<(), CliError>> {
     match state {
-        "completed" => Some(Ok(())),
-        "aborted" | "failed" => Some(Err(CliError::CheckFailed(format!("campaign {id} ended {state}")))),
+        CampaignState::Completed => Some(Ok(())),
+        CampaignState::Aborted | CampaignState::Failed => {
+            Some(Err(CliError::CheckFailed(format!("campaign {id} ended {state}"))))
+        }
         _ => None,
     }
+}
+
+/// A field of an untyped reply, or "?" (the alignment's replies, not yet typed).
+fn str_field<'a>(v: &'a Value, key: &str) -> &'a str {
+    v.get(key).and_then(Value::as_str).unwrap_or("?")
 }
 
 fn bad_reply(what: &str, body: &Value) -> CliError {
@@ -450,10 +454,10 @@ mod tests {
 
     #[test]
     fn watch_ends_only_on_final_states() {
-        assert!(matches!(final_outcome(1, "completed"), Some(Ok(()))));
-        assert!(matches!(final_outcome(1, "aborted"), Some(Err(_))));
-        assert!(matches!(final_outcome(1, "failed"), Some(Err(_))));
-        for s in ["queued", "running", "pausing", "paused", "waiting-operator"] {
+        assert!(matches!(final_outcome(1, CampaignState::Completed), Some(Ok(()))));
+        assert!(matches!(final_outcome(1, CampaignState::Aborted), Some(Err(_))));
+        assert!(matches!(final_outcome(1, CampaignState::Failed), Some(Err(_))));
+        for s in CampaignState::ALL.into_iter().filter(|s| !s.is_final()) {
             assert!(final_outcome(1, s).is_none(), "{s}");
         }
     }

@@ -96,7 +96,7 @@ pub(super) async fn submit(State(state): State<AppState>, request: Request) -> R
                 format!("validation task failed: {e}"),
             )
         })??;
-    let mut response = (StatusCode::CREATED, axum::Json(json!({ "id": id }))).into_response();
+    let mut response = (StatusCode::CREATED, axum::Json(super::wire::Submitted { id })).into_response();
     if let Ok(location) = HeaderValue::from_str(&format!("/api/campaigns/{id}")) {
         response.headers_mut().insert(header::LOCATION, location);
     }
@@ -214,9 +214,9 @@ pub(super) async fn events(
                     .to_string();
                 SseEvent::default().event(kind).data(data.to_string())
             }
-            Err(broadcast::error::RecvError::Lagged(missed)) => SseEvent::default()
-                .event("lagged")
-                .data(json!({ "type": "lagged", "missed": missed }).to_string()),
+            Err(broadcast::error::RecvError::Lagged(missed)) => SseEvent::default().event("lagged").data(
+                serde_json::to_string(&super::wire::StreamNotice::Lagged { missed }).unwrap_or_default(),
+            ),
             Err(broadcast::error::RecvError::Closed) => return None,
         };
         Some((Ok(event), (rx, shutdown, permit)))

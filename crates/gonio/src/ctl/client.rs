@@ -169,6 +169,22 @@ impl Client {
             .map_err(|e| CliError::input(format!("the daemon's reply to {path} is not JSON: {e}")))
     }
 
+    /// The reply as the API's type for it (gonio_daemon::api::wire): a reply that does not fit is an error
+    /// that shows it, never a default.
+    pub(super) async fn typed<T: serde::de::DeserializeOwned>(
+        &self,
+        method: Method,
+        path: &str,
+        body: Option<(Vec<u8>, &str, String)>,
+    ) -> Result<T, CliError> {
+        let value = self.json(method, path, body).await?;
+        serde_json::from_value(value.clone()).map_err(|e| {
+            CliError::input(format!(
+                "unexpected reply from the daemon to {path} ({e}): {value}"
+            ))
+        })
+    }
+
     pub(super) async fn text(&self, path: &str) -> Result<String, CliError> {
         let bytes = self.call(Method::GET, path, None).await?;
         String::from_utf8(bytes.to_vec())
