@@ -66,7 +66,6 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
-use serde_json::json;
 use tokio::sync::Semaphore;
 
 use crate::service::{Service, ServiceError, Shutdown};
@@ -311,7 +310,7 @@ impl ApiError {
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (self.status, axum::Json(json!({ "error": self.message }))).into_response()
+        (self.status, axum::Json(wire::ErrorBody { error: self.message })).into_response()
     }
 }
 

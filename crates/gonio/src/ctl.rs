@@ -14,7 +14,6 @@ use std::time::Duration;
 use clap::{Args, Subcommand};
 use http_body_util::BodyExt;
 use hyper::Method;
-use serde_json::Value;
 
 use gonio_daemon::api::wire::{CampaignView, StreamItem, StreamNotice, Submitted};
 use gonio_engine::control::Event;
@@ -399,15 +398,6 @@ fn final_outcome(id: i64, state: CampaignState) -> Option<Result<(), CliError>> 
         }
         _ => None,
     }
-}
-
-/// A field of an untyped reply, or "?" (the alignment's replies, not yet typed).
-fn str_field<'a>(v: &'a Value, key: &str) -> &'a str {
-    v.get(key).and_then(Value::as_str).unwrap_or("?")
-}
-
-fn bad_reply(what: &str, body: &Value) -> CliError {
-    CliError::input(format!("unexpected reply from the daemon ({what}): {body}"))
 }
 
 #[cfg(test)]

@@ -23,7 +23,6 @@ use axum::http::StatusCode;
 use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
-use serde_json::json;
 
 use super::{ApiError, AppState};
 use crate::service::ConsoleAction;
@@ -169,6 +168,13 @@ pub(super) struct StreamQuery {
     interval_ms: Option<u64>,
 }
 
+/// The stream's event for a reading it could not take.
+fn unavailable(error: String) -> SseEvent {
+    SseEvent::default()
+        .event("unavailable")
+        .data(serde_json::to_string(&super::wire::Unavailable { error }).unwrap_or_default())
+}
+
 /// The live readings (module doc). Each reading is one console action, so a move waits for it and a campaign
 /// that starts meanwhile makes the stream say `unavailable` until the instrument is free again.
 pub(super) async fn console_readings(
@@ -199,12 +205,8 @@ pub(super) async fn console_readings(
                 Ok(serde_json::Value::Array(mut readings)) if !readings.is_empty() => SseEvent::default()
                     .event("reading")
                     .data(readings.swap_remove(0).to_string()),
-                Ok(other) => SseEvent::default()
-                    .event("unavailable")
-                    .data(json!({ "error": format!("unexpected answer {other}") }).to_string()),
-                Err(e) => SseEvent::default()
-                    .event("unavailable")
-                    .data(json!({ "error": e.to_string() }).to_string()),
+                Ok(other) => unavailable(format!("unexpected answer {other}")),
+                Err(e) => unavailable(e.to_string()),
             };
             Some((Ok(event), (service, shutdown, permit, false)))
         });

@@ -5,12 +5,44 @@ use gonio_engine::control::Event;
 use gonio_engine::store::CampaignId;
 use serde::{Deserialize, Serialize};
 
-pub use crate::service::CampaignView;
+pub use crate::service::{AlignPhase, AlignStatus, CalibrationView, CampaignView};
+pub use gonio_engine::console::{
+    AxisPosition, AxisState, ConsoleReading, DeviceHealth, FilterSlot, InstrumentState, WheelState,
+};
+
+/// Every error answer (4xx, 5xx): what went wrong, for a person.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ErrorBody {
+    pub error: String,
+}
 
 /// `POST /api/campaigns` (201): the new campaign's id.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Submitted {
     pub id: CampaignId,
+}
+
+/// `POST /api/console/filter`: where the wheel is now. (`GET /api/console/state` and `POST
+/// /api/console/home` answer an [`InstrumentState`]; move and jog a list of [`AxisPosition`]; `GET
+/// /api/console/read` a list of [`ConsoleReading`].)
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FilterMoved {
+    pub position: u8,
+}
+
+/// A reading the live stream (`GET /api/console/readings`) could not take, and why (the instrument is busy, a
+/// device failed).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Unavailable {
+    pub error: String,
+}
+
+/// One `data:` of the live reading stream.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+pub enum LiveReading {
+    Reading(ConsoleReading),
+    Unavailable(Unavailable),
 }
 
 /// What the event stream adds to the engine's events.

@@ -16,7 +16,7 @@
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::{CONSOLE_RETRIES, InstrumentLease, Service, ServiceError, lock};
 use gonio_brdf::Material;
@@ -75,7 +75,7 @@ const OPERATOR_WAIT: Duration = Duration::from_secs(3600);
 const OPERATOR_POLL: Duration = Duration::from_millis(100);
 
 /// Where an alignment is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum AlignPhase {
     /// None has run since the daemon started.
@@ -121,7 +121,7 @@ impl Drop for EndsTheStatus {
 }
 
 /// The alignment in progress, or how the last one ended (module doc).
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct AlignStatus {
     pub state: AlignPhase,
     /// Who started it (the token holder, or loopback).

@@ -8,7 +8,7 @@
 //! current for the campaigns submitted after it. A calibration made for another instrument file is never
 //! current: `--calibration` refuses it, and the store's are looked up by this file's SHA-256 (and checked again).
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::{CampaignRunner, Service, ServiceError, lock};
 use gonio_engine::align::file::CalibrationFile;
@@ -24,7 +24,7 @@ pub struct CurrentCalibration {
 }
 
 /// A stored calibration as the API lists it (the texts are fetched one at a time).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationView {
     pub id: InstrumentCalibrationId,
     pub created_utc: String,

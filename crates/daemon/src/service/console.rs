@@ -105,7 +105,7 @@ impl Service {
             }
             ConsoleAction::Filter(choice) => {
                 let position = console.filter(choice).await?;
-                Ok(serde_json::json!({ "position": position }))
+                to_json(crate::api::wire::FilterMoved { position })
             }
             ConsoleAction::Read { count } => to_json(console.read(count).await?),
         };

@@ -2,10 +2,10 @@
 //! HTTP API's JSON (every quantity's unit in its name).
 
 use gonio_instrument::AxisRole;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// One axis as its controller reports it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AxisState {
     /// The instrument file's name for the axis.
     pub name: String,
@@ -22,7 +22,7 @@ pub struct AxisState {
 }
 
 /// The filter wheel.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct WheelState {
     /// Current position (1-based; None when the wheel did not answer).
     pub position: Option<u8>,
@@ -34,7 +34,7 @@ pub struct WheelState {
 }
 
 /// One position of the filter wheel.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FilterSlot {
     pub position: u8,
     /// Centre wavelength (nm); None for the blank.
@@ -42,7 +42,7 @@ pub struct FilterSlot {
 }
 
 /// One device's identity and whether it answered.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DeviceHealth {
     pub name: String,
     pub identity: String,
@@ -51,7 +51,7 @@ pub struct DeviceHealth {
 }
 
 /// One meter reading taken through the console.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ConsoleReading {
     /// Instrument clock (s since the instrument was connected; the simulated clock in a dry-run).
     pub t_s: f64,
@@ -73,7 +73,7 @@ pub struct ConsoleReading {
 }
 
 /// Where one axis is (read back from its controller).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AxisPosition {
     pub name: String,
     /// Physical degrees.
@@ -81,7 +81,7 @@ pub struct AxisPosition {
 }
 
 /// The whole instrument at one instant (`gonio ctl state`).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct InstrumentState {
     /// The instrument file's name.
     pub instrument: String,

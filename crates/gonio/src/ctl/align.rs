@@ -5,12 +5,12 @@
 use std::io::Write as _;
 use std::time::{Duration, Instant};
 
+use gonio_daemon::api::wire::{AlignPhase, AlignStatus, CalibrationView};
 use gonio_engine::align::file::CalibrationFile;
 use hyper::Method;
-use serde_json::{Value, json};
+use serde_json::json;
 
 use super::client::Client;
-use super::{bad_reply, str_field};
 use crate::CliError;
 use crate::align::value_line;
 
@@ -30,8 +30,8 @@ pub(super) async fn align(
     if let Some(m) = mirror {
         body["mirror"] = json!(m);
     }
-    let started = client
-        .json(
+    let started: AlignStatus = client
+        .typed(
             Method::POST,
             "/api/align",
             Some((
@@ -43,49 +43,50 @@ pub(super) async fn align(
         .await?;
     println!(
         "alignment started{}",
-        match (started["dry_run"].as_bool(), simulate_operator) {
+        match (started.dry_run, simulate_operator) {
             (Some(true), true) => " (dry-run: the simulated operator does the operator's steps)",
             (Some(true), false) => " (dry-run: each operator step waits for your confirmation)",
             _ => "",
         }
     );
     let status = follow(client).await?;
-    match str_field(&status, "state") {
-        "completed" => {
-            let id = status["calibration_id"]
-                .as_i64()
-                .ok_or_else(|| bad_reply("no calibration id", &status))?;
+    match status.state {
+        AlignPhase::Completed => {
+            let id = status
+                .calibration_id
+                .ok_or_else(|| CliError::input("the daemon's completed alignment names no calibration"))?
+                .0;
             let text = client.text(&format!("/api/calibrations/{id}")).await?;
             let cal = CalibrationFile::parse(&text, &format!("calibration {id}"))
                 .map_err(|e| CliError::input(e.to_string()))?;
-            let instrument_s = status["instrument_s"].as_f64().unwrap_or(f64::NAN);
+            let instrument_s = status.instrument_s.unwrap_or(f64::NAN);
             print!("{}", summary(id, &cal, instrument_s));
             Ok(())
         }
         other => Err(CliError::CheckFailed(format!(
-            "the alignment {other}: {}",
-            status["error"].as_str().unwrap_or("no reason given")
+            "the alignment {}: {}",
+            other.as_str(),
+            status.error.as_deref().unwrap_or("no reason given")
         ))),
     }
 }
 
 /// Print each new step and operator instruction until the alignment ends; its last status.
-async fn follow(client: &Client) -> Result<Value, CliError> {
+async fn follow(client: &Client) -> Result<AlignStatus, CliError> {
     let start = Instant::now();
     let mut last_step = String::new();
     loop {
-        let status = client.json(Method::GET, "/api/align", None).await?;
-        let state = str_field(&status, "state");
-        if !matches!(state, "running" | "waiting-operator") {
+        let status: AlignStatus = client.typed(Method::GET, "/api/align", None).await?;
+        if !status.state.in_progress() {
             return Ok(status);
         }
-        let step = str_field(&status, "step").to_string();
+        let step = status.step.clone().unwrap_or_else(|| "?".into());
         if step != last_step {
             println!("alignment: {step}");
-            if state == "waiting-operator" {
+            if status.state == AlignPhase::WaitingOperator {
                 println!(
                     "operator: {}; when done, run `gonio ctl align --confirm`",
-                    str_field(&status, "operator_message")
+                    status.operator_message.as_deref().unwrap_or("?")
                 );
             }
             let _ = std::io::stdout().flush();
@@ -103,22 +104,26 @@ async fn follow(client: &Client) -> Result<Value, CliError> {
 
 /// `--confirm`, `--abort` (`what`) or `--status` (None).
 pub(super) async fn request(client: &Client, what: Option<&str>) -> Result<(), CliError> {
-    let status = match what {
+    let status: AlignStatus = match what {
         Some(action) => {
             client
-                .json(Method::POST, &format!("/api/align/{action}"), None)
+                .typed(Method::POST, &format!("/api/align/{action}"), None)
                 .await?
         }
-        None => client.json(Method::GET, "/api/align", None).await?,
+        None => client.typed(Method::GET, "/api/align", None).await?,
     };
-    let mut line = format!("alignment: {}", str_field(&status, "state"));
-    for key in ["step", "operator_message", "error"] {
-        if let Some(v) = status[key].as_str() {
-            line.push_str(&format!("; {}: {v}", key.replace('_', " ")));
+    let mut line = format!("alignment: {}", status.state.as_str());
+    for (key, v) in [
+        ("step", &status.step),
+        ("operator message", &status.operator_message),
+        ("error", &status.error),
+    ] {
+        if let Some(v) = v {
+            line.push_str(&format!("; {key}: {v}"));
         }
     }
-    if let Some(id) = status["calibration_id"].as_i64() {
-        line.push_str(&format!("; calibration {id}"));
+    if let Some(id) = status.calibration_id {
+        line.push_str(&format!("; calibration {}", id.0));
     }
     println!("{line}");
     Ok(())
@@ -149,26 +154,21 @@ pub(super) async fn calibrations(client: &Client, id: Option<i64>) -> Result<(),
         print!("{}", client.text(&format!("/api/calibrations/{id}")).await?);
         return Ok(());
     }
-    let list = client.json(Method::GET, "/api/calibrations", None).await?;
-    let list = list.as_array().ok_or_else(|| bad_reply("not a list", &list))?;
+    let list: Vec<CalibrationView> = client.typed(Method::GET, "/api/calibrations", None).await?;
     if list.is_empty() {
         println!("no calibrations");
     }
-    for c in list {
-        let mark = if c["current"].as_bool() == Some(true) {
+    for c in &list {
+        let mark = if c.current {
             "current"
-        } else if c["for_this_instrument"].as_bool() == Some(true) {
+        } else if c.for_this_instrument {
             ""
         } else {
             "other instrument file"
         };
         println!(
             "{:>4}  {}  {:<16}  {:<21}  {}",
-            c["id"].as_i64().unwrap_or(0),
-            str_field(c, "created_utc"),
-            str_field(c, "instrument"),
-            mark,
-            str_field(c, "source")
+            c.id.0, c.created_utc, c.instrument, mark, c.source
         );
     }
     Ok(())

@@ -17,10 +17,9 @@ const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 pub(super) const CALL_TIMEOUT: Duration = Duration::from_secs(60);
 
 pub(super) fn server_error(status: StatusCode, body: &Bytes) -> CliError {
-    let message = serde_json::from_slice::<Value>(body)
-        .ok()
-        .and_then(|v| v.get("error").and_then(Value::as_str).map(str::to_string))
-        .unwrap_or_else(|| String::from_utf8_lossy(body).trim().to_string());
+    let message = serde_json::from_slice::<gonio_daemon::api::wire::ErrorBody>(body)
+        .map(|b| b.error)
+        .unwrap_or_else(|_| String::from_utf8_lossy(body).trim().to_string());
     if message.is_empty() {
         CliError::input(format!("the daemon answered {status}"))
     } else {

@@ -4,8 +4,10 @@
 use std::io::Write as _;
 use std::time::Duration;
 
+use gonio_daemon::api::wire::{AxisPosition, ConsoleReading, FilterMoved, InstrumentState, LiveReading};
 use http_body_util::BodyExt;
 use hyper::Method;
+use serde::de::DeserializeOwned;
 use serde_json::{Value, json};
 
 use super::client::{Client, collect, parse_sse_data, server_error};
@@ -32,7 +34,7 @@ pub(super) fn parse_targets(args: &[String]) -> Result<Vec<(String, f64)>, CliEr
         .collect()
 }
 
-async fn post_motion(client: &Client, path: &str, body: Value) -> Result<Value, CliError> {
+async fn post_motion<T: DeserializeOwned>(client: &Client, path: &str, body: Value) -> Result<T, CliError> {
     let bytes = client
         .call_within(
             Method::POST,
@@ -45,25 +47,32 @@ async fn post_motion(client: &Client, path: &str, body: Value) -> Result<Value, 
             MOTION_CALL_TIMEOUT,
         )
         .await?;
-    serde_json::from_slice(&bytes)
-        .map_err(|e| CliError::input(format!("the reply to {path} is not JSON: {e}")))
+    serde_json::from_slice(&bytes).map_err(|e| {
+        CliError::input(format!(
+            "unexpected reply from the daemon to {path} ({e}): {}",
+            String::from_utf8_lossy(&bytes)
+        ))
+    })
 }
 
-fn positions_line(axes: &Value) -> String {
-    axes.as_array()
-        .map(|list| {
-            list.iter()
-                .map(|a| {
-                    let name = a.get("name").and_then(Value::as_str).unwrap_or("?");
-                    match a.get("position_deg").and_then(Value::as_f64) {
-                        Some(p) => format!("{name} {p:.4} deg"),
-                        None => format!("{name} ?"),
-                    }
-                })
-                .collect::<Vec<_>>()
-                .join(", ")
+fn positions_line(axes: &[AxisPosition]) -> String {
+    axes.iter()
+        .map(|a| format!("{} {:.4} deg", a.name, a.position_deg))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The read-back positions in a state, for the line after a homing.
+fn state_positions(state: &InstrumentState) -> String {
+    state
+        .axes
+        .iter()
+        .map(|a| match a.position_deg {
+            Some(p) => format!("{} {p:.4} deg", a.name),
+            None => format!("{} ?", a.name),
         })
-        .unwrap_or_default()
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 pub(super) async fn move_axes(
@@ -92,13 +101,13 @@ pub(super) async fn move_axes(
             ));
         }
     };
-    let axes = post_motion(client, "/api/console/move", body).await?;
+    let axes: Vec<AxisPosition> = post_motion(client, "/api/console/move", body).await?;
     println!("moved: {}", positions_line(&axes));
     Ok(())
 }
 
 pub(super) async fn jog(client: &Client, axis: &str, delta_deg: f64) -> Result<(), CliError> {
-    let axes = post_motion(
+    let axes: Vec<AxisPosition> = post_motion(
         client,
         "/api/console/jog",
         json!({ "axis": axis, "delta_deg": delta_deg }),
@@ -113,26 +122,28 @@ pub(super) async fn home(client: &Client, axis: Option<&str>) -> Result<(), CliE
         Some(a) => json!({ "axis": a }),
         None => json!({}),
     };
-    let state = post_motion(client, "/api/console/home", body).await?;
+    let state: InstrumentState = post_motion(client, "/api/console/home", body).await?;
     println!(
         "homed {}: {}",
         axis.unwrap_or("every axis"),
-        positions_line(state.get("axes").unwrap_or(&Value::Null))
+        state_positions(&state)
     );
     Ok(())
 }
 
 pub(super) async fn filter(client: &Client, choice: &str) -> Result<(), CliError> {
-    let answer = post_motion(client, "/api/console/filter", json!({ "filter": choice })).await?;
-    let position = answer.get("position").and_then(Value::as_u64).unwrap_or(0);
+    let FilterMoved { position } =
+        post_motion(client, "/api/console/filter", json!({ "filter": choice })).await?;
     println!("the wheel is at position {position}");
     Ok(())
 }
 
 pub(super) async fn state(client: &Client, as_json: bool) -> Result<(), CliError> {
-    let s = client.json(Method::GET, "/api/console/state", None).await?;
+    let s: InstrumentState = client.typed(Method::GET, "/api/console/state", None).await?;
     if as_json {
-        println!("{s}");
+        let text = serde_json::to_string(&s)
+            .map_err(|e| CliError::input(format!("cannot write the state as JSON: {e}")))?;
+        println!("{text}");
     } else {
         print!("{}", state_text(&s));
     }
@@ -140,30 +151,23 @@ pub(super) async fn state(client: &Client, as_json: bool) -> Result<(), CliError
 }
 
 /// The state for a person: one line per axis, the wheel, the meter, the devices.
-pub(super) fn state_text(s: &Value) -> String {
+pub(super) fn state_text(s: &InstrumentState) -> String {
     let mut out = String::new();
-    let name = s.get("instrument").and_then(Value::as_str).unwrap_or("?");
-    let dry = if s.get("dry_run").and_then(Value::as_bool) == Some(true) {
-        " (simulated)"
-    } else {
-        ""
-    };
-    out.push_str(&format!("instrument {name}{dry}\n"));
-    for a in s.get("axes").and_then(Value::as_array).into_iter().flatten() {
-        let n = a.get("name").and_then(Value::as_str).unwrap_or("?");
+    let dry = if s.dry_run { " (simulated)" } else { "" };
+    out.push_str(&format!("instrument {}{dry}\n", s.instrument));
+    for a in &s.axes {
         let pos = a
-            .get("position_deg")
-            .and_then(Value::as_f64)
+            .position_deg
             .map(|p| format!("{p:>10.4} deg"))
             .unwrap_or_else(|| "         ? deg".into());
         let mut flags = Vec::new();
-        if a.get("referenced").and_then(Value::as_bool) == Some(false) {
+        if a.referenced == Some(false) {
             flags.push("not referenced".to_string());
         }
-        if a.get("moving").and_then(Value::as_bool) == Some(true) {
+        if a.moving == Some(true) {
             flags.push("moving".to_string());
         }
-        if let Some(f) = a.get("fault").and_then(Value::as_str) {
+        if let Some(f) = &a.fault {
             flags.push(format!("fault: {f}"));
         }
         let flags = if flags.is_empty() {
@@ -171,58 +175,37 @@ pub(super) fn state_text(s: &Value) -> String {
         } else {
             format!("  ({})", flags.join("; "))
         };
-        out.push_str(&format!("  axis {n:<10} {pos}{flags}\n"));
+        out.push_str(&format!("  axis {:<10} {pos}{flags}\n", a.name));
     }
-    if let Some(w) = s.get("wheel").filter(|w| !w.is_null()) {
-        let p = w
-            .get("position")
-            .and_then(Value::as_u64)
-            .map(|p| p.to_string())
-            .unwrap_or("?".into());
+    if let Some(w) = &s.wheel {
+        let p = w.position.map(|p| p.to_string()).unwrap_or("?".into());
         let band = w
-            .get("band_nm")
-            .and_then(Value::as_f64)
+            .band_nm
             .map(|b| format!("{b} nm"))
             .unwrap_or_else(|| "no band filter".into());
         out.push_str(&format!("  wheel at position {p} ({band})\n"));
     }
-    match s.get("meter").filter(|m| !m.is_null()) {
+    match &s.meter {
         Some(m) => out.push_str(&format!("  meter {}\n", reading_text(m))),
         None => out.push_str("  meter: no reading\n"),
     }
-    for d in s.get("devices").and_then(Value::as_array).into_iter().flatten() {
-        let ok = if d.get("ok").and_then(Value::as_bool) == Some(true) {
-            "ok"
-        } else {
-            "NOT OK"
-        };
-        out.push_str(&format!(
-            "  device {:<8} {ok:<6} {}\n",
-            d.get("name").and_then(Value::as_str).unwrap_or("?"),
-            d.get("identity").and_then(Value::as_str).unwrap_or("?")
-        ));
+    for d in &s.devices {
+        let ok = if d.ok { "ok" } else { "NOT OK" };
+        out.push_str(&format!("  device {:<8} {ok:<6} {}\n", d.name, d.identity));
     }
     out
 }
 
 /// One reading for a person: power, range, band and time.
-pub(super) fn reading_text(r: &Value) -> String {
-    let f = |k: &str| r.get(k).and_then(Value::as_f64).unwrap_or(f64::NAN);
+pub(super) fn reading_text(r: &ConsoleReading) -> String {
     let band = r
-        .get("band_nm")
-        .and_then(Value::as_f64)
+        .band_nm
         .map(|b| format!("{b} nm"))
-        .unwrap_or_else(|| format!("unfiltered, set for {} nm", f("wavelength_nm")));
-    let over = if r.get("overload").and_then(Value::as_bool) == Some(true) {
-        "  OVERLOAD"
-    } else {
-        ""
-    };
+        .unwrap_or_else(|| format!("unfiltered, set for {} nm", r.wavelength_nm));
+    let over = if r.overload { "  OVERLOAD" } else { "" };
     format!(
         "t {:.3} s  {:.6e} W  (range {:.1e} W, {band}){over}",
-        f("t_s"),
-        f("power_w"),
-        f("range_w")
+        r.t_s, r.power_w, r.range_w
     )
 }
 
@@ -233,10 +216,10 @@ pub(super) async fn read(
     interval_ms: u64,
 ) -> Result<(), CliError> {
     if !stream {
-        let list = client
-            .json(Method::GET, &format!("/api/console/read?count={count}"), None)
+        let list: Vec<ConsoleReading> = client
+            .typed(Method::GET, &format!("/api/console/read?count={count}"), None)
             .await?;
-        for r in list.as_array().into_iter().flatten() {
+        for r in &list {
             println!("{}", reading_text(r));
         }
         return Ok(());
@@ -268,11 +251,15 @@ pub(super) async fn read(
         buffer.push_str(&String::from_utf8_lossy(&data).replace('\r', ""));
         while let Some(end) = buffer.find("\n\n") {
             let block: String = buffer.drain(..end + 2).collect();
-            let Some(v) = parse_sse_data(&block) else { continue };
-            match v.get("error").and_then(Value::as_str) {
-                Some(e) => println!("(unavailable: {e})"),
-                None => {
-                    println!("{}", reading_text(&v));
+            let Some(item) =
+                parse_sse_data(&block).and_then(|v| serde_json::from_value::<LiveReading>(v).ok())
+            else {
+                continue;
+            };
+            match item {
+                LiveReading::Unavailable(u) => println!("(unavailable: {})", u.error),
+                LiveReading::Reading(r) => {
+                    println!("{}", reading_text(&r));
                     shown += 1;
                 }
             }
@@ -302,14 +289,19 @@ mod tests {
 
     #[test]
     fn a_state_reads_one_line_per_thing() {
-        let s = json!({
+        // As the daemon writes it: a renamed field on either side fails here or to compile.
+        let s: InstrumentState = serde_json::from_value(json!({
             "instrument": "simulated", "dry_run": true,
-            "axes": [{"name": "light", "position_deg": -30.0, "referenced": true, "moving": false},
-                     {"name": "tilt", "position_deg": null, "fault": "no status: timed out"}],
-            "wheel": {"position": 2, "band_nm": 450.0},
-            "meter": {"t_s": 1.5, "power_w": 1.25e-6, "range_w": 1e-5, "wavelength_nm": 450.0, "band_nm": 450.0},
+            "axes": [{"name": "light", "role": "light-arm", "position_deg": -30.0, "referenced": true,
+                      "moving": false, "fault": null, "min_deg": -100.0, "max_deg": 100.0},
+                     {"name": "tilt", "role": "sample-tilt", "position_deg": null, "referenced": null,
+                      "moving": null, "fault": "no status: timed out", "min_deg": -90.0, "max_deg": 90.0}],
+            "wheel": {"position": 2, "band_nm": 450.0, "fault": null, "filters": []},
+            "meter": {"t_s": 1.5, "unix_s": 0.0, "power_w": 1.25e-6, "range_w": 1e-5, "overload": false,
+                      "wavelength_nm": 450.0, "band_nm": 450.0, "filter_position": 2, "axes": []},
             "devices": [{"name": "arms", "identity": "SMC100", "ok": true}]
-        });
+        }))
+        .expect("the daemon's state");
         let text = state_text(&s);
         assert!(text.contains("instrument simulated (simulated)"), "{text}");
         assert!(text.contains("axis light        -30.0000 deg"), "{text}");
