@@ -433,6 +433,8 @@ fn every_export_carries_the_provenance() {
         "absolute, against direct-beam readings".to_string(),
         version,
         "run_created_utc".to_string(),
+        // No alignment applied, and every format says so.
+        "none applied".to_string(),
     ];
     let check = |format: &str, text: &str| {
         for w in &wants {

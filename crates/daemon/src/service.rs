@@ -45,7 +45,7 @@ pub use align::{
     AlignPhase, AlignProcedures, AlignStatus, DEFAULT_ALIGNMENT_MIRROR, DEFAULT_ALIGNMENT_SAMPLE,
 };
 pub use calibration::{CalibrationView, CurrentCalibration};
-pub use console::{CONSOLE_RETRIES, ConsoleAction, MAX_CONSOLE_READINGS};
+pub use console::{CONSOLE_RETRIES, ConsoleAction, FilterMoved, MAX_CONSOLE_READINGS};
 pub use engine_runner::EngineRunner;
 pub use ownership::InstrumentLease;
 pub use shutdown::{Shutdown, ShutdownTrigger};

@@ -18,7 +18,15 @@
 //!   resume), on `motion` and `acquisition`: [`run_campaign`], [`run_prepared_campaign`].
 //! - [`selftest`]: what the instrument file claims measured on the hardware (speeds, accelerations, the
 //!   wheel's time, latencies, the meter's dark and noise), on `motion`.
-//! - [`export`]: the points CSV and the run record (shared by `gonio run`, the exports and the HTTP API).
+//! - [`budget`]: a point's uncertainty budget from the measurement equation's parts, the characterisation and
+//!   the signature; `budget::complete` adds what needs the campaign's other points when it completes (the drift
+//!   between references, the aperture correction, pointing, the finite band), kept apart from the committed rows.
+//! - [`align`]: the instrument's geometric errors from its own scans (the engine's own model of the instrument,
+//!   fitted with priors; what cannot be observed stays at nominal), the calibration file, and the pose correction
+//!   a campaign applies; [`characterise`]: the detector and the source from their own readings, run inside the
+//!   alignment (ranges, signature and NEBRDF, warm-up).
+//! - [`export`]: the points CSV and the run record (shared by `gonio run`, the exports and the HTTP API), and a
+//!   run's report.
 //!
 //! The service (queue, ownership, HTTP API, status page) is `gonio-daemon`, above this crate: nothing here can
 //! reach up into it.

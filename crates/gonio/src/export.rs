@@ -137,7 +137,36 @@ pub fn export_setup(run: &Run, base_dir: &Path) -> Option<ExportSetup> {
         // The instrument description has no polariser on either arm.
         polarisation: "unpolarised".into(),
         signature: signature_words(config.alignment_toml.as_deref()),
+        alignment: alignment_words(config.alignment_toml.as_deref()),
     })
+}
+
+/// What every export's provenance says of the alignment the run applied: the calibration file's date and what it
+/// corrected; `None` when none was applied.
+fn alignment_words(alignment_toml: Option<&str>) -> Option<String> {
+    let text = alignment_toml?;
+    let Ok(cal) = gonio_engine::align::file::CalibrationFile::parse(text, "<run's calibration>") else {
+        return Some("applied (its file is in the run record, but no longer parses)".into());
+    };
+    let mut corrected =
+        vec!["every pose (the fitted zeros, tilt, eccentricity and encoder terms)".to_string()];
+    if cal.detector.is_some() {
+        corrected.push(
+            "every reading (each range's gain, nonlinearity and offset; the instrument signature subtracted)"
+                .into(),
+        );
+    }
+    Some(format!(
+        "gonio align calibration of {} ({}{}): corrected {}",
+        cal.calibration.created_utc,
+        cal.calibration.instrument,
+        if cal.calibration.dry_run {
+            ", simulated"
+        } else {
+            ""
+        },
+        corrected.join("; ")
+    ))
 }
 
 /// What the ASTM header says of the instrument signature: the characterisation the run applied measured it

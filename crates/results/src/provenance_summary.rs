@@ -28,6 +28,9 @@ pub struct ExportSetup {
     pub polarisation: String,
     /// A summary of the instrument signature (the BRDF the instrument reads without a sample), when measured.
     pub signature: Option<String>,
+    /// What the alignment and characterisation the run applied corrected (`gonio align`'s calibration file:
+    /// its date, and what it corrected); `None` when none was applied.
+    pub alignment: Option<String>,
 }
 
 impl ExportSetup {
@@ -128,6 +131,20 @@ pub fn provenance_lines(
         )
     });
     lines.push(("calibration_readings", readings.unwrap_or_else(unknown)));
+    lines.push((
+        "alignment",
+        match (setup, record) {
+            (
+                Some(ExportSetup {
+                    alignment: Some(a), ..
+                }),
+                _,
+            ) => a.clone(),
+            (_, Some(r)) if r.config.alignment_toml.is_none() => "none applied".to_string(),
+            (_, Some(_)) => "applied (its file is in the run record)".to_string(),
+            (_, None) => unknown(),
+        },
+    ));
     lines.push((
         "measured_by",
         record.map_or_else(unknown, |r| r.software_version.clone()),

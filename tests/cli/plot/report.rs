@@ -212,4 +212,15 @@ fn the_report_of_a_calibrated_run_shows_its_alignment_characterisation_and_budge
         line.contains("measured by gonio align") && line.contains("subtracted from every value"),
         "{line}"
     );
+    // And its provenance says what the calibration corrected, as every export's does.
+    let alignment = table
+        .lines()
+        .find(|l| l.contains("alignment:") || l.contains("alignment ="))
+        .expect("the alignment line");
+    assert!(
+        alignment.contains("gonio align calibration of")
+            && alignment.contains("every pose")
+            && alignment.contains("signature subtracted"),
+        "{alignment}"
+    );
 }

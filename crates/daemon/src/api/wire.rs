@@ -22,13 +22,10 @@ pub struct Submitted {
     pub id: CampaignId,
 }
 
-/// `POST /api/console/filter`: where the wheel is now. (`GET /api/console/state` and `POST
-/// /api/console/home` answer an [`InstrumentState`]; move and jog a list of [`AxisPosition`]; `GET
-/// /api/console/read` a list of [`ConsoleReading`].)
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct FilterMoved {
-    pub position: u8,
-}
+// The console: `GET /api/console/state` and `POST /api/console/home` answer an [`InstrumentState`]; move and jog
+// a list of [`AxisPosition`]; `POST /api/console/filter` a [`FilterMoved`]; `GET /api/console/read` a list of
+// [`ConsoleReading`].
+pub use crate::service::FilterMoved;
 
 /// A reading the live stream (`GET /api/console/readings`) could not take, and why (the instrument is busy, a
 /// device failed).

@@ -55,6 +55,12 @@ impl From<ConsoleError> for ServiceError {
     }
 }
 
+/// The console's answer to a filter request (`POST /api/console/filter`): where the wheel is now.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
+pub struct FilterMoved {
+    pub position: u8,
+}
+
 fn to_json<T: Serialize>(v: T) -> Result<Value, ServiceError> {
     serde_json::to_value(v).map_err(|e| ServiceError::Internal(format!("console answer: {e}")))
 }
@@ -105,7 +111,7 @@ impl Service {
             }
             ConsoleAction::Filter(choice) => {
                 let position = console.filter(choice).await?;
-                to_json(crate::api::wire::FilterMoved { position })
+                to_json(FilterMoved { position })
             }
             ConsoleAction::Read { count } => to_json(console.read(count).await?),
         };
