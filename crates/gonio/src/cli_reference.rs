@@ -233,6 +233,53 @@ mod tests {
         assert!(dead.is_empty(), "dead links:\n{}", dead.join("\n"));
     }
 
+    /// The ```toml blocks of a document.
+    fn toml_blocks(text: &str) -> Vec<String> {
+        let mut blocks = Vec::new();
+        let mut current: Option<String> = None;
+        for line in text.lines() {
+            match (&mut current, line.trim_start()) {
+                (None, "```toml") => current = Some(String::new()),
+                (Some(_), "```") => blocks.extend(current.take()),
+                (Some(b), _) => {
+                    b.push_str(line);
+                    b.push('\n');
+                }
+                (None, _) => {}
+            }
+        }
+        blocks
+    }
+
+    /// The instrument files the documents show (a lab's header and devices, the tutorial's rehearsal devices) are
+    /// read by the instrument file's own parser, with the rest of the simulated instrument file around them.
+    #[test]
+    fn the_documents_instrument_examples_parse() {
+        let simulated = gonio_instrument::SIMULATED_INSTRUMENT_TOML;
+        // The simulated file from its first axis on: what the examples leave out.
+        let axes_on = &simulated[simulated.find("[[instrument.axes]]").expect("axes")..];
+        let mut checked = 0;
+        for page in ["docs/reference/instrument-file.md", "docs/tutorial.md"] {
+            let text = std::fs::read_to_string(root().join(page)).expect("read the page");
+            for block in toml_blocks(&text)
+                .into_iter()
+                .filter(|b| b.contains("[[instrument.devices]]"))
+            {
+                let head = if block.contains("[instrument]") {
+                    String::new()
+                } else {
+                    "[instrument]\nname = \"example\"\ngeometry = \"reference\"\n\n".to_string()
+                };
+                let file = format!("{head}{block}\n{axes_on}");
+                if let Err(e) = gonio_instrument::InstrumentFile::parse(&file, page) {
+                    panic!("{page}: the example does not parse: {e}\n{block}");
+                }
+                checked += 1;
+            }
+        }
+        assert_eq!(checked, 2, "the two examples were not found");
+    }
+
     #[test]
     fn the_scan_finds_commands_in_blocks_and_spans_and_skips_synopses() {
         let text = "Run `gonio plan a.toml` first.\n```sh\ngonio run a.toml --out x  # comment\n```\n\
