@@ -1,8 +1,8 @@
-//! A small Levenberg-Marquardt least-squares solver with box bounds, and the dense linear algebra it needs.
+//! A small Levenberg-Marquardt least-squares solver with box bounds; its linear algebra (the normal equations,
+//! the Cholesky factorisation, the solves and the covariance's inverse) is nalgebra's.
 //!
-//! Hand-written rather than a crate: the problems here have at most a dozen parameters and a few thousand
-//! residuals, and the well-kept crates (levenberg-marquardt, argmin) bring nalgebra or ndarray, which cost more
-//! build time on this project's machines than the 150 lines below.
+//! The iteration itself stays here: the problems have at most a dozen parameters and a few thousand residuals,
+//! need box bounds and a residual function that may fail, and the few lines below say exactly what is done.
 //!
 //! Method (Marquardt 1963, with the scaling of Moré 1978): minimise `sum r_k(x)^2`; each step solves
 //! `(J^T J + lambda diag(J^T J)) dx = -J^T r`, is projected onto the bounds, accepted when the cost falls
@@ -12,6 +12,8 @@
 
 // Dense matrix code reads best with explicit indices.
 #![allow(clippy::needless_range_loop)]
+
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 
 /// What the solver returns.
 #[derive(Debug, Clone)]
@@ -77,88 +79,67 @@ pub fn jacobian(
     Some(jac)
 }
 
+/// Rows of row vectors as a matrix.
+fn matrix(rows: &[Vec<f64>]) -> DMatrix<f64> {
+    let cols = rows.first().map_or(0, Vec::len);
+    DMatrix::from_fn(rows.len(), cols, |i, j| {
+        rows[i].get(j).copied().unwrap_or(f64::NAN)
+    })
+}
+
+/// A matrix as rows of row vectors.
+fn rows(m: &DMatrix<f64>) -> Vec<Vec<f64>> {
+    (0..m.nrows())
+        .map(|i| (0..m.ncols()).map(|j| m[(i, j)]).collect())
+        .collect()
+}
+
 /// `J^T J` and `J^T r`.
 pub fn normal_equations(jac: &[Vec<f64>], r: &[f64]) -> (Vec<Vec<f64>>, Vec<f64>) {
-    let p = jac.first().map_or(0, Vec::len);
-    let mut a = vec![vec![0.0; p]; p];
-    let mut g = vec![0.0; p];
-    for (row, rk) in jac.iter().zip(r) {
-        for i in 0..p {
-            g[i] += row[i] * rk;
-            for j in 0..=i {
-                a[i][j] += row[i] * row[j];
-            }
-        }
-    }
-    for i in 0..p {
-        for j in 0..i {
-            a[j][i] = a[i][j];
-        }
-    }
-    (a, g)
+    let j = matrix(jac);
+    let r = DVector::from_column_slice(r);
+    let a = j.tr_mul(&j);
+    let g = j.tr_mul(&r);
+    (rows(&a), g.iter().copied().collect())
 }
 
-/// Cholesky factor `L` of a symmetric positive-definite matrix; `None` when it is not (numerically) positive
-/// definite.
+/// The Cholesky factorisation of a symmetric positive-definite matrix; `None` when it is not numerically so: a
+/// pivot below 1e-14 of the largest diagonal element counts as singular (nalgebra's own test only refuses a
+/// pivot that is not positive, which lets a rank-deficient normal matrix through with a huge inverse).
+fn factor(a: &[Vec<f64>]) -> Option<Cholesky<f64, Dyn>> {
+    let m = matrix(a);
+    if m.iter().any(|v| !v.is_finite()) || m.nrows() != m.ncols() {
+        return None;
+    }
+    let scale = m.diagonal().iter().map(|v| v.abs()).fold(0.0, f64::max);
+    let c = Cholesky::new(m)?;
+    let l = c.l_dirty();
+    (0..l.nrows())
+        .all(|i| l[(i, i)] * l[(i, i)] > 1e-14 * scale)
+        .then_some(c)
+}
+
+/// Cholesky factor `L` of a symmetric positive-definite matrix (lower triangle; rows of row vectors); `None`
+/// when it is not (numerically) positive definite.
 pub fn cholesky(a: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
-    let p = a.len();
-    let mut l = vec![vec![0.0; p]; p];
-    let scale = (0..p).map(|i| a[i][i].abs()).fold(0.0, f64::max);
-    for i in 0..p {
-        for j in 0..=i {
-            let mut s = a[i][j];
-            for k in 0..j {
-                s -= l[i][k] * l[j][k];
-            }
-            if i == j {
-                if !s.is_finite() || s <= 1e-14 * scale {
-                    return None;
-                }
-                l[i][i] = s.sqrt();
-            } else {
-                l[i][j] = s / l[j][j];
-            }
-        }
-    }
-    Some(l)
+    factor(a).map(|c| rows(&c.l()))
 }
 
-/// Solves `L L^T x = b`.
+/// Solves `L L^T x = b` for a factor from [`cholesky`].
 pub fn cholesky_solve(l: &[Vec<f64>], b: &[f64]) -> Vec<f64> {
-    let p = l.len();
-    let mut y = vec![0.0; p];
-    for i in 0..p {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= l[i][k] * y[k];
-        }
-        y[i] = s / l[i][i];
+    let l = matrix(l);
+    let mut x = DVector::from_column_slice(b);
+    // Forward then back substitution through nalgebra's triangular solvers; a zero pivot leaves NaN, as the
+    // division would.
+    if !l.solve_lower_triangular_mut(&mut x) || !l.tr_solve_lower_triangular_mut(&mut x) {
+        return vec![f64::NAN; b.len()];
     }
-    let mut x = vec![0.0; p];
-    for i in (0..p).rev() {
-        let mut s = y[i];
-        for k in i + 1..p {
-            s -= l[k][i] * x[k];
-        }
-        x[i] = s / l[i][i];
-    }
-    x
+    x.iter().copied().collect()
 }
 
 /// The inverse of a symmetric positive-definite matrix; `None` when it is singular.
 pub fn spd_inverse(a: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
-    let l = cholesky(a)?;
-    let p = a.len();
-    let mut inv = vec![vec![0.0; p]; p];
-    for j in 0..p {
-        let mut e = vec![0.0; p];
-        e[j] = 1.0;
-        let col = cholesky_solve(&l, &e);
-        for i in 0..p {
-            inv[i][j] = col[i];
-        }
-    }
-    Some(inv)
+    factor(a).map(|c| rows(&c.inverse()))
 }
 
 /// Minimises `sum r(x)^2` from `x0` within `[lower, upper]` (module doc). `None` when the residuals cannot be
@@ -286,5 +267,28 @@ mod tests {
             assert!((got - want).abs() < 1e-15, "{got} vs {want}");
         }
         assert!(spd_inverse(&[vec![1.0, 1.0], vec![1.0, 1.0]]).is_none());
+    }
+
+    #[test]
+    fn cholesky_solves_and_refuses_what_is_not_positive_definite() {
+        // A = [[4, 2, 0], [2, 5, 1], [0, 1, 3]], x = [1, -2, 3]: b = A x = [0, -5, 7].
+        let a = vec![vec![4.0, 2.0, 0.0], vec![2.0, 5.0, 1.0], vec![0.0, 1.0, 3.0]];
+        let l = cholesky(&a).expect("spd");
+        assert_eq!(l[0][1], 0.0, "a lower triangle");
+        let x = cholesky_solve(&l, &[0.0, -5.0, 7.0]);
+        for (got, want) in x.iter().zip([1.0, -2.0, 3.0]) {
+            assert!((got - want).abs() < 1e-14, "{x:?}");
+        }
+        // Indefinite, numerically singular (a pivot of 1e-16 against a diagonal of 1), and not finite.
+        assert!(cholesky(&[vec![1.0, 2.0], vec![2.0, 1.0]]).is_none());
+        assert!(cholesky(&[vec![1.0, 1.0], vec![1.0, 1.0 + 1e-16]]).is_none());
+        assert!(cholesky(&[vec![f64::NAN]]).is_none());
+        // J^T J and J^T r of a 3 x 2 Jacobian.
+        let (n, g) = normal_equations(
+            &[vec![1.0, 2.0], vec![3.0, 4.0], vec![5.0, 6.0]],
+            &[1.0, 0.0, -1.0],
+        );
+        assert_eq!(n, vec![vec![35.0, 44.0], vec![44.0, 56.0]]);
+        assert_eq!(g, vec![-4.0, -4.0]);
     }
 }
