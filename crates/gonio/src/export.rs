@@ -13,6 +13,7 @@
 use std::path::{Path, PathBuf};
 
 use gonio_campaign::{self as campaign, Method, Range, Sources};
+use gonio_engine::align::file::{CalibrationFile, CalibrationFileError};
 use gonio_engine::store::{CampaignRecord, STORE_FILE, Store};
 use gonio_instrument::InstrumentFile;
 use gonio_results::export::{self, ExportContext};
@@ -123,30 +124,37 @@ pub fn export_setup(run: &Run, base_dir: &Path) -> Option<ExportSetup> {
         .filter_map(|p| p.band_nm.map(|b| (b, p.bandwidth_nm)))
         .chain(instrument.source.wavelength_nm.map(|b| (b, None)))
         .collect();
-    let calibration = &campaign.calibration;
+    // The alignment the run applied, read once for what the provenance and the ASTM header say of it.
+    let calibration = config
+        .alignment_toml
+        .as_deref()
+        .map(|text| CalibrationFile::parse(text, "<run's calibration>"));
+    let method = &campaign.calibration;
     Some(ExportSetup {
         instrument_name: instrument.name.clone(),
         detector_aperture_radius_mm: instrument.detector.aperture_radius_mm,
         detector_distance_mm: instrument.detector.distance_mm,
         bandwidths_nm,
-        calibration_method: match calibration.method {
+        calibration_method: match method.method {
             Method::Absolute => "absolute".into(),
             Method::Relative => "relative".into(),
         },
-        calibration_reference: calibration.reference.as_ref().map(|r| r.name.clone()),
+        calibration_reference: method.reference.as_ref().map(|r| r.name.clone()),
         // The instrument description has no polariser on either arm.
         polarisation: "unpolarised".into(),
-        signature: signature_words(config.alignment_toml.as_deref()),
-        alignment: alignment_words(config.alignment_toml.as_deref()),
+        signature: calibration
+            .as_ref()
+            .and_then(|c| c.as_ref().ok())
+            .and_then(signature_words),
+        alignment: calibration.as_ref().map(alignment_words),
     })
 }
 
-/// What every export's provenance says of the alignment the run applied: the calibration file's date and what it
-/// corrected; `None` when none was applied.
-fn alignment_words(alignment_toml: Option<&str>) -> Option<String> {
-    let text = alignment_toml?;
-    let Ok(cal) = gonio_engine::align::file::CalibrationFile::parse(text, "<run's calibration>") else {
-        return Some("applied (its file is in the run record, but no longer parses)".into());
+/// What every export's provenance says of the alignment the run applied (read from the run record): the
+/// calibration file's date and what it corrected.
+fn alignment_words(calibration: &Result<CalibrationFile, CalibrationFileError>) -> String {
+    let Ok(cal) = calibration else {
+        return "applied (its file is in the run record, but no longer parses)".into();
     };
     let mut corrected =
         vec!["every pose (the fitted zeros, tilt, eccentricity and encoder terms)".to_string()];
@@ -156,7 +164,7 @@ fn alignment_words(alignment_toml: Option<&str>) -> Option<String> {
                 .into(),
         );
     }
-    Some(format!(
+    format!(
         "gonio align calibration of {} ({}{}): corrected {}",
         cal.calibration.created_utc,
         cal.calibration.instrument,
@@ -166,15 +174,13 @@ fn alignment_words(alignment_toml: Option<&str>) -> Option<String> {
             ""
         },
         corrected.join("; ")
-    ))
+    )
 }
 
 /// What the ASTM header says of the instrument signature: the characterisation the run applied measured it
 /// (`gonio align`, the holder empty) and every value had it subtracted; `None` (the export's "not measured")
 /// when no calibration with a signature was applied.
-fn signature_words(alignment_toml: Option<&str>) -> Option<String> {
-    let cal =
-        gonio_engine::align::file::CalibrationFile::parse(alignment_toml?, "<run's calibration>").ok()?;
+fn signature_words(cal: &CalibrationFile) -> Option<String> {
     let signature = &cal.detector.as_ref()?.signature;
     if signature.is_empty() {
         return None;
