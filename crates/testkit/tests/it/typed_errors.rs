@@ -38,7 +38,6 @@ fn string_error_functions(source: &str) -> Vec<String> {
         let Some((_, returns)) = signature.rsplit_once("->") else {
             continue;
         };
-        let returns = returns.trim().trim_end_matches(|c: char| c.is_whitespace());
         let returns = returns.split(" where ").next().unwrap_or(returns).trim();
         if returns.starts_with("Result<") && returns.replace(' ', "").ends_with(",String>") {
             found.push(signature);
