@@ -268,3 +268,51 @@ fn plan_accepts_every_campaign_run_accepts_and_predicts_the_same_duration() {
     );
     assert!(slow > fast + 300.0, "demo {fast} s, slow demo {slow} s");
 }
+
+/// The shipped sweeps campaign: `gonio plan` prints what the path check kept and cut, the readings and the
+/// sweeps' duration; `gonio run` refuses it with a message that says why (this version plans sweeps, it does
+/// not run them yet).
+#[test]
+fn plan_times_the_sweeps_and_run_refuses_them_for_now() {
+    let campaign = repo_root().join("config/campaigns/sweeps.toml");
+    let out = gonio()
+        .arg("plan")
+        .arg(&campaign)
+        .output()
+        .expect("run gonio plan");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // Three incidences each cut around the source into two pieces, and the slow arc: 7 of 4 requested.
+    assert!(stdout.contains("sweeps: 4 arcs requested, 7 swept"), "{stdout}");
+    assert!(
+        stdout.contains("cut arm-separation") && stdout.contains("cut retro-block"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("21 sweeps"), "{stdout}");
+    let sweeping: f64 = stdout
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("sweeping"))
+        .and_then(|r| r.trim().trim_end_matches(" s").trim().parse().ok())
+        .unwrap_or_else(|| panic!("{stdout}"));
+    // The pieces by hand (10.02 degrees kept from the source at -theta_i): 419.88 degrees at 4 deg/s and 20 at
+    // 0.5 deg/s, three bands; the ramps and the drivers' exchanges add well under a second per sweep.
+    let cruise = 3.0 * (419.88 / 4.0 + 20.0 / 0.5);
+    assert!(
+        sweeping >= cruise - 0.1 && sweeping < cruise + 21.0 * 0.2,
+        "{sweeping} vs {cruise}"
+    );
+    let dir = tempfile::tempdir().expect("temp dir");
+    let run = gonio()
+        .arg("run")
+        .arg(&campaign)
+        .arg("--out")
+        .arg(dir.path().join("out"))
+        .output()
+        .expect("run gonio run");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("[[plan.sweeps]]") && stderr.contains("does not run them yet"),
+        "{stderr}"
+    );
+}

@@ -27,5 +27,5 @@ pub use model::{
     AcquisitionSection, CalibrationSection, CampaignFile, CampaignSection, Method, SampleSection,
 };
 pub use passes::{AdaptivePlan, NextPass, measured_geometries};
-pub use prepare::{Prepared, campaign_time_model, load_and_prepare, prepare, sample_traits};
+pub use prepare::{Prepared, Sweeps, campaign_time_model, load_and_prepare, prepare, sample_traits};
 pub use sources::{Resolved, Sources};

@@ -8,6 +8,7 @@ use gonio_brdf::material::Material;
 use gonio_instrument::{Instrument, InstrumentFile};
 use gonio_scheduler::plan::{self, BuildContext, Plan, SampleTraits};
 use gonio_scheduler::schedule::{self, Schedule};
+use gonio_scheduler::sweep::{SweepPlan, SweepSchedule, build_sweeps, schedule_sweeps};
 use gonio_scheduler::timing::TimeModel;
 
 use crate::error::CampaignError;
@@ -31,6 +32,16 @@ pub struct Prepared {
     /// An adaptive plan rehearsed on a stand-in sample ([`crate::passes::rehearse`]): the predicted instrument
     /// time of all its passes (s) and the points they measure.
     pub rehearsal: Option<(f64, u64)>,
+    /// The plan's `[[plan.sweeps]]`, after its points.
+    pub sweeps: Option<Sweeps>,
+}
+
+/// A plan's sweeps: the arcs the path check kept, and their order and times from where the points leave the
+/// instrument.
+#[derive(Debug, Clone)]
+pub struct Sweeps {
+    pub plan: SweepPlan,
+    pub schedule: SweepSchedule,
 }
 
 impl Prepared {
@@ -44,17 +55,34 @@ impl Prepared {
     }
 
     /// Predicted instrument time (s): the schedule's; for an adaptive plan, every pass as rehearsed on a stand-in
-    /// sample (the later passes are placed at run time from the values measured).
+    /// sample (the later passes are placed at run time from the values measured); then the sweeps'.
     pub fn predicted_s(&self) -> f64 {
-        match self.rehearsal {
+        let points = match self.rehearsal {
             Some((s, _)) => s,
             None => self.schedule.breakdown.total_s(),
-        }
+        };
+        points
+            + self
+                .sweeps
+                .as_ref()
+                .map_or(0.0, |s| s.schedule.breakdown.total_s())
     }
 
     /// The bands measured (nm).
     pub fn bands_nm(&self) -> &[f64] {
         &self.plan.bands_nm
+    }
+
+    /// What this version runs: sweeps are planned and timed (`gonio plan`), not yet run (issue 41 lands in
+    /// parts: the plan and its time model first, reading during motion next).
+    pub fn require_runnable(&self) -> Result<(), CampaignError> {
+        if self.sweeps.is_some() {
+            return Err(self.campaign.located().plain(
+                "[[plan.sweeps]]: sweeps are planned and timed (`gonio plan`) but this version does not run them \
+                 yet; remove the [[plan.sweeps]] entries to run the campaign's points",
+            ));
+        }
+        Ok(())
     }
 
     /// A dry-run measures a simulated sample: it needs one (`[material]`). Planning does not.
@@ -109,21 +137,65 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
         start: None,
     };
     let time = campaign_time_model(&campaign, instrument);
-    let (plan, schedule, adaptive) = match &campaign.plan_spec.adaptive {
-        Some(spec) => {
+    let spec = &campaign.plan_spec;
+    let (plan, schedule, adaptive) = match &spec.adaptive {
+        Some(adaptive_spec) => {
             let adaptive_plan =
-                AdaptivePlan::new(spec, &campaign.plan_spec, &ctx, time.clone()).map_err(|e| at.plan(&e))?;
+                AdaptivePlan::new(adaptive_spec, spec, &ctx, time.clone()).map_err(|e| at.plan(&e))?;
             let plan = adaptive_plan.first_plan(&ctx).map_err(|e| at.plan(&e))?;
             let schedule = schedule::schedule_continuing(&plan, &time, None, None);
             (plan, schedule, Some(adaptive_plan))
         }
+        // Sweeps alone: a plan of no point.
+        None if spec.grid.is_none() && !spec.sweeps.is_empty() => {
+            let plan = plan::build_from_geometries(spec, &ctx, &[], false).map_err(|e| at.plan(&e))?;
+            let schedule = schedule::schedule(&plan, &time, None);
+            (plan, schedule, None)
+        }
         None => {
-            let plan = plan::build(&campaign.plan_spec, &ctx).map_err(|e| at.plan(&e))?;
+            let plan = plan::build(spec, &ctx).map_err(|e| at.plan(&e))?;
             let schedule = schedule::schedule(&plan, &time, None);
             (plan, schedule, None)
         }
     };
-    if schedule.measure_steps().next().is_none() {
+    let sweeps = if spec.sweeps.is_empty() {
+        None
+    } else {
+        // The arms stay on the side the points chose, so that the instrument goes from one to the other.
+        let side = plan
+            .anchor
+            .or_else(|| {
+                plan.geometries
+                    .first()
+                    .and_then(|g| g.candidates.first())
+                    .map(|c| c.0)
+            })
+            .map(|p| p.light_deg < p.detector_deg);
+        let sweep_plan = build_sweeps(
+            &spec.sweeps,
+            instrument,
+            &time,
+            Some(campaign.sample_radius_mm),
+            &plan.bands_nm,
+            side,
+        )
+        .map_err(|e| at.plan(&e))?;
+        if sweep_plan.arcs.is_empty() {
+            return Err(CampaignError(format!(
+                "{}: [[plan.sweeps]]: no arc can be swept on instrument {:?} (degrees cut by rule: {:?})",
+                at.at("plan", None),
+                instrument.name,
+                sweep_plan.skipped_deg
+            )));
+        }
+        let start = schedule.steps.last().map(|s| (s.pose, schedule.end.wheel));
+        let sweep_schedule = schedule_sweeps(&sweep_plan, &time, start);
+        Some(Sweeps {
+            plan: sweep_plan,
+            schedule: sweep_schedule,
+        })
+    };
+    if schedule.measure_steps().next().is_none() && sweeps.is_none() {
         return Err(CampaignError(format!(
             "{}: [plan]: no point of the plan can be measured on instrument {:?} (all were skipped: {:?})",
             at.at("plan", None),
@@ -149,6 +221,7 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
         time,
         adaptive,
         rehearsal,
+        sweeps,
     })
 }
 

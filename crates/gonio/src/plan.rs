@@ -89,6 +89,14 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
             a.planner().candidate_count()
         );
     }
+    if plan.requested == 0 && p.sweeps.is_some() {
+        // Sweeps alone: no point block.
+        if let Some(sweeps) = &p.sweeps {
+            sweep_lines(&mut out, sweeps);
+        }
+        let _ = writeln!(out, "{}", band_line(p));
+        return out;
+    }
     let geometries = plan.geometries.len();
     let _ = writeln!(
         out,
@@ -144,8 +152,64 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
         "predicted duration"
     };
     print_times(&mut out, sched, label);
+    if let Some(sweeps) = &p.sweeps {
+        sweep_lines(&mut out, sweeps);
+        let _ = writeln!(
+            out,
+            "predicted duration, points and sweeps: {:.1} s ({})",
+            p.predicted_s(),
+            hms(p.predicted_s())
+        );
+    }
     let _ = writeln!(out, "{}", band_line(p));
     out
+}
+
+/// The sweeps' part of the summary: what the path check kept and cut, the readings, the time.
+fn sweep_lines(out: &mut String, sweeps: &gonio_campaign::Sweeps) {
+    let (plan, sched) = (&sweeps.plan, &sweeps.schedule);
+    let _ = writeln!(
+        out,
+        "sweeps: {} arcs requested, {} swept ({:.1} of {:.1} degrees per band, {} bands)",
+        plan.requested,
+        plan.arcs.len(),
+        plan.swept_deg(),
+        plan.requested_deg,
+        plan.bands_nm.len().max(1)
+    );
+    for (reason, deg) in &plan.skipped_deg {
+        let _ = writeln!(out, "  cut {:<20} {deg:>10.2} deg", reason.name());
+    }
+    let smear = |f: fn(f64, f64) -> f64, init: f64| sched.steps.iter().map(|s| s.smear_deg).fold(init, f);
+    let period =
+        |f: fn(f64, f64) -> f64, init: f64| sched.steps.iter().map(|s| s.reading_period_s).fold(init, f);
+    let _ = writeln!(
+        out,
+        "  {} sweeps, {} readings, one every {:.0}-{:.0} ms, each over {:.4}-{:.4} deg of arc at cruise",
+        sched.steps.len(),
+        sched.readings,
+        1e3 * period(f64::min, f64::INFINITY),
+        1e3 * period(f64::max, 0.0),
+        smear(f64::min, f64::INFINITY),
+        smear(f64::max, 0.0),
+    );
+    if sched.unreachable > 0 {
+        let _ = writeln!(
+            out,
+            "  {} sweeps no safe move reaches (not measured)",
+            sched.unreachable
+        );
+    }
+    let b = &sched.breakdown;
+    let _ = writeln!(out, "sweep duration: {:.1} s ({})", b.total_s(), hms(b.total_s()));
+    for (name, v) in [
+        ("motion", b.motion_s),
+        ("settle", b.settle_s),
+        ("filter wheel", b.wheel_s),
+        ("sweeping", b.sweep_s),
+    ] {
+        let _ = writeln!(out, "  {name:<18} {v:>10.1} s");
+    }
 }
 
 /// The time model's target against dry-runs (BENCHMARKS.md section 6 lists where it holds and where not: the
@@ -184,7 +248,7 @@ fn band_line(p: &Prepared) -> String {
         ),
     };
     format!(
-        "expected between {:.1} s and {:.1} s (±{:.0} %: {}); {operator}; plus retries after device faults",
+        "expected between {:.1} s and {:.1} s (±{:.0} %: {}{}); {operator}; plus retries after device faults",
         predicted * (1.0 - rel),
         predicted * (1.0 + rel),
         100.0 * rel,
@@ -192,6 +256,11 @@ fn band_line(p: &Prepared) -> String {
             "the time model's target, and the later passes placed on the real sample, not the stand-in"
         } else {
             "the time model's target against dry-runs, BENCHMARKS.md section 6 shows where it holds"
+        },
+        if p.sweeps.is_some() {
+            "; the sweeps' model is not yet checked against a run: this version does not run sweeps"
+        } else {
+            ""
         }
     )
 }

@@ -15,6 +15,7 @@
 //! - [`separation`]: parting arms that start closer than the safety separation (power-up).
 //! - [`schedule`]: the ordered steps (measure, dark, reference) with predicted times and the raster comparison.
 //! - [`adaptive`]: adaptive plans, batch by batch.
+//! - [`sweep`]: sweeps (one arm turning while the meter reads): the swept paths checked, ordered and timed.
 //!
 //! Units: degrees at this crate's edges (`_deg`: plans, poses, CSV), radians only inside direction maths;
 //! seconds (`_s`), millimetres (`_mm`), nanometres (`_nm`).
@@ -26,4 +27,5 @@ pub mod order;
 pub mod plan;
 pub mod schedule;
 pub mod separation;
+pub mod sweep;
 pub mod timing;

@@ -46,7 +46,7 @@ pub use build::{BuildContext, build, build_from_geometries, calibration, geometr
 pub use grid::angle_list;
 pub use spec::{
     AdaptiveSpec, Calibration, CalibrationSpec, GridKind, GridSpec, Plan, PlanSpec, PlannedGeometry,
-    ReferenceAt, SampleTraits, Served,
+    ReferenceAt, SampleTraits, Served, SweepSpec, SweptArm,
 };
 
 /// A plan that cannot be built; the message names the key.

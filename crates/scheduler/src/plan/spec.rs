@@ -33,6 +33,9 @@ pub struct PlanSpec {
     pub adaptive: Option<AdaptiveSpec>,
     #[serde(default)]
     pub calibration: CalibrationSpec,
+    /// `[[plan.sweeps]]` (see `crate::sweep`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sweeps: Vec<SweepSpec>,
 }
 
 impl Default for PlanSpec {
@@ -46,6 +49,7 @@ impl Default for PlanSpec {
             grid: None,
             adaptive: None,
             calibration: CalibrationSpec::default(),
+            sweeps: Vec::new(),
         }
     }
 }
@@ -317,4 +321,47 @@ fn default_first_step() -> f64 {
 }
 fn default_resolution() -> f64 {
     2.5
+}
+
+/// Which arm sweeps.
+#[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[serde(rename_all = "kebab-case")]
+pub enum SweptArm {
+    /// The detector arm sweeps theta_o through the plane of incidence; the incidence is held.
+    Detector,
+    /// The light arm sweeps theta_i through the plane; the detector is held.
+    Light,
+}
+
+impl SweptArm {
+    pub fn name(&self) -> &'static str {
+        match self {
+            SweptArm::Detector => "detector",
+            SweptArm::Light => "light",
+        }
+    }
+}
+
+fn detector() -> SweptArm {
+    SweptArm::Detector
+}
+
+/// One `[[plan.sweeps]]` entry (schema and validation in `crate::sweep`).
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SweepSpec {
+    #[serde(default = "detector")]
+    pub arm: SweptArm,
+    /// Detector sweeps: the held incidences (a list or a range). Light sweeps: the swept arc `{ from, to }`.
+    pub theta_i_deg: toml::Value,
+    /// Detector sweeps: the swept arc `{ from, to }`, signed. Light sweeps: the held exitances.
+    pub theta_o_deg: toml::Value,
+    /// Planes of incidence (sample azimuths); default [0.0].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plane_phi_deg: Option<toml::Value>,
+    /// Speed of the swept arm at cruise (deg/s).
+    pub speed_deg_s: f64,
+    /// Meter samples averaged into one sweep reading.
+    #[serde(default = "one")]
+    pub averaging: u32,
 }

@@ -7,6 +7,7 @@
 //!   independent expectations.
 //! - `plans_and_order`: plans, schedules (constraints on every point and move), ordering against raster order
 //!   and a brute-force optimum, and the lower bound.
+//! - `sweeps`: sweeps in the plan: swept paths against every rule, their time model, their errors.
 //! - `stress`: the numerical stability stress suite for the kinematics (`cargo test -p gonio-scheduler --test
 //!   it stress`).
 
@@ -17,3 +18,4 @@ mod adaptive_first_pass;
 mod kinematics_and_moves;
 mod plans_and_order;
 mod stress;
+mod sweeps;

@@ -1,0 +1,163 @@
+//! Sweeps: one arm turns over an arc at a set speed while every other axis holds and the meter reads
+//! continuously. This module plans them: which arcs (the whole swept path checked against every constraint),
+//! in what order, and how long they take.
+//!
+//! # Schema (`[[plan.sweeps]]`, any number of entries; see `config/campaigns/plan-examples.toml`)
+//! ```toml
+//! [[plan.sweeps]]
+//! arm = "detector"                          # the arm that sweeps: "detector" (default) or "light"
+//! theta_i_deg = [0.0, 30.0, 60.0]           # detector sweeps: incidences held, one arc each (list or range)
+//! theta_o_deg = { from = -80.0, to = 80.0 } # detector sweeps: the swept arc, signed as in in-plane grids
+//! plane_phi_deg = [0.0]                     # planes of incidence (sample azimuths); default [0.0]
+//! speed_deg_s = 2.0                         # the swept arm's speed at cruise
+//! averaging = 1                             # meter samples per sweep reading; default 1
+//! # arm = "light": theta_o_deg holds the detector (list or range, at phi_o = plane + 180) and theta_i_deg is
+//! # the swept arc { from, to }: > 0 with the source opposite the detector (phi_i = plane), < 0 on its side.
+//! ```
+//! A plan may hold sweeps beside a `[plan.grid]` or `[plan.adaptive]` (the sweeps follow the points), or
+//! sweeps alone.
+//!
+//! # The path
+//! Every arc is checked along its whole length (`path`): the static rules of `crate::constraints` (horizon,
+//! grazing limit, overfill, the retro-reflection block, the arm separation), the swept axis's limits, and the
+//! side of the arms the plan keeps (the arms never pass each other). What fails is cut out; an arc crossing the
+//! retro-reflection block becomes two pieces, the one beyond the source swept with the mirror axis solution
+//! (the arms keep their order). The degrees cut are reported by rule.
+//!
+//! # The time model of a sweep step
+//! A step moves to the piece's start (`TimeModel::plan_move`, settle included), turns the wheel to its band
+//! when it is not there, then sweeps: one plain move of the swept axis to the piece's other end at the
+//! entry's speed (`speed_deg_s` at cruise, the axis's own acceleration, no backlash approach: the pose of a
+//! reading comes from the controller's position reports, not from the direction of approach), its driver's
+//! exchanges around it as for any leg (`timing::LegTiming::leg_s`). The meter reads back to back while the arm
+//! moves: one reading every [`sweep_reading_period_s`] (`averaging` x the detector's sample time, and one
+//! exchange), so a piece of motion time `T` gives `floor(T / period)` readings (at least one), each smeared over
+//! `speed x averaging x sample time` degrees at cruise. The bands of one piece are swept back and forth (the
+//! wheel's shortest covering walk), so consecutive bands need no move. Pieces are visited nearest first from
+//! where the arm is, entering each at its nearer end.
+//!
+//! Not in this model yet: dark and normalisation steps during sweeps (a plan's calibration steps belong to its
+//! points), and the exchanges that set and restore an axis's speed for a sweep.
+
+mod path;
+mod spec;
+mod walk;
+
+use std::collections::BTreeMap;
+
+use gonio_instrument::Instrument;
+
+pub use crate::plan::{SweepSpec, SweptArm};
+pub use path::{
+    EDGE_TOLERANCE_DEG, MIN_PIECE_DEG, PathContext, PathVerdict, Piece, SCAN_STEP_DEG, swept_role,
+};
+pub use spec::{MAX_SWEEP_SPEED_DEG_S, MAX_SWEEPS, SweepRequest, requests};
+pub use walk::{SweepBreakdown, SweepSchedule, SweepStep, schedule_sweeps};
+
+use crate::constraints::{Constraints, Reason};
+use crate::kinematics::Kinematics;
+use crate::plan::PlanError;
+use crate::timing::{DETECTOR_SAMPLE_S, EXCHANGE_S, TimeModel};
+
+/// Time between two sweep readings with `averaging` samples each: the meter's integration and one exchange.
+pub fn sweep_reading_period_s(averaging: u32) -> f64 {
+    f64::from(averaging) * DETECTOR_SAMPLE_S + EXCHANGE_S
+}
+
+/// One sweepable arc: a piece of a requested arc.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepArc {
+    pub request: SweepRequest,
+    pub piece: Piece,
+}
+
+impl SweepArc {
+    pub fn length_deg(&self) -> f64 {
+        self.piece.to_deg - self.piece.from_deg
+    }
+}
+
+/// The sweeps of a plan, before ordering.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepPlan {
+    /// Sweepable arcs, in request order (each request's pieces by increasing angle).
+    pub arcs: Vec<SweepArc>,
+    /// Requested arcs (entries x held angles x planes).
+    pub requested: usize,
+    /// Degrees requested, over all arcs (one band).
+    pub requested_deg: f64,
+    /// Degrees cut by the path check, by rule.
+    pub skipped_deg: BTreeMap<Reason, f64>,
+    /// Bands each arc is swept in.
+    pub bands_nm: Vec<f64>,
+}
+
+impl SweepPlan {
+    /// Degrees swept per band.
+    pub fn swept_deg(&self) -> f64 {
+        self.arcs.iter().map(SweepArc::length_deg).sum()
+    }
+}
+
+/// Validate `[[plan.sweeps]]` and check every arc's path on `instrument`. `light_below_detector`: the side of
+/// the arms a point plan already chose; `None` keeps the side that sweeps more.
+pub fn build_sweeps(
+    specs: &[SweepSpec],
+    instrument: &Instrument,
+    time: &TimeModel,
+    sample_radius_mm: Option<f64>,
+    bands_nm: &[f64],
+    light_below_detector: Option<bool>,
+) -> Result<SweepPlan, PlanError> {
+    let reqs = requests(specs, |arm| {
+        instrument.axis(swept_role(arm)).map(|a| a.max_speed_deg_s)
+    })?;
+    let kinematics = Kinematics::new(instrument);
+    let constraints = Constraints::new(instrument, sample_radius_mm);
+    let on_side = |side: bool| -> Vec<(SweepRequest, PathVerdict)> {
+        let ctx = PathContext {
+            instrument,
+            kinematics: &kinematics,
+            constraints: &constraints,
+            time,
+            light_below_detector: side,
+        };
+        reqs.iter().map(|r| (*r, ctx.verdict(r))).collect()
+    };
+    let swept = |v: &[(SweepRequest, PathVerdict)]| -> f64 {
+        v.iter()
+            .flat_map(|(_, p)| &p.pieces)
+            .map(|p| p.to_deg - p.from_deg)
+            .sum()
+    };
+    let verdicts = match light_below_detector {
+        Some(side) => on_side(side),
+        None => {
+            let (below, above) = (on_side(true), on_side(false));
+            if swept(&below) >= swept(&above) {
+                below
+            } else {
+                above
+            }
+        }
+    };
+    let mut plan = SweepPlan {
+        arcs: Vec::new(),
+        requested: reqs.len(),
+        requested_deg: reqs.iter().map(SweepRequest::length_deg).sum(),
+        skipped_deg: BTreeMap::new(),
+        bands_nm: bands_nm.to_vec(),
+    };
+    for (request, verdict) in verdicts {
+        for (reason, deg) in verdict.skipped_deg {
+            *plan.skipped_deg.entry(reason).or_default() += deg;
+        }
+        plan.arcs.extend(
+            verdict
+                .pieces
+                .into_iter()
+                .map(|piece| SweepArc { request, piece }),
+        );
+    }
+    Ok(plan)
+}

@@ -1,0 +1,180 @@
+//! Ordering and timing the sweeps (the model in `crate::sweep`'s module doc).
+
+use super::path::swept_role;
+use super::{SweepPlan, sweep_reading_period_s};
+use crate::kinematics::Pose;
+use crate::schedule::cover_walk;
+use crate::timing::{DETECTOR_SAMPLE_S, Move, TimeModel, trapezoid_time_s};
+
+/// One sweep of one arc in one band.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepStep {
+    /// Index into [`SweepPlan::arcs`].
+    pub arc: usize,
+    /// None on an instrument without a filter wheel.
+    pub band_nm: Option<f64>,
+    pub wheel_position: Option<u8>,
+    /// True when the arm sweeps from the arc's `from_deg` to its `to_deg`.
+    pub forward: bool,
+    pub start_pose: Pose,
+    pub end_pose: Pose,
+    /// The move into `start_pose` (empty when the previous sweep ended there).
+    pub movement: Move,
+    pub wheel_s: f64,
+    /// The swept axis's motion: readings are taken throughout it.
+    pub motion_s: f64,
+    /// The whole sweep leg: the motion and the driver's exchanges around it.
+    pub sweep_s: f64,
+    pub readings: u64,
+    /// Time between readings.
+    pub reading_period_s: f64,
+    /// Arc one reading integrates over at cruise speed (degrees).
+    pub smear_deg: f64,
+    /// Predicted time at which the step begins (its move), from the start of the sweeps.
+    pub start_s: f64,
+}
+
+impl SweepStep {
+    pub fn total_s(&self) -> f64 {
+        self.movement.total_s() + self.wheel_s + self.sweep_s
+    }
+}
+
+/// Where the time of the sweeps goes.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SweepBreakdown {
+    /// Moves between sweeps.
+    pub motion_s: f64,
+    pub settle_s: f64,
+    pub wheel_s: f64,
+    /// The sweeps themselves (their readings run during them).
+    pub sweep_s: f64,
+}
+
+impl SweepBreakdown {
+    pub fn total_s(&self) -> f64 {
+        self.motion_s + self.settle_s + self.wheel_s + self.sweep_s
+    }
+}
+
+/// The sweeps in run order with their predicted times.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SweepSchedule {
+    pub steps: Vec<SweepStep>,
+    pub breakdown: SweepBreakdown,
+    pub readings: u64,
+    /// Arcs no safe move reaches from where the instrument is.
+    pub unreachable: usize,
+}
+
+/// Order and time the sweeps from `start` (the pose and wheel position the instrument is in; none: at the first
+/// arc's start, the wheel on its first band).
+pub fn schedule_sweeps(
+    plan: &SweepPlan,
+    time: &TimeModel,
+    start: Option<(Pose, Option<u8>)>,
+) -> SweepSchedule {
+    let mut out = SweepSchedule::default();
+    let Some(first) = plan.arcs.first() else {
+        return out;
+    };
+    let positions: Vec<(Option<f64>, Option<u8>)> = match &time.wheel {
+        Some(w) => plan
+            .bands_nm
+            .iter()
+            .filter_map(|b| w.position_of(*b).map(|p| (Some(*b), Some(p))))
+            .collect(),
+        None => Vec::new(),
+    };
+    let positions = if positions.is_empty() {
+        vec![(plan.bands_nm.first().copied(), None)]
+    } else {
+        positions
+    };
+    let (mut pose, mut wheel) = start.unwrap_or((first.piece.from_pose, positions[0].1));
+    let mut left: Vec<usize> = (0..plan.arcs.len()).collect();
+    let mut clock = 0.0;
+    while !left.is_empty() {
+        // The nearest arc end from where the arm is.
+        let mut best: Option<(f64, usize, bool)> = None;
+        for (slot, &a) in left.iter().enumerate() {
+            let piece = &plan.arcs[a].piece;
+            for (forward, entry) in [(true, &piece.from_pose), (false, &piece.to_pose)] {
+                let cost = time.fast_cost_s(&pose, entry);
+                if cost.is_finite() && best.is_none_or(|(c, _, _)| cost < c) {
+                    best = Some((cost, slot, forward));
+                }
+            }
+        }
+        let Some((_, slot, mut forward)) = best else {
+            out.unreachable += left.len();
+            break;
+        };
+        let a = left.remove(slot);
+        let arc = &plan.arcs[a];
+        let model = time
+            .axes
+            .iter()
+            .flatten()
+            .find(|m| m.role == swept_role(arc.request.arm));
+        let targets: Vec<u8> = positions.iter().filter_map(|(_, p)| *p).collect();
+        let order: Vec<(Option<f64>, Option<u8>)> = match (&time.wheel, targets.is_empty()) {
+            (Some(w), false) => cover_walk(w, wheel, &targets)
+                .into_iter()
+                .filter_map(|p| positions.iter().find(|(_, q)| *q == Some(p)).copied())
+                .collect(),
+            _ => positions.clone(),
+        };
+        let period = sweep_reading_period_s(arc.request.averaging);
+        let v = arc.request.speed_deg_s;
+        for (band_nm, position) in order {
+            let (from, to) = if forward {
+                (arc.piece.from_pose, arc.piece.to_pose)
+            } else {
+                (arc.piece.to_pose, arc.piece.from_pose)
+            };
+            let Ok(movement) = time.plan_move(&pose, &from) else {
+                out.unreachable += 1;
+                break;
+            };
+            let wheel_s = time.wheel_time_s(wheel, position);
+            let (motion_s, sweep_s) = match model {
+                Some(m) => {
+                    let t = trapezoid_time_s(arc.length_deg(), v, m.accel_deg_s2);
+                    (t, m.leg.leg_s(t))
+                }
+                None => (0.0, 0.0),
+            };
+            let readings = ((motion_s / period).floor() as u64).max(1);
+            let step = SweepStep {
+                arc: a,
+                band_nm,
+                wheel_position: position,
+                forward,
+                start_pose: from,
+                end_pose: to,
+                movement,
+                wheel_s,
+                motion_s,
+                sweep_s,
+                readings,
+                reading_period_s: period,
+                smear_deg: v * f64::from(arc.request.averaging) * DETECTOR_SAMPLE_S,
+                start_s: clock,
+            };
+            clock += step.total_s();
+            out.breakdown.motion_s += step.movement.motion_s;
+            out.breakdown.settle_s += step.movement.settle_s;
+            out.breakdown.wheel_s += wheel_s;
+            out.breakdown.sweep_s += sweep_s;
+            out.readings += readings;
+            out.steps.push(step);
+            pose = to;
+            if position.is_some() {
+                wheel = position;
+            }
+            forward = !forward;
+        }
+    }
+    out
+}
