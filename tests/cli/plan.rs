@@ -270,10 +270,9 @@ fn plan_accepts_every_campaign_run_accepts_and_predicts_the_same_duration() {
 }
 
 /// The shipped sweeps campaign: `gonio plan` prints what the path check kept and cut, the readings and the
-/// sweeps' duration; `gonio run` refuses it with a message that says why (this version plans sweeps, it does
-/// not run them yet).
+/// sweeps' duration; `gonio run` sweeps them and writes every reading to sweeps.csv.
 #[test]
-fn plan_times_the_sweeps_and_run_refuses_them_for_now() {
+fn plan_times_the_sweeps_and_run_sweeps_them() {
     let campaign = repo_root().join("config/campaigns/sweeps.toml");
     let out = gonio()
         .arg("plan")
@@ -301,18 +300,24 @@ fn plan_times_the_sweeps_and_run_refuses_them_for_now() {
         sweeping >= cruise - 0.1 && sweeping < cruise + 21.0 * 0.2,
         "{sweeping} vs {cruise}"
     );
+    // `gonio run` sweeps them: every reading in sweeps.csv, a row per reading of each of the 21 sweeps.
     let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("out");
     let run = gonio()
         .arg("run")
         .arg(&campaign)
         .arg("--out")
-        .arg(dir.path().join("out"))
+        .arg(&out)
+        .arg("--quiet")
         .output()
         .expect("run gonio run");
-    let stderr = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(run.status.code(), Some(2), "{stderr}");
-    assert!(
-        stderr.contains("[[plan.sweeps]]") && stderr.contains("does not run them yet"),
-        "{stderr}"
-    );
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let csv = std::fs::read_to_string(out.join("sweeps.csv")).expect("sweeps.csv");
+    let header: Vec<&str> = csv.lines().next().expect("header").split(',').collect();
+    assert_eq!(header.last(), Some(&"brdf_true_sr"));
+    let rows = csv.lines().count() - 1;
+    assert!(rows > 90_000, "{rows} readings");
+    let segments: std::collections::BTreeSet<&str> =
+        csv.lines().skip(1).filter_map(|l| l.split(',').next()).collect();
+    assert_eq!(segments.len(), 21);
 }

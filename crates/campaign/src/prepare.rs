@@ -73,18 +73,6 @@ impl Prepared {
         &self.plan.bands_nm
     }
 
-    /// What this version runs: sweeps are planned and timed (`gonio plan`), not yet run (issue 41 lands in
-    /// parts: the plan and its time model first, reading during motion next).
-    pub fn require_runnable(&self) -> Result<(), CampaignError> {
-        if self.sweeps.is_some() {
-            return Err(self.campaign.located().plain(
-                "[[plan.sweeps]]: sweeps are planned and timed (`gonio plan`) but this version does not run them \
-                 yet; remove the [[plan.sweeps]] entries to run the campaign's points",
-            ));
-        }
-        Ok(())
-    }
-
     /// A dry-run measures a simulated sample: it needs one (`[material]`). Planning does not.
     pub fn require_sample(&self, instrument: &Instrument) -> Result<(), CampaignError> {
         let c = &self.campaign;

@@ -58,6 +58,13 @@ pub enum Event {
     },
     /// A device fault, retried or not: for the operator's log.
     Fault { campaign: CampaignId, message: String },
+    /// A sweep was committed with its readings (crate::store::sweeps): `segment` of `segments`, in run order.
+    Sweep {
+        campaign: CampaignId,
+        segment: u32,
+        segments: u32,
+        readings: u32,
+    },
 }
 
 /// Requests to the engine, shared by every clone.

@@ -10,6 +10,7 @@ use gonio_results::fit::FitModel;
 use gonio_results::points::{self, Point, PointsTable};
 use gonio_results::provenance::{CalibrationReading, DeviceIdentity, RunConfig, RunRecord, StoredCampaign};
 use gonio_results::report::{PlanCoverage, ReportInput, ReportSummary};
+use gonio_results::sweeps::SweepReading;
 
 use crate::store::{CampaignRecord, PointRecord, Store, StoreError};
 use gonio_campaign::{self as campaign, Sources};
@@ -238,4 +239,9 @@ pub fn report(
         }),
     };
     gonio_results::report::render(&input)
+}
+
+/// A campaign's sweep readings (`sweeps.csv`, gonio_results::sweeps), in run order.
+pub fn sweep_readings(store: &Store, id: crate::store::CampaignId) -> Result<Vec<SweepReading>, StoreError> {
+    store.sweep_readings(id)
 }

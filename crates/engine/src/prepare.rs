@@ -122,7 +122,6 @@ pub fn prepare_campaign_with(
 ) -> Result<PreparedCampaign, EngineError> {
     let p = gonio_campaign::load_and_prepare(text, origin, sources, instrument)?;
     p.require_sample(&instrument.instrument)?;
-    p.require_runnable()?;
     let c = &p.campaign;
     let resolved_toml = resolved_trailer(&c.resolved);
     let mut prepared = PreparedCampaign {

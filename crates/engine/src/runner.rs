@@ -4,7 +4,8 @@
 //! [`crate::motion`] (device supervision, collision-safe moves, homing) and [`crate::acquisition`] (the meter's
 //! configuration, a reading, the measurement equation as a pure function). Its own parts (each an `impl Run`
 //! block): `acquire` (wheel, detector, one point committed), `calibrate` (darks, normalisation, the operator
-//! protocol), `passes` (an adaptive plan's passes), `reference` (the relative method's transfer); this file:
+//! protocol), `passes` (an adaptive plan's passes), `reference` (the relative method's transfer), `sweep` (the
+//! sweeps after the points, a segment per transaction); this file:
 //! start-up, the loop over the steps, pause requests and the final state.
 //!
 //! Order of work: rebuild the campaign (plan and schedule) from the text stored with it, materials included
@@ -48,6 +49,7 @@ mod calibrate;
 mod eta;
 mod passes;
 mod reference;
+mod sweep;
 
 use crate::align::correction::PoseCorrection;
 use crate::align::file::CalibrationFile;
@@ -417,13 +419,14 @@ impl<'a> Run<'a> {
         self.motion.reference_all().await?;
 
         if self.done >= self.total {
-            return Ok(());
+            // The points are all in (or there are none): what is left is the sweeps.
+            return self.run_sweeps(false).await;
         }
         // The pass holding the first uncommitted point: the schedule itself, or for an adaptive plan the pass the
         // committed points lead to (replayed from the store: gonio_campaign::passes).
         let Some(mut pass) = self.locate_pass()? else {
             // An adaptive campaign whose planner had already stopped when it was interrupted.
-            return Ok(());
+            return self.run_sweeps(false).await;
         };
         let steps = &pass.schedule.steps;
         let within = self.done - pass.first_index;
@@ -466,7 +469,7 @@ impl<'a> Run<'a> {
                     pass = next;
                     i = 0;
                 }
-                None => return Ok(()),
+                None => return self.run_sweeps(true).await,
             }
         }
     }

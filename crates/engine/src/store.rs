@@ -33,18 +33,20 @@
 //!
 //! Parts: `records` holds the types read and written; `schema` opens the file, sets the connection up, creates
 //! and migrates the schema and picks each write's durability; `queries` reads and writes campaigns, devices,
-//! calibrations and points; `instrument_calibrations` keeps the instrument's calibrations (`gonio align` files)
+//! calibrations and points; `sweeps` the readings of sweeps, a segment per transaction; `instrument_calibrations` keeps the instrument's calibrations (`gonio align` files)
 //! and finds the latest one made for an instrument file. [`Store`] and [`StoreError`] are here.
 
 mod instrument_calibrations;
 mod queries;
 mod records;
 mod schema;
+mod sweeps;
 
 pub use records::{
     CalibrationRecord, CampaignId, CampaignRecord, CampaignState, Durability, InstrumentCalibration,
     InstrumentCalibrationId, NewCampaign, NewInstrumentCalibration, PointCompletion, PointRecord, PointValue,
 };
+pub use sweeps::SweepSegmentRecord;
 
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -63,8 +65,9 @@ pub const STORE_FILE: &str = "gonio.sqlite";
 /// `campaigns.calibration_id` (which one a campaign was given). Version 7: each point's `budget` and
 /// `brdf_aperture_sr`; version 8: `point_budgets` (budgets completed after a campaign, its rows untouched);
 /// version 9: `point_budgets` also keeps the value corrected to the nominal geometry, the aperture average it came
-/// from and the flags (crate::budget::complete).
-const SCHEMA_VERSION: i64 = 10;
+/// from and the flags (crate::budget::complete). Version 10: `campaigns.ended_instrument_s`. Version 11:
+/// `sweep_segments` and `sweep_readings` (a campaign's sweeps, a segment per transaction: `sweeps`).
+const SCHEMA_VERSION: i64 = 11;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

@@ -348,7 +348,8 @@ fn print_event(item: &StreamItem, watched: Option<i64>) -> Option<Result<(), Cli
         Event::State { campaign, .. }
         | Event::Point { campaign, .. }
         | Event::Progress { campaign, .. }
-        | Event::Fault { campaign, .. } => campaign.0,
+        | Event::Fault { campaign, .. }
+        | Event::Sweep { campaign, .. } => campaign.0,
     };
     if watched.is_some_and(|w| w != campaign) {
         return None;
@@ -382,6 +383,15 @@ fn print_event(item: &StreamItem, watched: Option<i64>) -> Option<Result<(), Cli
             );
         }
         Event::Fault { message, .. } => println!("campaign {c}: fault: {message}"),
+        Event::Sweep {
+            segment,
+            segments,
+            readings,
+            ..
+        } => println!(
+            "campaign {c}: sweep {} of {segments} committed ({readings} readings)",
+            segment + 1
+        ),
         // Every point also comes with a progress event: that is the line to show.
         Event::Point { .. } => {}
     }

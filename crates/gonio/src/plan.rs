@@ -94,6 +94,12 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
         if let Some(sweeps) = &p.sweeps {
             sweep_lines(&mut out, sweeps);
         }
+        let _ = writeln!(
+            out,
+            "predicted duration: {:.1} s ({})",
+            p.predicted_s(),
+            hms(p.predicted_s())
+        );
         let _ = writeln!(out, "{}", band_line(p));
         return out;
     }
@@ -146,17 +152,17 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
             hms(p.predicted_s())
         );
     }
-    let label = if p.adaptive.is_some() {
-        "first pass duration"
-    } else {
-        "predicted duration"
+    let label = match (&p.adaptive, &p.sweeps) {
+        (Some(_), _) => "first pass duration",
+        (None, Some(_)) => "points duration",
+        (None, None) => "predicted duration",
     };
     print_times(&mut out, sched, label);
     if let Some(sweeps) = &p.sweeps {
         sweep_lines(&mut out, sweeps);
         let _ = writeln!(
             out,
-            "predicted duration, points and sweeps: {:.1} s ({})",
+            "predicted duration: {:.1} s ({}), points and sweeps",
             p.predicted_s(),
             hms(p.predicted_s())
         );
@@ -258,7 +264,7 @@ fn band_line(p: &Prepared) -> String {
             "the time model's target against dry-runs, BENCHMARKS.md section 6 shows where it holds"
         },
         if p.sweeps.is_some() {
-            "; the sweeps' model is not yet checked against a run: this version does not run sweeps"
+            "; the sweeps' model is not yet held to dry-runs"
         } else {
             ""
         }

@@ -20,6 +20,7 @@ use gonio_engine::store::{CampaignId, CampaignState, NewCampaign, Store};
 use gonio_engine::{self as engine, Control, Event, Rig};
 use gonio_instrument::InstrumentFile;
 use gonio_results::points;
+use gonio_results::sweeps::{truth_summary, write_sweeps_csv};
 
 use crate::CliError;
 use crate::instrument_arg::{InstrumentArg, read_instrument};
@@ -379,6 +380,35 @@ fn write_results(
     let json_path = out.join("run.json");
     std::fs::write(&json_path, record.to_json_text())
         .map_err(|e| CliError::io(format!("cannot write {}", json_path.display()), e))?;
+    let sweeps = export::sweep_readings(&lock(store), id).map_err(|e| CliError::input(e.to_string()))?;
+    let mut sweep_lines = String::new();
+    if !sweeps.is_empty() {
+        let sweeps_path = out.join("sweeps.csv");
+        std::fs::write(&sweeps_path, write_sweeps_csv(&sweeps, record.campaign.dry_run))
+            .map_err(|e| CliError::io(format!("cannot write {}", sweeps_path.display()), e))?;
+        let valid = sweeps.iter().filter(|r| r.brdf_sr.is_some()).count();
+        let segments = sweeps
+            .iter()
+            .map(|r| r.segment)
+            .collect::<std::collections::BTreeSet<_>>()
+            .len();
+        sweep_lines.push_str(&format!(
+            "sweeps: {} readings in {segments} sweeps ({valid} valid), {}\n",
+            sweeps.len(),
+            sweeps_path.display()
+        ));
+        if let Some(t) = truth_summary(&sweeps) {
+            sweep_lines.push_str(&format!(
+                "dry-run sweep readings vs the BRDF at their arcs' middles: cos-weighted relative RMS {}, k=2 \
+                 coverage {:.1} % ({} readings)\n",
+                t.cos_weighted_relative_rms
+                    .map(|r| format!("{r:.2e}"))
+                    .unwrap_or_else(|| "undefined (zero truth)".into()),
+                100.0 * t.coverage_k2,
+                t.readings
+            ));
+        }
+    }
 
     let c = &record.campaign;
     let mut summary = format!(
@@ -421,6 +451,7 @@ fn write_results(
             e.log_rms, e.max_relative_error, e.points
         ));
     }
+    summary.push_str(&sweep_lines);
     summary.push_str(&format!(
         "results: {} and {}",
         csv_path.display(),

@@ -44,6 +44,7 @@ pub mod provenance_summary;
 pub mod report;
 pub mod rgl;
 pub mod run;
+pub mod sweeps;
 pub mod zemax;
 
 pub use error::ResultsError;

@@ -36,6 +36,11 @@ pub trait SampleHolder: Send + Sync + std::fmt::Debug {
     /// BRDF and the BRDF averaged over the detector's aperture (1/sr), where the simulator can tell them, and
     /// on an imperfect instrument what each imperfection did to that reading.
     fn truth(&self, wi: &Direction, wo: &Direction, wavelength: Wavelength) -> PointTruth;
+
+    /// The point BRDF alone (1/sr): what a sweep reading is compared with, without the aperture's integral.
+    fn truth_point(&self, wi: &Direction, wo: &Direction, wavelength: Wavelength) -> Option<f64> {
+        self.truth(wi, wo, wavelength).point_sr
+    }
 }
 
 /// A dry-run point's ground truth (stored beside the point, never used in a measurement).
@@ -128,6 +133,10 @@ impl SampleHolder for SimulatedHolder {
                 self.sample.set_sample_mounted(held == Held::Sample);
             }
         }
+    }
+
+    fn truth_point(&self, wi: &Direction, wo: &Direction, wavelength: Wavelength) -> Option<f64> {
+        self.sample.truth(wi, wo, wavelength).ok()
     }
 
     fn truth(&self, wi: &Direction, wo: &Direction, wavelength: Wavelength) -> PointTruth {

@@ -153,6 +153,25 @@ impl<'a> Run<'a> {
         (value, u_stray)
     }
 
+    /// What the measurement equation needs besides the readings, for a reading in `band_nm` at (wi, wo): the
+    /// same for points and sweep readings.
+    pub(super) fn equation_inputs(&self, band_nm: f64, wi: Direction, wo: Direction) -> EquationInputs<'_> {
+        EquationInputs {
+            instrument: &self.file.instrument,
+            sample_radius_mm: self.c.campaign.sample_radius_mm,
+            normalisation: match &self.reference {
+                Some(r) => Normalisation::Relative {
+                    transfer: &r.transfer,
+                    reference_brdf_rel_std: self.c.campaign.calibration.reference_rel_std,
+                },
+                None => Normalisation::Absolute,
+            },
+            band_nm,
+            wi,
+            wo,
+        }
+    }
+
     pub(super) async fn measure(&mut self, step: &Step, next_start_s: Option<f64>) -> Result<(), Interrupt> {
         let index = self.done;
         let Some(g) = step.geometry else {
@@ -223,20 +242,7 @@ impl<'a> Run<'a> {
             if r.overload {
                 flags.push("saturated".to_string());
             } else {
-                let inputs = EquationInputs {
-                    instrument: &self.file.instrument,
-                    sample_radius_mm: self.c.campaign.sample_radius_mm,
-                    normalisation: match &self.reference {
-                        Some(r) => Normalisation::Relative {
-                            transfer: &r.transfer,
-                            reference_brdf_rel_std: self.c.campaign.calibration.reference_rel_std,
-                        },
-                        None => Normalisation::Absolute,
-                    },
-                    band_nm,
-                    wi,
-                    wo,
-                };
+                let inputs = self.equation_inputs(band_nm, wi, wo);
                 match brdf_of_reading(&inputs, Reading::new(signal, r.noise_w), dark, incident) {
                     Ok(v) => {
                         let (value, u_stray) =

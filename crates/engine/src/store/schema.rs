@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use rusqlite::{Connection, OptionalExtension};
 
+use super::sweeps::SWEEP_TABLES;
 use super::{CampaignId, Durability, SCHEMA_VERSION, STORE_FILE, Store, StoreError};
 
 /// The points table, one column a line (name, declaration): the one definition of its schema. A new store's
@@ -323,6 +324,11 @@ impl Store {
         if version == 9 {
             // Version 10 records when a campaign's last run ended (absent for older campaigns).
             self.step("ALTER TABLE campaigns ADD COLUMN ended_instrument_s REAL;", 10)?;
+            version = 10;
+        }
+        if version == 10 {
+            // Version 11 stores the readings of sweeps.
+            self.step(SWEEP_TABLES, 11)?;
             return Ok(());
         }
         if version != 0 {
@@ -372,6 +378,7 @@ impl Store {
             {POINT_BUDGETS}
             {POINT_COMPLETIONS}
             {INSTRUMENT_CALIBRATIONS}
+            {SWEEP_TABLES}
             PRAGMA user_version = {SCHEMA_VERSION};
             COMMIT;"
         );

@@ -1,6 +1,7 @@
 //! Unit tests of the store: schema and migration, durability levels, campaigns, points, calibrations, and disk trouble.
 
 use super::*;
+use gonio_results::sweeps::SweepReading;
 
 fn new_campaign(total: u64) -> NewCampaign {
     NewCampaign {
@@ -148,7 +149,7 @@ fn a_version_1_store_is_migrated_keeping_its_points() {
              phi_o_deg, signal_w, dark_w, incident_w, brdf_sr, brdf_u_sr, flags, t_s, readback_json,
              truth_point_sr, truth_aperture_sr FROM points; DROP TABLE points;
              ALTER TABLE points_v1 RENAME TO points;
-             ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 1;"
+             ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; DROP TABLE sweep_readings; DROP TABLE sweep_segments; PRAGMA user_version = 1;"
     ))
     .expect("downgrade");
     drop(conn);
@@ -169,7 +170,7 @@ fn a_version_2_store_gains_the_attribution_column() {
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch(
         "ALTER TABLE points DROP COLUMN truth_effects_json; ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; 
-         ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 2;",
+         ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; DROP TABLE sweep_readings; DROP TABLE sweep_segments; PRAGMA user_version = 2;",
     )
     .expect("downgrade");
     drop(conn);
@@ -195,7 +196,7 @@ fn a_version_3_store_gains_the_prediction_and_keeps_its_campaigns() {
         "the prediction is stored with the campaign"
     );
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 3;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN predicted_instrument_s; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; DROP TABLE sweep_readings; DROP TABLE sweep_segments; PRAGMA user_version = 3;")
         .expect("downgrade");
     drop(conn);
     let mut store = Store::open(dir.path()).expect("migrates");
@@ -228,7 +229,7 @@ fn a_version_4_store_gains_the_alignment_column_and_keeps_its_campaigns() {
         store.create_campaign(&new_campaign(2)).expect("create")
     };
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 4;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; ALTER TABLE campaigns DROP COLUMN alignment_toml; ALTER TABLE campaigns DROP COLUMN calibration_id; DROP TABLE instrument_calibrations; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; DROP TABLE sweep_readings; DROP TABLE sweep_segments; PRAGMA user_version = 4;")
         .expect("downgrade");
     drop(conn);
     let store = Store::open(dir.path()).expect("migrates");
@@ -241,7 +242,7 @@ fn a_version_6_store_gains_the_budget_columns_and_a_budget_round_trips() {
     let dir = tempfile::tempdir().expect("tempdir");
     let id = store_with_one_point(dir.path());
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 6;")
+    conn.execute_batch("ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; DROP TABLE sweep_readings; DROP TABLE sweep_segments; PRAGMA user_version = 6;")
         .expect("downgrade");
     drop(conn);
     let mut store = Store::open(dir.path()).expect("migrates");
@@ -352,7 +353,7 @@ fn a_version_8_store_gains_the_completion_columns() {
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch(
         "ALTER TABLE point_budgets DROP COLUMN brdf_sr; ALTER TABLE point_budgets DROP COLUMN brdf_aperture_sr; \
-         ALTER TABLE point_budgets DROP COLUMN flags; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 8;",
+         ALTER TABLE point_budgets DROP COLUMN flags; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; DROP TABLE sweep_readings; DROP TABLE sweep_segments; PRAGMA user_version = 8;",
     )
     .expect("downgrade");
     drop(conn);
@@ -600,7 +601,7 @@ fn a_version_9_store_gains_the_end_of_the_run_and_it_round_trips() {
     let dir = tempfile::tempdir().expect("tempdir");
     let id = store_with_one_point(dir.path());
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
-    conn.execute_batch("ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 9;")
+    conn.execute_batch("ALTER TABLE campaigns DROP COLUMN ended_instrument_s; DROP TABLE sweep_readings; DROP TABLE sweep_segments; PRAGMA user_version = 9;")
         .expect("back to version 9");
     drop(conn);
     let mut store = Store::open(dir.path()).expect("migrates");
@@ -615,4 +616,93 @@ fn a_version_9_store_gains_the_end_of_the_run_and_it_round_trips() {
         store.campaign(id).expect("campaign").ended_instrument_s,
         Some(123.25)
     );
+}
+
+fn sweep_reading(segment: u32, k: u32) -> SweepReading {
+    SweepReading {
+        segment,
+        k,
+        band_nm: 550.0,
+        t_s: 10.0 + f64::from(k) * 0.004,
+        integration_s: 0.003,
+        theta_i_deg: 30.0,
+        phi_i_deg: 0.0,
+        theta_o_deg: 0.1 / 3.0 + f64::from(k) * 0.016,
+        phi_o_deg: 180.0,
+        arc_from_deg: f64::from(k) * 0.016,
+        arc_to_deg: f64::from(k) * 0.016 + 0.012,
+        signal_w: (k % 5 != 4).then_some(1.234_567_890_123e-7),
+        brdf_sr: (k % 5 != 4).then_some(0.1 / 3.0),
+        brdf_u_sr: Some(1e-5),
+        flags: if k % 5 == 4 {
+            vec!["failed: timeout".into()]
+        } else {
+            vec![]
+        },
+        truth_point_sr: Some(std::f64::consts::FRAC_1_PI),
+    }
+}
+
+#[test]
+fn sweep_segments_commit_whole_round_trip_and_are_never_stored_twice() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let id = store_with_one_point(dir.path());
+    let mut store = Store::open(dir.path()).expect("open");
+    assert_eq!(store.sweep_segments_done(id).expect("done"), 0);
+    for segment in 0..2 {
+        let readings: Vec<_> = (0..1000).map(|k| sweep_reading(segment, k)).collect();
+        let record = SweepSegmentRecord {
+            segment,
+            band_nm: Some(550.0),
+            started_s: 10.0,
+            ended_s: 14.0,
+            readings: 1000,
+        };
+        store
+            .commit_sweep_segment(id, &record, &readings)
+            .expect("commit");
+    }
+    assert_eq!(store.sweep_segments_done(id).expect("done"), 2);
+    // A segment committed again is refused, and nothing of the second attempt is left behind.
+    let again = SweepSegmentRecord {
+        segment: 1,
+        band_nm: Some(550.0),
+        started_s: 0.0,
+        ended_s: 1.0,
+        readings: 1,
+    };
+    store
+        .commit_sweep_segment(id, &again, &[sweep_reading(1, 5000)])
+        .expect_err("already committed");
+    drop(store);
+    let store = Store::open(dir.path()).expect("reopen");
+    let readings = store.sweep_readings(id).expect("readings");
+    assert_eq!(readings.len(), 2000);
+    assert_eq!(readings[1003], sweep_reading(1, 3), "bit-exact round trip");
+    assert_eq!(readings[4].signal_w, None);
+    assert_eq!(store.sweep_segments(id).expect("segments").len(), 2);
+    assert_eq!(store.points(id).expect("points").len(), 1, "the points are apart");
+}
+
+#[test]
+fn a_version_10_store_gains_the_sweep_tables() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let id = store_with_one_point(dir.path());
+    let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
+    conn.execute_batch("DROP TABLE sweep_readings; DROP TABLE sweep_segments; PRAGMA user_version = 10;")
+        .expect("back to version 10");
+    drop(conn);
+    let mut store = Store::open(dir.path()).expect("migrates");
+    assert_eq!(store.sweep_segments_done(id).expect("done"), 0);
+    let record = SweepSegmentRecord {
+        segment: 0,
+        band_nm: None,
+        started_s: 0.0,
+        ended_s: 1.0,
+        readings: 1,
+    };
+    store
+        .commit_sweep_segment(id, &record, &[sweep_reading(0, 0)])
+        .expect("commit");
+    assert_eq!(store.sweep_readings(id).expect("readings").len(), 1);
 }

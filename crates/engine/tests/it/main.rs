@@ -12,6 +12,7 @@
 //! - `relative`: the relative calibration method end to end on the simulated instrument.
 //! - `selftest`: the self-test on the simulated instrument.
 //! - `stalls`: stall injection in a dry-run.
+//! - `sweeps`: sweeps run by the engine: arcs covered, values against the truth, a pause between sweeps.
 //! - `timing`: the scheduler's predicted instrument time against a simulator dry-run of the same plan.
 
 mod common;
@@ -26,4 +27,5 @@ mod motion;
 mod relative;
 mod selftest;
 mod stalls;
+mod sweeps;
 mod timing;

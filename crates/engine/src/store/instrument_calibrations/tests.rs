@@ -160,7 +160,7 @@ fn a_version_5_store_gains_the_calibrations_and_keeps_its_campaigns() {
     let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
     conn.execute_batch(
         "ALTER TABLE points DROP COLUMN brdf_aperture_sr; ALTER TABLE points DROP COLUMN budget; DROP TABLE instrument_calibrations; ALTER TABLE campaigns DROP COLUMN calibration_id;
-         DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; PRAGMA user_version = 5;",
+         DROP TABLE point_budgets; ALTER TABLE campaigns DROP COLUMN ended_instrument_s; DROP TABLE sweep_readings; DROP TABLE sweep_segments; PRAGMA user_version = 5;",
     )
     .expect("downgrade");
     drop(conn);

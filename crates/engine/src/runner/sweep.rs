@@ -1,0 +1,426 @@
+//! A campaign's sweeps (`[[plan.sweeps]]`, `gonio_scheduler::sweep`), after its points: one arm turns over an
+//! arc at the sweep's speed while the meter reads back to back; each reading is attributed to the middle of the
+//! arc it covered and goes through the same measurement equation as a point.
+//!
+//! Per sweep: move to the arc's start (a planned, collision-safe move, as for a point), turn the wheel to the
+//! band, set the swept axis's speed (`set_speed`, the instrument file's acceleration), command the move to the
+//! arc's end and read until the axis has arrived; then the axis's speed is set back to its `max_speed_deg_s`.
+//! The meter is configured for the sweep's averaging for the sweep and for the campaign's again after it.
+//!
+//! Where a reading was: the commanded trapezoidal profile (start at the move command's reply, the set speed,
+//! the axis's acceleration), shifted in time by the median lag of the controller's position reports taken while
+//! the arm cruises (one after every [`POSITION_EVERY`] readings, concurrently with the next: the controller's
+//! line and the meter's are separate). A reading integrates from its request for `averaging x 3 ms`; the time
+//! it is attributed to is the middle of that window. What remains uncertain is the exchange latency (about a
+//! millisecond: `speed x 1 ms` of arc) and the spread of the reports' lags, both recorded in the log.
+//!
+//! What a segment (one sweep of one arc in one band) stores is committed in one transaction with all its
+//! readings (crate::store::sweeps): a sweep interrupted (pause, crash) is swept again whole on resume, and no
+//! reading is stored twice. Not yet: the characterisation's corrections (the ranges' gains, the signature), the completion's corrections
+//! (aperture, smearing) and the exports of sweep readings; the run writes them to `sweeps.csv`.
+
+use gonio_brdf::{Direction, Wavelength};
+use gonio_scheduler::kinematics::Pose;
+use gonio_scheduler::sweep::{SweepArc, SweepStep, swept_role};
+use gonio_scheduler::timing::DETECTOR_SAMPLE_S;
+
+use super::*;
+use crate::acquisition::{self, brdf_of_reading, flag_for};
+use crate::budget;
+use crate::store::SweepSegmentRecord;
+use gonio_results::sweeps::SweepReading;
+
+/// A position report every this many readings during a sweep.
+pub const POSITION_EVERY: usize = 8;
+
+/// The sweep's motion may take this much longer than its profile (and 5 s) before the run gives up on it.
+const OVERRUN: f64 = 1.5;
+
+/// One reading as taken, before attribution.
+struct Taken {
+    /// Clock times (s) of the request and of the reply.
+    requested_s: f64,
+    reading: Result<acquisition::MeterReading, String>,
+}
+
+/// The commanded trapezoid of the swept axis (physical degrees against clock seconds).
+#[derive(Debug, Clone, Copy)]
+struct Profile {
+    t0_s: f64,
+    from_deg: f64,
+    to_deg: f64,
+    v: f64,
+    a: f64,
+}
+
+impl Profile {
+    fn duration_s(&self) -> f64 {
+        gonio_scheduler::timing::trapezoid_time_s(self.to_deg - self.from_deg, self.v, self.a)
+    }
+
+    fn ramp_s(&self) -> f64 {
+        let d = (self.to_deg - self.from_deg).abs();
+        if d >= self.v * self.v / self.a {
+            self.v / self.a
+        } else {
+            (d / self.a).sqrt()
+        }
+    }
+
+    /// Position at clock time `t`.
+    fn at(&self, t: f64) -> f64 {
+        let d = (self.to_deg - self.from_deg).abs();
+        let sign = (self.to_deg - self.from_deg).signum();
+        let (total, ramp) = (self.duration_s(), self.ramp_s());
+        let t = (t - self.t0_s).clamp(0.0, total);
+        let s = if t <= ramp {
+            0.5 * self.a * t * t
+        } else if t <= total - ramp {
+            0.5 * self.a * ramp * ramp + self.a * ramp * (t - ramp)
+        } else {
+            let r = total - t;
+            d - 0.5 * self.a * r * r
+        };
+        self.from_deg + sign * s.min(d)
+    }
+
+    /// The clock time at which the cruise passes `x` (None outside the cruise).
+    fn cruise_time_of(&self, x: f64) -> Option<f64> {
+        let (total, ramp) = (self.duration_s(), self.ramp_s());
+        if total - 2.0 * ramp <= 0.0 {
+            return None;
+        }
+        let (xa, xb) = (self.at(self.t0_s + ramp), self.at(self.t0_s + total - ramp));
+        let (lo, hi) = (xa.min(xb), xa.max(xb));
+        if !(lo..=hi).contains(&x) || (xb - xa).abs() <= 0.0 {
+            return None;
+        }
+        Some(self.t0_s + ramp + (x - xa) / (xb - xa) * (total - 2.0 * ramp))
+    }
+}
+
+impl Run<'_> {
+    /// The sweeps from the first segment not committed. `calibrated`: darks and normalisation readings were
+    /// taken in this session (the points ran before); else they are taken first.
+    pub(super) async fn run_sweeps(&mut self, calibrated: bool) -> Result<(), Interrupt> {
+        let Some(sweeps) = self.c.sweeps.clone() else {
+            return Ok(());
+        };
+        let first = self.st(|s| s.sweep_segments_done(self.id))? as usize;
+        let steps = &sweeps.schedule.steps;
+        if first >= steps.len() {
+            return Ok(());
+        }
+        let bands = self.c.plan.bands_nm.clone();
+        if !calibrated {
+            if first == 0 && self.done == 0 && self.t_base == 0.0 {
+                // Sweeps alone, fresh: the instrument to where the sweeps start, then the campaign's clock.
+                self.motion.move_to(&steps[0].start_pose).await?;
+                if let Some(p) = steps[0].wheel_position {
+                    self.wheel_to(p).await?;
+                }
+                self.t_clock0 = self.motion.clock().now_s();
+            }
+            self.darks_all(&bands).await?;
+            self.normalise(&bands, None).await?;
+        }
+        for (k, step) in steps.iter().enumerate().skip(first) {
+            self.safe_point()?;
+            let Some(arc) = sweeps.plan.arcs.get(step.arc) else {
+                return Err(Interrupt::Fatal(EngineError::NotRunnable {
+                    id: self.id,
+                    message: format!("sweep {k} names arc {} of {}", step.arc, sweeps.plan.arcs.len()),
+                }));
+            };
+            let index = |n: usize| u32::try_from(n).unwrap_or(u32::MAX);
+            self.sweep((index(k), index(steps.len())), step, arc).await?;
+        }
+        Ok(())
+    }
+
+    /// One sweep, committed as one segment.
+    async fn sweep(
+        &mut self,
+        (segment, segments): (u32, u32),
+        step: &SweepStep,
+        arc: &SweepArc,
+    ) -> Result<(), Interrupt> {
+        let role = swept_role(arc.request.arm);
+        let correct = |p: &Pose| match &self.correction {
+            Some(c) => c.correct(p),
+            None => *p,
+        };
+        let (start, end) = (correct(&step.start_pose), correct(&step.end_pose));
+        let (s_start, s_end) = if step.forward {
+            (arc.piece.from_deg, arc.piece.to_deg)
+        } else {
+            (arc.piece.to_deg, arc.piece.from_deg)
+        };
+        self.motion.move_to(&start).await?;
+        if let Some(p) = step.wheel_position {
+            self.wheel_to(p).await?;
+        }
+        let band_nm = step
+            .band_nm
+            .or(self.file.instrument.source.wavelength_nm)
+            .unwrap_or(f64::NAN);
+        let Some(axis) = self.rig.axes().iter().find(|a| a.config.role == role) else {
+            return Err(Interrupt::Fatal(EngineError::NotRunnable {
+                id: self.id,
+                message: format!("the instrument has no {role:?} axis to sweep"),
+            }));
+        };
+        let (from_deg, to_deg) = (start.get(role), end.get(role));
+        let profile_of = |t0_s| Profile {
+            t0_s,
+            from_deg,
+            to_deg,
+            v: arc.request.speed_deg_s,
+            a: axis.config.accel_deg_s2,
+        };
+        let mut acquisition = self.c.campaign.acquisition;
+        acquisition.averaging = arc.request.averaging;
+        self.configured_nm = None;
+        let what = format!(
+            "set {} to {} deg/s for a sweep",
+            axis.config.name, arc.request.speed_deg_s
+        );
+        self.motion
+            .device(Device::Axis(axis), &what, || {
+                axis.driver
+                    .set_speed(arc.request.speed_deg_s, axis.config.accel_deg_s2)
+            })
+            .await?;
+        let started = self.t();
+        let what = format!("start the sweep of {} to {to_deg:.4} deg", axis.config.name);
+        self.motion
+            .device(Device::Axis(axis), &what, || axis.driver.start_move(to_deg))
+            .await?;
+        let clock = self.motion.clock();
+        let profile = profile_of(clock.now_s());
+        let deadline = profile.t0_s + OVERRUN * profile.duration_s() + 5.0;
+        tracing::info!(campaign = %self.id, segment, axis = %axis.config.name, from_deg, to_deg,
+            speed_deg_s = arc.request.speed_deg_s, "sweep started");
+
+        let mut taken: Vec<Taken> = Vec::new();
+        let mut reports: Vec<(f64, f64)> = Vec::new();
+        loop {
+            if self.control.estop_requested() {
+                return Err(Interrupt::Estop);
+            }
+            let requested_s = clock.now_s();
+            let ask_position = taken.len() % POSITION_EVERY == POSITION_EVERY - 1;
+            let read = acquisition::read(&self.motion, band_nm, &acquisition, &mut self.configured_nm);
+            let (reading, position) = if ask_position {
+                let (r, p) = tokio::join!(read, axis.driver.position_deg());
+                (r, p.ok().map(|x| (clock.now_s(), x)))
+            } else {
+                (read.await, None)
+            };
+            if let Some(report) = position {
+                reports.push(report);
+            }
+            taken.push(Taken {
+                requested_s,
+                reading: reading.map_err(|e| e.to_string()),
+            });
+            let now = clock.now_s();
+            if now >= profile.t0_s + profile.duration_s() {
+                let status = axis.driver.status().await;
+                if status.as_ref().is_ok_and(|s| !s.moving) {
+                    break;
+                }
+            }
+            if now > deadline {
+                let _ = axis.driver.stop().await;
+                return Err(Interrupt::Pause(format!(
+                    "the sweep of {} did not end within {:.1} s of its predicted {:.1} s",
+                    axis.config.name,
+                    now - profile.t0_s,
+                    profile.duration_s()
+                )));
+            }
+        }
+        let what = format!("end the sweep of {} at {to_deg:.4} deg", axis.config.name);
+        self.motion
+            .device(Device::Axis(axis), &what, || axis.driver.wait_arrived(to_deg))
+            .await?;
+        let what = format!("restore the speed of {}", axis.config.name);
+        self.motion
+            .device(Device::Axis(axis), &what, || {
+                axis.driver
+                    .set_speed(axis.config.max_speed_deg_s, axis.config.accel_deg_s2)
+            })
+            .await?;
+        self.configured_nm = None;
+        self.motion.read_positions().await?;
+        let ended = self.t();
+
+        // The lag of the arm behind its commanded profile, from the reports taken while it cruised.
+        let mut lags: Vec<f64> = reports
+            .iter()
+            .filter_map(|(t, x)| profile.cruise_time_of(*x).map(|tp| t - tp))
+            .collect();
+        lags.sort_by(f64::total_cmp);
+        let lag = lags.get(lags.len() / 2).copied().unwrap_or(0.0);
+        let spread = match (lags.first(), lags.last()) {
+            (Some(a), Some(b)) => b - a,
+            _ => 0.0,
+        };
+        tracing::info!(campaign = %self.id, segment, readings = taken.len(), reports = reports.len(), lag_s = lag,
+            lag_spread_s = spread, "sweep ended");
+
+        let integration_s = f64::from(arc.request.averaging) * DETECTOR_SAMPLE_S;
+        let span = to_deg - from_deg;
+        let signed = |x: f64| {
+            if span == 0.0 {
+                s_start
+            } else {
+                s_start + (x - from_deg) / span * (s_end - s_start)
+            }
+        };
+        let t_offset = self.t() - clock.now_s();
+        let readings: Vec<SweepReading> = taken
+            .iter()
+            .enumerate()
+            .map(|(k, r)| {
+                let (ta, tb) = (r.requested_s, r.requested_s + integration_s);
+                let (a, b) = (signed(profile.at(ta - lag)), signed(profile.at(tb - lag)));
+                let mid = 0.5 * (a + b);
+                self.sweep_reading(
+                    segment,
+                    k,
+                    band_nm,
+                    arc,
+                    mid,
+                    (a, b),
+                    &r.reading,
+                    0.5 * (ta + tb) + t_offset,
+                    integration_s,
+                )
+            })
+            .collect();
+        let record = SweepSegmentRecord {
+            segment,
+            band_nm: step.band_nm,
+            started_s: started,
+            ended_s: ended,
+            readings: u32::try_from(readings.len()).unwrap_or(u32::MAX),
+        };
+        self.st(|s| s.commit_sweep_segment(self.id, &record, &readings))?;
+        self.control.emit(Event::Sweep {
+            campaign: self.id,
+            segment,
+            segments,
+            readings: record.readings,
+        });
+        Ok(())
+    }
+
+    /// One reading through the measurement equation, attributed to signed angle `mid` of its arc.
+    #[allow(clippy::too_many_arguments)]
+    fn sweep_reading(
+        &self,
+        segment: u32,
+        k: usize,
+        band_nm: f64,
+        arc: &SweepArc,
+        mid: f64,
+        (from, to): (f64, f64),
+        reading: &Result<acquisition::MeterReading, String>,
+        t_s: f64,
+        integration_s: f64,
+    ) -> SweepReading {
+        let g = arc.request.geometry_at(mid);
+        let wi = Direction::from_spherical_deg(g.theta_i_deg, g.phi_i_deg);
+        let wo = Direction::from_spherical_deg(g.theta_o_deg, g.phi_o_deg);
+        let mut flags = Vec::new();
+        let (mut signal, mut brdf, mut brdf_u) = (None, None, None);
+        match reading {
+            Err(e) => flags.push(format!("failed: {e}")),
+            Ok(r) if r.overload => {
+                signal = Some(r.power_w);
+                flags.push("saturated".to_string());
+            }
+            Ok(r) => {
+                signal = Some(r.power_w);
+                let inputs = self.equation_inputs(band_nm, wi, wo);
+                let incident = self
+                    .normalisation(band_nm, t_s)
+                    .unwrap_or(Reading::exact(f64::NAN));
+                let range_u_w = r.power_w.abs() * self.file.instrument.detector.range_gain_u();
+                match brdf_of_reading(
+                    &inputs,
+                    Reading::new(r.power_w, r.std_w),
+                    self.dark(band_nm),
+                    incident,
+                ) {
+                    Ok(v) => {
+                        let parts = budget::Parts {
+                            equation: &v,
+                            relative: self.reference.is_some(),
+                            band_nm,
+                            range: r.range,
+                            range_rel: if r.power_w != 0.0 {
+                                range_u_w / r.power_w.abs()
+                            } else {
+                                0.0
+                            },
+                            stray_light_sr: 0.0,
+                        };
+                        brdf = Some(v.value_per_sr);
+                        brdf_u = Some(budget::of_point(&parts).total_sr());
+                    }
+                    Err(e) => flags.push(flag_for(&e)),
+                }
+            }
+        }
+        let truth_point_sr = match (&self.holder, Wavelength::from_nm(band_nm)) {
+            (Some(h), Ok(wl)) => h.truth_point(&wi, &wo, wl),
+            _ => None,
+        };
+        SweepReading {
+            segment,
+            k: u32::try_from(k).unwrap_or(u32::MAX),
+            band_nm,
+            t_s,
+            integration_s,
+            theta_i_deg: g.theta_i_deg,
+            phi_i_deg: g.phi_i_deg,
+            theta_o_deg: g.theta_o_deg,
+            phi_o_deg: g.phi_o_deg,
+            arc_from_deg: from,
+            arc_to_deg: to,
+            signal_w: signal,
+            brdf_sr: brdf,
+            brdf_u_sr: brdf_u,
+            flags,
+            truth_point_sr,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Profile;
+
+    #[test]
+    fn the_profile_reaches_its_end_at_its_duration_and_cruise_times_invert_it() {
+        let p = Profile {
+            t0_s: 2.0,
+            from_deg: 10.0,
+            to_deg: -20.0,
+            v: 4.0,
+            a: 80.0,
+        };
+        // 30 degrees at 4 deg/s with 80 deg/s^2: 7.5 s plus v/a.
+        assert!((p.duration_s() - (7.5 + 0.05)).abs() < 1e-12);
+        assert_eq!(p.at(0.0), 10.0);
+        assert!((p.at(2.0 + p.duration_s()) + 20.0).abs() < 1e-12);
+        for x in [5.0, 0.0, -12.5] {
+            let t = p.cruise_time_of(x).expect("on the cruise");
+            assert!((p.at(t) - x).abs() < 1e-9, "{x}: {}", p.at(t));
+        }
+        assert!(p.cruise_time_of(9.99).is_none(), "in the ramp");
+    }
+}

@@ -1,0 +1,207 @@
+//! Sweep readings: a campaign's sweeps (`[[plan.sweeps]]`) store their readings a segment (one sweep of one arc
+//! in one band) at a time, the segment's row and all its readings in one transaction. A segment is therefore
+//! complete in the store or absent: resuming restarts the first segment not committed, and never stores a
+//! reading twice (the primary key (campaign, segment, reading) refuses it). A reading is
+//! `gonio_results::sweeps::SweepReading`, stored column for column.
+
+use rusqlite::{OptionalExtension, named_params, params};
+use serde::{Deserialize, Serialize};
+
+use gonio_results::sweeps::SweepReading;
+
+use super::{CampaignId, Store, StoreError};
+
+/// The tables, created with a new store and added by the migration to version 11.
+pub(super) const SWEEP_TABLES: &str = "CREATE TABLE sweep_segments (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                segment INTEGER NOT NULL,
+                band_nm REAL,
+                started_s REAL NOT NULL,
+                ended_s REAL NOT NULL,
+                readings INTEGER NOT NULL,
+                PRIMARY KEY (campaign_id, segment)
+            );
+            CREATE TABLE sweep_readings (
+                campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+                segment INTEGER NOT NULL,
+                k INTEGER NOT NULL,
+                band_nm REAL NOT NULL,
+                t_s REAL NOT NULL,
+                integration_s REAL NOT NULL,
+                theta_i_deg REAL NOT NULL,
+                phi_i_deg REAL NOT NULL,
+                theta_o_deg REAL NOT NULL,
+                phi_o_deg REAL NOT NULL,
+                arc_from_deg REAL NOT NULL,
+                arc_to_deg REAL NOT NULL,
+                signal_w REAL,
+                brdf_sr REAL,
+                brdf_u_sr REAL,
+                flags TEXT NOT NULL,
+                truth_point_sr REAL,
+                PRIMARY KEY (campaign_id, segment, k)
+            );";
+
+/// One committed sweep segment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SweepSegmentRecord {
+    /// Index of the sweep in the campaign's sweep schedule.
+    pub segment: u32,
+    pub band_nm: Option<f64>,
+    /// Instrument time (s from the campaign's start) at which the sweep's motion started and ended.
+    pub started_s: f64,
+    pub ended_s: f64,
+    pub readings: u32,
+}
+
+impl Store {
+    /// Commit one sweep segment with its readings in one transaction; a segment already committed is refused.
+    pub fn commit_sweep_segment(
+        &mut self,
+        id: CampaignId,
+        segment: &SweepSegmentRecord,
+        readings: &[SweepReading],
+    ) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
+        let path = self.path.clone();
+        let write = |source| StoreError::Write {
+            path: path.clone(),
+            source,
+        };
+        let tx = self.conn.transaction().map_err(write)?;
+        let inserted = tx.execute(
+            "INSERT INTO sweep_segments (campaign_id, segment, band_nm, started_s, ended_s, readings)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+            params![
+                id.0,
+                segment.segment,
+                segment.band_nm,
+                segment.started_s,
+                segment.ended_s,
+                segment.readings
+            ],
+        );
+        if let Err(rusqlite::Error::SqliteFailure(e, _)) = &inserted
+            && e.extended_code == rusqlite::ffi::SQLITE_CONSTRAINT_PRIMARYKEY
+        {
+            return Err(StoreError::Corrupt(format!(
+                "campaign {id}: sweep segment {} is already committed",
+                segment.segment
+            )));
+        }
+        inserted.map_err(write)?;
+        {
+            let mut st = tx
+                .prepare_cached(
+                    "INSERT INTO sweep_readings (campaign_id, segment, k, band_nm, t_s, integration_s, theta_i_deg,
+                     phi_i_deg, theta_o_deg, phi_o_deg, arc_from_deg, arc_to_deg, signal_w, brdf_sr, brdf_u_sr,
+                     flags, truth_point_sr)
+                     VALUES (:campaign_id, :segment, :k, :band_nm, :t_s, :integration_s, :theta_i_deg, :phi_i_deg,
+                     :theta_o_deg, :phi_o_deg, :arc_from_deg, :arc_to_deg, :signal_w, :brdf_sr, :brdf_u_sr, :flags,
+                     :truth_point_sr)",
+                )
+                .map_err(write)?;
+            for r in readings {
+                st.execute(named_params! {
+                    ":campaign_id": id.0,
+                    ":segment": r.segment,
+                    ":k": r.k,
+                    ":band_nm": r.band_nm,
+                    ":t_s": r.t_s,
+                    ":integration_s": r.integration_s,
+                    ":theta_i_deg": r.theta_i_deg,
+                    ":phi_i_deg": r.phi_i_deg,
+                    ":theta_o_deg": r.theta_o_deg,
+                    ":phi_o_deg": r.phi_o_deg,
+                    ":arc_from_deg": r.arc_from_deg,
+                    ":arc_to_deg": r.arc_to_deg,
+                    ":signal_w": r.signal_w,
+                    ":brdf_sr": r.brdf_sr,
+                    ":brdf_u_sr": r.brdf_u_sr,
+                    ":flags": r.flags.join(";"),
+                    ":truth_point_sr": r.truth_point_sr,
+                })
+                .map_err(write)?;
+            }
+        }
+        tx.commit().map_err(write)
+    }
+
+    /// Segments committed for a campaign: the sweeps run resumes at this index (segments commit in order).
+    pub fn sweep_segments_done(&self, id: CampaignId) -> Result<u32, StoreError> {
+        let n: Option<i64> = self
+            .conn
+            .query_row(
+                "SELECT MAX(segment) + 1 FROM sweep_segments WHERE campaign_id = ?1",
+                params![id.0],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(self.read_err())?
+            .flatten();
+        Ok(n.and_then(|n| u32::try_from(n).ok()).unwrap_or(0))
+    }
+
+    /// Every committed segment of a campaign, in order.
+    pub fn sweep_segments(&self, id: CampaignId) -> Result<Vec<SweepSegmentRecord>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare_cached(
+                "SELECT segment, band_nm, started_s, ended_s, readings FROM sweep_segments
+                 WHERE campaign_id = ?1 ORDER BY segment",
+            )
+            .map_err(self.read_err())?;
+        let rows = st
+            .query_map(params![id.0], |r| {
+                Ok(SweepSegmentRecord {
+                    segment: r.get(0)?,
+                    band_nm: r.get(1)?,
+                    started_s: r.get(2)?,
+                    ended_s: r.get(3)?,
+                    readings: r.get(4)?,
+                })
+            })
+            .map_err(self.read_err())?;
+        rows.collect::<Result<Vec<_>, _>>().map_err(self.read_err())
+    }
+
+    /// Every committed sweep reading of a campaign, segment by segment.
+    pub fn sweep_readings(&self, id: CampaignId) -> Result<Vec<SweepReading>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare_cached(
+                "SELECT segment, k, band_nm, t_s, integration_s, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg,
+                 arc_from_deg, arc_to_deg, signal_w, brdf_sr, brdf_u_sr, flags, truth_point_sr
+                 FROM sweep_readings WHERE campaign_id = ?1 ORDER BY segment, k",
+            )
+            .map_err(self.read_err())?;
+        let rows = st
+            .query_map(params![id.0], |r| {
+                let flags: String = r.get(14)?;
+                Ok(SweepReading {
+                    segment: r.get(0)?,
+                    k: r.get(1)?,
+                    band_nm: r.get(2)?,
+                    t_s: r.get(3)?,
+                    integration_s: r.get(4)?,
+                    theta_i_deg: r.get(5)?,
+                    phi_i_deg: r.get(6)?,
+                    theta_o_deg: r.get(7)?,
+                    phi_o_deg: r.get(8)?,
+                    arc_from_deg: r.get(9)?,
+                    arc_to_deg: r.get(10)?,
+                    signal_w: r.get(11)?,
+                    brdf_sr: r.get(12)?,
+                    brdf_u_sr: r.get(13)?,
+                    flags: flags
+                        .split(';')
+                        .filter(|f| !f.is_empty())
+                        .map(str::to_string)
+                        .collect(),
+                    truth_point_sr: r.get(15)?,
+                })
+            })
+            .map_err(self.read_err())?;
+        rows.collect::<Result<Vec<_>, _>>().map_err(self.read_err())
+    }
+}
