@@ -294,10 +294,10 @@ fn plan_times_the_sweeps_and_run_sweeps_them() {
         .and_then(|r| r.trim().trim_end_matches(" s").trim().parse().ok())
         .unwrap_or_else(|| panic!("{stdout}"));
     // The pieces by hand (10.02 degrees kept from the source at -theta_i): 419.88 degrees at 4 deg/s and 20 at
-    // 0.5 deg/s, three bands; the ramps and the drivers' exchanges add well under a second per sweep.
+    // 0.5 deg/s, three bands; the ramps and the drivers' exchanges add under half a second per sweep.
     let cruise = 3.0 * (419.88 / 4.0 + 20.0 / 0.5);
     assert!(
-        sweeping >= cruise - 0.1 && sweeping < cruise + 21.0 * 0.2,
+        sweeping >= cruise - 0.1 && sweeping < cruise + 21.0 * 0.5,
         "{sweeping} vs {cruise}"
     );
     // `gonio run` sweeps them: every reading in sweeps.csv, a row per reading of each of the 21 sweeps.

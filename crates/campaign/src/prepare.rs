@@ -177,7 +177,9 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
             )));
         }
         let start = schedule.steps.last().map(|s| (s.pose, schedule.end.wheel));
-        let sweep_schedule = schedule_sweeps(&sweep_plan, &time, start);
+        // Without points before them, the sweeps open the session with its calibration.
+        let preamble = schedule.measure_steps().next().is_none().then_some(&plan);
+        let sweep_schedule = schedule_sweeps(&sweep_plan, &time, start, preamble);
         Some(Sweeps {
             plan: sweep_plan,
             schedule: sweep_schedule,

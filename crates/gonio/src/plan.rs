@@ -213,6 +213,8 @@ fn sweep_lines(out: &mut String, sweeps: &gonio_campaign::Sweeps) {
         ("settle", b.settle_s),
         ("filter wheel", b.wheel_s),
         ("sweeping", b.sweep_s),
+        ("calibration", b.calibration_s),
+        ("closing the beam", b.closing_s),
     ] {
         let _ = writeln!(out, "  {name:<18} {v:>10.1} s");
     }
@@ -264,7 +266,7 @@ fn band_line(p: &Prepared) -> String {
             "the time model's target against dry-runs, BENCHMARKS.md section 6 shows where it holds"
         },
         if p.sweeps.is_some() {
-            "; the sweeps' model is not yet held to dry-runs"
+            "; the sweeps' model by crates/engine/tests/it/timing.rs"
         } else {
             ""
         }

@@ -307,3 +307,15 @@ fn schedule_framed(plan: &Plan, time: &TimeModel, start: Option<&Pose>, frame: F
 
 /// The reason recorded for readings dropped during the walk.
 pub const DROPPED_REASON: Reason = Reason::ArmSeparation;
+
+/// The calibration that opens a session where no scheduled step does: darks at `at` (the wheel coming from
+/// `wheel`), then the normalisation readings where `Calibration::preamble_target` says. Returns its steps, its
+/// time, and the pose and wheel position it leaves.
+pub fn calibration_preamble(
+    plan: &Plan,
+    time: &TimeModel,
+    at: Pose,
+    wheel: Option<u8>,
+) -> (Vec<Step>, Breakdown, Pose, Option<u8>) {
+    walk::preamble(plan, time, at, wheel)
+}

@@ -26,18 +26,21 @@
 //!
 //! # The time model of a sweep step
 //! A step moves to the piece's start (`TimeModel::plan_move`, settle included), turns the wheel to its band
-//! when it is not there, then sweeps: one plain move of the swept axis to the piece's other end at the
-//! entry's speed (`speed_deg_s` at cruise, the axis's own acceleration, no backlash approach: the pose of a
-//! reading comes from the controller's position reports, not from the direction of approach), its driver's
-//! exchanges around it as for any leg (`timing::LegTiming::leg_s`). The meter reads back to back while the arm
+//! when it is not there, then sweeps: the swept axis's speed set (`LegTiming::set_speed_s`), one plain move to
+//! the piece's other end at the entry's speed (`speed_deg_s` at cruise, the axis's own acceleration, no
+//! backlash approach: the pose of a reading comes from the controller's position reports, not from the
+//! direction of approach), the reading under way when the motion ends (half a period on average), the stop seen
+//! and checked (`status_s`, `arrived_s`), the speed restored, and every axis's position read back, as the engine
+//! does it (`crates/engine/src/runner/sweep.rs`). When no point precedes the sweeps, the calibration that opens
+//! a session comes first (`crate::schedule::calibration_preamble`). The meter reads back to back while the arm
 //! moves: one reading every [`sweep_reading_period_s`] (`averaging` x the detector's sample time, and one
 //! exchange), so a piece of motion time `T` gives `floor(T / period)` readings (at least one), each smeared over
 //! `speed x averaging x sample time` degrees at cruise. The bands of one piece are swept back and forth (the
 //! wheel's shortest covering walk), so consecutive bands need no move. Pieces are visited nearest first from
 //! where the arm is, entering each at its nearer end.
 //!
-//! Not in this model yet: dark and normalisation steps during sweeps (a plan's calibration steps belong to its
-//! points), and the exchanges that set and restore an axis's speed for a sweep.
+//! Not in this model yet: dark and normalisation steps during sweeps (a plan's calibration cadence belongs to
+//! its points).
 
 mod path;
 mod spec;

@@ -169,13 +169,15 @@ impl<'a> Run<'a> {
 
     /// Direct-beam readings of `bands`: sample out, detector facing the source, one reading per band.
     pub(super) async fn direct_beam(&mut self, bands: &[f64], pose: Option<Pose>) -> Result<(), Interrupt> {
+        // No step says where: the plan's direct-beam pose, else the default (the rule the time model follows).
         let pose = match pose {
             Some(p) => p,
-            None if !self.c.plan.calibration.reference_overrides.is_empty() => {
-                self.c.plan.calibration.reference_pose(self.motion.current())
-            }
-            // No reference pose in the plan: the detector arm facing the light arm at -90 deg, stage at zero.
-            None => Pose::new(-90.0, 90.0, 0.0, 0.0),
+            None => self
+                .c
+                .plan
+                .calibration
+                .preamble_target(self.motion.current(), &self.c.time)
+                .unwrap_or(gonio_scheduler::plan::DEFAULT_DIRECT_BEAM_POSE),
         };
         // Close the beam while the operator works.
         if let Some(blank) = self.blank_position() {

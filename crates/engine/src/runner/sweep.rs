@@ -114,9 +114,14 @@ impl Run<'_> {
         let bands = self.c.plan.bands_nm.clone();
         if !calibrated {
             if first == 0 && self.done == 0 && self.t_base == 0.0 {
-                // Sweeps alone, fresh: the instrument to where the sweeps start, then the campaign's clock.
-                self.motion.move_to(&steps[0].start_pose).await?;
-                if let Some(p) = steps[0].wheel_position {
+                // Sweeps alone, fresh: the instrument to where the schedule starts (its calibration, then its
+                // first sweep), then the campaign's clock.
+                let (pose, wheel) = sweeps
+                    .schedule
+                    .start
+                    .unwrap_or((steps[0].start_pose, steps[0].wheel_position));
+                self.motion.move_to(&pose).await?;
+                if let Some(p) = wheel {
                     self.wheel_to(p).await?;
                 }
                 self.t_clock0 = self.motion.clock().now_s();

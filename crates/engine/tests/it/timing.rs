@@ -13,6 +13,7 @@ use gonio_instrument::{InstrumentFile, SIMULATED_INSTRUMENT_TOML};
 const DEMO: &str = include_str!("../../../../config/campaigns/demo.toml");
 const RELATIVE: &str = include_str!("../../../../config/campaigns/relative.toml");
 const ADAPTIVE: &str = include_str!("../../../../config/campaigns/adaptive.toml");
+const SWEEPS: &str = include_str!("../../../../config/campaigns/sweeps.toml");
 const REALISTIC_TOML: &str = include_str!("../../../../config/instruments/realistic.toml");
 
 /// Run `text` to completion on the simulated instrument; returns (predicted s, instrument time s at which the
@@ -263,4 +264,51 @@ fn the_time_model_waits_as_long_as_the_drivers_do() {
         gonio_scheduler::timing::ARRIVAL_MARGIN_S,
         gonio_driver::poll::ARRIVAL_MARGIN.as_secs_f64()
     );
+}
+
+/// Points, then sweeps of the light arm through the normal (the arc cut around the detector), in two bands with
+/// their own averaging, on gold.
+const POINTS_AND_SWEEPS: &str = r#"
+[campaign]
+id = "timing-points-and-sweeps"
+[sample]
+radius_mm = 12.5
+[plan]
+bands_nm = [450.0, 650.0]
+[plan.grid]
+kind = "isotropic"
+theta_i_deg = [0.0, 40.0]
+theta_o_deg = { from = 0.0, to = 60.0, step = 20.0 }
+delta_phi_deg = [0.0, 180.0]
+[plan.calibration]
+dark_every_points = 50
+reference_every_s = 600.0
+reference_pose_deg = { light = -90.0, detector = 90.0 }
+[[plan.sweeps]]
+arm = "light"
+theta_o_deg = [10.0, 50.0]
+theta_i_deg = { from = -70.0, to = 70.0 }
+speed_deg_s = 8.0
+averaging = 2
+[calibration]
+simulate_operator = true
+[acquisition]
+averaging = 5
+[material]
+preset = "gold"
+"#;
+
+#[tokio::test(start_paused = true)]
+async fn sweeps_are_predicted_within_2_percent_alone_and_after_points() {
+    // Alone (the session's calibration opens them) and after a grid (its calibration steps before them), on
+    // both instrument files.
+    for (what, campaign, instrument) in [
+        ("sweeps.toml", SWEEPS, SIMULATED_INSTRUMENT_TOML),
+        ("sweeps.toml, realistic", SWEEPS, REALISTIC_TOML),
+        ("points and sweeps", POINTS_AND_SWEEPS, SIMULATED_INSTRUMENT_TOML),
+        ("points and sweeps, realistic", POINTS_AND_SWEEPS, REALISTIC_TOML),
+    ] {
+        let (predicted_s, actual_s) = dry_run_on(campaign, instrument).await;
+        assert_within_2_percent(what, predicted_s, actual_s);
+    }
 }

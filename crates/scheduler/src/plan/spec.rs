@@ -142,6 +142,15 @@ pub struct CalibrationSpec {
     pub reference_geometry: Option<Geometry>,
 }
 
+/// The direct-beam pose of a plan that names none (`[plan.calibration] reference_pose_deg`): the detector arm
+/// facing the light arm at -90 degrees, the stage at zero.
+pub const DEFAULT_DIRECT_BEAM_POSE: Pose = Pose {
+    light_deg: -90.0,
+    detector_deg: 90.0,
+    tilt_deg: 0.0,
+    rotation_deg: 0.0,
+};
+
 /// Validated calibration settings.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Calibration {
@@ -192,6 +201,18 @@ impl Calibration {
             .filter(|(cost, _)| cost.is_finite())
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(_, p)| p)
+    }
+
+    /// Where the calibration that opens every start and resume reads its normalisation from `current` when no
+    /// scheduled step says where: the reference geometry (relative method), the plan's direct-beam pose, or
+    /// [`DEFAULT_DIRECT_BEAM_POSE`] when the plan gives none. The engine moves there; the sweeps' time model
+    /// predicts the same move.
+    pub fn preamble_target(&self, current: &Pose, time: &crate::timing::TimeModel) -> Option<Pose> {
+        if self.reference_at.is_some() || !self.reference_overrides.is_empty() {
+            self.reference_target(current, time)
+        } else {
+            Some(DEFAULT_DIRECT_BEAM_POSE)
+        }
     }
 
     /// The direct-beam pose reached from `current`.

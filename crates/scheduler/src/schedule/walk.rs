@@ -112,13 +112,17 @@ impl<'a> Walker<'a> {
         self.last_dark_s = self.t;
     }
 
-    fn reference(&mut self, at: Pose) {
+    /// Normalisation readings of every band: at the plan's reference target, or (`preamble`) where the
+    /// calibration that opens a session reads them (`Calibration::preamble_target`).
+    fn reference(&mut self, at: Pose, preamble: bool) {
         let from = self.pose.unwrap_or(at);
-        let planned = self
-            .plan
-            .calibration
-            .reference_target(&from, self.time)
-            .map(|target| (target, self.time.plan_move(&from, &target)));
+        let calibration = &self.plan.calibration;
+        let target = if preamble {
+            calibration.preamble_target(&from, self.time)
+        } else {
+            calibration.reference_target(&from, self.time)
+        };
+        let planned = target.map(|target| (target, self.time.plan_move(&from, &target)));
         let Some((target, Ok(mut movement))) = planned else {
             // Unreachable reference pose (arms would cross): skip it rather than risk the arms.
             self.points_since_reference = 0;
@@ -206,7 +210,7 @@ impl<'a> Walker<'a> {
                 self.t,
             )
         {
-            self.reference(at);
+            self.reference(at, false);
         }
     }
 
@@ -294,7 +298,7 @@ impl<'a> Walker<'a> {
             self.dark(first);
         }
         if self.plan.calibration.references() {
-            self.reference(first);
+            self.reference(first, false);
         }
     }
 
@@ -303,7 +307,7 @@ impl<'a> Walker<'a> {
             self.dark(first);
         }
         if close && self.plan.calibration.references() {
-            self.reference(first);
+            self.reference(first, false);
         }
         if close {
             // The daemon closes the beam when a run ends: a last turn of the wheel to its blank, no step.
@@ -422,4 +426,22 @@ pub(super) fn walk(
         }
     }
     w.finish(first, frame == Frame::Complete)
+}
+
+/// The calibration that opens a session where no scheduled step does (the engine's own, before sweeps that no
+/// point precedes): darks of every band at `at` with the wheel from `wheel`, then the normalisation readings
+/// where `Calibration::preamble_target` says. Its steps, their time (all `calibration_s`), and where the
+/// instrument and the wheel are after it.
+pub(super) fn preamble(
+    plan: &Plan,
+    time: &TimeModel,
+    at: Pose,
+    wheel: Option<u8>,
+) -> (Vec<Step>, Breakdown, Pose, Option<u8>) {
+    let mut w = Walker::new(plan, time, Some(&at), &[], None);
+    w.wheel = wheel;
+    w.dark(at);
+    w.reference(at, true);
+    let pose = w.pose.unwrap_or(at);
+    (w.steps, w.breakdown, pose, w.wheel)
 }

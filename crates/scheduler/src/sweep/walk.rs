@@ -3,7 +3,8 @@
 use super::path::swept_role;
 use super::{SweepPlan, sweep_reading_period_s};
 use crate::kinematics::Pose;
-use crate::schedule::cover_walk;
+use crate::plan::Plan;
+use crate::schedule::{calibration_preamble, cover_walk};
 use crate::timing::{DETECTOR_SAMPLE_S, Move, TimeModel, trapezoid_time_s};
 
 /// One sweep of one arc in one band.
@@ -47,13 +48,18 @@ pub struct SweepBreakdown {
     pub motion_s: f64,
     pub settle_s: f64,
     pub wheel_s: f64,
-    /// The sweeps themselves (their readings run during them).
+    /// The sweeps themselves (their readings run during them), with the exchanges around each (setting and
+    /// restoring the axis's speed, seeing it stop, reading every axis's position).
     pub sweep_s: f64,
+    /// The calibration that opens the sweeps when no point precedes them (darks, normalisation readings).
+    pub calibration_s: f64,
+    /// The wheel's last turn to its blank when the run ends (the engine closes the beam): no step's.
+    pub closing_s: f64,
 }
 
 impl SweepBreakdown {
     pub fn total_s(&self) -> f64 {
-        self.motion_s + self.settle_s + self.wheel_s + self.sweep_s
+        self.motion_s + self.settle_s + self.wheel_s + self.sweep_s + self.calibration_s + self.closing_s
     }
 }
 
@@ -65,14 +71,19 @@ pub struct SweepSchedule {
     pub readings: u64,
     /// Arcs no safe move reaches from where the instrument is.
     pub unreachable: usize,
+    /// Where the instrument starts: the pose and the wheel position of the calibration that opens the sweeps,
+    /// or of the first sweep.
+    pub start: Option<(Pose, Option<u8>)>,
 }
 
 /// Order and time the sweeps from `start` (the pose and wheel position the instrument is in; none: at the first
-/// arc's start, the wheel on its first band).
+/// arc's start, the wheel on its first band). `preamble`: the plan whose calibration opens the sweeps (when no
+/// point precedes them in a session, `crate::schedule::calibration_preamble`).
 pub fn schedule_sweeps(
     plan: &SweepPlan,
     time: &TimeModel,
     start: Option<(Pose, Option<u8>)>,
+    preamble: Option<&Plan>,
 ) -> SweepSchedule {
     let mut out = SweepSchedule::default();
     let Some(first) = plan.arcs.first() else {
@@ -92,8 +103,17 @@ pub fn schedule_sweeps(
         positions
     };
     let (mut pose, mut wheel) = start.unwrap_or((first.piece.from_pose, positions[0].1));
+    out.start = Some((pose, wheel));
+    if let Some(points) = preamble {
+        let (_, b, after, wheel_after) = calibration_preamble(points, time, pose, wheel);
+        out.breakdown.calibration_s = b.total_s();
+        pose = after;
+        wheel = wheel_after;
+    }
+    let mut clock = out.breakdown.calibration_s;
+    // The exchanges of every sweep besides its motion (`LegTiming`), and every axis's position read after it.
+    let positions_read_s: f64 = time.axes.iter().flatten().map(|m| m.leg.position_read_s).sum();
     let mut left: Vec<usize> = (0..plan.arcs.len()).collect();
-    let mut clock = 0.0;
     while !left.is_empty() {
         // The nearest arc end from where the arm is.
         let mut best: Option<(f64, usize, bool)> = None;
@@ -141,7 +161,18 @@ pub fn schedule_sweeps(
             let (motion_s, sweep_s) = match model {
                 Some(m) => {
                     let t = trapezoid_time_s(arc.length_deg(), v, m.accel_deg_s2);
-                    (t, m.leg.leg_s(t))
+                    let leg = &m.leg;
+                    // Speed set; the move command; the readings until the motion is over (and the one under way
+                    // then, half a period on average); the stop seen and checked; the speed restored; positions.
+                    let sweep = leg.set_speed_s
+                        + leg.command_s
+                        + t.max(leg.start_return_s)
+                        + 0.5 * period
+                        + leg.status_s
+                        + leg.arrived_s
+                        + leg.set_speed_s
+                        + positions_read_s;
+                    (t, sweep)
                 }
                 None => (0.0, 0.0),
             };
@@ -176,5 +207,6 @@ pub fn schedule_sweeps(
             forward = !forward;
         }
     }
+    out.breakdown.closing_s = time.wheel_time_s(wheel, time.wheel.as_ref().and_then(|w| w.blank));
     out
 }

@@ -59,6 +59,14 @@ pub struct LegTiming {
     pub first_seen_s: f64,
     /// One verified position read: a lone axis approaching against its backlash reads where it starts first.
     pub position_read_s: f64,
+    /// Setting the axis's speed and acceleration (a sweep sets them before and restores them after).
+    pub set_speed_s: f64,
+    /// From the move command until the driver's `start_move` returns (the SMC100's pause and `TE` after `PA`).
+    pub start_return_s: f64,
+    /// One status question while a sweep ends (SMC100: `TS` and the verified read-back).
+    pub status_s: f64,
+    /// The arrival check of an axis already stopped (SMC100: `PT TS` and the verified read-back).
+    pub arrived_s: f64,
 }
 
 impl LegTiming {
@@ -80,6 +88,10 @@ impl LegTiming {
             first_question_s: 0.0,
             first_seen_s: super::EXCHANGE_S,
             position_read_s: 0.0,
+            set_speed_s: 0.0,
+            start_return_s: 0.0,
+            status_s: super::EXCHANGE_S,
+            arrived_s: super::EXCHANGE_S,
         }
     }
 
@@ -95,6 +107,11 @@ impl LegTiming {
                     first_question_s: SMC100_SET_GAP_S + 2.0 * e,
                     first_seen_s: SMC100_SET_GAP_S + 5.0 * e,
                     position_read_s: 2.0 * e,
+                    // `VA` and `AC`, each a set command: the pause, then `TE`.
+                    set_speed_s: 2.0 * (SMC100_SET_GAP_S + e),
+                    start_return_s: SMC100_SET_GAP_S + e,
+                    status_s: 3.0 * e,
+                    arrived_s: 4.0 * e,
                 }
             }
             Protocol::ZaberAscii => {
@@ -106,6 +123,11 @@ impl LegTiming {
                     first_question_s: e,
                     first_seen_s: 2.0 * e,
                     position_read_s: e,
+                    // `set maxspeed`, `set accel`, each acknowledged.
+                    set_speed_s: 2.0 * e,
+                    start_return_s: 0.0,
+                    status_s: e,
+                    arrived_s: e,
                 }
             }
             Protocol::Fw102c | Protocol::Pm100 => LegTiming::generic(),
