@@ -21,8 +21,10 @@
 
 mod complete;
 mod drift;
+mod sweeps;
 
 pub use complete::completions;
+pub use sweeps::sweep_completions;
 
 use gonio_brdf::measurement::BrdfValue;
 use gonio_results::budget::{Budget, components, groups};

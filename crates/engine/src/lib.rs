@@ -1,7 +1,8 @@
 //! gonio-engine: running measurement campaigns on a connected instrument, without the service around it.
 //!
 //! Module map, from the bottom up (no module uses one above it; no two files import each other):
-//! - [`store`]: the durable SQLite store (campaigns, configuration, devices, calibrations, points) and resume.
+//! - [`store`]: the durable SQLite store (campaigns, configuration, devices, calibrations, points, sweep
+//!   readings a sweep per transaction) and resume.
 //! - [`error`]: [`error::EngineError`], why the engine could not run a campaign.
 //! - [`rig`]: the connected instrument (drivers for every device; the in-process simulator for dry-runs). Only
 //!   the rig names the simulator.
@@ -15,7 +16,7 @@
 //! - [`calibration`]: darks and normalisation readings per band, the source's drift extrapolated in time.
 //! - [`prepare`]: a campaign file validated, planned and ordered for the store ([`prepare::PreparedCampaign`]).
 //! - `runner`: the run loop over a campaign's steps (calibration, per-point acquisition committed, faults,
-//!   resume), on `motion` and `acquisition`: [`run_campaign`], [`run_prepared_campaign`].
+//!   resume), then its sweeps (one arm turning while the meter reads), on `motion` and `acquisition`: [`run_campaign`], [`run_prepared_campaign`].
 //! - [`selftest`]: what the instrument file claims measured on the hardware (speeds, accelerations, the
 //!   wheel's time, latencies, the meter's dark and noise), on `motion`.
 //! - [`budget`]: a point's uncertainty budget from the measurement equation's parts, the characterisation and

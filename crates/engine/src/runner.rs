@@ -545,6 +545,17 @@ impl<'a> Run<'a> {
             self.reference.is_some(),
         );
         lock(&self.store).update_completions(self.id, &updates)?;
+        // The sweep readings likewise (crate::budget::sweeps), when there are any.
+        let readings = lock(&self.store).committed_sweep_readings(self.id)?;
+        if !readings.is_empty() {
+            let sweeps = crate::budget::sweep_completions(
+                &record,
+                &readings,
+                &self.file.instrument,
+                self.reference.is_some(),
+            );
+            lock(&self.store).update_sweep_completions(self.id, &sweeps)?;
+        }
         Ok(updates.len())
     }
 

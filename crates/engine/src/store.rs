@@ -46,7 +46,7 @@ pub use records::{
     CalibrationRecord, CampaignId, CampaignRecord, CampaignState, Durability, InstrumentCalibration,
     InstrumentCalibrationId, NewCampaign, NewInstrumentCalibration, PointCompletion, PointRecord, PointValue,
 };
-pub use sweeps::SweepSegmentRecord;
+pub use sweeps::{SweepCompletion, SweepSegmentRecord};
 
 use std::collections::HashMap;
 use std::path::PathBuf;

@@ -5,7 +5,8 @@
 //! it), `band_nm`, `t_s` (instrument time of the middle of the integration), `integration_s`, the geometry at the
 //! middle of the arc the reading covered (`theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg`), the swept angle at
 //! the start and the end of the integration (`arc_from_deg,arc_to_deg`: signed, as in `[[plan.sweeps]]`),
-//! `signal_w`, `brdf_sr`, `brdf_u_sr` (standard uncertainty), `flags` (`;`-separated), and for dry-runs
+//! `signal_w`, `brdf_sr` (corrected to the nominal geometry when the campaign completed), `brdf_u_sr` (standard
+//! uncertainty), `brdf_aperture_sr` (the aperture average it was corrected from), `flags` (`;`-separated), and for dry-runs
 //! `brdf_true_sr` (the simulator's BRDF at the arc's middle, nominal geometry). Missing values are empty.
 
 use std::fmt::Write as _;
@@ -29,6 +30,8 @@ pub struct SweepReading {
     pub signal_w: Option<f64>,
     pub brdf_sr: Option<f64>,
     pub brdf_u_sr: Option<f64>,
+    /// The aperture average `brdf_sr` was corrected from (1/sr); `None` when no correction was made.
+    pub brdf_aperture_sr: Option<f64>,
     pub flags: Vec<String>,
     pub truth_point_sr: Option<f64>,
 }
@@ -37,7 +40,7 @@ pub struct SweepReading {
 pub fn write_sweeps_csv(readings: &[SweepReading], dry_run: bool) -> String {
     let mut s = String::from(
         "segment,k,band_nm,t_s,integration_s,theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,arc_from_deg,arc_to_deg,\
-         signal_w,brdf_sr,brdf_u_sr,flags",
+         signal_w,brdf_sr,brdf_u_sr,brdf_aperture_sr,flags",
     );
     if dry_run {
         s.push_str(",brdf_true_sr");
@@ -51,7 +54,7 @@ pub fn write_sweeps_csv(readings: &[SweepReading], dry_run: bool) -> String {
     for r in readings {
         let _ = write!(
             s,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             r.segment,
             r.k,
             r.band_nm,
@@ -66,6 +69,7 @@ pub fn write_sweeps_csv(readings: &[SweepReading], dry_run: bool) -> String {
             opt(r.signal_w),
             opt(r.brdf_sr),
             opt(r.brdf_u_sr),
+            opt(r.brdf_aperture_sr),
             r.flags.join(";").replace(',', " ")
         );
         if dry_run {
@@ -130,6 +134,7 @@ mod tests {
             signal_w: f.map(|_| 1e-9),
             brdf_sr: f,
             brdf_u_sr: Some(u),
+            brdf_aperture_sr: None,
             flags: if f.is_none() {
                 vec!["failed: timeout, twice".into()]
             } else {
@@ -146,13 +151,13 @@ mod tests {
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines.len(), 3);
         let header: Vec<&str> = lines[0].split(',').collect();
-        assert_eq!(header.len(), 16);
-        assert_eq!(header[15], "brdf_true_sr");
+        assert_eq!(header.len(), 17);
+        assert_eq!(header[16], "brdf_true_sr");
         for line in &lines[1..] {
             assert_eq!(line.split(',').count(), header.len(), "{line}");
         }
         assert!(
-            lines[2].contains(",,,0.01,failed: timeout  twice,0.5"),
+            lines[2].contains(",,,0.01,,failed: timeout  twice,0.5"),
             "{}",
             lines[2]
         );
@@ -163,7 +168,7 @@ mod tests {
                 .unwrap()
                 .split(',')
                 .count(),
-            15
+            16
         );
     }
 

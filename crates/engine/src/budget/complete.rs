@@ -26,7 +26,7 @@ use crate::store::{CalibrationRecord, CampaignRecord, PointCompletion, PointReco
 
 /// The angles' standard uncertainty (deg): an applied alignment's (the root sum of squares of the uncertainties
 /// of its observable zeros and sample tilts), else the instrument file's `alignment_u_deg`.
-fn angle_u_deg(record: &CampaignRecord, instrument: &Instrument) -> f64 {
+pub(super) fn angle_u_deg(record: &CampaignRecord, instrument: &Instrument) -> f64 {
     let applied = record
         .alignment_toml
         .as_deref()
@@ -41,6 +41,30 @@ fn angle_u_deg(record: &CampaignRecord, instrument: &Instrument) -> f64 {
             .sum::<f64>()
             .sqrt(),
         None => instrument.alignment_u_deg(),
+    }
+}
+
+/// What the instrument file says of each band's filter, looked up by band (nm): each filter's leakage worked out
+/// once (an integral over the spectra), not once per geometry.
+pub(super) fn filter_bands(instrument: &Instrument) -> impl Fn(f64) -> Option<FilterBand> + use<> {
+    let filters: Vec<(f64, f64, f64)> = instrument
+        .filter_wheel
+        .iter()
+        .flat_map(|w| &w.positions)
+        .filter_map(|p| {
+            let leakage = gonio_instrument::leakage::out_of_band_fraction(instrument, p).unwrap_or(0.0);
+            Some((p.band_nm?, p.centre_u_nm(), leakage))
+        })
+        .collect();
+    move |nm: f64| {
+        filters
+            .iter()
+            .find(|(b, _, _)| (b - nm).abs() <= BAND_TOLERANCE_NM)
+            .map(|&(_, centre_u_nm, leakage)| FilterBand {
+                band_nm: nm,
+                centre_u_nm,
+                leakage,
+            })
     }
 }
 
@@ -155,26 +179,7 @@ pub fn completions(
         }
     }
 
-    // Each filter's leakage once (an integral over the spectra), not once per geometry.
-    let filters: Vec<(f64, f64, f64)> = instrument
-        .filter_wheel
-        .iter()
-        .flat_map(|w| &w.positions)
-        .filter_map(|p| {
-            let leakage = gonio_instrument::leakage::out_of_band_fraction(instrument, p).unwrap_or(0.0);
-            Some((p.band_nm?, p.centre_u_nm(), leakage))
-        })
-        .collect();
-    let filter = |nm: f64| {
-        filters
-            .iter()
-            .find(|(b, _, _)| (b - nm).abs() <= BAND_TOLERANCE_NM)
-            .map(|&(_, centre_u_nm, leakage)| FilterBand {
-                band_nm: nm,
-                centre_u_nm,
-                leakage,
-            })
-    };
+    let filter = filter_bands(instrument);
     for ((completion, point), u) in done
         .iter_mut()
         .zip(&run.points)

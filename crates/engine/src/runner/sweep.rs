@@ -399,6 +399,7 @@ impl Run<'_> {
             signal_w: signal,
             brdf_sr: brdf,
             brdf_u_sr: brdf_u,
+            brdf_aperture_sr: None,
             flags,
             truth_point_sr,
         }

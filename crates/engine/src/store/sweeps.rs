@@ -1,7 +1,10 @@
 //! Sweep readings: a campaign's sweeps (`[[plan.sweeps]]`) store their readings a segment (one sweep of one arc
 //! in one band) at a time, the segment's row and all its readings in one transaction. A segment is therefore
 //! complete in the store or absent: resuming restarts the first segment not committed, and never stores a
-//! reading twice (the primary key (campaign, segment, reading) refuses it). A reading is
+//! reading twice (the primary key (campaign, segment, reading) refuses it). The completion (crate::budget's
+//! `sweep_completions`) is kept beside each reading (`completed_*`), never over it: completing again starts
+//! from the readings as committed. Readers get the completed value, and the committed one as the aperture
+//! average it was corrected from. A reading is
 //! `gonio_results::sweeps::SweepReading`, stored column for column.
 
 use rusqlite::{OptionalExtension, named_params, params};
@@ -39,6 +42,9 @@ pub(super) const SWEEP_TABLES: &str = "CREATE TABLE sweep_segments (
                 brdf_u_sr REAL,
                 flags TEXT NOT NULL,
                 truth_point_sr REAL,
+                completed_brdf_sr REAL,
+                completed_u_sr REAL,
+                completed_flags TEXT,
                 PRIMARY KEY (campaign_id, segment, k)
             );";
 
@@ -165,19 +171,34 @@ impl Store {
         rows.collect::<Result<Vec<_>, _>>().map_err(self.read_err())
     }
 
-    /// Every committed sweep reading of a campaign, segment by segment.
+    /// Every sweep reading of a campaign, segment by segment, completed (module doc).
     pub fn sweep_readings(&self, id: CampaignId) -> Result<Vec<SweepReading>, StoreError> {
+        self.read_sweep_readings(id, true)
+    }
+
+    /// Every sweep reading of a campaign as committed, without its completion: what a completion starts from.
+    pub fn committed_sweep_readings(&self, id: CampaignId) -> Result<Vec<SweepReading>, StoreError> {
+        self.read_sweep_readings(id, false)
+    }
+
+    fn read_sweep_readings(&self, id: CampaignId, completed: bool) -> Result<Vec<SweepReading>, StoreError> {
         let mut st = self
             .conn
             .prepare_cached(
                 "SELECT segment, k, band_nm, t_s, integration_s, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg,
-                 arc_from_deg, arc_to_deg, signal_w, brdf_sr, brdf_u_sr, flags, truth_point_sr
+                 arc_from_deg, arc_to_deg, signal_w, brdf_sr, brdf_u_sr, flags, truth_point_sr, completed_brdf_sr,
+                 completed_u_sr, completed_flags
                  FROM sweep_readings WHERE campaign_id = ?1 ORDER BY segment, k",
             )
             .map_err(self.read_err())?;
         let rows = st
             .query_map(params![id.0], |r| {
-                let flags: String = r.get(14)?;
+                let committed_flags: String = r.get(14)?;
+                let completed_flags: Option<String> = if completed { r.get(18)? } else { None };
+                let flags = completed_flags.unwrap_or(committed_flags);
+                let committed_brdf: Option<f64> = r.get(12)?;
+                let completed_brdf: Option<f64> = if completed { r.get(16)? } else { None };
+                let completed_u: Option<f64> = if completed { r.get(17)? } else { None };
                 Ok(SweepReading {
                     segment: r.get(0)?,
                     k: r.get(1)?,
@@ -191,8 +212,15 @@ impl Store {
                     arc_from_deg: r.get(9)?,
                     arc_to_deg: r.get(10)?,
                     signal_w: r.get(11)?,
-                    brdf_sr: r.get(12)?,
-                    brdf_u_sr: r.get(13)?,
+                    brdf_sr: completed_brdf.or(committed_brdf),
+                    brdf_u_sr: match completed_u {
+                        Some(u) => Some(u),
+                        None => r.get(13)?,
+                    },
+                    // The committed value is the aperture average when the completion corrected it.
+                    brdf_aperture_sr: completed_brdf
+                        .and(committed_brdf)
+                        .filter(|a| Some(*a) != completed_brdf),
                     flags: flags
                         .split(';')
                         .filter(|f| !f.is_empty())
@@ -204,4 +232,52 @@ impl Store {
             .map_err(self.read_err())?;
         rows.collect::<Result<Vec<_>, _>>().map_err(self.read_err())
     }
+
+    /// The completion of a campaign's sweep readings ([`SweepCompletion`] each), in one transaction, in place of
+    /// any earlier one.
+    pub fn update_sweep_completions(
+        &mut self,
+        id: CampaignId,
+        completions: &[SweepCompletion],
+    ) -> Result<(), StoreError> {
+        self.durability_for_write(Some(id))?;
+        let path = self.path.clone();
+        let write = |source| StoreError::Write {
+            path: path.clone(),
+            source,
+        };
+        let tx = self.conn.transaction().map_err(write)?;
+        {
+            let mut st = tx
+                .prepare_cached(
+                    "UPDATE sweep_readings SET completed_brdf_sr = ?1, completed_u_sr = ?2, completed_flags = ?3
+                     WHERE campaign_id = ?4 AND segment = ?5 AND k = ?6",
+                )
+                .map_err(write)?;
+            for c in completions {
+                st.execute(params![
+                    c.brdf_sr,
+                    c.brdf_u_sr,
+                    c.flags.as_ref().map(|f| f.join(";")),
+                    id.0,
+                    c.segment,
+                    c.k
+                ])
+                .map_err(write)?;
+            }
+        }
+        tx.commit().map_err(write)
+    }
+}
+
+/// What the completion sets for one sweep reading (crate::budget::sweep_completions).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepCompletion {
+    pub segment: u32,
+    pub k: u32,
+    /// The value at the nominal geometry (the committed one when not corrected).
+    pub brdf_sr: Option<f64>,
+    pub brdf_u_sr: Option<f64>,
+    /// The flags, when the completion changed them.
+    pub flags: Option<Vec<String>>,
 }

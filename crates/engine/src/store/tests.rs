@@ -634,6 +634,7 @@ fn sweep_reading(segment: u32, k: u32) -> SweepReading {
         signal_w: (k % 5 != 4).then_some(1.234_567_890_123e-7),
         brdf_sr: (k % 5 != 4).then_some(0.1 / 3.0),
         brdf_u_sr: Some(1e-5),
+        brdf_aperture_sr: None,
         flags: if k % 5 == 4 {
             vec!["failed: timeout".into()]
         } else {
@@ -682,6 +683,33 @@ fn sweep_segments_commit_whole_round_trip_and_are_never_stored_twice() {
     assert_eq!(readings[4].signal_w, None);
     assert_eq!(store.sweep_segments(id).expect("segments").len(), 2);
     assert_eq!(store.points(id).expect("points").len(), 1, "the points are apart");
+    // A completion is kept beside the readings: read back in their place, the committed value as the aperture
+    // average; completing again replaces it, never compounds it.
+    let mut store = store;
+    for factor in [1.01, 1.02] {
+        let completion = SweepCompletion {
+            segment: 1,
+            k: 3,
+            brdf_sr: Some(0.1 / 3.0 * factor),
+            brdf_u_sr: Some(2e-5),
+            flags: Some(vec!["narrow-lobe".into()]),
+        };
+        store
+            .update_sweep_completions(id, &[completion])
+            .expect("complete");
+        let r = &store.sweep_readings(id).expect("readings")[1003];
+        assert_eq!(r.brdf_sr, Some(0.1 / 3.0 * factor));
+        assert_eq!(r.brdf_aperture_sr, Some(0.1 / 3.0));
+        assert_eq!(
+            (r.brdf_u_sr, r.flags.clone()),
+            (Some(2e-5), vec!["narrow-lobe".to_string()])
+        );
+    }
+    assert_eq!(
+        store.sweep_readings(id).expect("readings")[1002],
+        sweep_reading(1, 2),
+        "the others untouched"
+    );
 }
 
 #[test]

@@ -139,6 +139,35 @@ async fn sweeps_cover_their_arcs_and_agree_with_the_truth() {
         "median error {}",
         errors[errors.len() / 2]
     );
+    // The completion corrected the readings to their nominal geometry: near the specular peak (where the
+    // aperture's average falls below the peak) the corrected values are closer to the truth than the averages
+    // they came from.
+    let near: Vec<&SweepReading> = readings
+        .iter()
+        .filter(|r| (r.theta_o_deg - r.theta_i_deg).abs() < 3.0 && (r.phi_o_deg - r.phi_i_deg).abs() > 90.0)
+        .collect();
+    assert!(near.len() > 100, "{}", near.len());
+    let mean_error = |value: &dyn Fn(&SweepReading) -> f64| {
+        near.iter()
+            .map(|r| {
+                let t = r.truth_point_sr.unwrap_or(f64::NAN);
+                ((value(r) - t) / t).abs()
+            })
+            .sum::<f64>()
+            / near.len() as f64
+    };
+    let corrected = mean_error(&|r| r.brdf_sr.unwrap_or(f64::NAN));
+    let average = mean_error(&|r| r.brdf_aperture_sr.or(r.brdf_sr).unwrap_or(f64::NAN));
+    eprintln!("near the specular peak: mean |error| {corrected:.2e} corrected, {average:.2e} as averaged");
+    assert!(
+        corrected < 0.5 * average,
+        "corrected {corrected:.2e}, averaged {average:.2e}"
+    );
+    let summary = gonio_results::sweeps::truth_summary(&readings).expect("summary");
+    eprintln!(
+        "k=2 coverage {:.3}, cos-weighted relative rms {:?}",
+        summary.coverage_k2, summary.cos_weighted_relative_rms
+    );
 }
 
 #[tokio::test(start_paused = true)]
@@ -180,9 +209,10 @@ async fn a_pause_between_sweeps_loses_and_duplicates_nothing() {
         .store
         .lock()
         .expect("lock")
-        .sweep_readings(s.id)
+        .committed_sweep_readings(s.id)
         .expect("readings");
-    // What was committed before the pause is untouched; the rest was swept after it.
+    // What was committed before the pause is untouched (the completion at the end is kept beside it); the rest
+    // was swept after it.
     assert_eq!(&after[..before.len()], &before[..]);
     check_segments(&after, &s.steps);
 }

@@ -1,0 +1,208 @@
+//! The completion of a campaign's sweep readings, as `complete` does for its points:
+//! - the aperture: a sweep reading, like a point, is the BRDF averaged over the detector's aperture; the models
+//!   of gonio_results::aperture are fitted to the readings and each value is corrected to the BRDF at its
+//!   arc's middle, the correction's own uncertainty added; a lobe narrower than the aperture is flagged
+//!   `narrow-lobe` and its uncertainty covers the bias;
+//! - pointing: the angles' uncertainty (an applied alignment's, else the instrument file's) times the model's
+//!   slopes, as for points;
+//! - timing: where along its arc a reading was is known to the exchange latency ([`TIMING_U_S`]): the sweep's
+//!   speed times that, times the model's slope along the swept angle;
+//! - the finite band (gonio_results::band_component), the spectral slope from the other bands' sweeps of the
+//!   same arc: readings of every band within [`CORRECTION_SPACING_DEG`] of one angle count as one geometry.
+//!
+//! Along a sweep the readings are far denser than the aperture is wide (a few hundredths of a degree against
+//! about half a degree), and the correction changes on the aperture's scale: it is worked out at readings
+//! [`CORRECTION_SPACING_DEG`] apart along each sweep and each reading takes that of the nearest one.
+//! Components add in quadrature to each reading's own uncertainty (its measurement equation's).
+
+use gonio_instrument::Instrument;
+use gonio_results::aperture::{Correction, FLAG_NARROW_LOBE, corrections};
+use gonio_results::band_component::band_components;
+use gonio_results::points::Point;
+use gonio_results::run::Run;
+use gonio_results::sweeps::SweepReading;
+
+use crate::store::{CampaignRecord, SweepCompletion};
+
+/// Readings at least this far apart along a sweep (deg, swept angle) carry the correction's work.
+pub const CORRECTION_SPACING_DEG: f64 = 0.1;
+
+/// How well the time of a reading's integration is known (s): one exchange with the meter.
+pub const TIMING_U_S: f64 = 0.001;
+
+/// The completion of `readings` (module doc): one entry per reading, in their order. `relative`: normalised by
+/// a reference sample (the absolute equation's `tan(theta_o)` then plays no part in pointing).
+pub fn sweep_completions(
+    record: &CampaignRecord,
+    readings: &[SweepReading],
+    instrument: &Instrument,
+    relative: bool,
+) -> Vec<SweepCompletion> {
+    // The readings that carry the work: per sweep, one every `step` readings.
+    let mut carriers: Vec<usize> = Vec::new();
+    let mut nearest: Vec<usize> = vec![0; readings.len()];
+    // Per reading: whether its sweep turned the light arm (theta_i changes along it) rather than the detector.
+    let mut light_sweep: Vec<bool> = vec![false; readings.len()];
+    let mut start = 0;
+    while start < readings.len() {
+        let segment = readings[start].segment;
+        let end = readings[start..]
+            .iter()
+            .position(|r| r.segment != segment)
+            .map_or(readings.len(), |n| start + n);
+        let sweep = &readings[start..end];
+        let light = sweep
+            .first()
+            .zip(sweep.last())
+            .is_some_and(|(a, b)| a.theta_i_deg != b.theta_i_deg);
+        light_sweep[start..end].fill(light);
+        let per_reading = arc_per_reading(sweep);
+        let step = if per_reading > 0.0 {
+            ((CORRECTION_SPACING_DEG / per_reading).floor() as usize).max(1)
+        } else {
+            1
+        };
+        let first = carriers.len();
+        carriers.extend((start..end).step_by(step));
+        let last = carriers.len() - 1;
+        for (k, slot) in nearest[start..end].iter_mut().enumerate() {
+            *slot = (first + (k + step / 2) / step).min(last);
+        }
+        start = end;
+    }
+    let run = Run {
+        origin: format!("sweeps of campaign {} ({})", record.id, record.name),
+        name: record.name.clone(),
+        points: carriers.iter().map(|&i| point(&readings[i], i)).collect(),
+        axis_names: Vec::new(),
+        dry_run: false,
+        provenance: None,
+    };
+    let d = &instrument.detector;
+    let half_angle_rad = gonio_brdf::radiometry::aperture_half_angle_rad(d.aperture_radius_mm, d.distance_mm);
+    let fitted = corrections(&run, half_angle_rad);
+    if let Some(c) = &fitted {
+        tracing::info!(campaign = %record.id, model = c.model.name(), residual_rms = c.residual_rms,
+            readings = readings.len(), carriers = carriers.len(), "sweep readings' aperture correction");
+    }
+    let angle_u_rad = super::complete::angle_u_deg(record, instrument).to_radians();
+    // The band component on the carriers, their swept angle snapped to the correction's spacing so that the
+    // bands' sweeps of one arc meet at common geometries.
+    let snapped: Vec<Point> = carriers
+        .iter()
+        .map(|&i| {
+            let mut p = point(&readings[i], i);
+            let snap = |x: f64| (x / CORRECTION_SPACING_DEG).round() * CORRECTION_SPACING_DEG;
+            if light_sweep[i] {
+                p.theta_i_deg = snap(p.theta_i_deg);
+            } else {
+                p.theta_o_deg = snap(p.theta_o_deg);
+            }
+            p
+        })
+        .collect();
+    let band = band_components(&snapped, super::complete::filter_bands(instrument));
+    readings
+        .iter()
+        .zip(&nearest)
+        .zip(&light_sweep)
+        .map(|((r, &c), &light)| {
+            let mut out = SweepCompletion {
+                segment: r.segment,
+                k: r.k,
+                brdf_sr: r.brdf_sr,
+                brdf_u_sr: r.brdf_u_sr,
+                flags: None,
+            };
+            let (Some(value), Some(u), Some(fitted)) = (r.brdf_sr, r.brdf_u_sr, &fitted) else {
+                return out;
+            };
+            let mut value = value;
+            let mut var = u * u;
+            match fitted.points.get(c).copied().flatten() {
+                Some(Correction::Applied { factor, u_rel }) => {
+                    value *= factor;
+                    var *= factor * factor;
+                    var += (value * u_rel).powi(2);
+                }
+                Some(Correction::NarrowLobe { u_rel }) => {
+                    var += (value * u_rel).powi(2);
+                    let mut flags = r.flags.clone();
+                    flags.push(FLAG_NARROW_LOBE.to_string());
+                    out.flags = Some(flags);
+                }
+                None => {}
+            }
+            if let Some(u_band) = band.get(c).copied().flatten() {
+                // Relative to the carrier's value, applied to this reading's.
+                if let Some(carrier) = readings[carriers[c]].brdf_sr.filter(|v| *v != 0.0) {
+                    var += (value * u_band / carrier).powi(2);
+                }
+            }
+            if let Some([gi, go, gphi]) = fitted.slopes.get(c).copied().flatten() {
+                let tan_o = if relative {
+                    0.0
+                } else {
+                    r.theta_o_deg.to_radians().tan()
+                };
+                let pointing = angle_u_rad * gi.hypot(go - tan_o).hypot(gphi);
+                // The swept angle moves theta_i (a light sweep) or theta_o; the speed from the reading's arc.
+                let along = if light { gi } else { go };
+                let speed_rad_s = if r.integration_s > 0.0 {
+                    ((r.arc_to_deg - r.arc_from_deg) / r.integration_s)
+                        .abs()
+                        .to_radians()
+                } else {
+                    0.0
+                };
+                let timing = along.abs() * speed_rad_s * TIMING_U_S;
+                for rel in [pointing, timing] {
+                    if rel.is_finite() {
+                        var += (value * rel).powi(2);
+                    }
+                }
+            }
+            out.brdf_sr = Some(value);
+            out.brdf_u_sr = Some(var.sqrt());
+            out
+        })
+        .collect()
+}
+
+/// The median arc (deg) between consecutive readings of one sweep.
+fn arc_per_reading(sweep: &[SweepReading]) -> f64 {
+    let mid = |r: &SweepReading| 0.5 * (r.arc_from_deg + r.arc_to_deg);
+    let mut steps: Vec<f64> = sweep
+        .windows(2)
+        .map(|w| (mid(&w[1]) - mid(&w[0])).abs())
+        .collect();
+    if steps.is_empty() {
+        return 0.0;
+    }
+    steps.sort_by(f64::total_cmp);
+    steps[steps.len() / 2]
+}
+
+/// A sweep reading as a point of the run the aperture's models are fitted to.
+fn point(r: &SweepReading, index: usize) -> Point {
+    Point {
+        index: index as u64,
+        band_nm: r.band_nm,
+        theta_i_deg: r.theta_i_deg,
+        phi_i_deg: r.phi_i_deg,
+        theta_o_deg: r.theta_o_deg,
+        phi_o_deg: r.phi_o_deg,
+        signal_w: r.signal_w,
+        dark_w: None,
+        incident_w: None,
+        brdf_sr: r.brdf_sr,
+        brdf_u_sr: r.brdf_u_sr,
+        flags: r.flags.clone(),
+        t_s: Some(r.t_s),
+        readback_deg: Vec::new(),
+        brdf_aperture_sr: None,
+        budget: Default::default(),
+        truth_point_sr: None,
+        truth_aperture_sr: None,
+    }
+}
