@@ -216,3 +216,56 @@ async fn a_pause_between_sweeps_loses_and_duplicates_nothing() {
     assert_eq!(&after[..before.len()], &before[..]);
     check_segments(&after, &s.steps);
 }
+
+#[tokio::test(start_paused = true)]
+async fn an_emergency_stop_during_a_sweep_halts_it_at_once_and_keeps_nothing_of_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let s = setup(dir.path()).await;
+    let control = Control::new();
+    let mut rx = control.subscribe();
+    let task = {
+        let (store, rig, control) = (Arc::clone(&s.store), s.rig.clone(), control.clone());
+        let id = s.id;
+        tokio::spawn(async move { run_campaign(store, id, &rig, control).await })
+    };
+    loop {
+        if let Event::Sweep { segment: 0, .. } = rx.recv().await.expect("event") {
+            break;
+        }
+    }
+    // The second sweep (the same 70-degree arc back in the other band, 14 s at 5 deg/s) is under way 6 s later.
+    tokio::time::sleep(std::time::Duration::from_secs(6)).await;
+    let before = s.rig.sim().expect("sim").pose();
+    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    let moving = s.rig.sim().expect("sim").pose();
+    assert_ne!(before, moving, "an arm sweeps");
+    control.estop();
+    // The arm is halted within 200 ms (the stop on its line, its deceleration), not at the end of the sweep.
+    tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    let halted = s.rig.sim().expect("sim").pose();
+    tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+    assert_eq!(halted, s.rig.sim().expect("sim").pose(), "the arm stays halted");
+    assert_eq!(task.await.expect("join").expect("run"), CampaignState::Paused);
+    let rec = s.store.lock().expect("lock").campaign(s.id).expect("campaign");
+    assert_eq!(rec.last_error.as_deref(), Some("emergency stop"));
+    // The interrupted sweep left nothing; resumed, it is swept again whole.
+    assert_eq!(
+        s.store
+            .lock()
+            .expect("lock")
+            .sweep_segments_done(s.id)
+            .expect("done"),
+        1
+    );
+    let state = run_campaign(Arc::clone(&s.store), s.id, &s.rig, Control::new())
+        .await
+        .expect("resume");
+    assert_eq!(state, CampaignState::Completed);
+    let after = s
+        .store
+        .lock()
+        .expect("lock")
+        .sweep_readings(s.id)
+        .expect("readings");
+    check_segments(&after, &s.steps);
+}
