@@ -17,7 +17,8 @@
 //! three densities and campaigns not in the repository, on both instrument files ([`time_model`]; `--before
 //! BINARY` also runs each through a gonio built from an earlier commit, side by side).
 //! `--accuracy` writes ACCURACY.md instead (issue 29's accuracy table, crate::accuracy).
-//! `--only <readings|campaigns|throughput|budget|timing>` prints one section and leaves BENCHMARKS.md alone; `--only stress-large` runs
+//! (7) sweeps against stop-and-go per seed material on both instrument files ([`sweeps`]).
+//! `--only <readings|campaigns|throughput|budget|timing|sweeps>` prints one section and leaves BENCHMARKS.md alone; `--only stress-large` runs
 //! the large stress tier and records it (docs/bench/stress-large.txt) without writing the report.
 
 mod accuracy;
@@ -28,6 +29,7 @@ mod ordering;
 mod plot;
 mod readings;
 mod stress;
+mod sweeps;
 mod throughput;
 mod time_model;
 
@@ -127,6 +129,10 @@ fn main() {
     loads.push(("6 time model", load_average()));
     let timing_md = timing_section(&root, &target, before_binary(&args).as_deref(), quick);
 
+    eprintln!("(7) sweeps against stop-and-go...");
+    loads.push(("7 sweeps", load_average()));
+    let sweeps_md = sweeps_section(&root, &target, quick);
+
     eprintln!("(4) micro-benchmarks...");
     loads.push(("4 micro-benchmarks", load_average()));
     let eval_rate = eval_throughput(&root, if quick { 200_000 } else { 2_000_000 });
@@ -190,6 +196,8 @@ fn main() {
     report.push_str(&budget_md);
     report.push('\n');
     report.push_str(&timing_md);
+    report.push('\n');
+    report.push_str(&sweeps_md);
     let mut load_lines = String::new();
     for (section, load) in &loads {
         let _ = writeln!(
@@ -211,6 +219,19 @@ fn main() {
         Ok(()) => eprintln!("wrote {} and docs/bench/*.svg", path.display()),
         Err(e) => eprintln!("cannot write {}: {e}", path.display()),
     }
+}
+
+/// Section 7: sweeps against stop-and-go through the release binary (crate::sweeps).
+fn sweeps_section(root: &Path, target: &Path, quick: bool) -> String {
+    let binary = target.join("release/gonio");
+    if !binary.exists() {
+        return format!(
+            "## 7. Sweeps against stop-and-go\n\nNot measured: no release binary at {} (build it with `cargo build \
+             --release -p gonio`).\n",
+            binary.display()
+        );
+    }
+    sweeps::section(root, &binary, quick)
 }
 
 /// Section 5: the realistic instrument's error budget and its throughput beside the ideal one's.
@@ -442,6 +463,10 @@ fn write_accuracy(quick: bool) {
 fn run_only(section: &str, quick: bool) {
     let inst = InstrumentFile::simulated().instrument;
     match section {
+        "sweeps" => {
+            let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+            print!("{}", sweeps_section(&root, &target_dir(), quick));
+        }
         "readings" => {
             let min_s = if quick { 0.005 } else { 0.05 };
             let t = Instant::now();

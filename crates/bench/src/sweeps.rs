@@ -1,0 +1,213 @@
+//! Issue 41's table: sweeps against stop-and-go, per seed material on both instrument files. Every run goes
+//! through the release binary as a lab would run it (`gonio run FILE --instrument INST`): the demo's grid
+//! (config/campaigns/demo.toml, stop-and-go) and config/campaigns/sweeps.toml (detector sweeps at three
+//! incidences, three bands), each with the material swapped. From each run: its instrument time (run.json), its
+//! values (points.csv, sweeps.csv) and, against the simulator's truth at each value's nominal geometry, the
+//! cosine-weighted relative RMS error and the share of values whose k=2 interval holds the truth; the wall time
+//! is the process's (start-up, planning, the run, the completion and the files).
+//!
+//! Not here yet: curves of instrument time against error on a common validation set for the four strategies
+//! (grid, adaptive, constant-speed and BRDF-following sweeps); speed that follows the BRDF is not built.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The seed materials (config/materials).
+const MATERIALS: [&str; 5] = [
+    "mirror",
+    "white-styrofoam",
+    "construction-paper",
+    "coloured-plastic",
+    "gold",
+];
+
+/// The issue's targets: values per instrument hour against stop-and-go, and k=2 coverage.
+const VALUES_RATIO_TARGET: f64 = 100.0;
+const COVERAGE_TARGET: f64 = 0.90;
+
+/// What one run gave.
+struct Outcome {
+    values: usize,
+    instrument_s: f64,
+    wall_s: f64,
+    cos_rms: Option<f64>,
+    coverage: Option<f64>,
+}
+
+impl Outcome {
+    fn per_hour(&self) -> f64 {
+        3600.0 * self.values as f64 / self.instrument_s.max(1e-9)
+    }
+}
+
+/// Run `text` through `binary` on `instrument` and read `csv` (points.csv or sweeps.csv) of its results.
+fn run(binary: &Path, text: &str, instrument: &Path, csv: &str) -> Result<Outcome, String> {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos());
+    let dir: PathBuf =
+        std::env::temp_dir().join(format!("gonio-bench-sweeps-{}-{nanos}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
+    let campaign = dir.join("campaign.toml");
+    std::fs::write(&campaign, text).map_err(|e| e.to_string())?;
+    let out = dir.join("out");
+    let start = Instant::now();
+    let o = std::process::Command::new(binary)
+        .arg("run")
+        .arg(&campaign)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .arg("--instrument")
+        .arg(instrument)
+        .output()
+        .map_err(|e| format!("cannot run {}: {e}", binary.display()))?;
+    let wall_s = start.elapsed().as_secs_f64();
+    let result = if o.status.success() {
+        read(&out, csv, wall_s)
+    } else {
+        Err(format!(
+            "gonio run failed: {}",
+            String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or("")
+        ))
+    };
+    let _ = std::fs::remove_dir_all(&dir);
+    result
+}
+
+fn read(out: &Path, csv: &str, wall_s: f64) -> Result<Outcome, String> {
+    let json: serde_json::Value = std::fs::read_to_string(out.join("run.json"))
+        .map_err(|e| e.to_string())
+        .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))?;
+    let instrument_s = json["timing"]["actual_instrument_s"]
+        .as_f64()
+        .ok_or("run.json has no timing.actual_instrument_s")?;
+    let text = std::fs::read_to_string(out.join(csv)).map_err(|e| format!("{csv}: {e}"))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().ok_or("empty csv")?.split(',').collect();
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .ok_or(format!("{csv} has no {name}"))
+    };
+    let (f_col, u_col, t_col, ti_col) = (
+        col("brdf_sr")?,
+        col("brdf_u_sr")?,
+        col("brdf_true_sr")?,
+        col("theta_i_deg")?,
+    );
+    let (mut values, mut n, mut covered, mut num, mut den) = (0usize, 0usize, 0usize, 0.0, 0.0);
+    for line in lines {
+        let cells: Vec<&str> = line.split(',').collect();
+        let get = |i: usize| cells.get(i).and_then(|c| c.parse::<f64>().ok());
+        let Some(f) = get(f_col) else { continue };
+        values += 1;
+        let (Some(u), Some(t), Some(ti)) = (get(u_col), get(t_col), get(ti_col)) else {
+            continue;
+        };
+        let c = ti.to_radians().cos();
+        n += 1;
+        covered += usize::from((f - t).abs() <= 2.0 * u);
+        num += ((f - t) * c).powi(2);
+        den += (t * c).powi(2);
+    }
+    Ok(Outcome {
+        values,
+        instrument_s,
+        wall_s,
+        cos_rms: (den > 0.0).then(|| (num / den).sqrt()),
+        coverage: (n > 0).then(|| covered as f64 / n as f64),
+    })
+}
+
+fn with_material(text: &str, material: &str) -> String {
+    text.replace(
+        "preset = \"coloured-plastic\"",
+        &format!("preset = \"{material}\""),
+    )
+}
+
+/// Section 7 (module doc).
+pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
+    let read =
+        |name: &str| std::fs::read_to_string(root.join("config/campaigns").join(name)).unwrap_or_default();
+    let (demo, sweeps) = (read("demo.toml"), read("sweeps.toml"));
+    let materials: &[&str] = if quick { &MATERIALS[3..4] } else { &MATERIALS };
+    let mut s = String::from("## 7. Sweeps against stop-and-go\n\n");
+    let _ = writeln!(
+        s,
+        "Per seed material and instrument file: the demo's grid (stop-and-go) and config/campaigns/sweeps.toml, each \
+         through `gonio run` with the material swapped (crates/bench/src/sweeps.rs). Values: valid points, or valid \
+         sweep readings; per hour: per hour of instrument time. Error: cosine-weighted relative RMS against the \
+         simulator's BRDF at each value's nominal geometry; k=2: the share of values whose k=2 interval holds it. \
+         Readings/s: the sweeps run's readings over its process's wall time (start-up, planning, the run, the \
+         completion, the files). Targets: at least {VALUES_RATIO_TARGET:.0}x the values per hour, k=2 at least \
+         {:.0} %.\n",
+        100.0 * COVERAGE_TARGET
+    );
+    s.push_str(
+        "| material | instrument | grid: values, instrument s, per hour, error, k=2 | sweeps: values, instrument s, \
+         per hour, error, k=2 | values per hour, sweeps / grid | readings/s (wall) | targets |\n|---|---|---|---|---|---|---|\n",
+    );
+    let cell = |o: &Outcome| {
+        format!(
+            "{}, {:.0} s, {:.0}, {}, {}",
+            o.values,
+            o.instrument_s,
+            o.per_hour(),
+            o.cos_rms.map_or("-".into(), |r| format!("{r:.2e}")),
+            o.coverage.map_or("-".into(), |c| format!("{:.1} %", 100.0 * c))
+        )
+    };
+    for material in materials {
+        for (label, instrument) in [
+            ("ideal", root.join("config/instruments/simulated.toml")),
+            ("realistic", root.join("config/instruments/realistic.toml")),
+        ] {
+            eprintln!("    sweeps: {material}, {label}...");
+            let grid = run(binary, &with_material(&demo, material), &instrument, "points.csv");
+            let swept = run(
+                binary,
+                &with_material(&sweeps, material),
+                &instrument,
+                "sweeps.csv",
+            );
+            match (grid, swept) {
+                (Ok(g), Ok(w)) => {
+                    let ratio = w.per_hour() / g.per_hour().max(1e-9);
+                    let coverage_met = w.coverage.is_some_and(|c| c >= COVERAGE_TARGET);
+                    let _ = writeln!(
+                        s,
+                        "| {material} | {label} | {} | {} | {ratio:.0}x | {:.0} | values {}, k=2 {} |",
+                        cell(&g),
+                        cell(&w),
+                        w.values as f64 / w.wall_s.max(1e-9),
+                        if ratio >= VALUES_RATIO_TARGET {
+                            "met"
+                        } else {
+                            "NOT met"
+                        },
+                        if coverage_met { "met" } else { "NOT met" },
+                    );
+                }
+                (g, w) => {
+                    let err = |r: Result<Outcome, String>| r.err().unwrap_or_default();
+                    let _ = writeln!(
+                        s,
+                        "| {material} | {label} | FAILED: {} | FAILED: {} | | | |",
+                        err(g),
+                        err(w)
+                    );
+                }
+            }
+        }
+    }
+    s.push_str(
+        "\nNot measured yet (issue 41): time against error on one validation set for the grid, adaptive plans, \
+         constant-speed sweeps and sweeps whose speed follows the BRDF (not built yet), and the in-process \
+         throughput without the process's start-up.\n",
+    );
+    s
+}
