@@ -8,7 +8,7 @@ use gonio_brdf::material::Material;
 use gonio_instrument::{Instrument, InstrumentFile};
 use gonio_scheduler::plan::{self, BuildContext, Plan, SampleTraits};
 use gonio_scheduler::schedule::{self, Schedule};
-use gonio_scheduler::sweep::{SweepPlan, SweepSchedule, build_sweeps, schedule_sweeps};
+use gonio_scheduler::sweep::{SweepCalibration, SweepPlan, SweepSchedule, build_sweeps, schedule_sweeps};
 use gonio_scheduler::timing::TimeModel;
 
 use crate::error::CampaignError;
@@ -178,8 +178,11 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
         }
         let start = schedule.steps.last().map(|s| (s.pose, schedule.end.wheel));
         // Without points before them, the sweeps open the session with its calibration.
-        let preamble = schedule.measure_steps().next().is_none().then_some(&plan);
-        let sweep_schedule = schedule_sweeps(&sweep_plan, &time, start, preamble);
+        let calibration = SweepCalibration {
+            plan: &plan,
+            opening: schedule.measure_steps().next().is_none(),
+        };
+        let sweep_schedule = schedule_sweeps(&sweep_plan, &time, start, Some(calibration));
         Some(Sweeps {
             plan: sweep_plan,
             schedule: sweep_schedule,

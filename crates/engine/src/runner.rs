@@ -551,6 +551,7 @@ impl<'a> Run<'a> {
             let sweeps = crate::budget::sweep_completions(
                 &record,
                 &readings,
+                &calibrations,
                 &self.file.instrument,
                 self.reference.is_some(),
             );

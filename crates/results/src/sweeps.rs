@@ -28,6 +28,9 @@ pub struct SweepReading {
     pub arc_from_deg: f64,
     pub arc_to_deg: f64,
     pub signal_w: Option<f64>,
+    /// The normalisation the reading was divided by while running (W): the direct beam, or the reference
+    /// sample's signal (relative method).
+    pub incident_w: Option<f64>,
     pub brdf_sr: Option<f64>,
     pub brdf_u_sr: Option<f64>,
     /// The aperture average `brdf_sr` was corrected from (1/sr); `None` when no correction was made.
@@ -132,6 +135,7 @@ mod tests {
             arc_from_deg: 19.99,
             arc_to_deg: 20.01,
             signal_w: f.map(|_| 1e-9),
+            incident_w: Some(1e-3),
             brdf_sr: f,
             brdf_u_sr: Some(u),
             brdf_aperture_sr: None,

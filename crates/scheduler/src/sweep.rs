@@ -39,8 +39,8 @@
 //! wheel's shortest covering walk), so consecutive bands need no move. Pieces are visited nearest first from
 //! where the arm is, entering each at its nearer end.
 //!
-//! Not in this model yet: dark and normalisation steps during sweeps (a plan's calibration cadence belongs to
-//! its points).
+//! Calibrations (darks, then the normalisation readings, as the session's opening one) fall due between arcs
+//! every `Calibration::sweep_every_s` of instrument time, and close the sweeps when the plan asks for references.
 
 mod path;
 mod spec;
@@ -55,7 +55,7 @@ pub use path::{
     EDGE_TOLERANCE_DEG, MIN_PIECE_DEG, PathContext, PathVerdict, Piece, SCAN_STEP_DEG, swept_role,
 };
 pub use spec::{MAX_SWEEP_SPEED_DEG_S, MAX_SWEEPS, SweepRequest, requests};
-pub use walk::{SweepBreakdown, SweepSchedule, SweepStep, schedule_sweeps};
+pub use walk::{SweepBreakdown, SweepCalibration, SweepSchedule, SweepStep, schedule_sweeps};
 
 use crate::constraints::{Constraints, Reason};
 use crate::kinematics::Kinematics;

@@ -56,15 +56,44 @@ fn second_derivative(a: (f64, f64), b: (f64, f64), c: (f64, f64)) -> Option<f64>
     (d1 > 0.0 && d2 > 0.0).then(|| 2.0 * ((c.1 - b.1) / d2 - (b.1 - a.1) / d1) / span)
 }
 
+/// What the renormalisation needs of a value: its band, whether it has a value, the normalisation it was
+/// divided by while running (W) and its time (s).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Normalised {
+    pub band_nm: f64,
+    pub has_value: bool,
+    pub incident_w: f64,
+    pub t_s: f64,
+}
+
+impl From<&PointRecord> for Normalised {
+    fn from(p: &PointRecord) -> Normalised {
+        Normalised {
+            band_nm: p.band_nm,
+            has_value: p.brdf_sr.is_some_and(f64::is_finite),
+            incident_w: p.incident_w,
+            t_s: p.t_s,
+        }
+    }
+}
+
 /// The renormalisation of each point (module doc), in the points' order: `None` for a point that keeps its
 /// value (no reading after it, no normalisation, no value).
 pub fn renormalise(records: &[CalibrationRecord], points: &[PointRecord]) -> Vec<Option<Renormalised>> {
+    let values: Vec<Normalised> = points.iter().map(Normalised::from).collect();
+    renormalise_values(records, &values)
+}
+
+/// [`renormalise`] of values of any kind (points, sweep readings).
+pub fn renormalise_values(records: &[CalibrationRecord], values: &[Normalised]) -> Vec<Option<Renormalised>> {
     let series = series(records);
-    points
+    values
         .iter()
         .map(|p| {
             let s = series.get(&p.band_nm.to_bits())?;
-            p.brdf_sr.filter(|v| v.is_finite())?;
+            if !p.has_value {
+                return None;
+            }
             if !(p.incident_w > 0.0 && p.incident_w.is_finite()) {
                 return None;
             }

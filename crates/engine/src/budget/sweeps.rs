@@ -1,4 +1,6 @@
 //! The completion of a campaign's sweep readings, as `complete` does for its points:
+//! - the source's drift: each reading normalised again between its band's readings before and after it, the
+//!   drift's curvature in its uncertainty (`super::drift`);
 //! - the aperture: a sweep reading, like a point, is the BRDF averaged over the detector's aperture; the models
 //!   of gonio_results::aperture are fitted to the readings and each value is corrected to the BRDF at its
 //!   arc's middle, the correction's own uncertainty added; a lobe narrower than the aperture is flagged
@@ -22,7 +24,8 @@ use gonio_results::points::Point;
 use gonio_results::run::Run;
 use gonio_results::sweeps::SweepReading;
 
-use crate::store::{CampaignRecord, SweepCompletion};
+use super::drift::{Normalised, renormalise_values};
+use crate::store::{CalibrationRecord, CampaignRecord, SweepCompletion};
 
 /// Readings at least this far apart along a sweep (deg, swept angle) carry the correction's work.
 pub const CORRECTION_SPACING_DEG: f64 = 0.1;
@@ -35,9 +38,35 @@ pub const TIMING_U_S: f64 = 0.001;
 pub fn sweep_completions(
     record: &CampaignRecord,
     readings: &[SweepReading],
+    calibrations: &[CalibrationRecord],
     instrument: &Instrument,
     relative: bool,
 ) -> Vec<SweepCompletion> {
+    // The drift first: the readings renormalised, as the aperture's models are then fitted to them.
+    let timed: Vec<Normalised> = readings
+        .iter()
+        .map(|r| Normalised {
+            band_nm: r.band_nm,
+            has_value: r.brdf_sr.is_some_and(f64::is_finite),
+            incident_w: r.incident_w.unwrap_or(f64::NAN),
+            t_s: r.t_s,
+        })
+        .collect();
+    let drift = renormalise_values(calibrations, &timed);
+    let renormalised: Vec<SweepReading> = readings
+        .iter()
+        .zip(&drift)
+        .map(|(r, d)| {
+            let mut r = r.clone();
+            if let (Some(d), Some(v), Some(u)) = (d, r.brdf_sr, r.brdf_u_sr) {
+                let value = v * d.factor;
+                r.brdf_sr = Some(value);
+                r.brdf_u_sr = Some((u * d.factor).hypot(value * d.curvature_rel));
+            }
+            r
+        })
+        .collect();
+    let readings = &renormalised[..];
     // The readings that carry the work: per sweep, one every `step` readings.
     let mut carriers: Vec<usize> = Vec::new();
     let mut nearest: Vec<usize> = vec![0; readings.len()];

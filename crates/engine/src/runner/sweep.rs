@@ -129,8 +129,18 @@ impl Run<'_> {
             self.darks_all(&bands).await?;
             self.normalise(&bands, None).await?;
         }
+        // The calibration cadence between arcs, and the closing calibration: as the schedule predicts them
+        // (gonio_scheduler::sweep::schedule_sweeps).
+        let every_s = self.c.plan.calibration.sweep_every_s();
+        let mut last_calibration = self.t();
         for (k, step) in steps.iter().enumerate().skip(first) {
             self.safe_point()?;
+            let new_arc = k > first && steps.get(k - 1).is_some_and(|p| p.arc != step.arc);
+            if new_arc && every_s.is_some_and(|e| self.t() - last_calibration >= e) {
+                self.darks_all(&bands).await?;
+                self.normalise(&bands, None).await?;
+                last_calibration = self.t();
+            }
             let Some(arc) = sweeps.plan.arcs.get(step.arc) else {
                 return Err(Interrupt::Fatal(EngineError::NotRunnable {
                     id: self.id,
@@ -139,6 +149,10 @@ impl Run<'_> {
             };
             let index = |n: usize| u32::try_from(n).unwrap_or(u32::MAX);
             self.sweep((index(k), index(steps.len())), step, arc).await?;
+        }
+        if self.c.plan.calibration.references() {
+            self.darks_all(&bands).await?;
+            self.normalise(&bands, None).await?;
         }
         Ok(())
     }
@@ -340,7 +354,7 @@ impl Run<'_> {
         let wi = Direction::from_spherical_deg(g.theta_i_deg, g.phi_i_deg);
         let wo = Direction::from_spherical_deg(g.theta_o_deg, g.phi_o_deg);
         let mut flags = Vec::new();
-        let (mut signal, mut brdf, mut brdf_u) = (None, None, None);
+        let (mut signal, mut brdf, mut brdf_u, mut incident_w) = (None, None, None, None);
         match reading {
             Err(e) => flags.push(format!("failed: {e}")),
             Ok(r) if r.overload => {
@@ -353,6 +367,7 @@ impl Run<'_> {
                 let incident = self
                     .normalisation(band_nm, t_s)
                     .unwrap_or(Reading::exact(f64::NAN));
+                incident_w = Some(incident.value_w).filter(|w| w.is_finite());
                 let range_u_w = r.power_w.abs() * self.file.instrument.detector.range_gain_u();
                 match brdf_of_reading(
                     &inputs,
@@ -397,6 +412,7 @@ impl Run<'_> {
             arc_from_deg: from,
             arc_to_deg: to,
             signal_w: signal,
+            incident_w,
             brdf_sr: brdf,
             brdf_u_sr: brdf_u,
             brdf_aperture_sr: None,

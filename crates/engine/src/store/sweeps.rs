@@ -38,6 +38,7 @@ pub(super) const SWEEP_TABLES: &str = "CREATE TABLE sweep_segments (
                 arc_from_deg REAL NOT NULL,
                 arc_to_deg REAL NOT NULL,
                 signal_w REAL,
+                incident_w REAL,
                 brdf_sr REAL,
                 brdf_u_sr REAL,
                 flags TEXT NOT NULL,
@@ -100,10 +101,10 @@ impl Store {
             let mut st = tx
                 .prepare_cached(
                     "INSERT INTO sweep_readings (campaign_id, segment, k, band_nm, t_s, integration_s, theta_i_deg,
-                     phi_i_deg, theta_o_deg, phi_o_deg, arc_from_deg, arc_to_deg, signal_w, brdf_sr, brdf_u_sr,
-                     flags, truth_point_sr)
+                     phi_i_deg, theta_o_deg, phi_o_deg, arc_from_deg, arc_to_deg, signal_w, incident_w, brdf_sr,
+                     brdf_u_sr, flags, truth_point_sr)
                      VALUES (:campaign_id, :segment, :k, :band_nm, :t_s, :integration_s, :theta_i_deg, :phi_i_deg,
-                     :theta_o_deg, :phi_o_deg, :arc_from_deg, :arc_to_deg, :signal_w, :brdf_sr, :brdf_u_sr, :flags,
+                     :theta_o_deg, :phi_o_deg, :arc_from_deg, :arc_to_deg, :signal_w, :incident_w, :brdf_sr, :brdf_u_sr, :flags,
                      :truth_point_sr)",
                 )
                 .map_err(write)?;
@@ -122,6 +123,7 @@ impl Store {
                     ":arc_from_deg": r.arc_from_deg,
                     ":arc_to_deg": r.arc_to_deg,
                     ":signal_w": r.signal_w,
+                    ":incident_w": r.incident_w,
                     ":brdf_sr": r.brdf_sr,
                     ":brdf_u_sr": r.brdf_u_sr,
                     ":flags": r.flags.join(";"),
@@ -187,7 +189,7 @@ impl Store {
             .prepare_cached(
                 "SELECT segment, k, band_nm, t_s, integration_s, theta_i_deg, phi_i_deg, theta_o_deg, phi_o_deg,
                  arc_from_deg, arc_to_deg, signal_w, brdf_sr, brdf_u_sr, flags, truth_point_sr, completed_brdf_sr,
-                 completed_u_sr, completed_flags
+                 completed_u_sr, completed_flags, incident_w
                  FROM sweep_readings WHERE campaign_id = ?1 ORDER BY segment, k",
             )
             .map_err(self.read_err())?;
@@ -212,6 +214,7 @@ impl Store {
                     arc_from_deg: r.get(9)?,
                     arc_to_deg: r.get(10)?,
                     signal_w: r.get(11)?,
+                    incident_w: r.get(19)?,
                     brdf_sr: completed_brdf.or(committed_brdf),
                     brdf_u_sr: match completed_u {
                         Some(u) => Some(u),

@@ -632,6 +632,7 @@ fn sweep_reading(segment: u32, k: u32) -> SweepReading {
         arc_from_deg: f64::from(k) * 0.016,
         arc_to_deg: f64::from(k) * 0.016 + 0.012,
         signal_w: (k % 5 != 4).then_some(1.234_567_890_123e-7),
+        incident_w: Some(1e-3 + f64::from(k) * 1e-9),
         brdf_sr: (k % 5 != 4).then_some(0.1 / 3.0),
         brdf_u_sr: Some(1e-5),
         brdf_aperture_sr: None,

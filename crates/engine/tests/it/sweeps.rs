@@ -26,6 +26,10 @@ theta_o_deg = [20.0]
 theta_i_deg = { from = 40.0, to = 70.0 }
 speed_deg_s = 2.0
 averaging = 3
+[plan.calibration]
+dark_every_s = 15.0
+reference_every_s = 15.0
+reference_pose_deg = { light = -90.0, detector = 90.0 }
 [calibration]
 simulate_operator = true
 [material]
@@ -115,6 +119,36 @@ async fn sweeps_cover_their_arcs_and_agree_with_the_truth() {
         .sweep_readings(s.id)
         .expect("readings");
     check_segments(&readings, &s.steps);
+    // Calibrations opened the sweeps, fell due between arcs (every 15 s of instrument time), and closed them:
+    // direct-beam readings of both bands after the last sweep, for the drift's interpolation.
+    let calibrations = s
+        .store
+        .lock()
+        .expect("lock")
+        .calibrations(s.id)
+        .expect("calibrations");
+    let beams: Vec<f64> = calibrations
+        .iter()
+        .filter(|c| c.kind == "direct-beam")
+        .map(|c| c.t_s)
+        .collect();
+    let segments = s
+        .store
+        .lock()
+        .expect("lock")
+        .sweep_segments(s.id)
+        .expect("segments");
+    let last_end = segments.last().map_or(0.0, |g| g.ended_s);
+    assert!(beams.len() >= 3 * 2, "{beams:?}");
+    assert_eq!(
+        beams.iter().filter(|t| **t > last_end).count(),
+        2,
+        "{beams:?} after {last_end}"
+    );
+    assert!(
+        beams.iter().any(|t| *t > segments[0].ended_s && *t < last_end),
+        "none between the sweeps: {beams:?}"
+    );
     // The detector's arc starts at -10, clear of the source at -30: one piece; the light's arc one piece; each
     // swept in both bands.
     assert_eq!(s.steps.len(), 4);

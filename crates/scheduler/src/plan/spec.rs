@@ -179,6 +179,15 @@ impl PartialEq for ReferenceAt {
 }
 
 impl Calibration {
+    /// The time cadence of sweeps' calibrations (s): the shorter of `dark_every_s` and `reference_every_s`. A
+    /// sweep reads no point, so the point counts do not apply; a calibration falls due between arcs.
+    pub fn sweep_every_s(&self) -> Option<f64> {
+        match (self.dark_every_s, self.reference_every_s) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
     pub fn darks(&self) -> bool {
         self.dark_every_points.is_some() || self.dark_every_s.is_some()
     }

@@ -76,14 +76,24 @@ pub struct SweepSchedule {
     pub start: Option<(Pose, Option<u8>)>,
 }
 
+/// How the sweeps are calibrated: the point plan whose `[plan.calibration]` they follow, and whether the
+/// session's calibration opens them (no point precedes them).
+#[derive(Debug, Clone, Copy)]
+pub struct SweepCalibration<'a> {
+    pub plan: &'a Plan,
+    pub opening: bool,
+}
+
 /// Order and time the sweeps from `start` (the pose and wheel position the instrument is in; none: at the first
-/// arc's start, the wheel on its first band). `preamble`: the plan whose calibration opens the sweeps (when no
-/// point precedes them in a session, `crate::schedule::calibration_preamble`).
+/// arc's start, the wheel on its first band). `calibration`: the session's calibration
+/// (`crate::schedule::calibration_preamble`: darks, then the normalisation) opens the sweeps when no point
+/// precedes them, falls due between arcs every `Calibration::sweep_every_s` of instrument time, and closes them
+/// when the plan asks for references (so that the drift between readings can be interpolated).
 pub fn schedule_sweeps(
     plan: &SweepPlan,
     time: &TimeModel,
     start: Option<(Pose, Option<u8>)>,
-    preamble: Option<&Plan>,
+    calibration: Option<SweepCalibration>,
 ) -> SweepSchedule {
     let mut out = SweepSchedule::default();
     let Some(first) = plan.arcs.first() else {
@@ -104,17 +114,30 @@ pub fn schedule_sweeps(
     };
     let (mut pose, mut wheel) = start.unwrap_or((first.piece.from_pose, positions[0].1));
     out.start = Some((pose, wheel));
-    if let Some(points) = preamble {
-        let (_, b, after, wheel_after) = calibration_preamble(points, time, pose, wheel);
-        out.breakdown.calibration_s = b.total_s();
-        pose = after;
-        wheel = wheel_after;
+    let calibrate = |pose: &mut Pose, wheel: &mut Option<u8>, out: &mut SweepSchedule| {
+        if let Some(c) = calibration {
+            let (_, b, after, wheel_after) = calibration_preamble(c.plan, time, *pose, *wheel);
+            out.breakdown.calibration_s += b.total_s();
+            *pose = after;
+            *wheel = wheel_after;
+            return b.total_s();
+        }
+        0.0
+    };
+    let mut clock = 0.0;
+    if calibration.is_some_and(|c| c.opening) {
+        clock += calibrate(&mut pose, &mut wheel, &mut out);
     }
-    let mut clock = out.breakdown.calibration_s;
+    let every_s = calibration.and_then(|c| c.plan.calibration.sweep_every_s());
+    let mut last_calibration = clock;
     // The exchanges of every sweep besides its motion (`LegTiming`), and every axis's position read after it.
     let positions_read_s: f64 = time.axes.iter().flatten().map(|m| m.leg.position_read_s).sum();
     let mut left: Vec<usize> = (0..plan.arcs.len()).collect();
     while !left.is_empty() {
+        if every_s.is_some_and(|e| clock - last_calibration >= e) {
+            clock += calibrate(&mut pose, &mut wheel, &mut out);
+            last_calibration = clock;
+        }
         // The nearest arc end from where the arm is.
         let mut best: Option<(f64, usize, bool)> = None;
         for (slot, &a) in left.iter().enumerate() {
@@ -206,6 +229,9 @@ pub fn schedule_sweeps(
             }
             forward = !forward;
         }
+    }
+    if calibration.is_some_and(|c| c.plan.calibration.references()) {
+        calibrate(&mut pose, &mut wheel, &mut out);
     }
     out.breakdown.closing_s = time.wheel_time_s(wheel, time.wheel.as_ref().and_then(|w| w.blank));
     out
