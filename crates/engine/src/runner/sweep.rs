@@ -10,7 +10,7 @@
 //! Where a reading was: the commanded trapezoidal profile (start at the move command's reply, the set speed,
 //! the axis's acceleration), shifted in time by the median lag of the controller's position reports taken while
 //! the arm cruises (one after every [`POSITION_EVERY`] readings, concurrently with the next: the controller's
-//! line and the meter's are separate). A reading integrates from its request for `averaging x 3 ms`; the time
+//! line and the meter's are separate; each stamped with the middle of its own exchange). A reading integrates from its request for `averaging x 3 ms`; the time
 //! it is attributed to is the middle of that window. What remains uncertain is the exchange latency (about a
 //! millisecond: `speed x 1 ms` of arc) and the spread of the reports' lags, both recorded in the log.
 //!
@@ -231,8 +231,15 @@ impl Run<'_> {
             let ask_position = taken.len() % POSITION_EVERY == POSITION_EVERY - 1;
             let read = acquisition::read(&self.motion, band_nm, &acquisition, &mut self.configured_nm);
             let (reading, position) = if ask_position {
-                let (r, p) = tokio::join!(read, axis.driver.position_deg());
-                (r, p.ok().map(|x| (clock.now_s(), x)))
+                // Each report is stamped with the middle of its own exchange, not when the reading beside it
+                // ends: stamped late, it would put every reading behind the arm (a bias that changes sign with
+                // the sweep's direction).
+                let report = async {
+                    let t0 = clock.now_s();
+                    let p = axis.driver.position_deg().await;
+                    p.ok().map(|x| (0.5 * (t0 + clock.now_s()), x))
+                };
+                tokio::join!(read, report)
             } else {
                 (read.await, None)
             };
