@@ -175,8 +175,9 @@ pub fn sweep_completions(
                     r.theta_o_deg.to_radians().tan()
                 };
                 let pointing = angle_u_rad * gi.hypot(go - tan_o).hypot(gphi);
-                // The swept angle moves theta_i (a light sweep) or theta_o; the speed from the reading's arc.
-                let along = if light { gi } else { go };
+                // The swept angle moves theta_i (a light sweep) or theta_o, where the absolute equation's
+                // cos(theta_o) moves with it; the speed from the reading's arc.
+                let along = if light { gi } else { go - tan_o };
                 let speed_rad_s = if r.integration_s > 0.0 {
                     ((r.arc_to_deg - r.arc_from_deg) / r.integration_s)
                         .abs()

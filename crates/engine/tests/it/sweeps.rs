@@ -204,7 +204,11 @@ async fn sweeps_cover_their_arcs_and_agree_with_the_truth() {
     );
     // The stated uncertainties hold the truth at k=2 for at least 90 % of the readings here (the issue's
     // target; 56 % when the position reports were stamped when the reading beside them ended).
-    assert!(summary.coverage_k2 >= 0.90, "k=2 coverage {:.3}", summary.coverage_k2);
+    assert!(
+        summary.coverage_k2 >= 0.90,
+        "k=2 coverage {:.3}",
+        summary.coverage_k2
+    );
 }
 
 #[tokio::test(start_paused = true)]
