@@ -284,3 +284,6 @@ pub struct SweepCompletion {
     /// The flags, when the completion changed them.
     pub flags: Option<Vec<String>>,
 }
+
+#[cfg(test)]
+mod tests;
