@@ -31,6 +31,9 @@ pub struct PreparedCampaign {
     pub description: Option<String>,
     /// Points the campaign measures (an adaptive campaign: its budget, the most it measures).
     pub total_points: u64,
+    /// Sweep segments the campaign measures after its points (`[[plan.sweeps]]`: each arc once per band, each a
+    /// store transaction); 0 without sweeps.
+    pub sweep_segments: u64,
     pub dry_run: bool,
     /// Predicted instrument time (s) from the time model (an adaptive campaign: its whole budget).
     pub predicted_s: f64,
@@ -128,6 +131,7 @@ pub fn prepare_campaign_with(
         name: c.id.clone(),
         description: c.description.clone(),
         total_points: p.total_points(),
+        sweep_segments: p.sweeps.as_ref().map_or(0, |s| s.schedule.steps.len() as u64),
         dry_run: c.dry_run,
         predicted_s: p.predicted_s(),
         resolved_toml,

@@ -4,11 +4,15 @@
 //! The moments (seeded): the first kill at a random instant of start-up (connecting, homing, calibrating, maybe
 //! the first commits); then, shuffled, about a third mid-move and a third mid-commit (placed exactly by the
 //! worker itself, see [`crate::worker`]), and the rest from outside at a random instant after a random number of
-//! new points (`kill -9` by the parent, wherever the daemon happens to be).
+//! new units (`kill -9` by the parent, wherever the daemon happens to be). A unit is a committed point or sweep
+//! segment. With sweeps (`[[plan.sweeps]]`, issue 41) a quarter of the kills after start-up are mid-sweep: the
+//! worker kills itself at a random reply read while a sweep's arm moves and its meter is read back to back;
+//! they come last, once the points are in.
 //!
 //! After every kill the store is read with SQLite directly ([`Snapshot`]): the rows committed before the kill must
-//! all be there, byte for byte, after every later restart. At the end there must be exactly one row per planned
-//! point, in index order, and the campaign completed.
+//! all be there, byte for byte, after every later restart (points, calibrations, sweep segments and their
+//! readings). At the end there must be exactly one row per planned point, in index order, each planned sweep
+//! segment once with all its readings and none twice ([`SweepSummary`]), and the campaign completed.
 
 use std::io::{BufRead as _, BufReader};
 use std::os::unix::process::ExitStatusExt as _;
@@ -24,8 +28,10 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::SoakError;
-use crate::rows::{RowSummary, Snapshot};
-use crate::setup::{SoakCampaign, SoakInstrument, build_campaign, instrument_with_faults};
+use crate::rows::{RowSummary, Snapshot, SweepSummary};
+use crate::setup::{
+    SoakCampaign, SoakInstrument, build_campaign_with_sweeps, instrument_with_faults, soak_sweeps,
+};
 use crate::truth_check::Tolerance;
 use crate::worker::{DieAt, EXIT_COMPLETED, WorkerArgs};
 
@@ -45,6 +51,9 @@ pub struct CrashSoakConfig {
     pub round_timeout: Duration,
     /// The instrument file the daemon runs on (no faults: the kills are the faults).
     pub instrument: SoakInstrument,
+    /// The campaign sweeps after its points ([`crate::setup::soak_sweeps`]), and a quarter of the kills land
+    /// mid-sweep.
+    pub sweeps: bool,
 }
 
 /// Where a kill was planned.
@@ -52,29 +61,34 @@ pub struct CrashSoakConfig {
 pub enum KillPlan {
     /// From outside, this long after the start (start-up, calibration, maybe the first points).
     StartUp { after_ms: u64 },
-    /// By the worker, at the first move after this many new points.
-    MidMove { after_points: u64 },
-    /// By the worker, at the first store write after this many new points.
-    MidCommit { after_points: u64 },
-    /// From outside, this long after the daemon reported this many new points.
-    External { after_points: u64, extra_us: u64 },
+    /// By the worker, at the first move after this many new units (points and sweep segments).
+    MidMove { after_units: u64 },
+    /// By the worker, at the first store write after this many new units.
+    MidCommit { after_units: u64 },
+    /// By the worker, at this reply read after the first sweep started after this many new units.
+    MidSweep { after_units: u64, reads: u32 },
+    /// From outside, this long after the daemon reported this many new units.
+    External { after_units: u64, extra_us: u64 },
 }
 
 impl KillPlan {
     pub fn describe(&self) -> String {
         match self {
             KillPlan::StartUp { after_ms } => format!("start-up, {after_ms} ms after launch (kill -9)"),
-            KillPlan::MidMove { after_points } => {
-                format!("mid-move, first move after {after_points} new points")
+            KillPlan::MidMove { after_units } => {
+                format!("mid-move, first move after {after_units} new units")
             }
-            KillPlan::MidCommit { after_points } => {
-                format!("mid-commit, first store write after {after_points} new points")
+            KillPlan::MidCommit { after_units } => {
+                format!("mid-commit, first store write after {after_units} new units")
+            }
+            KillPlan::MidSweep { after_units, reads } => {
+                format!("mid-sweep, reply {reads} of the first sweep after {after_units} new units")
             }
             KillPlan::External {
-                after_points,
+                after_units,
                 extra_us,
             } => {
-                format!("random, {extra_us} us after the {after_points}th new point (kill -9)")
+                format!("random, {extra_us} us after the {after_units}th new unit (kill -9)")
             }
         }
     }
@@ -84,6 +98,7 @@ impl KillPlan {
             KillPlan::StartUp { .. } => "start-up",
             KillPlan::MidMove { .. } => "mid-move",
             KillPlan::MidCommit { .. } => "mid-commit",
+            KillPlan::MidSweep { .. } => "mid-sweep",
             KillPlan::External { .. } => "random",
         }
     }
@@ -101,9 +116,10 @@ pub struct Round {
     pub exit_code: Option<i32>,
     /// What the daemon last said before it died (its last stdout lines).
     pub last_words: Vec<String>,
-    /// Point and calibration rows in the store after it ended.
+    /// Point, calibration and sweep segment rows in the store after it ended.
     pub points_after: u64,
     pub calibrations_after: u64,
+    pub segments_after: u64,
     /// For a mid-commit kill: whether the record being written was found in the store afterwards.
     pub note: String,
     pub wall_s: f64,
@@ -121,6 +137,8 @@ pub struct CrashSoakReport {
     /// The final points against the plan and the simulator's ground truth (every restart recalibrated); their
     /// indices in order in the raw rows too.
     pub committed: RowSummary,
+    /// The final sweep segments against the plan (none planned without sweeps).
+    pub sweeps: SweepSummary,
     /// Instrument time of the campaign (s): its last point or calibration.
     pub instrument_s: f64,
     pub wall_s: f64,
@@ -155,28 +173,31 @@ impl CrashSoakReport {
             v.push(format!("the campaign ended {:?}", self.final_state));
         }
         v.extend(self.committed.violations());
+        v.extend(self.sweeps.violations());
         v
     }
 }
 
-/// The kill plan: a start-up kill, then a shuffled mix of mid-move, mid-commit and random kills (their point
-/// counts are drawn when each round starts, from the points left).
-fn kill_kinds(kills: u32, rng: &mut ChaCha8Rng) -> Vec<&'static str> {
+/// The kill plan: a start-up kill, then a shuffled mix of mid-move, mid-commit and random kills (their unit
+/// counts are drawn when each round starts, from the units left); with `sweeps`, a quarter mid-sweep, last.
+fn kill_kinds(kills: u32, sweeps: bool, rng: &mut ChaCha8Rng) -> Vec<&'static str> {
     let n = kills as usize;
     if n == 0 {
         return Vec::new();
     }
     let rest = n - 1;
-    let mut kinds: Vec<&'static str> = (0..rest)
-        .map(|i| match i % 3 {
-            0 => "mid-move",
-            1 => "mid-commit",
-            _ => "random",
-        })
-        .collect();
+    let cycle: &[&'static str] = if sweeps {
+        &["mid-move", "mid-commit", "random", "mid-sweep"]
+    } else {
+        &["mid-move", "mid-commit", "random"]
+    };
+    let (mut kinds, mid_sweep): (Vec<&'static str>, Vec<&'static str>) = (0..rest)
+        .map(|i| cycle[i % cycle.len()])
+        .partition(|k| *k != "mid-sweep");
     kinds.shuffle(rng);
     let mut all = vec!["start-up"];
     all.extend(kinds);
+    all.extend(mid_sweep);
     all
 }
 
@@ -185,7 +206,9 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
     let wall = Instant::now();
     let (file, instrument_text): (InstrumentFile, String) =
         instrument_with_faults(&cfg.instrument, &Faults::default())?;
-    let campaign = build_campaign("crash-soak", cfg.points, cfg.seed, &file)?;
+    let sweeps = if cfg.sweeps { soak_sweeps() } else { Vec::new() };
+    let campaign = build_campaign_with_sweeps("crash-soak", cfg.points, cfg.seed, &file, &sweeps)?;
+    let total_units = campaign.total_points + campaign.sweep_segments;
     let data = cfg.work_dir.join("data");
     if data.join(gonio_engine::store::STORE_FILE).exists() {
         return Err(SoakError::Setup(format!(
@@ -205,7 +228,7 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
     let log_path = cfg.work_dir.join("daemon.log");
 
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x00c4_a5b0_0c4a_5b00);
-    let kinds = kill_kinds(cfg.kills, &mut rng);
+    let kinds = kill_kinds(cfg.kills, campaign.sweep_segments > 0, &mut rng);
     let mut rounds: Vec<Round> = Vec::new();
     let mut snapshots: Vec<Snapshot> = Vec::new();
     let mut changed = Vec::new();
@@ -213,20 +236,33 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
     let mut before = Snapshot::default();
     for round in 0..=kinds.len() {
         let resumed_at = before.points.len() as u64;
+        let units_done = resumed_at + before.sweep_segments.len() as u64;
         let kills_left = (kinds.len() - round.min(kinds.len())) as u64;
-        let budget = (campaign.total_points.saturating_sub(resumed_at) / (kills_left + 1)).max(1);
+        let budget = (total_units.saturating_sub(units_done) / (kills_left + 1)).max(1);
+        // A mid-sweep kill waits for the points left, then for a few of the segments left.
+        let points_left = campaign.total_points.saturating_sub(resumed_at);
+        let segments_left = campaign
+            .sweep_segments
+            .saturating_sub(before.sweep_segments.len() as u64);
         let plan = kinds.get(round).map(|kind| match *kind {
             "start-up" => KillPlan::StartUp {
                 after_ms: rng.random_range(0..60),
             },
             "mid-move" => KillPlan::MidMove {
-                after_points: rng.random_range(0..=budget),
+                after_units: rng.random_range(0..=budget),
             },
             "mid-commit" => KillPlan::MidCommit {
-                after_points: rng.random_range(1..=budget),
+                after_units: rng.random_range(1..=budget),
+            },
+            "mid-sweep" => KillPlan::MidSweep {
+                after_units: points_left
+                    + rng.random_range(
+                        0..=(segments_left / (kills_left + 1)).min(segments_left.saturating_sub(1)),
+                    ),
+                reads: rng.random_range(1..=200),
             },
             _ => KillPlan::External {
-                after_points: rng.random_range(1..=budget),
+                after_units: rng.random_range(1..=budget),
                 extra_us: rng.random_range(0..3000),
             },
         });
@@ -235,8 +271,11 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
             campaign: campaign_path.clone(),
             instrument: instrument_path.clone(),
             die: match plan {
-                Some(KillPlan::MidMove { after_points }) => Some((DieAt::MidMove, after_points)),
-                Some(KillPlan::MidCommit { after_points }) => Some((DieAt::MidCommit, after_points)),
+                Some(KillPlan::MidMove { after_units }) => Some((DieAt::MidMove, after_units)),
+                Some(KillPlan::MidCommit { after_units }) => Some((DieAt::MidCommit, after_units)),
+                Some(KillPlan::MidSweep { after_units, reads }) => {
+                    Some((DieAt::MidSweep { reads }, after_units))
+                }
                 _ => None,
             },
         };
@@ -254,9 +293,9 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
             let due = match plan {
                 Some(KillPlan::StartUp { after_ms }) => started.elapsed() >= Duration::from_millis(after_ms),
                 Some(KillPlan::External {
-                    after_points,
+                    after_units,
                     extra_us,
-                }) if daemon.points() >= after_points => {
+                }) if daemon.units() >= after_units => {
                     std::thread::sleep(Duration::from_micros(extra_us));
                     true
                 }
@@ -288,16 +327,25 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
         }
         let killed = status.signal() == Some(nix::sys::signal::Signal::SIGKILL as i32);
         let note = match plan {
-            Some(KillPlan::MidCommit { after_points }) if killed => {
-                let armed_at = resumed_at + after_points;
-                let points_after = after.points.len() as u64;
-                if points_after > armed_at {
-                    format!("point {armed_at} was being committed: it is in the store")
+            Some(KillPlan::MidCommit { after_units }) if killed => {
+                let armed_at = units_done + after_units;
+                let units_after = (after.points.len() + after.sweep_segments.len()) as u64;
+                if units_after > armed_at {
+                    format!(
+                        "unit {armed_at} (a point or a sweep segment) was being committed: it is in the store"
+                    )
                 } else {
                     format!(
-                        "the record being written (point {armed_at} or a calibration reading) is not in the store"
+                        "the record being written (unit {armed_at} or a calibration reading) is not in the store"
                     )
                 }
+            }
+            Some(KillPlan::MidSweep { .. }) if killed => {
+                let segments = after.sweep_segments.len();
+                format!(
+                    "{segments} sweep segments committed, {} readings; the one under way is not in the store",
+                    after.sweep_readings.len()
+                )
             }
             _ => String::new(),
         };
@@ -309,6 +357,7 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
             last_words,
             points_after: after.points.len() as u64,
             calibrations_after: after.calibrations.len() as u64,
+            segments_after: after.sweep_segments.len() as u64,
             note,
             wall_s: started.elapsed().as_secs_f64(),
         });
@@ -363,6 +412,8 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
             0.0,
         ),
     };
+    drop(store);
+    let sweeps = SweepSummary::read(&data, campaign.sweep_segments)?;
     Ok(CrashSoakReport {
         config: cfg.clone(),
         campaign,
@@ -370,6 +421,7 @@ pub fn run_crash_soak(cfg: &CrashSoakConfig) -> Result<CrashSoakReport, SoakErro
         changed,
         final_state,
         committed,
+        sweeps,
         instrument_s,
         wall_s: wall.elapsed().as_secs_f64(),
         problems,
@@ -385,7 +437,8 @@ struct Daemon {
 
 #[derive(Default)]
 struct Lines {
-    points: u64,
+    /// Points and sweep segments reported committed.
+    units: u64,
     last: Vec<String>,
 }
 
@@ -416,8 +469,8 @@ impl Daemon {
             std::thread::spawn(move || {
                 for line in BufReader::new(out).lines().map_while(Result::ok) {
                     let mut l = lines.lock().unwrap_or_else(|e| e.into_inner());
-                    if line.starts_with("point ") {
-                        l.points += 1;
+                    if line.starts_with("point ") || line.starts_with("sweep ") {
+                        l.units += 1;
                     }
                     l.last.push(line);
                     if l.last.len() > LAST_WORDS {
@@ -429,9 +482,9 @@ impl Daemon {
         Ok(Daemon { child, lines, reader })
     }
 
-    /// Points the daemon reported committed so far.
-    fn points(&self) -> u64 {
-        self.lines.lock().unwrap_or_else(|e| e.into_inner()).points
+    /// Points and sweep segments the daemon reported committed so far.
+    fn units(&self) -> u64 {
+        self.lines.lock().unwrap_or_else(|e| e.into_inner()).units
     }
 
     /// After the process ended: its last lines.
@@ -450,13 +503,27 @@ mod tests {
     #[test]
     fn the_plan_starts_with_start_up_and_mixes_the_rest() {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let kinds = kill_kinds(20, &mut rng);
+        let kinds = kill_kinds(20, false, &mut rng);
         assert_eq!(kinds.len(), 20);
         assert_eq!(kinds[0], "start-up");
         for (kind, n) in [("mid-move", 7), ("mid-commit", 6), ("random", 6)] {
             assert_eq!(kinds.iter().filter(|k| **k == kind).count(), n, "{kind}");
         }
-        let three = kill_kinds(3, &mut rng);
+        let with_sweeps = kill_kinds(20, true, &mut rng);
+        for (kind, n) in [
+            ("mid-move", 5),
+            ("mid-commit", 5),
+            ("random", 5),
+            ("mid-sweep", 4),
+        ] {
+            assert_eq!(with_sweeps.iter().filter(|k| **k == kind).count(), n, "{kind}");
+        }
+        assert_eq!(
+            with_sweeps[16..],
+            ["mid-sweep"; 4],
+            "the mid-sweep kills come last"
+        );
+        let three = kill_kinds(3, false, &mut rng);
         assert_eq!(three[0], "start-up");
         assert!(
             three.contains(&"mid-move") && three.contains(&"mid-commit"),

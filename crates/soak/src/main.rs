@@ -113,7 +113,7 @@ struct WorkerCli {
     campaign: PathBuf,
     #[arg(long)]
     instrument: PathBuf,
-    /// mid-move or mid-commit
+    /// mid-move, mid-commit or mid-sweep:N (at the Nth reply read after a sweep started)
     #[arg(long)]
     die: Option<String>,
     #[arg(long, default_value_t = 0)]
@@ -128,7 +128,7 @@ fn main() -> ExitCode {
                 None => None,
                 Some(Some(at)) => Some((at, w.after)),
                 Some(None) => {
-                    eprintln!("gonio-soak worker: --die takes mid-move or mid-commit");
+                    eprintln!("gonio-soak worker: --die takes mid-move, mid-commit or mid-sweep:N");
                     return ExitCode::from(EXIT_ERROR as u8);
                 }
             };
@@ -341,6 +341,7 @@ fn soaks_on(
         worker: vec![exe.display().to_string(), "worker".into()],
         round_timeout: Duration::from_secs(600),
         instrument: instrument.clone(),
+        sweeps: true,
     };
     std::fs::create_dir_all(&crash_cfg.work_dir)?;
     let crash = run_crash_soak(&crash_cfg)?;

@@ -78,6 +78,91 @@ pub struct RawRow {
 pub struct Snapshot {
     pub points: Vec<RawRow>,
     pub calibrations: Vec<RawRow>,
+    /// Sweep segments, keyed (campaign id, segment).
+    pub sweep_segments: Vec<RawRow>,
+    /// Sweep readings as committed, keyed (campaign id, segment << 32 | reading): every column but the
+    /// completion kept beside them (`completed_*`, written again when the campaign completes).
+    pub sweep_readings: Vec<RawRow>,
+}
+
+/// The committed columns of a sweep reading (the store's `sweep_readings` less its `completed_*` columns).
+const SWEEP_READING_COLUMNS: &str = "campaign_id, segment, k, band_nm, t_s, integration_s, theta_i_deg, \
+    phi_i_deg, theta_o_deg, phi_o_deg, arc_from_deg, arc_to_deg, signal_w, incident_w, brdf_sr, brdf_u_sr, flags, \
+    truth_point_sr";
+
+/// A campaign's committed sweep segments against its plan: each planned segment once, in order, each with
+/// exactly the readings its row counts, numbered from 0 without a gap.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SweepSummary {
+    pub planned: u64,
+    /// Segment rows in the store.
+    pub segments: u64,
+    /// Their indices are exactly 0..segments.
+    pub in_order: bool,
+    /// Readings stored, all segments.
+    pub readings: u64,
+    /// Segments whose readings are not exactly 0..n for the n their row states.
+    pub incomplete: Vec<String>,
+}
+
+impl SweepSummary {
+    /// Every broken rule, in words. Empty when the sweeps are right.
+    pub fn violations(&self) -> Vec<String> {
+        let mut v = Vec::new();
+        if self.segments != self.planned || !self.in_order {
+            v.push(format!(
+                "{} sweep segments for {} planned (indices in order: {})",
+                self.segments, self.planned, self.in_order
+            ));
+        }
+        v.extend(
+            self.incomplete
+                .iter()
+                .map(|m| format!("sweep segment incomplete: {m}")),
+        );
+        v
+    }
+
+    /// Segments lost or incomplete.
+    pub fn lost(&self) -> u64 {
+        self.planned.saturating_sub(self.segments) + self.incomplete.len() as u64
+    }
+
+    /// The sweeps of the store in `data_dir` (one campaign) against `planned` segments, read with SQLite directly.
+    pub fn read(data_dir: &Path, planned: u64) -> Result<SweepSummary, SoakError> {
+        let mut s = SweepSummary {
+            planned,
+            in_order: true,
+            ..SweepSummary::default()
+        };
+        let path = data_dir.join(gonio_engine::store::STORE_FILE);
+        let conn = Connection::open_with_flags(&path, OpenFlags::SQLITE_OPEN_READ_ONLY)?;
+        conn.busy_timeout(std::time::Duration::from_secs(10))?;
+        if !has_table(&conn, "sweep_segments")? {
+            return Ok(s);
+        }
+        let mut st =
+            conn.prepare("SELECT segment, readings FROM sweep_segments ORDER BY campaign_id, segment")?;
+        let segments: Vec<(i64, i64)> = st
+            .query_map([], |r| Ok((r.get(0)?, r.get(1)?)))?
+            .collect::<Result<_, _>>()?;
+        s.segments = segments.len() as u64;
+        s.in_order = segments.iter().enumerate().all(|(i, (seg, _))| *seg == i as i64);
+        let mut st = conn.prepare(
+            "SELECT COUNT(*), COALESCE(MIN(k), 0), COALESCE(MAX(k), -1) FROM sweep_readings WHERE segment = ?1",
+        )?;
+        for (segment, stated) in segments {
+            let (n, lo, hi): (i64, i64, i64) =
+                st.query_row([segment], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))?;
+            s.readings += u64::try_from(n).unwrap_or(0);
+            if n != stated || lo != 0 || hi != stated - 1 {
+                s.incomplete.push(format!(
+                    "segment {segment}: {n} readings (k {lo}..={hi}) where its row states {stated}"
+                ));
+            }
+        }
+        Ok(s)
+    }
 }
 
 impl Snapshot {
@@ -108,7 +193,29 @@ impl Snapshot {
         } else {
             Vec::new()
         };
-        Ok(Snapshot { points, calibrations })
+        let (sweep_segments, sweep_readings) = if has_table(&conn, "sweep_segments")? {
+            (
+                dump(
+                    &conn,
+                    "SELECT campaign_id, segment, * FROM sweep_segments ORDER BY campaign_id, segment",
+                )?,
+                dump(
+                    &conn,
+                    &format!(
+                        "SELECT campaign_id, (segment << 32) | k, {SWEEP_READING_COLUMNS} FROM sweep_readings \
+                         ORDER BY campaign_id, segment, k"
+                    ),
+                )?,
+            )
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        Ok(Snapshot {
+            points,
+            calibrations,
+            sweep_segments,
+            sweep_readings,
+        })
     }
 
     /// Is `self` (taken earlier) a prefix of `later`, row for row and byte for byte? The first difference, if any.
@@ -116,6 +223,8 @@ impl Snapshot {
         for (name, a, b) in [
             ("point", &self.points, &later.points),
             ("calibration", &self.calibrations, &later.calibrations),
+            ("sweep segment", &self.sweep_segments, &later.sweep_segments),
+            ("sweep reading", &self.sweep_readings, &later.sweep_readings),
         ] {
             if b.len() < a.len() {
                 return Err(format!("{} {name} rows before, only {} after", a.len(), b.len()));
@@ -243,19 +352,32 @@ mod tests {
     fn prefix_means_same_rows_same_bytes() {
         let a = Snapshot {
             points: vec![row(0, b"x"), row(1, b"y")],
-            calibrations: vec![],
+            sweep_readings: vec![row(3, b"r")],
+            ..Snapshot::default()
         };
         let grown = Snapshot {
             points: vec![row(0, b"x"), row(1, b"y"), row(2, b"z")],
             calibrations: vec![row(7, b"c")],
+            sweep_segments: vec![row(0, b"s")],
+            sweep_readings: vec![row(3, b"r"), row(4, b"q")],
         };
         assert_eq!(a.prefix_of(&grown), Ok(()));
         let changed = Snapshot {
             points: vec![row(0, b"x"), row(1, b"Y"), row(2, b"z")],
-            calibrations: vec![],
+            sweep_readings: vec![row(3, b"r")],
+            ..Snapshot::default()
         };
         assert!(a.prefix_of(&changed).expect_err("changed").contains("(1, 1)"));
         assert!(grown.prefix_of(&a).is_err(), "rows lost");
+        let reading_changed = Snapshot {
+            sweep_readings: vec![row(3, b"R")],
+            ..grown.clone()
+        };
+        assert!(
+            a.prefix_of(&reading_changed)
+                .expect_err("changed")
+                .starts_with("sweep reading row")
+        );
     }
 
     #[test]

@@ -19,7 +19,7 @@ use std::path::Path;
 use gonio_campaign::{AcquisitionSection, CalibrationSection, CampaignFile};
 use gonio_engine::prepare_campaign;
 use gonio_instrument::{Faults, InstrumentFile, Quirks, SIMULATED_INSTRUMENT_TOML};
-use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec};
+use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec, SweepSpec, SweptArm};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -98,12 +98,32 @@ pub struct SoakCampaign {
     pub text: String,
     /// Points the engine plans (validated by [`prepare_campaign`]).
     pub total_points: u64,
+    /// Sweep segments it plans after the points (each a store transaction of readings; 0 without sweeps).
+    pub sweep_segments: u64,
     /// Instrument time the time model predicts (s).
     pub predicted_s: f64,
 }
 
-/// The campaign text for these geometries `[theta_i, phi_i, theta_o, phi_o]` (degrees).
-pub fn campaign_text(name: &str, geometries: &[[f64; 4]]) -> String {
+/// The sweeps the crash soak adds after its points (issue 41): the detector swept through the plane of incidence
+/// at two incidences, at 10 deg/s and two meter samples a reading, so that a segment (one arc in one band) is a
+/// few seconds of instrument time and hundreds of readings, and a kill from outside lands inside one.
+pub fn soak_sweeps() -> Vec<SweepSpec> {
+    let arc = toml::Table::from_iter([
+        ("from".to_string(), toml::Value::Float(-70.0)),
+        ("to".to_string(), toml::Value::Float(70.0)),
+    ]);
+    vec![SweepSpec {
+        arm: SweptArm::Detector,
+        theta_i_deg: toml::Value::Array(vec![toml::Value::Float(20.0), toml::Value::Float(45.0)]),
+        theta_o_deg: toml::Value::Table(arc),
+        plane_phi_deg: None,
+        speed_deg_s: 10.0,
+        averaging: 2,
+    }]
+}
+
+/// The campaign text for these geometries `[theta_i, phi_i, theta_o, phi_o]` (degrees), then these sweeps.
+pub fn campaign_text(name: &str, geometries: &[[f64; 4]], sweeps: &[SweepSpec]) -> String {
     let mut grid = GridSpec::new(GridKind::Points);
     grid.points = Some(
         geometries
@@ -115,6 +135,7 @@ pub fn campaign_text(name: &str, geometries: &[[f64; 4]]) -> String {
         bands_nm: Some(BANDS_NM.to_vec()),
         reciprocity: false,
         grid: Some(grid),
+        sweeps: sweeps.to_vec(),
         ..PlanSpec::default()
     };
     plan.calibration.dark_every_points = Some(100);
@@ -168,9 +189,20 @@ pub fn build_campaign(
     seed: u64,
     instrument: &InstrumentFile,
 ) -> Result<SoakCampaign, SoakError> {
+    build_campaign_with_sweeps(name, points, seed, instrument, &[])
+}
+
+/// [`build_campaign`], with `sweeps` after the points.
+pub fn build_campaign_with_sweeps(
+    name: &str,
+    points: u64,
+    seed: u64,
+    instrument: &InstrumentFile,
+    sweeps: &[SweepSpec],
+) -> Result<SoakCampaign, SoakError> {
     let per_geometry = BANDS_NM.len() as u64;
     let count = |n: usize| -> Result<(u64, f64, String), SoakError> {
-        let text = campaign_text(name, &geometries(seed, n));
+        let text = campaign_text(name, &geometries(seed, n), sweeps);
         let p = prepare_campaign(&text, &format!("{name}.toml"), Path::new("."), instrument)?;
         Ok((p.total_points, p.predicted_s, text))
     };
@@ -202,10 +234,13 @@ pub fn build_campaign(
     } else {
         (lo_total, lo_s, lo_text)
     };
+    let sweep_segments =
+        prepare_campaign(&text, &format!("{name}.toml"), Path::new("."), instrument)?.sweep_segments;
     Ok(SoakCampaign {
         name: name.to_string(),
         text,
         total_points,
+        sweep_segments,
         predicted_s,
     })
 }

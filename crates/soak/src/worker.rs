@@ -7,15 +7,19 @@
 //! so that instrument time costs no wall time.
 //!
 //! It reports on stdout, one line per event, flushed at once (the parent reads them up to the kill):
-//! `ready`, `point <index>` after each commit, `move <axis> <target_deg>` per move command, `die <moment>: ...`
-//! just before a self-inflicted kill, `final <state>` at the end.
+//! `ready`, `point <index>` after each commit, `sweep <segment>` after each sweep segment's commit, `move <axis>
+//! <target_deg>` per move command, `die <moment>: ...` just before a self-inflicted kill, `final <state>` at the
+//! end. Points and sweep segments are the campaign's units of progress: the kills are armed by their count.
 //!
 //! Self-inflicted kills put the SIGKILL at an exact moment, which a kill from outside can only hit by chance:
 //! - mid-move: a `tracing` layer sees the driver's move command and, at the next reply read on a port (the
 //!   controller has taken the move and the axis is travelling), raises SIGKILL;
-//! - mid-commit: SQLite's commit hook ([`Store::on_commit`]), armed once enough points are committed, raises
-//!   SIGKILL inside the next commit: the record's writes are made, the commit is not (a point, a calibration
-//!   reading or a state change, whichever the engine writes next).
+//! - mid-sweep: the same layer sees the engine start a sweep (`sweep started`: the arm is moving and the meter is
+//!   read back to back) and raises SIGKILL at the given reply (the meter's or a controller's) read while sweeps
+//!   run, inside the reading loop;
+//! - mid-commit: SQLite's commit hook ([`Store::on_commit`]), armed once enough units are committed, raises
+//!   SIGKILL inside the next commit: the record's writes are made, the commit is not (a point, a sweep segment
+//!   with its readings, a calibration reading or a state change, whichever the engine writes next).
 //!
 //! SIGKILL cannot be caught: the process ends there, every thread at once, exactly as under `kill -9`.
 
@@ -52,19 +56,30 @@ pub const EXIT_ERROR: i32 = 2;
 pub enum DieAt {
     MidMove,
     MidCommit,
+    /// At this reply read (1 = the first) after a sweep started.
+    MidSweep {
+        reads: u32,
+    },
 }
 
 impl DieAt {
-    pub fn as_str(self) -> &'static str {
+    /// The argument of `--die` (a sweep's reply count after a colon: `mid-sweep:120`).
+    pub fn to_arg(self) -> String {
         match self {
-            DieAt::MidMove => "mid-move",
-            DieAt::MidCommit => "mid-commit",
+            DieAt::MidMove => "mid-move".into(),
+            DieAt::MidCommit => "mid-commit".into(),
+            DieAt::MidSweep { reads } => format!("mid-sweep:{reads}"),
         }
     }
     pub fn parse(s: &str) -> Option<DieAt> {
-        match s {
-            "mid-move" => Some(DieAt::MidMove),
-            "mid-commit" => Some(DieAt::MidCommit),
+        match s.split_once(':') {
+            None if s == "mid-move" => Some(DieAt::MidMove),
+            None if s == "mid-commit" => Some(DieAt::MidCommit),
+            Some(("mid-sweep", n)) => n
+                .parse()
+                .ok()
+                .filter(|n| *n > 0)
+                .map(|reads| DieAt::MidSweep { reads }),
             _ => None,
         }
     }
@@ -76,7 +91,8 @@ pub struct WorkerArgs {
     pub data: PathBuf,
     pub campaign: PathBuf,
     pub instrument: PathBuf,
-    /// Kill itself at the first such moment after this many points committed by this process.
+    /// Kill itself at the first such moment after this many units (points and sweep segments) committed by this
+    /// process.
     pub die: Option<(DieAt, u64)>,
 }
 
@@ -92,12 +108,7 @@ impl WorkerArgs {
             self.instrument.display().to_string(),
         ];
         if let Some((at, after)) = self.die {
-            v.extend([
-                "--die".into(),
-                at.as_str().into(),
-                "--after".into(),
-                after.to_string(),
-            ]);
+            v.extend(["--die".into(), at.to_arg(), "--after".into(), after.to_string()]);
         }
         v
     }
@@ -132,17 +143,23 @@ pub fn run_worker(args: &WorkerArgs) -> i32 {
 }
 
 fn run(args: &WorkerArgs) -> Result<CampaignState, SoakError> {
-    let points = Arc::new(AtomicU64::new(0));
+    let units = Arc::new(AtomicU64::new(0));
     let probe = MoveProbe {
-        points: Arc::clone(&points),
+        units: Arc::clone(&units),
         die_after: match args.die {
-            Some((DieAt::MidMove, n)) => Some(n),
+            Some((at @ (DieAt::MidMove | DieAt::MidSweep { .. }), n)) => Some((at, n)),
             _ => None,
         },
         pending: Mutex::new(None),
     };
     let subscriber = tracing_subscriber::registry()
-        .with(probe.with_filter(Targets::new().with_target("gonio_driver", Level::DEBUG)))
+        .with(
+            probe.with_filter(
+                Targets::new()
+                    .with_target("gonio_driver", Level::DEBUG)
+                    .with_target("gonio_engine::runner", Level::INFO),
+            ),
+        )
         .with(
             tracing_subscriber::fmt::layer()
                 .with_writer(std::io::stderr)
@@ -159,7 +176,7 @@ fn run(args: &WorkerArgs) -> Result<CampaignState, SoakError> {
         .map_err(|e| SoakError::Setup(e.to_string()))?;
     let commit_killer = match args.die {
         Some((DieAt::MidCommit, after)) => Some(CommitKiller {
-            points: Arc::clone(&points),
+            units: Arc::clone(&units),
             after,
         }),
         _ => None,
@@ -196,8 +213,12 @@ fn run(args: &WorkerArgs) -> Result<CampaignState, SoakError> {
             loop {
                 match events.recv().await {
                     Ok(Event::Point { point, .. }) => {
-                        points.fetch_add(1, Ordering::SeqCst);
+                        units.fetch_add(1, Ordering::SeqCst);
                         say(&format!("point {}", point.index));
+                    }
+                    Ok(Event::Sweep { segment, .. }) => {
+                        units.fetch_add(1, Ordering::SeqCst);
+                        say(&format!("sweep {segment}"));
                     }
                     Ok(Event::State { state, .. }) if state.is_final() || state == CampaignState::Paused => {
                         *end2.lock().unwrap_or_else(|e| e.into_inner()) = Some(state);
@@ -270,20 +291,20 @@ impl CampaignRunner for ProbeRunner {
     }
 }
 
-/// SIGKILL inside the first commit once `after` points are committed by this process.
+/// SIGKILL inside the first commit once `after` units are committed by this process.
 struct CommitKiller {
-    points: Arc<AtomicU64>,
+    units: Arc<AtomicU64>,
     after: u64,
 }
 
 impl CommitKiller {
     fn arm(&self, store: &Arc<Mutex<Store>>) {
-        let (points, after) = (Arc::clone(&self.points), self.after);
+        let (units, after) = (Arc::clone(&self.units), self.after);
         let hook = move || {
-            let done = points.load(Ordering::SeqCst);
+            let done = units.load(Ordering::SeqCst);
             if done >= after {
                 die(&format!(
-                    "die mid-commit: inside the commit of a store write, {done} points committed by this process"
+                    "die mid-commit: inside the commit of a store write, {done} units committed by this process"
                 ));
             }
             false
@@ -298,12 +319,21 @@ impl CommitKiller {
     }
 }
 
-/// Sees the drivers' move commands: reports each, and kills the process mid-move when armed.
+/// Sees the drivers' move commands and the engine's sweeps: reports each move, and kills the process mid-move or
+/// mid-sweep when armed.
 struct MoveProbe {
-    points: Arc<AtomicU64>,
-    die_after: Option<u64>,
-    /// A move commanded while armed: (the port it went to, what it was).
-    pending: Mutex<Option<(String, String)>>,
+    units: Arc<AtomicU64>,
+    die_after: Option<(DieAt, u64)>,
+    pending: Mutex<Option<Pending>>,
+}
+
+/// A kill waiting for its reply.
+enum Pending {
+    /// A move commanded while armed: the first line read back on its port.
+    Move { port: String, what: String },
+    /// A sweep started while armed: the `left`-th reply read back from any device while sweeps run (the count
+    /// holds between a sweep's end and the next one's start).
+    Sweep { left: u32, what: String, running: bool },
 }
 
 #[derive(Default)]
@@ -313,6 +343,7 @@ struct Fields {
     target: String,
     rx: String,
     port: String,
+    segment: Option<u64>,
 }
 
 impl Visit for Fields {
@@ -332,12 +363,27 @@ impl Visit for Fields {
             self.target = format!("{value}");
         }
     }
+    fn record_u64(&mut self, field: &Field, value: u64) {
+        if field.name() == "segment" {
+            self.segment = Some(value);
+        }
+    }
     fn record_str(&mut self, field: &Field, value: &str) {
         match field.name() {
             "message" => self.message = value.to_string(),
             "port" => self.port = value.to_string(),
+            "axis" => self.axis = value.to_string(),
             _ => {}
         }
+    }
+}
+
+impl MoveProbe {
+    /// Armed for `kind` now: its kind matches and enough units are committed.
+    fn armed(&self, kind: fn(&DieAt) -> bool) -> Option<DieAt> {
+        self.die_after
+            .filter(|(at, n)| kind(at) && self.units.load(Ordering::SeqCst) >= *n)
+            .map(|(at, _)| at)
     }
 }
 
@@ -345,12 +391,10 @@ impl<S: Subscriber> Layer<S> for MoveProbe {
     fn on_event(&self, event: &tracing::Event<'_>, _ctx: Context<'_, S>) {
         let mut f = Fields::default();
         event.record(&mut f);
+        let target = event.metadata().target();
         if f.message == "move absolute" || f.message == "move abs" {
             say(&format!("move {} {}", f.axis, f.target));
-            if self
-                .die_after
-                .is_some_and(|n| self.points.load(Ordering::SeqCst) >= n)
-            {
+            if self.armed(|a| *a == DieAt::MidMove).is_some() {
                 // The axis is named "light (arms/1)": its port is the device before the slash.
                 let port = f
                     .axis
@@ -358,19 +402,57 @@ impl<S: Subscriber> Layer<S> for MoveProbe {
                     .and_then(|(_, rest)| rest.split('/').next())
                     .unwrap_or_default()
                     .to_string();
-                *self.pending.lock().unwrap_or_else(|e| e.into_inner()) =
-                    Some((port, format!("{} commanded to {} deg", f.axis, f.target)));
+                *self.pending.lock().unwrap_or_else(|e| e.into_inner()) = Some(Pending::Move {
+                    port,
+                    what: format!("{} commanded to {} deg", f.axis, f.target),
+                });
             }
-        } else if f.message == "read" && event.metadata().target().contains("transport") {
-            let mut pending = self.pending.lock().unwrap_or_else(|e| e.into_inner());
-            // The first line read back on that port after the move command: the controller has taken it.
-            if pending.as_ref().is_some_and(|(port, _)| *port == f.port)
-                && let Some((_, what)) = pending.take()
+        } else if f.message == "sweep started" && target.starts_with("gonio_engine") {
+            if let Some(DieAt::MidSweep { reads }) = self.armed(|a| matches!(a, DieAt::MidSweep { .. })) {
+                let segment = f.segment.map_or_else(|| "?".to_string(), |s| s.to_string());
+                let what = format!("sweep segment {segment} of {} under way", f.axis);
+                let mut pending = self.pending.lock().unwrap_or_else(|e| e.into_inner());
+                match pending.as_mut() {
+                    Some(Pending::Sweep { what: w, running, .. }) => (*w, *running) = (what, true),
+                    _ => {
+                        *pending = Some(Pending::Sweep {
+                            left: reads,
+                            what,
+                            running: true,
+                        })
+                    }
+                }
+            }
+        } else if f.message == "sweep ended" && target.starts_with("gonio_engine") {
+            if let Some(Pending::Sweep { running, .. }) =
+                self.pending.lock().unwrap_or_else(|e| e.into_inner()).as_mut()
             {
+                *running = false;
+            }
+        } else if (f.message == "read" && target.contains("transport")) || f.message == "USBTMC reply" {
+            let serial = f.message == "read";
+            let mut pending = self.pending.lock().unwrap_or_else(|e| e.into_inner());
+            let kill = match pending.as_mut() {
+                // The first line read back on that port after the move command: the controller has taken it.
+                Some(Pending::Move { port, what }) if serial && *port == f.port => {
+                    Some(format!("die mid-move: {what}"))
+                }
+                Some(Pending::Sweep {
+                    left,
+                    what,
+                    running: true,
+                }) => {
+                    *left = left.saturating_sub(1);
+                    (*left == 0).then(|| format!("die mid-sweep: {what}"))
+                }
+                _ => None,
+            };
+            if let Some(kill) = kill {
+                pending.take();
                 die(&format!(
-                    "die mid-move: {what}, its controller's reply {} read, {} points committed by this process",
+                    "{kill}, reply {} read, {} units committed by this process",
                     f.rx,
-                    self.points.load(Ordering::SeqCst)
+                    self.units.load(Ordering::SeqCst)
                 ));
             }
         }

@@ -9,7 +9,8 @@
 //!   `cargo run -p gonio-soak --example safety_case -- SEED INDEX`;
 //! - the cases the property found, kept as regressions with their exact campaigns, faults and interruptions;
 //! - recovery homing after controllers were reset behind the engine's back (sabotage);
-//! - the planner's stopping margin between arms that move together.
+//! - the planner's stopping margin between arms that move together;
+//! - sweeps (issue 41): random cases with sweeps, emergency stops aimed at a sweep under way.
 //!
 //! `GONIO_SAFETY_DEBUG` set: each random case's measures, and the arms' commands and motion of the first
 //! regression, on stderr.
@@ -21,7 +22,7 @@ use gonio_simulator::recording::{CommandRecord, MotionCommand};
 use gonio_soak::safety_soak::scenarios::{FIXED_GRID, behind_light_case, fixed_case};
 use gonio_soak::safety_soak::{
     Act, Case, CaseResult, ESTOP_DEADLINE_S, FaultLevel, Interruption, Rule, Sabotage, SafetySoakConfig,
-    case, check, describe, run_and_check, run_safety_soak, run_scenario,
+    case, check, describe, run_and_check, run_safety_soak, run_scenario, sweep_speeds,
 };
 use gonio_soak::setup::SoakInstrument;
 
@@ -394,4 +395,40 @@ fn arms_found_without_reference_at_start_up_are_homed_in_a_safe_order() {
     assert_clean("arms without reference at start-up", &case, &check(0, &case, &o));
     assert_eq!(o.final_state, CampaignState::Completed);
     assert_eq!(o.points.len(), 4);
+}
+
+/// Issue 41: the random cases that sweep (an arm turning at a constant speed while the meter reads), each with
+/// an emergency stop aimed at a sweep under way. Every swept path keeps the arms apart and within the limits,
+/// every sweep reading's geometry is allowed, and the stops that landed in a sweep reached every axis within the
+/// deadline.
+#[test]
+fn sweeps_keep_the_arms_apart_and_stop_in_time_when_stopped_mid_sweep() {
+    let cases: Vec<(u32, Case)> = (0..40)
+        .map(|i| (i, case(3, i)))
+        .filter(|(_, c)| !sweep_speeds(c).is_empty())
+        .take(8)
+        .collect();
+    assert_eq!(
+        cases.len(),
+        8,
+        "seed 3 has 8 cases with sweeps among its first 40"
+    );
+    let (mut in_sweeps, mut readings, mut aimed) = (Vec::new(), 0, 0);
+    for (i, c) in &cases {
+        assert!(c.interruptions.last().is_some_and(|x| x.act == Act::EstopInSweep));
+        let r = run_and_check(*i, c).expect("the case runs");
+        if debugging() {
+            eprintln!("{r:?}");
+        }
+        assert_clean(&format!("sweep case {i}"), c, &r);
+        assert!(r.planned_segments > 0, "case {i}");
+        readings += r.sweep_readings;
+        aimed += usize::from(!r.estops_in_sweeps_s.is_empty());
+        in_sweeps.extend(r.estops_in_sweeps_s.iter().copied());
+    }
+    assert!(readings > 1000, "{readings} sweep readings");
+    assert!(aimed >= 3, "only {aimed} of 8 cases were stopped mid-sweep");
+    for l in &in_sweeps {
+        assert!((0.0..=ESTOP_DEADLINE_S).contains(l), "{l}");
+    }
 }

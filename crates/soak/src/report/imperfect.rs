@@ -34,6 +34,7 @@ impl InstrumentPass {
     pub fn data_lost(&self) -> u64 {
         self.fault.committed.lost()
             + self.crash.committed.lost()
+            + self.crash.sweeps.lost()
             + self.crash.changed.len() as u64
             + self.disk.data_lost()
     }

@@ -92,6 +92,7 @@ impl Report {
         let c = &self.crash;
         f.committed.lost()
             + c.committed.lost()
+            + c.sweeps.lost()
             + c.changed.len() as u64
             + self.disk.data_lost()
             + self.http.data_lost()
@@ -335,21 +336,28 @@ impl Report {
         let _ = writeln!(m, "## Crash soak\n");
         let _ = writeln!(
             m,
-            "One {}-point campaign on the daemon (`gonio-soak worker`: the daemon's `Service` queue and HTTP API, \
-             `gonio_daemon::api::run_daemon`, as `gonio daemon` runs them, with the simulated instrument on a \
-             paused tokio clock as `gonio run` runs dry-runs), killed with SIGKILL {} times and restarted after \
-             each kill; the restarted daemon resumes the interrupted campaign by itself. Mid-move and mid-commit kills are placed by the daemon process itself at that exact moment \
-             (SIGKILL on its own pid: see `crates/soak/src/worker.rs`); start-up and random kills come from outside \
-             (`kill -9`). After every kill the store is read with SQLite directly and every row is compared byte \
-             for byte with the rows read after the earlier kills.\n",
+            "One campaign of {} points then {} sweep segments (the detector swept at 10 deg/s through the plane \
+             of incidence at two incidences, each arc piece once per band: a segment is a few seconds of \
+             instrument time and hundreds of readings, committed in one transaction) on the daemon (`gonio-soak \
+             worker`: the daemon's `Service` queue and HTTP API, `gonio_daemon::api::run_daemon`, as `gonio \
+             daemon` runs them, with the simulated instrument on a paused tokio clock as `gonio run` runs \
+             dry-runs), killed with SIGKILL {} times and restarted after each kill; the restarted daemon resumes \
+             the interrupted campaign by itself. Mid-move, mid-commit and mid-sweep kills are placed by the daemon \
+             process itself at that exact moment (SIGKILL on its own pid: see `crates/soak/src/worker.rs`; \
+             mid-sweep at a random reply read while a sweep's arm moves and its meter is read back to back); \
+             start-up and random kills come from outside (`kill -9`). A unit is a committed point or sweep \
+             segment. After every kill the store is read with SQLite directly and every row (points, \
+             calibrations, sweep segments, sweep readings as committed) is compared byte for byte with the rows \
+             read after the earlier kills.\n",
             c.campaign.total_points,
+            c.campaign.sweep_segments,
             c.kills()
         );
         let _ = writeln!(
             m,
-            "| # | planned moment | killed | resumed at row | rows after | the daemon's last words |"
+            "| # | planned moment | killed | resumed at row | rows after | segments after | the daemon's last words |"
         );
-        let _ = writeln!(m, "|---|---|---|---|---|---|");
+        let _ = writeln!(m, "|---|---|---|---|---|---|---|");
         for (i, r) in c.rounds.iter().enumerate() {
             let plan = r
                 .plan
@@ -379,26 +387,33 @@ impl Report {
             }
             let _ = writeln!(
                 m,
-                "| {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} |",
                 i + 1,
                 plan,
                 killed,
                 r.resumed_at,
                 r.points_after,
+                r.segments_after,
                 words
             );
         }
         let _ = writeln!(
             m,
-            "\nCampaign ended **{}**, {} rows for {} planned points (indices in order: {}), **{} committed rows \
-             changed or lost** after a kill; {} points valid against the ground truth, {} silently wrong, {} \
-             without value or reason; {:.0} s of instrument time, {} wall.\n",
+            "\nCampaign ended **{}**, {} rows for {} planned points (indices in order: {}), {} sweep segments for \
+             {} planned (in order: {}; {} incomplete) with {} readings, **{} committed rows changed or lost** after \
+             a kill; {} points valid against the ground truth, {} silently wrong, {} without value or reason; {:.0} \
+             s of instrument time, {} wall.\n",
             c.final_state
                 .map(|s| s.to_string())
                 .unwrap_or_else(|| "missing".into()),
             c.committed.rows,
             c.campaign.total_points,
             c.committed.indices_in_order,
+            c.sweeps.segments,
+            c.campaign.sweep_segments,
+            c.sweeps.in_order,
+            c.sweeps.incomplete.len(),
+            c.sweeps.readings,
             c.changed.len(),
             c.committed.points.valid,
             c.committed.points.wrong.len(),

@@ -227,13 +227,16 @@ impl Report {
             m,
             "{} random campaigns (seeded: explicit geometries with tilt and rotation, in-plane sweeps, isotropic \
              grids; one or two bands, repeats, darks and direct-beam readings at random cadences; a third of them \
-             with stalled moves and garbled or lost replies), each interrupted by up to five random requests (pause, \
+             with stalled moves and garbled or lost replies; {} of them with one or two sweeps of either arm at \
+             0.5 to 15 deg/s (`[[plan.sweeps]]`), half of those with no points, and one more emergency stop 20 to \
+             120 s after the others, so that the interruptions land in sweeps too), each interrupted by up to five random requests (pause, \
              abort, emergency stop, at random instants, resumed after a random wait), run by the real engine on the \
              simulated instrument on a paused clock (`crates/soak/src/safety_soak/`, also run by the tests in \
              `crates/soak/tests/safety_soak.rs`). Every check reads the simulator's record of what reached each \
              device over the wire and of each axis's exact trajectory (quadratic pieces, motor and load with \
              backlash).\n",
-            s.cases.len()
+            s.cases.len(),
+            s.sweep_cases()
         );
         let (axis, target, limit) = s
             .extreme_command()
@@ -269,10 +272,20 @@ impl Report {
             ESTOP_DEADLINE_S * 1e3,
             ok(Rule::Estop)
         );
+        let in_sweeps = s.estops_in_sweeps_s();
         let _ = writeln!(
             m,
-            "| measured points: read-back pose allowed by the scheduler's constraints | {} points | — | {} |",
+            "| of which requested while a sweep's arm cruised (at the sweep's speed): request to stop at the last axis | {} stops: slowest {:.2} ms | <= {:.0} ms | {} |",
+            in_sweeps.len(),
+            in_sweeps.last().copied().unwrap_or(f64::NAN) * 1e3,
+            ESTOP_DEADLINE_S * 1e3,
+            ok(Rule::Estop)
+        );
+        let _ = writeln!(
+            m,
+            "| measured points: read-back pose allowed by the scheduler's constraints; sweep readings: their geometry allowed | {} points, {} sweep readings | — | {} |",
             s.cases.iter().map(|c| c.points).sum::<u64>(),
+            s.sweep_readings(),
             ok(Rule::MeasuredPose)
         );
         let _ = writeln!(
@@ -349,18 +362,23 @@ pub(super) fn fault_row(m: &mut String, label: &str, f: &FaultSoakReport) {
 pub(super) fn crash_row(m: &mut String, label: &str, c: &CrashSoakReport) {
     let _ = writeln!(
         m,
-        "| {label} | {} points, {:.2} instrument hours, {} wall | {} × `kill -9` ({} mid-move, {} mid-commit, {} start-up, {} random), {} restarts | {} rows for {} planned, {} committed rows changed, {} silently wrong, campaign {} |",
+        "| {label} | {} points and {} sweep segments ({} sweep readings), {:.2} instrument hours, {} wall | {} × `kill -9` ({} mid-move, {} mid-commit, {} mid-sweep, {} start-up, {} random), {} restarts | {} rows for {} planned, {} sweep segments for {} planned with all their readings and none twice, {} committed rows changed, {} silently wrong, campaign {} |",
         c.committed.rows,
+        c.sweeps.segments,
+        c.sweeps.readings,
         c.instrument_s / 3600.0,
         secs(c.wall_s),
         c.kills(),
         c.kills_of("mid-move"),
         c.kills_of("mid-commit"),
+        c.kills_of("mid-sweep"),
         c.kills_of("start-up"),
         c.kills_of("random"),
         c.rounds.len().saturating_sub(1),
         c.committed.rows,
         c.campaign.total_points,
+        c.sweeps.segments - c.sweeps.incomplete.len() as u64,
+        c.campaign.sweep_segments,
         c.changed.len(),
         c.committed.points.wrong.len(),
         c.final_state
@@ -406,13 +424,16 @@ pub(super) fn safety_row(m: &mut String, label: &str, s: &SafetySoakReport) {
     };
     let _ = writeln!(
         m,
-        "| {label} | {} random campaigns, {} move commands, {} wall | {} pauses, {} aborts, {} emergency stops; device faults in {} cases | arm separation {} (closest once apart {:.3} deg, minimum {} deg); limits {} (closest commanded target {:.3} deg inside); emergency stop {} (slowest {:.1} ms, deadline {:.0} ms) |",
+        "| {label} | {} random campaigns ({} with sweeps: {} sweep readings), {} move commands, {} wall | {} pauses, {} aborts, {} emergency stops ({} during a sweep); device faults in {} cases | arm separation {} (closest once apart {:.3} deg, minimum {} deg); limits {} (closest commanded target {:.3} deg inside); emergency stop {} (slowest {:.1} ms, {:.1} ms during a sweep, deadline {:.0} ms) |",
         n,
+        s.sweep_cases(),
+        s.sweep_readings(),
         s.move_commands(),
         secs(s.wall_s),
         pauses,
         aborts,
         estops,
+        s.estops_in_sweeps_s().len(),
         s.cases.iter().filter(|c| c.faults).count(),
         held(Rule::Separation),
         s.closest_motor_deg().min(s.closest_load_deg()),
@@ -421,6 +442,7 @@ pub(super) fn safety_row(m: &mut String, label: &str, s: &SafetySoakReport) {
         s.command_margin_deg(),
         held(Rule::Estop),
         lat.last().copied().unwrap_or(f64::NAN) * 1e3,
+        s.estops_in_sweeps_s().last().copied().unwrap_or(f64::NAN) * 1e3,
         ESTOP_DEADLINE_S * 1e3
     );
 }

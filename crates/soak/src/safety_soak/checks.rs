@@ -22,6 +22,10 @@ pub struct CaseResult {
     pub final_state: Option<CampaignState>,
     pub planned_points: u64,
     pub points: u64,
+    /// Sweep segments planned, and those with readings in the store; sweep readings committed.
+    pub planned_segments: u64,
+    pub segments: u64,
+    pub sweep_readings: u64,
     /// Move and home commands received by the devices.
     pub move_commands: u64,
     /// Closest approach of the arms once apart (deg): motors, loads.
@@ -34,6 +38,8 @@ pub struct CaseResult {
     pub extreme_command: Option<(String, f64, f64)>,
     /// Time from each emergency-stop request to the stop at each axis (simulated seconds).
     pub estop_latencies_s: Vec<f64>,
+    /// Of the emergency stops requested while a sweep's arm cruised: the time to the stop at the last axis (s).
+    pub estops_in_sweeps_s: Vec<f64>,
     /// Broken invariants, in words.
     pub violations: Vec<String>,
     /// Which rules they broke.
@@ -156,7 +162,10 @@ pub fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
 
     // Emergency stops: a stop on the wire at every axis within the deadline, then no move until resumed.
     let mut latencies = Vec::new();
+    let mut in_sweeps = Vec::new();
+    let speeds = sweep_speeds(case);
     for &(requested, resumed) in &o.estops {
+        let first = latencies.len();
         for (axis, record) in &o.records {
             let stop_at = record.commands.iter().position(|c| {
                 matches!(c.command, MotionCommand::Stop { .. })
@@ -208,6 +217,9 @@ pub fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
                     ),
                 );
             }
+        }
+        if sweeping_at(o, &speeds, requested) {
+            in_sweeps.push(latencies[first..].iter().copied().fold(0.0, f64::max));
         }
     }
 
@@ -264,6 +276,25 @@ pub fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
             }
         }
     }
+    // Every sweep reading, by the same direction rules (its geometry: the middle of the arc it covered).
+    for r in o
+        .sweep_readings
+        .iter()
+        .filter(|r| r.flags.iter().all(|f| !f.starts_with("failed")))
+    {
+        let wi = gonio_brdf::geometry::Direction::from_spherical_deg(r.theta_i_deg, r.phi_i_deg);
+        let wo = gonio_brdf::geometry::Direction::from_spherical_deg(r.theta_o_deg, r.phi_o_deg);
+        if let Err(reason) = constraints.check_directions(&wi, &wo) {
+            fail(
+                Rule::MeasuredPose,
+                format!(
+                    "sweep reading {}/{} ({}, {}, {}, {}) violates {reason}",
+                    r.segment, r.k, r.theta_i_deg, r.phi_i_deg, r.theta_o_deg, r.phi_o_deg
+                ),
+            );
+        }
+    }
+    let segments: std::collections::BTreeSet<u32> = o.sweep_readings.iter().map(|r| r.segment).collect();
     if !(matches!(o.final_state, CampaignState::Completed | CampaignState::Aborted) || case.faults.any()) {
         fail(Rule::Other, format!("the campaign ended {}", o.final_state));
     }
@@ -274,6 +305,9 @@ pub fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
         final_state: Some(o.final_state),
         planned_points: o.planned_points,
         points: o.points.len() as u64,
+        planned_segments: o.planned_segments,
+        segments: segments.len() as u64,
+        sweep_readings: o.sweep_readings.len() as u64,
         move_commands: moves,
         closest_motor_deg: closest_motor,
         closest_load_deg: closest_load,
@@ -281,7 +315,36 @@ pub fn check(index: u32, case: &Case, o: &Outcome) -> CaseResult {
         trajectory_margin_deg: trajectory_margin,
         extreme_command: extreme,
         estop_latencies_s: latencies,
+        estops_in_sweeps_s: in_sweeps,
         violations: v,
         broken,
     }
+}
+
+/// The cruise speeds of a case's sweeps (deg/s), from its campaign text.
+pub fn sweep_speeds(case: &Case) -> Vec<f64> {
+    gonio_campaign::CampaignFile::parse(&case.campaign)
+        .map(|f| f.plan.sweeps.iter().map(|s| s.speed_deg_s).collect())
+        .unwrap_or_default()
+}
+
+/// Was an arm cruising at one of `speeds_deg_s` (a sweep's) at `t_s` (simulated)? Point moves run at the axis's
+/// top speed (above every sweep's), or accelerate and brake without a cruise.
+pub fn sweeping_at(o: &Outcome, speeds_deg_s: &[f64], t_s: f64) -> bool {
+    o.records
+        .iter()
+        .filter(|(a, _)| matches!(a.role, AxisRole::LightArm | AxisRole::DetectorArm))
+        .any(|(axis, record)| {
+            physical_pieces(axis, record.motor_pieces(o.end_s))
+                .iter()
+                .any(|p| {
+                    // A stop at the very instant of the request ends the cruise there: the end counts.
+                    p.t0_s < t_s
+                        && t_s <= p.t1_s
+                        && p.a_deg_s2 == 0.0
+                        && speeds_deg_s
+                            .iter()
+                            .any(|v| (p.v0_deg_s.abs() - v).abs() <= 1e-6 * v.max(1.0))
+                })
+        })
 }

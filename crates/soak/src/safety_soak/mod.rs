@@ -12,7 +12,15 @@
 //!   over); and no axis commanded to move again before the campaign is resumed (after the stop in the order of the
 //!   wire, which the record keeps: a move sent at the same simulated instant just before the stop is overridden);
 //! - every measured point's read-back pose against the scheduler's own constraint checks (`Constraints`,
-//!   `Pose::arm_separation_deg`): the independent reference for what is measured.
+//!   `Pose::arm_separation_deg`): the independent reference for what is measured; every sweep reading's geometry
+//!   against the same direction rules.
+//!
+//! A third of the cases sweep (`[[plan.sweeps]]`, issue 41: an arm turning at a constant speed while the meter
+//! reads), half of those with no points at all, and with one more emergency stop aimed at a sweep under way
+//! ([`Act::EstopInSweep`]), so that the interruptions land in sweeps too: the trajectories
+//! above then include every swept path, and an emergency stop is counted as during a sweep when an arm was
+//! cruising at one of the case's sweep speeds at that instant (point moves cruise at the arm's top speed, above
+//! every sweep's).
 //!
 //! Each case runs on its own current-thread runtime with tokio's paused clock, the simulator at time scale 1: the
 //! instrument takes its real time, the wall clock almost none.
@@ -35,7 +43,7 @@ use gonio_instrument::{Axis, AxisRole, InstrumentFile};
 use crate::setup::SoakInstrument;
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::{Kinematics, Pose};
-use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec};
+use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec, SweepSpec, SweptArm};
 use gonio_simulator::recording::{MotionCommand, MotionRecord, Piece, check_arm_separation, physical_pieces};
 use gonio_simulator::scene::Pose as SimPose;
 use rand::{Rng, SeedableRng};
@@ -47,7 +55,7 @@ pub use scenarios::Sabotage;
 mod checks;
 mod running;
 
-pub use checks::{CaseResult, Rule, check, check_separation};
+pub use checks::{CaseResult, Rule, check, check_separation, sweep_speeds, sweeping_at};
 pub use running::Outcome;
 use running::run_case;
 
@@ -84,9 +92,14 @@ pub enum Act {
     Pause,
     Abort,
     Estop,
+    /// An emergency stop once an arm has cruised at one of the case's sweep speeds for `after_s` (simulated
+    /// seconds, counted from the previous request or the run's start): aimed at a sweep under way. None when
+    /// the run ends first.
+    EstopInSweep,
 }
 
-/// A request made `after_s` simulated seconds after the previous one (or after the run started).
+/// A request made `after_s` simulated seconds after the previous one (or after the run started); for
+/// [`Act::EstopInSweep`], after that long of sweeping.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Interruption {
     pub after_s: f64,
@@ -166,7 +179,52 @@ fn random_grid(rng: &mut ChaCha8Rng) -> GridSpec {
     }
 }
 
-fn campaign_text(rng: &mut ChaCha8Rng) -> String {
+/// A random sweep (its own stream: the cases without sweeps are drawn as before sweeps existed): either arm, an
+/// arc of 20 to 150 degrees with the other arm held, one plane, 0.5 to 15 deg/s (below every arm's top speed).
+fn random_sweep(rng: &mut ChaCha8Rng) -> SweepSpec {
+    let arc = |rng: &mut ChaCha8Rng| {
+        let from = round1(rng.random_range(-80.0..0.0f64));
+        let to = round1((from + rng.random_range(20.0..150.0f64)).min(80.0));
+        toml::Value::Table(toml::Table::from_iter([
+            ("from".to_string(), toml::Value::Float(from)),
+            ("to".to_string(), toml::Value::Float(to)),
+        ]))
+    };
+    let held = |rng: &mut ChaCha8Rng, max: f64| {
+        toml::Value::Array(vec![toml::Value::Float(round1(rng.random_range(0.0..max)))])
+    };
+    let arm = if rng.random_bool(0.5) {
+        SweptArm::Detector
+    } else {
+        SweptArm::Light
+    };
+    let (theta_i_deg, theta_o_deg) = match arm {
+        SweptArm::Detector => (held(rng, 60.0), arc(rng)),
+        SweptArm::Light => (arc(rng), held(rng, 70.0)),
+    };
+    SweepSpec {
+        arm,
+        theta_i_deg,
+        theta_o_deg,
+        plane_phi_deg: Some(toml::Value::Array(vec![toml::Value::Float(round1(
+            rng.random_range(0.0..180.0f64),
+        ))])),
+        speed_deg_s: round1(rng.random_range(0.5..15.0f64)),
+        averaging: rng.random_range(1..4u32),
+    }
+}
+
+/// The sweeps of a case, if it has any, and whether it has no points: a stream of its own.
+fn random_sweeps(rng: &mut ChaCha8Rng) -> (Vec<SweepSpec>, bool) {
+    if rng.random_range(0..3u32) != 0 {
+        return (Vec::new(), false);
+    }
+    let n = rng.random_range(1..3usize);
+    let sweeps = (0..n).map(|_| random_sweep(rng)).collect();
+    (sweeps, rng.random_bool(0.5))
+}
+
+fn campaign_text(rng: &mut ChaCha8Rng, (sweeps, sweeps_only): (Vec<SweepSpec>, bool)) -> String {
     let grid = random_grid(rng);
     let all = [450.0, 550.0, 650.0];
     let mut bands: Vec<f64> = all
@@ -193,7 +251,8 @@ fn campaign_text(rng: &mut ChaCha8Rng) -> String {
         bands_nm: Some(bands),
         repeats,
         reciprocity: false,
-        grid: Some(grid),
+        grid: (!sweeps_only).then_some(grid),
+        sweeps,
         ..PlanSpec::default()
     };
     plan.calibration.dark_every_points = Some(dark);
@@ -257,9 +316,21 @@ fn faults(rng: &mut ChaCha8Rng) -> FaultLevel {
 /// The `index`-th case of `seed`: each case has its own stream, so a case can be rerun alone.
 pub fn case(seed: u64, index: u32) -> Case {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ (u64::from(index) << 32) ^ 0x5afe_7e57);
-    let campaign = campaign_text(&mut rng);
+    let mut sweep_rng = ChaCha8Rng::seed_from_u64(seed ^ (u64::from(index) << 32) ^ 0x5eeb_5eeb);
+    let sweeps = random_sweeps(&mut sweep_rng);
+    let sweeping = !sweeps.0.is_empty();
+    let campaign = campaign_text(&mut rng, sweeps);
     let n = rng.random_range(0..6usize);
-    let interruptions = (0..n).map(|_| interruption(&mut rng)).collect();
+    let mut interruptions: Vec<Interruption> = (0..n).map(|_| interruption(&mut rng)).collect();
+    if sweeping {
+        // The sweeps come after start-up, calibration and the points, mostly later than the interruptions
+        // above: one more emergency stop, aimed at a sweep under way.
+        interruptions.push(Interruption {
+            after_s: sweep_rng.random_range(0.05..3.0),
+            act: Act::EstopInSweep,
+            resume_after_s: sweep_rng.random_range(0.0..5.0),
+        });
+    }
     let faults = faults(&mut rng);
     Case {
         campaign,
@@ -320,6 +391,9 @@ pub fn run_and_check_on(
                 final_state: None,
                 planned_points: 0,
                 points: 0,
+                planned_segments: 0,
+                segments: 0,
+                sweep_readings: 0,
                 move_commands: 0,
                 closest_motor_deg: f64::NAN,
                 closest_load_deg: f64::NAN,
@@ -327,6 +401,7 @@ pub fn run_and_check_on(
                 trajectory_margin_deg: f64::NAN,
                 extreme_command: None,
                 estop_latencies_s: Vec::new(),
+                estops_in_sweeps_s: Vec::new(),
                 violations: vec![format!("case did not run: {e}")],
                 broken: vec![Rule::Other],
             },
@@ -467,6 +542,25 @@ impl SafetySoakReport {
             .and_then(|c| c.extreme_command.clone())
     }
 
+    /// Cases that planned sweeps; sweep readings committed, all cases.
+    pub fn sweep_cases(&self) -> usize {
+        self.cases.iter().filter(|c| c.planned_segments > 0).count()
+    }
+    pub fn sweep_readings(&self) -> u64 {
+        self.cases.iter().map(|c| c.sweep_readings).sum()
+    }
+
+    /// Emergency stops requested during a sweep: the time to the stop at the last axis (s), sorted.
+    pub fn estops_in_sweeps_s(&self) -> Vec<f64> {
+        let mut v: Vec<f64> = self
+            .cases
+            .iter()
+            .flat_map(|c| c.estops_in_sweeps_s.iter().copied())
+            .collect();
+        v.sort_by(f64::total_cmp);
+        v
+    }
+
     pub fn estop_latencies_s(&self) -> Vec<f64> {
         let mut v: Vec<f64> = self
             .cases
@@ -516,12 +610,18 @@ mod tests {
     #[test]
     fn cases_are_reproducible_and_valid() {
         let file = InstrumentFile::simulated();
-        for i in 0..20 {
+        let (mut sweeping, mut sweeps_only) = (0, 0);
+        for i in 0..60 {
             let a = case(3, i);
             assert_eq!(a, case(3, i));
-            prepare_campaign(&a.campaign, "safety.toml", Path::new("."), &file)
+            let p = prepare_campaign(&a.campaign, "safety.toml", Path::new("."), &file)
                 .unwrap_or_else(|e| panic!("case {i}: {e}\n{}", a.campaign));
+            sweeping += usize::from(p.sweep_segments > 0);
+            sweeps_only += usize::from(p.sweep_segments > 0 && p.total_points == 0);
         }
         assert_ne!(case(3, 0), case(3, 1));
+        // About a third of the cases sweep, half of those without points.
+        assert!((10..=30).contains(&sweeping), "{sweeping} of 60 cases sweep");
+        assert!(sweeps_only >= 3, "{sweeps_only} cases sweep only");
     }
 }

@@ -2,6 +2,7 @@
 //! trajectories recorded for the checks.
 
 use super::*;
+use gonio_results::sweeps::SweepReading;
 
 /// What happened during a case, for the checks.
 #[derive(Debug, Clone)]
@@ -14,6 +15,9 @@ pub struct Outcome {
     /// Emergency stops: (requested at, next run started at, or the end).
     pub estops: Vec<(f64, f64)>,
     pub points: Vec<PointRecord>,
+    /// Sweep readings committed (issue 41), and the segments planned.
+    pub sweep_readings: Vec<SweepReading>,
+    pub planned_segments: u64,
     pub final_state: CampaignState,
     pub planned_points: u64,
     /// Pause, abort and emergency-stop requests made.
@@ -71,6 +75,7 @@ pub(super) async fn run_case(
     sim.start_motion_recording();
     let control = Control::new();
     let saboteur = scenarios::spawn_saboteur(&sim, sabotage);
+    let sweep_speeds = super::sweep_speeds(case);
 
     let mut pending = case.interruptions.iter();
     let mut estops: Vec<(f64, f64)> = Vec::new();
@@ -95,15 +100,21 @@ pub(super) async fn run_case(
             let Some(next) = pending.next() else {
                 break (&mut task).await;
             };
+            let wait = async {
+                match next.act {
+                    Act::EstopInSweep => sweep_under_way(&sim, &sweep_speeds, next.after_s).await,
+                    _ => clock.sleep_s(next.after_s).await,
+                }
+            };
             tokio::select! {
                 r = &mut task => break r,
-                _ = clock.sleep_s(next.after_s) => {
+                _ = wait => {
                     timeline.push((sim.now_s(), format!("{:?} requested", next.act)));
                     resume_after_s = next.resume_after_s;
                     match next.act {
                         Act::Pause => { acts[0] += 1; control.pause() }
                         Act::Abort => { acts[1] += 1; control.abort() }
-                        Act::Estop => {
+                        Act::Estop | Act::EstopInSweep => {
                             acts[2] += 1;
                             open_estop.get_or_insert(sim.now_s());
                             control.estop();
@@ -164,21 +175,52 @@ pub(super) async fn run_case(
     if let Some(t) = open_estop.take() {
         estops.push((t, end_s));
     }
-    let points = store
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .points(id)
-        .map_err(|e| e.to_string())?;
+    let (points, sweep_readings) = {
+        let store = store.lock().unwrap_or_else(|e| e.into_inner());
+        (
+            store.points(id).map_err(|e| e.to_string())?,
+            store.sweep_readings(id).map_err(|e| e.to_string())?,
+        )
+    };
     Ok(Outcome {
         file,
         records: sim.motion_records(),
         end_s,
         estops,
         points,
+        sweep_readings,
+        planned_segments: prepared.sweep_segments,
         final_state,
         planned_points: prepared.total_points,
         acts,
         timeline,
         sabotaged,
     })
+}
+
+/// Returns once an arm has cruised at one of `speeds_deg_s` (a sweep's) for `for_s` simulated seconds in all,
+/// sampling the simulated arms' pose every 20 ms; never when no sweep runs.
+async fn sweep_under_way(sim: &gonio_simulator::SimInstrument, speeds_deg_s: &[f64], for_s: f64) {
+    const STEP_S: f64 = 0.02;
+    let clock = sim.clock();
+    let mut swept_s = 0.0;
+    let mut last = sim.pose();
+    loop {
+        clock.sleep_s(STEP_S).await;
+        let now = sim.pose();
+        let speeds = [
+            (now.light_deg - last.light_deg).abs() / STEP_S,
+            (now.detector_deg - last.detector_deg).abs() / STEP_S,
+        ];
+        last = now;
+        if speeds
+            .iter()
+            .any(|v| speeds_deg_s.iter().any(|s| (v - s).abs() <= 0.01 * s))
+        {
+            swept_s += STEP_S;
+            if swept_s >= for_s {
+                return;
+            }
+        }
+    }
 }
