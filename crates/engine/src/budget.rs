@@ -21,6 +21,7 @@
 
 mod complete;
 mod drift;
+mod positioning;
 mod sweeps;
 
 pub use complete::completions;

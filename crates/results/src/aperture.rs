@@ -75,6 +75,9 @@ pub struct Corrections {
     /// across it (`d phi_o sin theta_o`), where the model has a value; what an angle's uncertainty does to the
     /// value (the pointing component, gonio_engine::budget).
     pub slopes: Vec<Option<[f64; 3]>>,
+    /// The best-fitting model itself, to evaluate where the instrument really was (the positioning component,
+    /// gonio_engine::budget).
+    pub material: Material,
 }
 
 /// A fitted model ready to evaluate.
@@ -129,6 +132,7 @@ pub fn corrections(run: &Run, half_angle_rad: f64) -> Option<Corrections> {
         residual_rms: best.rms,
         points,
         slopes,
+        material: best.material.clone(),
     })
 }
 

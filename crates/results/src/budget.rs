@@ -31,6 +31,10 @@ pub mod components {
     /// The angles' uncertainty (the alignment's, or the instrument file's tolerances without one) times the
     /// BRDF's local angular slope.
     pub const POINTING: &str = "pointing";
+    /// Where the axes really stopped (read back, within their arrival tolerance and step size) against the pose
+    /// of the nominal geometry: the value is corrected by the fitted model's ratio between the two geometries;
+    /// this is the correction's own uncertainty (a quarter of it).
+    pub const POSITIONING: &str = "positioning";
     /// The correction from the aperture average to the BRDF at the nominal geometry: its own uncertainty, or
     /// the whole bias where no honest correction is possible.
     pub const APERTURE: &str = "aperture";

@@ -65,6 +65,11 @@ pub struct LogCounts {
     /// Stalls that took effect in the simulator (its emulators' reports of a move stopped by a stall). A stall is
     /// drawn when a move starts; a move superseded by a new command before the stall point never stalls.
     pub stalls_manifested: u64,
+    /// Of those, the SMC100's (following error: the controller is left in DISABLE).
+    pub smc100_stalls_manifested: u64,
+    /// The SMC100 driver's re-enables of a controller left in DISABLE by a following error: one per SMC100
+    /// stall, whether the engine saw the move fail or a reconnection's re-verification found it.
+    pub smc100_stalls_reenabled: u64,
 }
 
 #[derive(Debug, Default)]
@@ -84,6 +89,9 @@ const MOVE_MESSAGES: [&str; 2] = ["move absolute", "move abs"];
 
 /// The emulators' reports of a stall taking effect (Zaber FS flag, SMC100 following error).
 const STALL_EFFECT_MESSAGES: [&str; 2] = ["Zaber: stall, FS", "SMC100: following error, DISABLE from MOVING"];
+
+/// The SMC100 driver's warning when it finds a controller in DISABLE after a fault (its reason follows).
+const SMC100_REENABLE_MESSAGE: &str = "controller in DISABLE after a fault; re-enabling";
 
 /// Messages that mean a device came back.
 const RECONNECT_MESSAGES: [&str; 3] = ["port reconnected", "USB device reopened", "device reconnected"];
@@ -182,6 +190,15 @@ impl<S: Subscriber> Layer<S> for LogCapture {
             }
             if target.starts_with("gonio_simulator") && STALL_EFFECT_MESSAGES.contains(&f.message.as_str()) {
                 c.stalls_manifested += 1;
+                if f.message == STALL_EFFECT_MESSAGES[1] {
+                    c.smc100_stalls_manifested += 1;
+                }
+            }
+            if target.starts_with("gonio_driver")
+                && f.message == SMC100_REENABLE_MESSAGE
+                && f.rest.contains("following error")
+            {
+                c.smc100_stalls_reenabled += 1;
             }
         }
         // The log file: warnings and reconnections (the per-reply delay reports are counted, not written).
@@ -191,5 +208,31 @@ impl<S: Subscriber> Layer<S> for LogCapture {
             let mut w = file.lock().unwrap_or_else(|e| e.into_inner());
             let _ = writeln!(w, "{level:>5} {target}: {}{}", f.message, f.rest);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tracing_subscriber::layer::SubscriberExt as _;
+
+    /// An SMC100 stall is seen by the host when its driver re-enables the controller after the following error
+    /// (as a reconnection's re-verification does, with no failed move for the engine to report); a re-enable
+    /// for another reason is not a stall seen.
+    #[test]
+    fn stalls_are_counted_by_controller_and_an_smc100_re_enable_is_a_stall_seen() {
+        let capture = LogCapture::new(None).expect("capture");
+        let subscriber = tracing_subscriber::registry().with(capture.clone());
+        tracing::subscriber::with_default(subscriber, || {
+            tracing::warn!(target: "gonio_simulator::smc100::machine", address = 1, "SMC100: following error, DISABLE from MOVING");
+            tracing::warn!(target: "gonio_simulator::zaber::device", axis = "tilt", "Zaber: stall, FS");
+            tracing::warn!(target: "gonio_driver::smc100::axis", axis = "light (arms/1)",
+                reason = "DISABLE from moving (3D); positioner errors 0020: following error", "controller in DISABLE after a fault; re-enabling");
+            tracing::warn!(target: "gonio_driver::smc100::axis", axis = "light (arms/1)",
+                reason = "DISABLE from ready (3C)", "controller in DISABLE after a fault; re-enabling");
+        });
+        let c = capture.counts();
+        assert_eq!((c.stalls_manifested, c.smc100_stalls_manifested), (2, 1));
+        assert_eq!(c.smc100_stalls_reenabled, 1);
     }
 }

@@ -42,6 +42,16 @@ impl PoseCorrection {
         }
     }
 
+    /// The sample-frame directions towards the source and the detector at `pose`, by the calibrated model;
+    /// `None` where it has none.
+    pub fn directions(&self, pose: &Pose) -> Option<(gonio_brdf::Direction, gonio_brdf::Direction)> {
+        let (a, b) = self.model.directions(pose)?;
+        Some((
+            gonio_brdf::Direction::new(a[0], a[1], a[2])?,
+            gonio_brdf::Direction::new(b[0], b[1], b[2])?,
+        ))
+    }
+
     /// The pose to command for `planned` (module doc); `planned` itself, with a warning in the log, when the model
     /// has no answer near it or the correction would exceed [`MAX_CORRECTION_DEG`] on some axis.
     pub fn correct(&self, planned: &Pose) -> Pose {

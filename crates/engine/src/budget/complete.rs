@@ -3,6 +3,9 @@
 //!   curvature in the budget ([`super::drift`]);
 //! - pointing: the angles' uncertainty (an applied alignment's, else the instrument file's `alignment_u_deg`)
 //!   times the fitted model's slope, and the absolute equation's `tan(theta_o)`, added to `pointing`;
+//! - positioning: each value brought from where the axes really stopped (read back) to the nominal geometry by
+//!   the fitted model's ratio between the two, part of it as the `positioning` component
+//!   ([`super::positioning`]);
 //! - the aperture: each value corrected from the aperture average to the BRDF at the nominal geometry with a
 //!   model fitted to the campaign's data (gonio_results::aperture), the correction's own uncertainty added as
 //!   the `aperture` component, the average kept beside it (`brdf_aperture_sr`); a lobe narrower than the
@@ -150,6 +153,28 @@ pub fn completions(
                     .budget
                     .add(components::POINTING, (value * rel).abs(), None);
             }
+        }
+        // Where the axes really stopped against the nominal geometry (super::positioning): the value brought
+        // to the nominal geometry by the fitted model's ratio, a quarter of the correction its uncertainty.
+        let pointed = super::positioning::Pointed::new(record, instrument);
+        for ((point, completion), committed) in run.points.iter_mut().zip(&mut done).zip(committed) {
+            let Some(value) = point.brdf_sr else { continue };
+            let Some(rel) = pointed.relative_deviation(&c.material, committed, !relative) else {
+                continue;
+            };
+            if rel == 0.0 || rel.abs() > super::positioning::MAX_REL_CORRECTION {
+                continue;
+            }
+            let factor = 1.0 / (1.0 + rel);
+            let corrected = value * factor;
+            completion.budget = completion.budget.scaled(factor);
+            completion.budget.add(
+                components::POSITIONING,
+                (corrected * rel * super::positioning::U_OF_CORRECTION).abs(),
+                None,
+            );
+            completion.brdf_sr = Some(corrected);
+            point.brdf_sr = Some(corrected);
         }
         for ((point, completion), correction) in run.points.iter_mut().zip(&mut done).zip(&c.points) {
             let Some(value) = point.brdf_sr else { continue };

@@ -9,6 +9,7 @@
 //! - `layering`: the dependency rules of ARCHITECTURE.md for the engine.
 //! - `loaders_fuzz`: the file loaders fed mutated documents.
 //! - `motion`: the motion layer on its own (no campaign, no store), as a console will drive it.
+//! - `positioning`: values brought from where the axes stopped to the nominal geometry, against the truth.
 //! - `relative`: the relative calibration method end to end on the simulated instrument.
 //! - `selftest`: the self-test on the simulated instrument.
 //! - `stalls`: stall injection in a dry-run.
@@ -24,6 +25,7 @@ mod engine;
 mod layering;
 mod loaders_fuzz;
 mod motion;
+mod positioning;
 mod relative;
 mod selftest;
 mod stalls;

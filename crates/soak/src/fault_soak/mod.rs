@@ -128,6 +128,8 @@ pub struct EventTally {
     pub faults: BTreeMap<String, u64>,
     /// Of those, the engine's reconnection attempts that failed (`reconnect: ...`).
     pub failed_reconnects: u64,
+    /// Of the motion faults, the Zaber stage's stalls (`FS (stalled and stopped)`).
+    pub zaber_stall_faults: u64,
     /// State changes with their messages.
     pub states: Vec<(CampaignState, Option<String>)>,
     /// Points reported.
@@ -146,6 +148,9 @@ impl EventTally {
             Event::Fault { message, .. } => {
                 if message.starts_with("reconnect:") {
                     self.failed_reconnects += 1;
+                }
+                if error_class(&message) == "motion fault" && message.contains("FS (stalled") {
+                    self.zaber_stall_faults += 1;
                 }
                 *self.faults.entry(error_class(&message).to_string()).or_default() += 1;
             }
@@ -229,9 +234,21 @@ impl FaultSoakReport {
             .unwrap_or(0)
     }
 
-    /// Stalls the host saw: motion faults in the campaign's events plus stall flags in the drivers' log.
+    /// Zaber stalls the host saw: the engine's motion faults with the FS flag, plus the flags the driver found
+    /// at the start of the next move.
+    pub fn zaber_stalls_seen(&self) -> u64 {
+        self.events.zaber_stall_faults + self.stall_flags_logged()
+    }
+
+    /// SMC100 stalls the host saw: each leaves its controller in DISABLE until the driver re-enables it, after
+    /// the engine saw the move fail or when a reconnection's re-verification found it.
+    pub fn smc100_stalls_seen(&self) -> u64 {
+        self.log.smc100_stalls_reenabled
+    }
+
+    /// Stalls the host saw, both kinds of controller.
     pub fn stalls_seen(&self) -> u64 {
-        self.events.faults.get("motion fault").copied().unwrap_or(0) + self.stall_flags_logged()
+        self.zaber_stalls_seen() + self.smc100_stalls_seen()
     }
 
     /// Every broken invariant, in words; empty when the soak passed.
@@ -286,15 +303,20 @@ impl FaultSoakReport {
         // again after a lost reply, whose first copy stalled too, in the stall flag the driver finds at the start
         // of the next move); each outage in a lost connection the engine reports (and recovers from).
         let engine = |k: &str| self.events.faults.get(k).copied().unwrap_or(0);
-        if self.stalls_seen() < self.log.stalls_manifested {
+        let smc100 = self.log.smc100_stalls_manifested;
+        let zaber = self.log.stalls_manifested - smc100;
+        if self.zaber_stalls_seen() < zaber || self.smc100_stalls_seen() < smc100 {
             v.push(format!(
-                "{} stalls took effect ({} drawn) but the host saw {} ({} motion faults in the campaign's events, \
-                 {} stall flags logged by the drivers)",
+                "{} stalls took effect ({} drawn: {zaber} Zaber, {smc100} SMC100) but the host saw {} Zaber stalls \
+                 ({} motion faults with FS in the campaign's events, {} stall flags logged by the drivers) and {} \
+                 SMC100 stalls (controllers re-enabled after a following error; {} motion faults in all)",
                 self.log.stalls_manifested,
                 self.injected.stalls,
-                self.stalls_seen(),
+                self.zaber_stalls_seen(),
+                self.events.zaber_stall_faults,
+                self.stall_flags_logged(),
+                self.smc100_stalls_seen(),
                 engine("motion fault"),
-                self.stall_flags_logged()
             ));
         }
         if engine("disconnected") < self.injected.outages {

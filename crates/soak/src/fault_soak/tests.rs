@@ -73,3 +73,22 @@ fn a_value_beyond_five_sigma_is_silently_wrong_and_a_bare_gap_unexplained() {
     assert_eq!(c.flagged_total(), 1);
     assert_eq!(c.unexplained.len(), 2, "{:?}", c.unexplained);
 }
+
+#[test]
+fn only_a_zaber_stall_counts_as_a_zaber_stall_fault() {
+    let mut t = EventTally::default();
+    let fault = |message: &str| Event::Fault {
+        campaign: gonio_engine::store::CampaignId(1),
+        message: message.to_string(),
+    };
+    t.observe(fault(
+        "move tilt to -3.2099 deg: tilt (stage/1.1): move to -3.2099 deg failed: FS (stalled and stopped), NI \
+         (command interrupted); stopped at -3.97 deg (attempt 1 of 3)",
+    ));
+    t.observe(fault(
+        "move detector to 52.8 deg: detector (arms/2): move to 52.8 deg failed: DISABLE from moving (3D); \
+         positioner errors 0020: following error (attempt 1 of 3)",
+    ));
+    assert_eq!(t.faults.get("motion fault").copied(), Some(2));
+    assert_eq!(t.zaber_stall_faults, 1);
+}

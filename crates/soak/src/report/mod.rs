@@ -265,13 +265,17 @@ impl Report {
         );
         let _ = writeln!(
             m,
-            "- stalls: {} took effect, the host saw {} ({} motion faults in the campaign's events, {} stall flags \
-             found by the drivers at the start of the next move); outages: {}, lost connections in the campaign's \
-             events: {}",
+            "- stalls: {} took effect ({} on the SMC100 arms), the host saw {} ({} motion faults in the campaign's \
+             events; Zaber: {} with the FS flag and {} stall flags found by the driver at the start of the next \
+             move; SMC100: {} controllers re-enabled after a following error, whether the move's failure or a \
+             reconnection's re-verification found it); outages: {}, lost connections in the campaign's events: {}",
             f.log.stalls_manifested,
+            f.log.smc100_stalls_manifested,
             f.stalls_seen(),
             f.events.faults.get("motion fault").copied().unwrap_or(0),
+            f.events.zaber_stall_faults,
             f.stall_flags_logged(),
+            f.smc100_stalls_seen(),
             f.injected.outages,
             f.events.faults.get("disconnected").copied().unwrap_or(0)
         );
