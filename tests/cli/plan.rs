@@ -320,4 +320,71 @@ fn plan_times_the_sweeps_and_run_sweeps_them() {
     let segments: std::collections::BTreeSet<&str> =
         csv.lines().skip(1).filter_map(|l| l.split(',').next()).collect();
     assert_eq!(segments.len(), 21);
+
+    // `gonio fit` fits the readings like points: the simulated plastic's roughness and its albedo at 550 nm
+    // come back from the sweeps alone (the campaign measures no point).
+    let fit = gonio()
+        .args([
+            "fit",
+            "--model",
+            "plastic",
+            "--wavelength",
+            "550",
+            "--json",
+            "--out",
+        ])
+        .arg(dir.path().join("fit.toml"))
+        .arg(&out)
+        .output()
+        .expect("run gonio fit");
+    assert!(fit.status.success(), "{}", String::from_utf8_lossy(&fit.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&fit.stdout).expect("fit JSON");
+    let param = |key: &str| {
+        report["parameters"]
+            .as_array()
+            .and_then(|ps| ps.iter().find(|p| p["key"] == key))
+            .and_then(|p| p["value"].as_f64())
+            .unwrap_or_else(|| panic!("{key} in {report}"))
+    };
+    assert!((param("alpha") - 0.1).abs() < 1e-3, "{report}");
+    assert!(
+        report["residuals"]["points"]
+            .as_u64()
+            .is_some_and(|n| n as usize > rows / 4),
+        "{report}"
+    );
+    // The tabular exports carry them as points, the gridded ones say they leave them out.
+    let export = |format: &str, extra: &[&str]| {
+        let o = gonio()
+            .args(["export", "--format", format])
+            .args(extra)
+            .arg(&out)
+            .output()
+            .expect("run gonio export");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        o
+    };
+    let data_rows = |o: &std::process::Output| {
+        String::from_utf8_lossy(&o.stdout)
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .count()
+            - 1
+    };
+    let with = export("csv", &[]);
+    assert_eq!(data_rows(&with), rows);
+    assert!(String::from_utf8_lossy(&with.stderr).contains(&format!("{rows} sweep readings exported")));
+    assert_eq!(data_rows(&export("csv", &["--points-only"])), 0);
+    let zemax_out = dir.path().join("sweeps.bsdf");
+    let zemax = gonio()
+        .args(["export", "--format", "zemax", "--out"])
+        .arg(&zemax_out)
+        .arg(&out)
+        .output()
+        .expect("run gonio export");
+    assert!(
+        String::from_utf8_lossy(&zemax.stderr).contains("sweep readings are not in zemax exports"),
+        "{}",
+        String::from_utf8_lossy(&zemax.stderr)
+    );
 }

@@ -4,6 +4,10 @@
 //! instead of RUN, `--data DIR --campaign ID` reads a campaign from a daemon's store (read only). This module
 //! also holds that shared loading ([`RunSource`]) for `gonio fit` and `gonio plot`.
 //!
+//! A run's sweep readings (`[[plan.sweeps]]`: its sweeps.csv, or the store's) are exported as points after the
+//! run's own in csv, json and astm unless `--points-only` (merl, zemax and rgl build their grids from the plan's
+//! angles and leave them out, saying so); `gonio fit` fits them likewise.
+//!
 //! csv, json and astm go to stdout unless `--out` names a file; merl needs `--out` (a binary file) and writes a
 //! material file beside it (`<stem>.material.toml`, `model = "measured"`) that `gonio brdf eval --material`
 //! and the simulator's `[material]` read; zemax needs `--out` and writes one file per band; rgl needs `--out`. Every format carries
@@ -50,6 +54,43 @@ impl RunSource {
         }
     }
 
+    /// Loads the run with its sweep readings joined to its points (gonio_results::sweeps::with_readings): the
+    /// `sweeps.csv` beside the points CSV, or the store's; `points_only` leaves them out. Also returns how many
+    /// readings joined.
+    pub fn load_with_sweeps(&self, points_only: bool) -> Result<(Run, usize), CliError> {
+        let run = self.load()?;
+        if points_only {
+            return Ok((run, 0));
+        }
+        let readings = match (&self.run, &self.data, &self.campaign) {
+            (Some(path), _, _) => {
+                let dir = if path.is_dir() {
+                    path.clone()
+                } else {
+                    path.parent().map(Path::to_path_buf).unwrap_or_default()
+                };
+                let csv = dir.join("sweeps.csv");
+                if csv.is_file() {
+                    let text = std::fs::read_to_string(&csv)
+                        .map_err(|e| CliError::io(format!("cannot read {}", csv.display()), e))?;
+                    gonio_results::sweeps::parse_sweeps_csv(&text, &csv.display().to_string())
+                        .map_err(|e| CliError::input(e.to_string()))?
+                } else {
+                    Vec::new()
+                }
+            }
+            (None, Some(dir), Some(campaign)) => {
+                let origin = dir.join(STORE_FILE).display().to_string();
+                let store = Store::open(dir).map_err(|e| store_err(&origin, e))?;
+                let record = find_campaign(&store, &origin, campaign)?;
+                gonio_engine::export::sweep_readings(&store, record.id).map_err(|e| store_err(&origin, e))?
+            }
+            _ => Vec::new(),
+        };
+        let n = readings.len();
+        Ok((gonio_results::sweeps::with_readings(run, &readings), n))
+    }
+
     /// A directory to write derived files into by default: the run directory (or the CSV's), else the current
     /// directory (never the daemon's data directory).
     pub fn default_dir(&self) -> PathBuf {
@@ -83,8 +124,14 @@ fn load_from_store(dir: &Path, campaign: &str) -> Result<Run, CliError> {
     }
     let origin = db.display().to_string();
     let store = Store::open(dir).map_err(|e| store_err(&origin, e))?;
-    let campaigns = store.campaigns().map_err(|e| store_err(&origin, e))?;
-    let record: CampaignRecord = match campaign.trim().parse::<i64>() {
+    let record = find_campaign(&store, &origin, campaign)?;
+    gonio_engine::export::run_of(&store, &record, &origin).map_err(|e| store_err(&origin, e))
+}
+
+/// A campaign of a store by id (a number) or by name (the latest of that name).
+fn find_campaign(store: &Store, origin: &str, campaign: &str) -> Result<CampaignRecord, CliError> {
+    let campaigns = store.campaigns().map_err(|e| store_err(origin, e))?;
+    match campaign.trim().parse::<i64>() {
         Ok(id) => campaigns.into_iter().find(|c| c.id.0 == id),
         Err(_) => campaigns.into_iter().rfind(|c| c.name == campaign.trim()),
     }
@@ -92,8 +139,7 @@ fn load_from_store(dir: &Path, campaign: &str) -> Result<Run, CliError> {
         CliError::input(format!(
             "{origin}: no campaign {campaign:?} (give its id or its name; `gonio ctl status` lists them)"
         ))
-    })?;
-    gonio_engine::export::run_of(&store, &record, &origin).map_err(|e| store_err(&origin, e))
+    })
 }
 
 /// How the materials a stored campaign text names resolve: a text stored by gonio carries them (a `[resolved]`
@@ -263,6 +309,20 @@ pub enum Format {
     Rgl,
 }
 
+impl Format {
+    /// The name `--format` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::Csv => "csv",
+            Format::Json => "json",
+            Format::Merl => "merl",
+            Format::Zemax => "zemax",
+            Format::Astm => "astm",
+            Format::Rgl => "rgl",
+        }
+    }
+}
+
 #[derive(Debug, clap::Args)]
 pub struct ExportArgs {
     #[command(flatten)]
@@ -281,10 +341,32 @@ pub struct ExportArgs {
     /// (default: the bands nearest to 650, 550 and 450 nm).
     #[arg(long, value_delimiter = ',', num_args = 1)]
     pub channels: Option<Vec<f64>>,
+    /// Leave the run's sweep readings out (by default csv, json and astm export them as points after the run's
+    /// own, their geometry the middle of the arc each covered; sweeps.csv keeps their arcs).
+    #[arg(long)]
+    pub points_only: bool,
 }
 
 pub fn run(args: ExportArgs) -> Result<(), CliError> {
-    let run = args.source.load()?;
+    let (mut run, readings) = args.source.load_with_sweeps(args.points_only)?;
+    if readings > 0 {
+        let own = run.points.len() - readings;
+        if matches!(args.format, Format::Csv | Format::Json | Format::Astm) {
+            eprintln!(
+                "gonio: {readings} sweep readings exported as points after the run's {own} (--points-only leaves \
+                 them out)"
+            );
+        } else {
+            // The gridded formats build their grids from the plan's angles: a hundred thousand readings, each
+            // at its own angle, are not a grid.
+            run.points.truncate(own);
+            eprintln!(
+                "gonio: the run's {readings} sweep readings are not in {} exports (their grids come from the plan's \
+                 angles); --format csv, json or astm carry them",
+                args.format.name()
+            );
+        }
+    }
     let base_dir = args.source.default_dir();
     let setup = export_setup(&run, &base_dir);
     match args.format {

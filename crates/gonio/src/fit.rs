@@ -3,6 +3,9 @@
 //! their standard uncertainties and the residual error, and writing a material file (the schema of
 //! config/materials/*.toml) that `gonio brdf eval --material` and a campaign's `[material]` accept.
 //!
+//! A run's sweep readings (`[[plan.sweeps]]`) are fitted with its points unless `--points-only`: each at the
+//! middle of the arc it covered, weighted by its own uncertainty.
+//!
 //! The material goes to `--out FILE`, by default `fit-<model>.toml` (or `fit-<model>-<nm>nm.toml` for one band)
 //! in the run directory, or in the current directory when the run comes from a daemon's store.
 
@@ -39,6 +42,10 @@ pub struct FitArgs {
     /// Print the report as JSON on stdout (parameters, uncertainties, residuals, material, file).
     #[arg(long)]
     pub json: bool,
+    /// Leave the run's sweep readings out (by default they are fitted with its points, each at the middle of
+    /// the arc it covered, weighted by its own uncertainty).
+    #[arg(long)]
+    pub points_only: bool,
 }
 
 pub fn run(args: FitArgs) -> Result<(), CliError> {
@@ -53,7 +60,13 @@ pub fn run(args: FitArgs) -> Result<(), CliError> {
             "--wavelength: {nm} is not a wavelength in nm"
         )));
     }
-    let run = args.source.load()?;
+    let (run, readings) = args.source.load_with_sweeps(args.points_only)?;
+    if readings > 0 && !args.json {
+        println!(
+            "fitting {} points and {readings} sweep readings (--points-only leaves the readings out)",
+            run.points.len() - readings
+        );
+    }
     let mut opts = FitOptions::new(model);
     opts.wavelength_nm = args.wavelength;
     opts.loss = loss;

@@ -13,6 +13,11 @@ use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
+use crate::budget::Budget;
+use crate::error::ResultsError;
+use crate::points::{Point, split_record};
+use crate::run::Run;
+
 /// One sweep reading.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SweepReading {
@@ -81,6 +86,171 @@ pub fn write_sweeps_csv(readings: &[SweepReading], dry_run: bool) -> String {
         s.push('\n');
     }
     s
+}
+
+/// Reads a `sweeps.csv` ([`write_sweeps_csv`]'s columns, found by name; `brdf_true_sr` only in dry-runs).
+/// `origin` names the file in errors, with the line.
+pub fn parse_sweeps_csv(text: &str, origin: &str) -> Result<Vec<SweepReading>, ResultsError> {
+    let err = |line: usize, message: String| ResultsError::Csv {
+        origin: origin.to_string(),
+        line,
+        message,
+    };
+    let mut lines = text.lines().enumerate();
+    let Some((_, header)) = lines.next() else {
+        return Err(err(0, "the file is empty (expected a header line)".into()));
+    };
+    let header: Vec<String> = split_record(header.trim_end_matches('\r'))
+        .map_err(|m| err(1, m))?
+        .into_iter()
+        .map(|h| h.trim().to_string())
+        .collect();
+    let column = |name: &str| header.iter().position(|h| h == name);
+    let required = |name: &str| column(name).ok_or_else(|| err(1, format!("no `{name}` column")));
+    let [segment, k, band, t, integration, ti, pi, to, po, arc_from, arc_to] = [
+        "segment",
+        "k",
+        "band_nm",
+        "t_s",
+        "integration_s",
+        "theta_i_deg",
+        "phi_i_deg",
+        "theta_o_deg",
+        "phi_o_deg",
+        "arc_from_deg",
+        "arc_to_deg",
+    ]
+    .map(required);
+    let (segment, k, band, t, integration) = (segment?, k?, band?, t?, integration?);
+    let (ti, pi, to, po, arc_from, arc_to) = (ti?, pi?, to?, po?, arc_from?, arc_to?);
+    let (signal, brdf, u, aperture, flags, truth) = (
+        column("signal_w"),
+        column("brdf_sr"),
+        column("brdf_u_sr"),
+        column("brdf_aperture_sr"),
+        column("flags"),
+        column("brdf_true_sr"),
+    );
+    let mut readings = Vec::new();
+    for (i, raw) in lines {
+        let line = raw.trim_end_matches('\r');
+        if line.trim().is_empty() {
+            continue;
+        }
+        let fields = split_record(line).map_err(|m| err(i + 1, m))?;
+        if fields.len() != header.len() {
+            return Err(err(
+                i + 1,
+                format!(
+                    "{} fields, but the header has {} columns",
+                    fields.len(),
+                    header.len()
+                ),
+            ));
+        }
+        let cell = |c: usize| fields[c].trim();
+        let number = |c: usize| -> Result<f64, ResultsError> {
+            cell(c)
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| {
+                    err(
+                        i + 1,
+                        format!("column `{}`: {:?} is not a finite number", header[c], cell(c)),
+                    )
+                })
+        };
+        let index = |c: usize| -> Result<u32, ResultsError> {
+            cell(c).parse::<u32>().map_err(|_| {
+                err(
+                    i + 1,
+                    format!("column `{}`: {:?} is not a count", header[c], cell(c)),
+                )
+            })
+        };
+        let optional = |c: Option<usize>| -> Result<Option<f64>, ResultsError> {
+            match c.map(cell) {
+                None | Some("") => Ok(None),
+                Some(_) => number(c.unwrap_or_default()).map(Some),
+            }
+        };
+        readings.push(SweepReading {
+            segment: index(segment)?,
+            k: index(k)?,
+            band_nm: number(band)?,
+            t_s: number(t)?,
+            integration_s: number(integration)?,
+            theta_i_deg: number(ti)?,
+            phi_i_deg: number(pi)?,
+            theta_o_deg: number(to)?,
+            phi_o_deg: number(po)?,
+            arc_from_deg: number(arc_from)?,
+            arc_to_deg: number(arc_to)?,
+            signal_w: optional(signal)?,
+            incident_w: None,
+            brdf_sr: optional(brdf)?,
+            brdf_u_sr: optional(u)?,
+            brdf_aperture_sr: optional(aperture)?,
+            flags: flags
+                .map(|c| {
+                    cell(c)
+                        .split(';')
+                        .map(str::trim)
+                        .filter(|f| !f.is_empty())
+                        .map(str::to_string)
+                        .collect()
+                })
+                .unwrap_or_default(),
+            truth_point_sr: optional(truth)?,
+        });
+    }
+    Ok(readings)
+}
+
+impl SweepReading {
+    /// The reading as a point of a run (index `index`), for the fits and exports that take sweep readings
+    /// like points: its geometry is its arc's middle; its budget is its standard uncertainty as one
+    /// independent `signal-noise` component (the store keeps a reading's total only); no read-back.
+    pub fn to_point(&self, index: u64) -> Point {
+        let mut budget = Budget::default();
+        if let Some(u) = self.brdf_u_sr.filter(|u| u.is_finite() && *u > 0.0) {
+            budget.add(crate::budget::components::SIGNAL_NOISE, u, None);
+        }
+        Point {
+            index,
+            band_nm: self.band_nm,
+            theta_i_deg: self.theta_i_deg,
+            phi_i_deg: self.phi_i_deg,
+            theta_o_deg: self.theta_o_deg,
+            phi_o_deg: self.phi_o_deg,
+            signal_w: self.signal_w,
+            dark_w: None,
+            incident_w: self.incident_w,
+            brdf_sr: self.brdf_sr,
+            brdf_u_sr: self.brdf_u_sr,
+            flags: self.flags.clone(),
+            t_s: Some(self.t_s),
+            readback_deg: Vec::new(),
+            brdf_aperture_sr: self.brdf_aperture_sr,
+            budget,
+            truth_point_sr: self.truth_point_sr,
+            truth_aperture_sr: None,
+        }
+    }
+}
+
+/// A run with `readings` appended to its points (indices after its last point), for the fits and exports
+/// that take sweep readings like points. The read-back columns of the appended points are empty.
+pub fn with_readings(mut run: Run, readings: &[SweepReading]) -> Run {
+    let first = run.points.iter().map(|p| p.index + 1).max().unwrap_or(0);
+    let axes = run.axis_names.clone();
+    run.points.extend(readings.iter().zip(first..).map(|(r, i)| {
+        let mut p = r.to_point(i);
+        p.readback_deg = axes.iter().map(|a| (a.clone(), None)).collect();
+        p
+    }));
+    run
 }
 
 /// A dry-run's sweep readings against the simulator's truth at their arcs' middles.
@@ -174,6 +344,61 @@ mod tests {
                 .count(),
             16
         );
+    }
+
+    #[test]
+    fn the_csv_reads_back_as_written_and_errors_name_the_line() {
+        let mut rows = vec![reading(0, Some(0.5), 0.01, 0.5), reading(1, None, 0.01, 0.5)];
+        rows[0].brdf_aperture_sr = Some(0.49);
+        rows[1].flags = vec!["failed: timeout".into(), "below-nebrdf".into()];
+        for dry_run in [true, false] {
+            let back = parse_sweeps_csv(&write_sweeps_csv(&rows, dry_run), "sweeps.csv").expect("parses");
+            assert_eq!(back.len(), 2);
+            for (a, b) in rows.iter().zip(&back) {
+                let want = SweepReading {
+                    incident_w: None,
+                    truth_point_sr: a.truth_point_sr.filter(|_| dry_run),
+                    ..a.clone()
+                };
+                assert_eq!(*b, want);
+            }
+        }
+        let bad = "segment,k\n0,1\n";
+        let e = parse_sweeps_csv(bad, "x/sweeps.csv")
+            .expect_err("columns missing")
+            .to_string();
+        assert!(e.contains("x/sweeps.csv") && e.contains("band_nm"), "{e}");
+        let mut text = write_sweeps_csv(&rows, false);
+        text = text.replacen(",0.5,", ",oops,", 1);
+        let e = parse_sweeps_csv(&text, "s.csv")
+            .expect_err("not a number")
+            .to_string();
+        assert!(e.contains("line 2") && e.contains("oops"), "{e}");
+    }
+
+    #[test]
+    fn readings_join_a_run_as_points_after_its_last_one() {
+        let run = Run {
+            origin: "r".into(),
+            name: "r".into(),
+            points: vec![Point::at(550.0, [0.0, 0.0, 30.0, 180.0], 0.3)],
+            axis_names: vec!["light".into()],
+            dry_run: true,
+            provenance: None,
+        };
+        let rows = [reading(0, Some(0.5), 0.01, 0.5), reading(1, None, 0.01, 0.5)];
+        let joined = with_readings(run, &rows);
+        assert_eq!(joined.points.len(), 3);
+        assert_eq!(joined.points[1].index, 1);
+        assert_eq!(joined.points[2].index, 2);
+        let p = &joined.points[1];
+        assert_eq!(
+            (p.theta_o_deg, p.brdf_sr, p.brdf_u_sr),
+            (20.0, Some(0.5), Some(0.01))
+        );
+        assert_eq!(p.budget.total_sr(), 0.01);
+        assert_eq!(p.readback_deg, vec![("light".to_string(), None)]);
+        assert!(p.is_valid() && !joined.points[2].is_valid());
     }
 
     #[test]
