@@ -99,6 +99,19 @@ impl Profile {
     }
 }
 
+/// Where the swept arm's load is against its motor (physical degrees) during a sweep of `span_deg`: points are
+/// approached from below in controller coordinates (gonio_driver::motion::approach_waypoints), the contact the
+/// axis's zero refers to; a sweep down the controller's scale pushes the load from the other side of the
+/// backlash, a whole `backlash_deg` further up the controller's scale.
+fn load_offset_deg(axis: &gonio_instrument::Axis, span_deg: f64) -> f64 {
+    let direction = f64::from(axis.direction.signum());
+    if direction * span_deg < 0.0 {
+        direction * axis.backlash_deg
+    } else {
+        0.0
+    }
+}
+
 impl Run<'_> {
     /// The sweeps from the first segment not committed. `calibrated`: darks and normalisation readings were
     /// taken in this session (the points ran before); else they are taken first.
@@ -298,6 +311,7 @@ impl Run<'_> {
 
         let integration_s = f64::from(arc.request.averaging) * DETECTOR_SAMPLE_S;
         let span = to_deg - from_deg;
+        let load_offset = load_offset_deg(&axis.config, span);
         let signed = |x: f64| {
             if span == 0.0 {
                 s_start
@@ -311,7 +325,10 @@ impl Run<'_> {
             .enumerate()
             .map(|(k, r)| {
                 let (ta, tb) = (r.requested_s, r.requested_s + integration_s);
-                let (a, b) = (signed(profile.at(ta - lag)), signed(profile.at(tb - lag)));
+                let (a, b) = (
+                    signed(profile.at(ta - lag) + load_offset),
+                    signed(profile.at(tb - lag) + load_offset),
+                );
                 let mid = 0.5 * (a + b);
                 self.sweep_reading(
                     segment,
