@@ -41,7 +41,13 @@
 //!
 //! Calibrations (darks, then the normalisation readings, as the session's opening one) fall due between arcs
 //! every `Calibration::sweep_every_s` of instrument time, and close the sweeps when the plan asks for references.
+//!
+//! # Speed that follows the BRDF
+//! [`follow`] computes, from samples of the BRDF along an arc, pieces of constant speed that keep every
+//! reading's smearing within a tolerance, and their time. Campaign files cannot ask for it yet: the engine
+//! sweeps each arc at its one `speed_deg_s` (issue 41).
 
+pub mod follow;
 mod path;
 mod spec;
 mod walk;

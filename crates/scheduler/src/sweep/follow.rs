@@ -1,0 +1,330 @@
+//! Speed that follows the BRDF (issue 41): fast where the BRDF is smooth, slow where it bends.
+//!
+//! A sweep reading integrates the BRDF along the arc the arm travels during the reading's integration time `T`:
+//! at speed `v` that arc is `L = v T` long, and the reading, attributed to the arc's middle, differs from the
+//! BRDF there by `f'' L^2 / 24` to leading order (the mean of a parabola over an interval against its value at
+//! the middle). For a relative smearing tolerance `eps`, the fastest speed at angle `s` is therefore
+//! `v(s) = sqrt(24 eps f(s) / |f''(s)|) / T`, held between the request's top speed and a floor.
+//!
+//! [`speed_profile`] turns samples of the BRDF along an arc (from a first pass at the top speed, or from a
+//! model) into pieces of constant speed: each sample's speed is the slowest any reading near it needs (the
+//! curvature's largest magnitude within a reading's arc at the top speed around it), rounded down to a ladder
+//! of speeds a factor `sqrt(2)` apart so that the pieces stay few; pieces shorter than `min_piece_deg` are
+//! merged into a slower neighbour. Each piece carries the largest smearing predicted for its readings.
+//! [`profile_time_s`] is the time to sweep the pieces one after the other, each a move of its own.
+
+/// A stretch of an arc swept at one speed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FollowPiece {
+    /// The stretch, in the arc's signed degrees (`from_deg < to_deg`).
+    pub from_deg: f64,
+    pub to_deg: f64,
+    pub speed_deg_s: f64,
+    /// The largest relative smearing predicted for a reading in the piece (`|f''| (v T)^2 / (24 f)`).
+    pub smearing_rel: f64,
+}
+
+/// What a profile is asked for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FollowRequest {
+    /// The meter's integration time per reading (s): `averaging` x the detector's sample time.
+    pub integration_s: f64,
+    /// The largest relative smearing allowed per reading.
+    pub tolerance_rel: f64,
+    /// The request's speed, used where the BRDF is smooth (deg/s).
+    pub top_speed_deg_s: f64,
+    /// The slowest speed used (deg/s); where even it smears more than the tolerance, the piece says by how much.
+    pub min_speed_deg_s: f64,
+    /// The shortest piece (deg): a piece is a move of its own, with its ramps.
+    pub min_piece_deg: f64,
+}
+
+/// Ratio between consecutive speeds of the ladder.
+const LADDER: f64 = std::f64::consts::SQRT_2;
+
+/// The pieces of constant speed for an arc whose BRDF is sampled at `samples` ((signed angle in degrees,
+/// value) on a uniform, increasing grid of at least three points; values positive). Empty when the samples
+/// cannot make a profile (fewer than three, not increasing, a value not positive and finite, a request not
+/// positive).
+pub fn speed_profile(samples: &[(f64, f64)], req: &FollowRequest) -> Vec<FollowPiece> {
+    let ok = samples.len() >= 3
+        && samples.windows(2).all(|w| w[1].0 > w[0].0)
+        && samples
+            .iter()
+            .all(|(s, f)| s.is_finite() && f.is_finite() && *f > 0.0)
+        && [
+            req.integration_s,
+            req.tolerance_rel,
+            req.top_speed_deg_s,
+            req.min_speed_deg_s,
+        ]
+        .iter()
+        .all(|x| x.is_finite() && *x > 0.0)
+        && req.min_speed_deg_s <= req.top_speed_deg_s
+        && req.min_piece_deg.is_finite();
+    if !ok {
+        return Vec::new();
+    }
+    let n = samples.len();
+    let h = (samples[n - 1].0 - samples[0].0) / (n - 1) as f64;
+    // |f''| / f at each sample (per degree squared), the ends taking their neighbours'.
+    let mut bend: Vec<f64> = (0..n)
+        .map(|i| {
+            let i = i.clamp(1, n - 2);
+            let (a, b, c) = (samples[i - 1].1, samples[i].1, samples[i + 1].1);
+            ((a - 2.0 * b + c) / (h * h)).abs() / b
+        })
+        .collect();
+    // A reading at the top speed spans this many samples: each sample takes the worst bend within it.
+    let reach = ((req.top_speed_deg_s * req.integration_s / 2.0) / h).ceil() as usize + 1;
+    bend = (0..n)
+        .map(|i| {
+            bend[i.saturating_sub(reach)..(i + reach + 1).min(n)]
+                .iter()
+                .copied()
+                .fold(0.0, f64::max)
+        })
+        .collect();
+    let smearing = |v: f64, bend: f64| bend * (v * req.integration_s).powi(2) / 24.0;
+    // The ladder step of each sample: 0 is the top speed, k is top / LADDER^k, never below the floor.
+    let floor_step = ((req.top_speed_deg_s / req.min_speed_deg_s).ln() / LADDER.ln()).floor() as u32;
+    let speed_of = |step: u32| (req.top_speed_deg_s / LADDER.powi(step as i32)).max(req.min_speed_deg_s);
+    let steps: Vec<u32> = bend
+        .iter()
+        .map(|&b| {
+            if b <= 0.0 {
+                return 0;
+            }
+            let v = (24.0 * req.tolerance_rel / b).sqrt() / req.integration_s;
+            if v >= req.top_speed_deg_s {
+                0
+            } else {
+                (((req.top_speed_deg_s / v).ln() / LADDER.ln()).ceil() as u32).min(floor_step + 1)
+            }
+        })
+        .collect();
+    // Runs of one step, as (first sample, last sample, step).
+    let mut runs: Vec<(usize, usize, u32)> = Vec::new();
+    for (i, &k) in steps.iter().enumerate() {
+        match runs.last_mut() {
+            Some(r) if r.2 == k => r.1 = i,
+            _ => runs.push((i, i, k)),
+        }
+    }
+    // Merge runs shorter than a piece into the slower neighbour (the slower speed holds both).
+    let length = |r: &(usize, usize, u32)| samples[r.1].0 - samples[r.0].0 + h;
+    while runs.len() > 1 {
+        let Some(short) = (0..runs.len())
+            .filter(|&i| length(&runs[i]) < req.min_piece_deg)
+            .min_by(|&a, &b| length(&runs[a]).total_cmp(&length(&runs[b])))
+        else {
+            break;
+        };
+        let with = match (
+            short.checked_sub(1),
+            (short + 1 < runs.len()).then_some(short + 1),
+        ) {
+            (Some(l), Some(r)) => {
+                if runs[l].2 >= runs[r].2 {
+                    l
+                } else {
+                    r
+                }
+            }
+            (Some(l), None) => l,
+            (None, Some(r)) => r,
+            (None, None) => break,
+        };
+        let (a, b) = (short.min(with), short.max(with));
+        runs[a] = (runs[a].0, runs[b].1, runs[a].2.max(runs[b].2));
+        runs.remove(b);
+    }
+    let last = runs.len().saturating_sub(1);
+    runs.iter()
+        .enumerate()
+        .map(|(j, &(a, b, k))| {
+            let v = speed_of(k);
+            let worst = bend[a..=b].iter().copied().fold(0.0, f64::max);
+            FollowPiece {
+                // Pieces meet half-way between their samples; the arc's ends are its first and last samples.
+                from_deg: if j == 0 {
+                    samples[a].0
+                } else {
+                    samples[a].0 - h / 2.0
+                },
+                to_deg: if j == last {
+                    samples[b].0
+                } else {
+                    samples[b].0 + h / 2.0
+                },
+                speed_deg_s: v,
+                smearing_rel: smearing(v, worst),
+            }
+        })
+        .collect()
+}
+
+/// The time to sweep `pieces` one after the other (s), each a move of its own from rest to rest at its speed
+/// with acceleration `accel_deg_s2` (a trapezoid, or a triangle when the piece is too short to cruise), plus
+/// `per_piece_s` for the exchanges that set its speed and start it.
+pub fn profile_time_s(pieces: &[FollowPiece], accel_deg_s2: f64, per_piece_s: f64) -> f64 {
+    pieces
+        .iter()
+        .map(|p| {
+            let d = (p.to_deg - p.from_deg).abs();
+            let v = p.speed_deg_s;
+            let ramp = v * v / accel_deg_s2;
+            let motion = if d >= ramp {
+                d / v + v / accel_deg_s2
+            } else {
+                2.0 * (d / accel_deg_s2).sqrt()
+            };
+            motion + per_piece_s
+        })
+        .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn request() -> FollowRequest {
+        FollowRequest {
+            // Ten meter samples a reading.
+            integration_s: 3e-2,
+            tolerance_rel: 1e-3,
+            top_speed_deg_s: 20.0,
+            min_speed_deg_s: 0.05,
+            min_piece_deg: 1.0,
+        }
+    }
+
+    fn sampled(f: impl Fn(f64) -> f64, from: f64, to: f64, h: f64) -> Vec<(f64, f64)> {
+        let n = ((to - from) / h).round() as usize;
+        (0..=n)
+            .map(|i| {
+                let s = from + i as f64 * h;
+                (s, f(s))
+            })
+            .collect()
+    }
+
+    /// A gloss lobe a degree wide on a diffuse floor 50 times lower.
+    fn lobe(s: f64) -> f64 {
+        1.0 + 50.0 * (-s * s).exp()
+    }
+
+    /// The reading a sweep at `v` takes around `s`: the mean of `f` over the arc travelled, by Simpson's rule
+    /// on 200 intervals (independent of the profile's finite differences).
+    fn reading(f: &impl Fn(f64) -> f64, s: f64, v: f64, t: f64) -> f64 {
+        let l = v * t;
+        let n = 200;
+        let h = l / n as f64;
+        let mut sum = f(s - l / 2.0) + f(s + l / 2.0);
+        for i in 1..n {
+            let x = s - l / 2.0 + i as f64 * h;
+            sum += if i % 2 == 1 { 4.0 } else { 2.0 } * f(x);
+        }
+        sum * h / 3.0 / l
+    }
+
+    #[test]
+    fn a_smooth_brdf_is_swept_whole_at_the_top_speed() {
+        let pieces = speed_profile(&sampled(|s| 2.0 + 0.01 * s, -80.0, 80.0, 0.1), &request());
+        assert_eq!(pieces.len(), 1);
+        assert_eq!(pieces[0].speed_deg_s, 20.0);
+        assert!((pieces[0].from_deg + 80.0).abs() < 1e-9 && (pieces[0].to_deg - 80.0).abs() < 1e-9);
+        assert!(pieces[0].smearing_rel < 1e-9);
+    }
+
+    #[test]
+    fn every_reading_of_a_lobe_smears_within_the_tolerance() {
+        let req = request();
+        let pieces = speed_profile(&sampled(lobe, -80.0, 80.0, 0.05), &req);
+        assert!(pieces.len() >= 3, "{pieces:?}");
+        // Contiguous, covering the arc, slower near the lobe than away from it.
+        assert!((pieces[0].from_deg + 80.0).abs() < 1e-9);
+        assert!((pieces.last().unwrap().to_deg - 80.0).abs() < 1e-9);
+        for w in pieces.windows(2) {
+            assert!((w[0].to_deg - w[1].from_deg).abs() < 1e-9, "{w:?}");
+        }
+        let at = |s: f64| pieces.iter().find(|p| p.from_deg <= s && s <= p.to_deg).unwrap();
+        assert!(at(0.0).speed_deg_s < at(40.0).speed_deg_s / 4.0);
+        assert_eq!(at(40.0).speed_deg_s, req.top_speed_deg_s);
+        // The smearing of each reading, by integration, within the tolerance (1.2 x: the leading order).
+        for p in &pieces {
+            assert!(p.smearing_rel <= req.tolerance_rel, "{p:?}");
+            let mut s = p.from_deg;
+            while s <= p.to_deg {
+                let r = reading(&lobe, s, p.speed_deg_s, req.integration_s);
+                let e = (r / lobe(s) - 1.0).abs();
+                assert!(e <= 1.2 * req.tolerance_rel, "at {s}: {e:.2e} in {p:?}");
+                s += 0.01;
+            }
+        }
+    }
+
+    #[test]
+    fn following_the_lobe_takes_a_fraction_of_the_constant_speed_that_meets_the_same_tolerance() {
+        let req = request();
+        let pieces = speed_profile(&sampled(lobe, -80.0, 80.0, 0.05), &req);
+        let slowest = pieces.iter().map(|p| p.speed_deg_s).fold(f64::INFINITY, f64::min);
+        let constant = [FollowPiece {
+            from_deg: -80.0,
+            to_deg: 80.0,
+            speed_deg_s: slowest,
+            smearing_rel: 0.0,
+        }];
+        let (a, overhead) = (80.0, 0.05);
+        let followed = profile_time_s(&pieces, a, overhead);
+        let steady = profile_time_s(&constant, a, overhead);
+        eprintln!(
+            "{} pieces, slowest {slowest:.2} deg/s: followed {followed:.1} s, constant {steady:.1} s",
+            pieces.len()
+        );
+        assert!(
+            followed < steady / 3.0,
+            "followed {followed:.1} s, constant {steady:.1} s"
+        );
+        // The time of a piece: cruise plus one ramp's worth (v / a), or a triangle when it cannot cruise.
+        let one = FollowPiece {
+            from_deg: 0.0,
+            to_deg: 10.0,
+            speed_deg_s: 5.0,
+            smearing_rel: 0.0,
+        };
+        assert!((profile_time_s(&[one], 80.0, 0.0) - (2.0 + 5.0 / 80.0)).abs() < 1e-12);
+        let short = FollowPiece { to_deg: 0.1, ..one };
+        assert!((profile_time_s(&[short], 80.0, 0.0) - 2.0 * (0.1f64 / 80.0).sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn where_even_the_floor_smears_too_much_the_piece_says_so() {
+        let req = FollowRequest {
+            min_speed_deg_s: 10.0,
+            ..request()
+        };
+        let pieces = speed_profile(&sampled(lobe, -10.0, 10.0, 0.05), &req);
+        let worst = pieces.iter().map(|p| p.smearing_rel).fold(0.0, f64::max);
+        assert!(worst > req.tolerance_rel, "{pieces:?}");
+        assert!(pieces.iter().all(|p| p.speed_deg_s >= 10.0));
+    }
+
+    #[test]
+    fn bad_samples_or_requests_give_no_profile() {
+        let good = sampled(lobe, -5.0, 5.0, 0.5);
+        assert!(!speed_profile(&good, &request()).is_empty());
+        assert!(speed_profile(&good[..2], &request()).is_empty());
+        let mut reversed = good.clone();
+        reversed.reverse();
+        assert!(speed_profile(&reversed, &request()).is_empty());
+        let mut zero = good.clone();
+        zero[3].1 = 0.0;
+        assert!(speed_profile(&zero, &request()).is_empty());
+        let slow_top = FollowRequest {
+            top_speed_deg_s: 0.01,
+            ..request()
+        };
+        assert!(speed_profile(&good, &slow_top).is_empty());
+    }
+}
