@@ -330,6 +330,40 @@ impl AxisMotion {
         load + self.ring.map_or(0.0, |r| r.at(t_s))
     }
 
+    /// Where the optics will see the load at `t_s`, without advancing the axis's state: what a meter integrating
+    /// over a window that is still ahead asks. The state only moves forward ([`AxisMotion::advance`]); advanced
+    /// to the window's end, it would answer every earlier question (the window's own samples, a controller's
+    /// position report during the window) with the window's end. Before the state's time it answers the state.
+    pub fn optical_deg_ahead(&self, t_s: f64) -> f64 {
+        if t_s < self.last_t_s {
+            return self.load_deg + self.ring.map_or(0.0, |r| r.at(t_s));
+        }
+        let b = self.params.backlash_deg;
+        let mut load = self.load_deg;
+        let mut running = false;
+        for seg in &self.segments {
+            if seg.end_s() <= self.last_t_s {
+                continue;
+            }
+            if seg.t0_s > t_s {
+                running = true;
+                break;
+            }
+            let m = seg.pos_at(t_s.min(seg.end_s()));
+            load = load.clamp(m, m + b);
+            running |= seg.end_s() > t_s;
+        }
+        if !running {
+            load = load.clamp(self.target_deg, self.target_deg + b);
+        }
+        let ended_s = self.segments.last().map(Segment::end_s).filter(|end| *end <= t_s);
+        let ring = match (ended_s, self.settling) {
+            (Some(end), Some(s)) => s.ring(end, self.target_deg - self.move_from_deg),
+            _ => self.ring,
+        };
+        load + ring.map_or(0.0, |r| r.at(t_s))
+    }
+
     /// The encoder read-back: the load quantised to the encoder resolution.
     pub fn encoder_deg(&mut self, t_s: f64) -> f64 {
         let load = self.load_deg(t_s);

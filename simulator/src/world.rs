@@ -41,6 +41,26 @@ impl World {
         pose
     }
 
+    /// The pose at `t_s` without advancing any axis's state (`AxisMotion::optical_deg_ahead`): for a meter's
+    /// samples over a window still ahead of the present.
+    pub fn pose_ahead(&self, t_s: f64) -> Pose {
+        let mut pose = Pose::default();
+        for (axis, motion) in &self.axes {
+            let controller_deg = motion
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .optical_deg_ahead(t_s);
+            let physical = axis.physical_from_controller_deg(controller_deg);
+            match axis.role {
+                AxisRole::LightArm => pose.light_deg = physical,
+                AxisRole::DetectorArm => pose.detector_deg = physical,
+                AxisRole::SampleTilt => pose.tilt_deg = physical,
+                AxisRole::SampleRotation => pose.rotation_deg = physical,
+            }
+        }
+        pose
+    }
+
     pub fn band(&self, t_s: f64) -> Band {
         match &self.wheel {
             Some(w) => w.lock().unwrap_or_else(|e| e.into_inner()).band_at(t_s),

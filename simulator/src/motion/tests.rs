@@ -132,3 +132,41 @@ fn new_move_during_a_move_decelerates_then_goes() {
     assert_eq!(m.motor_deg(end + 0.1), 0.0);
     assert!(end > 1.25);
 }
+
+/// A meter's window still ahead of the present is looked at without advancing the axis: every instant of it
+/// sees its own position (what the axis, advanced in order, would show there), and the present is still
+/// answered afterwards. Advanced to the window's end first, the axis would answer every earlier instant with
+/// the window's end (a reading of 30 samples would see one pose, 90 ms ahead of its middle).
+#[test]
+fn looking_ahead_sees_each_instant_and_leaves_the_present_alone() {
+    let with_backlash = AxisParams {
+        backlash_deg: 0.01,
+        ..params()
+    };
+    let mut m = AxisMotion::new(with_backlash, 0.0);
+    let end = m.start_move(0.0, 20.0, 10.0, 80.0, None);
+    let mut reference = m.clone();
+    let times: Vec<f64> = (0..=40).map(|k| 0.05 * f64::from(k)).collect();
+    let ahead: Vec<f64> = times.iter().map(|&t| m.optical_deg_ahead(t)).collect();
+    for (&t, &a) in times.iter().zip(&ahead) {
+        assert!((a - reference.optical_deg(t)).abs() < 1e-12, "at {t}: {a}");
+    }
+    // Nothing advanced: the present (t = 0.2 s) is where the axis is then, not where the window ends.
+    let now = m.load_deg(0.2);
+    assert!((now - reference_at(0.2)).abs() < 1e-12, "{now}");
+    assert!(m.optical_deg_ahead(end + 1.0) > 19.98);
+    // A past instant is answered by the state's own time.
+    assert_eq!(m.optical_deg_ahead(0.1), m.load_deg(0.2));
+
+    fn reference_at(t: f64) -> f64 {
+        let mut r = AxisMotion::new(
+            AxisParams {
+                backlash_deg: 0.01,
+                ..params()
+            },
+            0.0,
+        );
+        r.start_move(0.0, 20.0, 10.0, 80.0, None);
+        r.load_deg(t)
+    }
+}

@@ -27,16 +27,21 @@ impl Pm100 {
         let ranges = &d.ranges_w;
         let world = &self.world;
         let sample_times = |k: u32| t0 + (f64::from(k) + 0.5) * SAMPLE_S;
-        // Axes and wheel at rest over the window: one scene evaluation serves every sample.
-        let (p_first, b_first) = (world.pose(sample_times(0)), world.band(sample_times(0)));
-        let (p_last, b_last) = (world.pose(sample_times(n - 1)), world.band(sample_times(n - 1)));
+        // Axes and wheel at rest over the window: one scene evaluation serves every sample. The window is still
+        // ahead of the present (the reply is due at its end): its poses are looked ahead, never advanced to, so
+        // that each sample sees its own instant and a position report during the window sees its own.
+        let (p_first, b_first) = (world.pose_ahead(sample_times(0)), world.band(sample_times(0)));
+        let (p_last, b_last) = (
+            world.pose_ahead(sample_times(n - 1)),
+            world.band(sample_times(n - 1)),
+        );
         let steady = p_first == p_last && b_first == b_last;
         let optical_at = |k: u32| -> (f64, Band) {
             let t = sample_times(k);
             let (pose, band): (Pose, Band) = if steady {
                 (p_first, b_first)
             } else {
-                (world.pose(t), world.band(t))
+                (world.pose_ahead(t), world.band(t))
             };
             let p = world.scene.detector_power_w(&pose, &band, t);
             (if p.is_finite() { p.max(0.0) } else { 0.0 }, band)

@@ -7,6 +7,9 @@
 //!   `narrow-lobe` and its uncertainty covers the bias;
 //! - pointing: the angles' uncertainty (an applied alignment's, else the instrument file's) times the model's
 //!   slopes, as for points;
+//! - the smearing: a reading is the mean along the arc it covered; each value is taken to its arc's middle by
+//!   the fitted model's value there against its mean along the arc, a quarter of that correction added to its
+//!   uncertainty ([`U_OF_SMEARING_CORRECTION`]);
 //! - timing: where along its arc a reading was is known to the exchange latency ([`TIMING_U_S`]): the sweep's
 //!   speed times that, times the model's slope along the swept angle;
 //! - the finite band (gonio_results::band_component), the spectral slope from the other bands' sweeps of the
@@ -32,6 +35,46 @@ pub const CORRECTION_SPACING_DEG: f64 = 0.1;
 
 /// How well the time of a reading's integration is known (s): one exchange with the meter.
 pub const TIMING_U_S: f64 = 0.001;
+
+/// The smearing correction's standard uncertainty, as a fraction of it: the fitted model's curvature along
+/// the arc is an estimate (as the positioning correction's, crate::budget::positioning).
+pub const U_OF_SMEARING_CORRECTION: f64 = 0.25;
+
+/// Largest smearing corrected (relative): beyond it the arc is no longer short against the BRDF's features.
+const MAX_SMEARING: f64 = 0.2;
+
+/// The model's value at the middle of the arc `r` covered against its mean along the arc (Simpson's rule on
+/// the arc's ends and middle): the factor that takes the reading to its arc's middle. The swept angle moves
+/// `theta_i` (`light`) or `theta_o` away from its middle value, in the sense of the signed arc. `None` when the
+/// model has no value there or the smearing is beyond [`MAX_SMEARING`].
+fn smearing_ratio(model: &gonio_brdf::Material, r: &SweepReading, light: bool) -> Option<f64> {
+    use gonio_brdf::{Brdf as _, Direction, Wavelength};
+    let (a, b) = (r.arc_from_deg, r.arc_to_deg);
+    if a == b || !(a.is_finite() && b.is_finite()) {
+        return None;
+    }
+    let wavelength = Wavelength::from_nm(r.band_nm).ok()?;
+    let m = 0.5 * (a + b);
+    let sense = if m < 0.0 { -1.0 } else { 1.0 };
+    let f = |x: f64| {
+        let d = sense * (x - m);
+        let (ti, to) = if light {
+            (r.theta_i_deg + d, r.theta_o_deg)
+        } else {
+            (r.theta_i_deg, r.theta_o_deg + d)
+        };
+        let wi = Direction::from_spherical_deg(ti, r.phi_i_deg);
+        let wo = Direction::from_spherical_deg(to, r.phi_o_deg);
+        model.eval(&wi, &wo, wavelength).ok().filter(|v| v.is_finite())
+    };
+    let (fa, fm, fb) = (f(a)?, f(m)?, f(b)?);
+    let mean = (fa + 4.0 * fm + fb) / 6.0;
+    if !(mean > 0.0 && fm > 0.0) {
+        return None;
+    }
+    let ratio = fm / mean;
+    ((ratio - 1.0).abs() <= MAX_SMEARING).then_some(ratio)
+}
 
 /// The completion of `readings` (module doc): one entry per reading, in their order. `relative`: normalised by
 /// a reference sample (the absolute equation's `tan(theta_o)` then plays no part in pointing).
@@ -161,6 +204,14 @@ pub fn sweep_completions(
                     out.flags = Some(flags);
                 }
                 None => {}
+            }
+            // The smearing: the reading is the mean along the arc it covered; the model's value at the arc's
+            // middle against its mean there (a reading's arc is far shorter than the model's features).
+            if let Some(ratio) = smearing_ratio(&fitted.material, r, light) {
+                let correction = ratio - 1.0;
+                value *= ratio;
+                var *= ratio * ratio;
+                var += (value * correction * U_OF_SMEARING_CORRECTION).powi(2);
             }
             if let Some(u_band) = band.get(c).copied().flatten() {
                 // Relative to the carrier's value, applied to this reading's.

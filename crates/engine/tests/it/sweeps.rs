@@ -45,15 +45,19 @@ struct Setup {
 }
 
 async fn setup(dir: &std::path::Path) -> Setup {
+    setup_with(dir, CAMPAIGN).await
+}
+
+async fn setup_with(dir: &std::path::Path, campaign: &str) -> Setup {
     let file = InstrumentFile::simulated();
-    let prepared = prepare_campaign(CAMPAIGN, "sweep-test.toml", dir, &file).expect("valid campaign");
+    let prepared = prepare_campaign(campaign, "sweep-test.toml", dir, &file).expect("valid campaign");
     let text = toml::to_string(&file).expect("toml");
     let mut store = Store::open(dir).expect("store");
     let id = store
-        .create_campaign(&prepared.new_campaign(CAMPAIGN, &text))
+        .create_campaign(&prepared.new_campaign(campaign, &text))
         .expect("create");
     let planned = gonio_campaign::load_and_prepare(
-        CAMPAIGN,
+        campaign,
         "sweep-test.toml",
         &gonio_campaign::Sources::Local(dir.to_path_buf()),
         &file,
@@ -327,4 +331,74 @@ async fn an_emergency_stop_during_a_sweep_halts_it_at_once_and_keeps_nothing_of_
         .sweep_readings(s.id)
         .expect("readings");
     check_segments(&after, &s.steps);
+}
+
+/// A fast sweep with long readings (10 deg/s, 30 meter samples: each reading averages the BRDF over 0.9 deg of
+/// arc) across the coloured plastic's gloss lobe: each reading is attributed to the arc it really covered, the
+/// completion takes it to its arc's middle (the aperture's and the smearing's corrections with the fitted
+/// model), and the stated uncertainties hold the truth. (With the simulated meter seeing its whole window at
+/// the window's end, as it did, the readings were 0.46 deg off and 3 % of them covered.)
+#[tokio::test(start_paused = true)]
+async fn fast_sweeps_are_taken_to_their_arcs_middles() {
+    const FAST: &str = r#"
+[campaign]
+id = "fast-sweep"
+[sample]
+radius_mm = 12.5
+[plan]
+bands_nm = [550.0]
+[[plan.sweeps]]
+theta_i_deg = [30.0]
+theta_o_deg = { from = 5.0, to = 60.0 }
+speed_deg_s = 10.0
+averaging = 30
+[plan.calibration]
+dark_every_s = 60.0
+reference_every_s = 60.0
+reference_pose_deg = { light = -90.0, detector = 90.0 }
+[calibration]
+simulate_operator = true
+[material]
+preset = "coloured-plastic"
+"#;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let s = setup_with(dir.path(), FAST).await;
+    let state = run_campaign(Arc::clone(&s.store), s.id, &s.rig, Control::new())
+        .await
+        .expect("run");
+    assert_eq!(state, CampaignState::Completed);
+    let readings = s
+        .store
+        .lock()
+        .expect("lock")
+        .sweep_readings(s.id)
+        .expect("readings");
+    let summary = gonio_results::sweeps::truth_summary(&readings).expect("summary");
+    // The readings as committed (before the completion), against the same truth.
+    let raw: Vec<SweepReading> = readings
+        .iter()
+        .map(|r| SweepReading {
+            brdf_sr: r.brdf_aperture_sr.or(r.brdf_sr),
+            ..r.clone()
+        })
+        .collect();
+    let before = gonio_results::sweeps::truth_summary(&raw).expect("summary");
+    eprintln!(
+        "{} readings: relative rms {:?} completed, {:?} as read; k=2 coverage {:.3}",
+        summary.readings,
+        summary.cos_weighted_relative_rms,
+        before.cos_weighted_relative_rms,
+        summary.coverage_k2
+    );
+    let (after, before) = (
+        summary.cos_weighted_relative_rms.expect("rms"),
+        before.cos_weighted_relative_rms.expect("rms"),
+    );
+    assert!(summary.readings > 50, "{summary:?}");
+    assert!(after < 2e-3, "rms {after:.2e} completed");
+    assert!(
+        after < 0.5 * before,
+        "rms {after:.2e} completed, {before:.2e} as read"
+    );
+    assert!(summary.coverage_k2 >= 0.90, "{summary:?}");
 }
