@@ -132,6 +132,28 @@ pub fn auto_range_index(power_w: f64, ranges_w: &[f64]) -> Option<usize> {
     ranges_w.iter().position(|fs| *fs > power_w.abs())
 }
 
+/// The meter configured for readings at `nm` unless `configured_nm` says it is (supervised); `configured_nm`
+/// is updated. What [`read`] does first: a sweep does it before its motion starts, so that no arc passes while
+/// the meter is being set up.
+pub async fn configure(
+    motion: &Motion<'_>,
+    nm: f64,
+    acquisition: &Acquisition,
+    configured_nm: &mut Option<f64>,
+) -> Result<(), MotionError> {
+    if *configured_nm != Some(nm) {
+        let det = motion.rig().detector();
+        let config = meter_config(nm, acquisition);
+        motion
+            .device(Device::Detector, "configure the detector", || {
+                det.configure(config)
+            })
+            .await?;
+        *configured_nm = Some(nm);
+    }
+    Ok(())
+}
+
 /// One supervised reading at `nm` (the meter configured for it first unless `configured_nm` says it is; a meter
 /// that was reconnected is configured again, since it is back at its defaults). `configured_nm` is updated.
 pub async fn read(
@@ -142,14 +164,7 @@ pub async fn read(
 ) -> Result<MeterReading, MotionError> {
     let det = motion.rig().detector();
     let config = meter_config(nm, acquisition);
-    if *configured_nm != Some(nm) {
-        motion
-            .device(Device::Detector, "configure the detector", || {
-                det.configure(config)
-            })
-            .await?;
-        *configured_nm = Some(nm);
-    }
+    configure(motion, nm, acquisition, configured_nm).await?;
     let r = motion
         .device(Device::Detector, "read the detector", || async {
             let r = det.read_power().await;

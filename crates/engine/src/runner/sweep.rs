@@ -213,6 +213,8 @@ impl Run<'_> {
         let mut acquisition = self.c.campaign.acquisition;
         acquisition.averaging = arc.request.averaging;
         self.configured_nm = None;
+        // The meter set up for the sweep's readings before the arm starts: none of the arc passes meanwhile.
+        acquisition::configure(&self.motion, band_nm, &acquisition, &mut self.configured_nm).await?;
         let what = format!(
             "set {} to {} deg/s for a sweep",
             axis.config.name, arc.request.speed_deg_s
