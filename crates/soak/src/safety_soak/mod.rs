@@ -43,7 +43,7 @@ use gonio_instrument::{Axis, AxisRole, InstrumentFile};
 use crate::setup::SoakInstrument;
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::{Kinematics, Pose};
-use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec, SweepSpec, SweptArm};
+use gonio_scheduler::plan::{GridKind, GridSpec, PlanSpec, SweepSpec};
 use gonio_simulator::recording::{MotionCommand, MotionRecord, Piece, check_arm_separation, physical_pieces};
 use gonio_simulator::scene::Pose as SimPose;
 use rand::{Rng, SeedableRng};
@@ -54,6 +54,7 @@ pub use scenarios::Sabotage;
 
 mod checks;
 mod running;
+mod sweeps;
 
 pub use checks::{CaseResult, Rule, check, check_separation, sweep_speeds, sweeping_at};
 pub use running::Outcome;
@@ -179,51 +180,6 @@ fn random_grid(rng: &mut ChaCha8Rng) -> GridSpec {
     }
 }
 
-/// A random sweep (its own stream: the cases without sweeps are drawn as before sweeps existed): either arm, an
-/// arc of 20 to 150 degrees with the other arm held, one plane, 0.5 to 15 deg/s (below every arm's top speed).
-fn random_sweep(rng: &mut ChaCha8Rng) -> SweepSpec {
-    let arc = |rng: &mut ChaCha8Rng| {
-        let from = round1(rng.random_range(-80.0..0.0f64));
-        let to = round1((from + rng.random_range(20.0..150.0f64)).min(80.0));
-        toml::Value::Table(toml::Table::from_iter([
-            ("from".to_string(), toml::Value::Float(from)),
-            ("to".to_string(), toml::Value::Float(to)),
-        ]))
-    };
-    let held = |rng: &mut ChaCha8Rng, max: f64| {
-        toml::Value::Array(vec![toml::Value::Float(round1(rng.random_range(0.0..max)))])
-    };
-    let arm = if rng.random_bool(0.5) {
-        SweptArm::Detector
-    } else {
-        SweptArm::Light
-    };
-    let (theta_i_deg, theta_o_deg) = match arm {
-        SweptArm::Detector => (held(rng, 60.0), arc(rng)),
-        SweptArm::Light => (arc(rng), held(rng, 70.0)),
-    };
-    SweepSpec {
-        arm,
-        theta_i_deg,
-        theta_o_deg,
-        plane_phi_deg: Some(toml::Value::Array(vec![toml::Value::Float(round1(
-            rng.random_range(0.0..180.0f64),
-        ))])),
-        speed_deg_s: round1(rng.random_range(0.5..15.0f64)),
-        averaging: rng.random_range(1..4u32),
-    }
-}
-
-/// The sweeps of a case, if it has any, and whether it has no points: a stream of its own.
-fn random_sweeps(rng: &mut ChaCha8Rng) -> (Vec<SweepSpec>, bool) {
-    if rng.random_range(0..3u32) != 0 {
-        return (Vec::new(), false);
-    }
-    let n = rng.random_range(1..3usize);
-    let sweeps = (0..n).map(|_| random_sweep(rng)).collect();
-    (sweeps, rng.random_bool(0.5))
-}
-
 fn campaign_text(rng: &mut ChaCha8Rng, (sweeps, sweeps_only): (Vec<SweepSpec>, bool)) -> String {
     let grid = random_grid(rng);
     let all = [450.0, 550.0, 650.0];
@@ -317,7 +273,7 @@ fn faults(rng: &mut ChaCha8Rng) -> FaultLevel {
 pub fn case(seed: u64, index: u32) -> Case {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ (u64::from(index) << 32) ^ 0x5afe_7e57);
     let mut sweep_rng = ChaCha8Rng::seed_from_u64(seed ^ (u64::from(index) << 32) ^ 0x5eeb_5eeb);
-    let sweeps = random_sweeps(&mut sweep_rng);
+    let sweeps = sweeps::random_sweeps(&mut sweep_rng);
     let sweeping = !sweeps.0.is_empty();
     let campaign = campaign_text(&mut rng, sweeps);
     let n = rng.random_range(0..6usize);
