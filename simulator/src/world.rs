@@ -27,30 +27,21 @@ pub(crate) struct World {
 
 impl World {
     pub fn pose(&self, t_s: f64) -> Pose {
-        let mut pose = Pose::default();
-        for (axis, motion) in &self.axes {
-            let controller_deg = motion.lock().unwrap_or_else(|e| e.into_inner()).optical_deg(t_s);
-            let physical = axis.physical_from_controller_deg(controller_deg);
-            match axis.role {
-                AxisRole::LightArm => pose.light_deg = physical,
-                AxisRole::DetectorArm => pose.detector_deg = physical,
-                AxisRole::SampleTilt => pose.tilt_deg = physical,
-                AxisRole::SampleRotation => pose.rotation_deg = physical,
-            }
-        }
-        pose
+        self.pose_by(|m| m.optical_deg(t_s))
     }
 
     /// The pose at `t_s` without advancing any axis's state (`AxisMotion::optical_deg_ahead`): for a meter's
     /// samples over a window still ahead of the present.
     pub fn pose_ahead(&self, t_s: f64) -> Pose {
+        self.pose_by(|m| m.optical_deg_ahead(t_s))
+    }
+
+    /// The pose from each axis's controller angle as `controller_deg` reads it from the axis's motion.
+    fn pose_by(&self, controller_deg: impl Fn(&mut AxisMotion) -> f64) -> Pose {
         let mut pose = Pose::default();
         for (axis, motion) in &self.axes {
-            let controller_deg = motion
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .optical_deg_ahead(t_s);
-            let physical = axis.physical_from_controller_deg(controller_deg);
+            let c = controller_deg(&mut motion.lock().unwrap_or_else(|e| e.into_inner()));
+            let physical = axis.physical_from_controller_deg(c);
             match axis.role {
                 AxisRole::LightArm => pose.light_deg = physical,
                 AxisRole::DetectorArm => pose.detector_deg = physical,
