@@ -6,12 +6,14 @@
 //!   key and what was expected ([`CampaignError`]).
 //! - [`sources`]: where the materials a campaign names come from ([`Sources`]) and the `[resolved]` table a
 //!   stored campaign carries.
+//! - `follow`: the first pass of sweeps whose speed follows the BRDF, read into each arc's speed profile.
 //! - `materials`: resolving the sample and the reference, and checking the reference can normalise.
 //! - [`prepare`]: the one prepare: plan, schedule and time model ([`Prepared`]), used by `gonio plan`,
 //!   `gonio run`, the daemon, the exports and the benchmarks.
 //! - [`passes`]: adaptive plans at run time: each later pass from the points measured so far ([`AdaptivePlan`]).
 
 pub mod error;
+mod follow;
 pub mod load;
 mod materials;
 pub mod model;

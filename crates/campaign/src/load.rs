@@ -54,6 +54,8 @@ pub struct Campaign {
     pub calibration: CalibrationSettings,
     pub acquisition: Acquisition,
     pub plan_spec: PlanSpec,
+    /// The speed profiles of the sweeps that follow the BRDF (`follow`), one per arc.
+    pub sweep_profiles: Vec<gonio_scheduler::sweep::ArcProfile>,
     /// True when every device of the instrument is simulated.
     pub dry_run: bool,
     /// The materials as resolved: what [`sources::resolved_trailer`] stores with the campaign.
@@ -176,9 +178,14 @@ pub fn load(
     // The relative method reads its reference at a geometry: the schedule predicts that move, not the direct beam's.
     let mut plan_spec = doc.plan.clone();
     plan_spec.calibration.reference_geometry = calibration.reference.as_ref().map(|r| r.geometry);
+    let sweep_profiles = match &stored {
+        Some(r) => r.sweep_profiles.clone(),
+        None => crate::follow::profiles(&plan_spec, instrument, &at, &sources, &base)?,
+    };
     let resolved = Resolved {
         material: material.as_ref().map(Material::spec),
         reference: calibration.reference.as_ref().map(|r| r.material.spec()),
+        sweep_profiles: sweep_profiles.clone(),
     };
     Ok(Campaign {
         id,
@@ -188,6 +195,7 @@ pub fn load(
         calibration,
         acquisition,
         plan_spec,
+        sweep_profiles,
         dry_run,
         resolved,
         file: doc,

@@ -166,6 +166,7 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
             Some(campaign.sample_radius_mm),
             &plan.bands_nm,
             side,
+            &campaign.sweep_profiles,
         )
         .map_err(|e| at.plan(&e))?;
         if sweep_plan.arcs.is_empty() {

@@ -19,6 +19,7 @@
 use std::path::{Component, Path, PathBuf};
 
 use gonio_brdf::material::{Material, MaterialSpec};
+use gonio_scheduler::sweep::ArcProfile;
 use serde::{Deserialize, Serialize};
 
 /// How material and reference names in a campaign resolve (module doc).
@@ -42,6 +43,9 @@ pub struct Resolved {
     /// The relative method's reference sample (`[calibration] reference`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference: Option<MaterialSpec>,
+    /// The speed profiles of sweeps that follow the BRDF, read from their first pass.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sweep_profiles: Vec<ArcProfile>,
 }
 
 #[derive(Serialize)]
@@ -54,13 +58,13 @@ struct Trailer<'a> {
 /// stored text keep their line numbers) and is valid TOML after any document, since `[resolved]` may not appear
 /// in a campaign a person writes.
 pub fn resolved_trailer(r: &Resolved) -> String {
-    if r.material.is_none() && r.reference.is_none() {
+    if r.material.is_none() && r.reference.is_none() && r.sweep_profiles.is_empty() {
         return String::new();
     }
     let table = toml::to_string(&Trailer { resolved: r }).unwrap_or_default();
     format!(
-        "\n\n# ---- Added by gonio when this campaign was stored: the materials it names, resolved once (presets and \
-         files read at submission), so that resuming never reads them again. ----\n{table}"
+        "\n\n# ---- Added by gonio when this campaign was stored: the materials and first passes it names, resolved \
+         once (presets and files read at submission), so that resuming never reads them again. ----\n{table}"
     )
 }
 
@@ -224,6 +228,17 @@ mod tests {
         let r = Resolved {
             material: Some(gold.spec()),
             reference: Some(Material::preset("spectralon").expect("spectralon").spec()),
+            sweep_profiles: vec![ArcProfile {
+                entry: 1,
+                held_deg: 30.0,
+                plane_phi_deg: 0.0,
+                pieces: vec![gonio_scheduler::sweep::follow::FollowPiece {
+                    from_deg: -80.0,
+                    to_deg: 12.5,
+                    speed_deg_s: 5.656854249492381,
+                    smearing_rel: 1.25e-4,
+                }],
+            }],
         };
         let doc = format!("[campaign]\nid = \"x\"{}", resolved_trailer(&r));
         #[derive(Deserialize)]

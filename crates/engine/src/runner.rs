@@ -151,6 +151,9 @@ struct Run<'a> {
     /// An adaptive plan's committed points read back so far (geometry, BRDF), and the index they reach.
     measured: Vec<(gonio_scheduler::kinematics::Geometry, Option<f64>)>,
     measured_to: u64,
+    /// The lag of each swept axis (by name) behind its commanded profile (s), from the last sweep that measured
+    /// it: a sweep too short to measure its own uses it (runner::sweep).
+    sweep_lags: std::collections::BTreeMap<String, f64>,
 }
 
 /// Run (or resume from `store.next_index(id)`) one stored campaign to a final or paused state.
@@ -312,6 +315,7 @@ pub(crate) async fn run(
         eta_anchor: None,
         measured: Vec::new(),
         measured_to: 0,
+        sweep_lags: std::collections::BTreeMap::new(),
     };
     let outcome = {
         let watch = follow_pause_requests(Arc::clone(&run.store), id, run.control.clone());

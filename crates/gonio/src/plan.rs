@@ -93,6 +93,7 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
         // Sweeps alone: no point block.
         if let Some(sweeps) = &p.sweeps {
             sweep_lines(&mut out, sweeps);
+            follow_lines(&mut out, &p.campaign.sweep_profiles);
         }
         let _ = writeln!(
             out,
@@ -160,6 +161,7 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
     print_times(&mut out, sched, label);
     if let Some(sweeps) = &p.sweeps {
         sweep_lines(&mut out, sweeps);
+        follow_lines(&mut out, &p.campaign.sweep_profiles);
         let _ = writeln!(
             out,
             "predicted duration: {:.1} s ({}), points and sweeps",
@@ -217,6 +219,34 @@ fn sweep_lines(out: &mut String, sweeps: &gonio_campaign::Sweeps) {
         ("closing the beam", b.closing_s),
     ] {
         let _ = writeln!(out, "  {name:<18} {v:>10.1} s");
+    }
+}
+
+/// The speed profiles of the sweeps that follow the BRDF: each arc's pieces (as the first pass gave them,
+/// before the path check cuts what may not be swept) with their speed and predicted smearing.
+fn follow_lines(out: &mut String, profiles: &[gonio_scheduler::sweep::ArcProfile]) {
+    for p in profiles {
+        let worst = p.pieces.iter().map(|q| q.smearing_rel).fold(0.0, f64::max);
+        let top = p.pieces.iter().map(|q| q.speed_deg_s).fold(0.0, f64::max);
+        let _ = writeln!(
+            out,
+            "  sweep #{} at {} deg (plane {} deg) follows the BRDF: {} pieces, {:.3}-{:.3} deg/s, largest predicted \
+             smearing {:.2e} (relative)",
+            p.entry + 1,
+            p.held_deg,
+            p.plane_phi_deg,
+            p.pieces.len(),
+            p.slowest_deg_s(),
+            top,
+            worst
+        );
+        for q in &p.pieces {
+            let _ = writeln!(
+                out,
+                "    {:>7.2} to {:>7.2} deg at {:>7.3} deg/s, smearing {:.2e}",
+                q.from_deg, q.to_deg, q.speed_deg_s, q.smearing_rel
+            );
+        }
     }
 }
 

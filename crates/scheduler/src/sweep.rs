@@ -11,6 +11,7 @@
 //! plane_phi_deg = [0.0]                     # planes of incidence (sample azimuths); default [0.0]
 //! speed_deg_s = 2.0                         # the swept arm's speed at cruise
 //! averaging = 1                             # meter samples per sweep reading; default 1
+//! follow = { first_pass = "out/first", tolerance_rel = 2e-3 }  # optional: speed that follows the BRDF
 //! # arm = "light": theta_o_deg holds the detector (list or range, at phi_o = plane + 180) and theta_i_deg is
 //! # the swept arc { from, to }: > 0 with the source opposite the detector (phi_i = plane), < 0 on its side.
 //! ```
@@ -43,12 +44,16 @@
 //! every `Calibration::sweep_every_s` of instrument time, and close the sweeps when the plan asks for references.
 //!
 //! # Speed that follows the BRDF
-//! [`follow`] computes, from samples of the BRDF along an arc, pieces of constant speed that keep every
-//! reading's smearing within a tolerance, and their time. Campaign files cannot ask for it yet: the engine
-//! sweeps each arc at its one `speed_deg_s` (issue 41).
+//! An entry with `follow = { first_pass = "out/first/sweeps.csv", tolerance_rel = 2e-3 }` sweeps its arcs in
+//! pieces of constant speed, each as fast as the BRDF allows for that smearing tolerance (`speed_deg_s` is the
+//! top speed): [`follow`] turns samples of the BRDF along an arc into the pieces and their predicted smearing,
+//! [`profile`] makes the samples from a first pass (an earlier sweep of the same arcs, read by the campaign
+//! loader) and cuts the path's pieces where the speed changes. Each piece is an arc of its own to the walk and
+//! the engine (a move from rest to rest at its speed), so its time is predicted like any sweep's.
 
 pub mod follow;
 mod path;
+pub mod profile;
 mod spec;
 mod walk;
 
@@ -56,11 +61,10 @@ use std::collections::BTreeMap;
 
 use gonio_instrument::Instrument;
 
-pub use crate::plan::{SweepSpec, SweptArm};
-pub use path::{
-    EDGE_TOLERANCE_DEG, MIN_PIECE_DEG, PathContext, PathVerdict, Piece, SCAN_STEP_DEG, swept_role,
-};
-pub use spec::{MAX_SWEEP_SPEED_DEG_S, MAX_SWEEPS, SweepRequest, requests};
+pub use crate::plan::{FollowSpec, SweepSpec, SweptArm};
+pub use path::{EDGE_TOLERANCE_DEG, PathContext, PathVerdict, Piece, SCAN_STEP_DEG, swept_role};
+pub use profile::{ArcProfile, PassReading, ProfileError, arc_profile};
+pub use spec::{MAX_SWEEP_SPEED_DEG_S, MAX_SWEEPS, MIN_PIECE_DEG, SweepRequest, requests};
 pub use walk::{SweepBreakdown, SweepCalibration, SweepSchedule, SweepStep, schedule_sweeps};
 
 use crate::constraints::{Constraints, Reason};
@@ -109,7 +113,9 @@ impl SweepPlan {
 }
 
 /// Validate `[[plan.sweeps]]` and check every arc's path on `instrument`. `light_below_detector`: the side of
-/// the arms a point plan already chose; `None` keeps the side that sweeps more.
+/// the arms a point plan already chose; `None` keeps the side that sweeps more. `profiles`: the speed profile
+/// of every arc whose entry follows the BRDF (`profile::arc_profile`); those arcs are swept in pieces of one
+/// speed each.
 pub fn build_sweeps(
     specs: &[SweepSpec],
     instrument: &Instrument,
@@ -117,6 +123,7 @@ pub fn build_sweeps(
     sample_radius_mm: Option<f64>,
     bands_nm: &[f64],
     light_below_detector: Option<bool>,
+    profiles: &[ArcProfile],
 ) -> Result<SweepPlan, PlanError> {
     let reqs = requests(specs, |arm| {
         instrument.axis(swept_role(arm)).map(|a| a.max_speed_deg_s)
@@ -161,12 +168,37 @@ pub fn build_sweeps(
         for (reason, deg) in verdict.skipped_deg {
             *plan.skipped_deg.entry(reason).or_default() += deg;
         }
-        plan.arcs.extend(
-            verdict
-                .pieces
-                .into_iter()
-                .map(|piece| SweepArc { request, piece }),
-        );
+        let follows = specs.get(request.entry).is_some_and(|s| s.follow.is_some());
+        let profile = profiles.iter().find(|p| p.matches(&request));
+        match (follows, profile) {
+            (true, Some(profile)) => plan.arcs.extend(verdict.pieces.iter().flat_map(|piece| {
+                profile::split_piece(&request, piece, profile)
+                    .into_iter()
+                    .map(|(piece, speed_deg_s)| SweepArc {
+                        request: SweepRequest {
+                            speed_deg_s,
+                            ..request
+                        },
+                        piece,
+                    })
+            })),
+            (true, None) => {
+                return Err(PlanError::Invalid {
+                    table: format!(".sweeps #{}", request.entry + 1),
+                    key: "follow".to_string(),
+                    message: format!(
+                        "no speed profile for the arc at {} deg in the plane at {} deg (the first pass was not read)",
+                        request.held_deg, request.plane_phi_deg
+                    ),
+                });
+            }
+            (false, _) => plan.arcs.extend(
+                verdict
+                    .pieces
+                    .into_iter()
+                    .map(|piece| SweepArc { request, piece }),
+            ),
+        }
     }
     Ok(plan)
 }

@@ -119,6 +119,7 @@ pub fn soak_sweeps() -> Vec<SweepSpec> {
         plane_phi_deg: None,
         speed_deg_s: 10.0,
         averaging: 2,
+        follow: None,
     }]
 }
 

@@ -1,6 +1,7 @@
 //! A campaign's sweeps (`[[plan.sweeps]]`, `gonio_scheduler::sweep`), after its points: one arm turns over an
-//! arc at the sweep's speed while the meter reads back to back; each reading is attributed to the middle of the
-//! arc it covered and goes through the same measurement equation as a point.
+//! arc at the sweep's speed while the meter reads back to back; each reading is attributed to where the arm was
+//! on average while it integrated (the middle of the arc it covered at cruise) and goes through the same
+//! measurement equation as a point.
 //!
 //! Per sweep: move to the arc's start (a planned, collision-safe move, as for a point), turn the wheel to the
 //! band, set the swept axis's speed (`set_speed`, the instrument file's acceleration), command the move to the
@@ -9,9 +10,12 @@
 //!
 //! Where a reading was: the commanded trapezoidal profile (start at the move command's reply, the set speed,
 //! the axis's acceleration), shifted in time by the median lag of the controller's position reports taken while
-//! the arm cruises (one after every [`POSITION_EVERY`] readings, concurrently with the next: the controller's
-//! line and the meter's are separate; each stamped with the middle of its own exchange). A reading integrates from its request for `averaging x 3 ms`; the time
-//! it is attributed to is the middle of that window. What remains uncertain is the exchange latency (about a
+//! the arm cruises (one after every [`POSITION_EVERY`] readings, more often in a short sweep, concurrently with
+//! the next: the controller's line and the meter's are separate; each stamped with the middle of its own
+//! exchange); a sweep with no report on its cruise takes the axis's lag from its last sweep that had one. A
+//! reading integrates from its request for `averaging x 3 ms`; the time it is stamped with is the middle of that
+//! window, the angle it is attributed to the profile's mean position over it (`Profile::mean_over`: in the
+//! ramps the arm spends longer at the slower end of the arc). What remains uncertain is the exchange latency (about a
 //! millisecond: `speed x 1 ms` of arc) and the spread of the reports' lags, both recorded in the log.
 //!
 //! What a segment (one sweep of one arc in one band) stores is committed in one transaction with all its
@@ -30,11 +34,30 @@ use crate::budget;
 use crate::store::SweepSegmentRecord;
 use gonio_results::sweeps::SweepReading;
 
-/// A position report every this many readings during a sweep.
+/// A position report every this many readings during a sweep (more often in short sweeps: [`report_every`]).
 pub const POSITION_EVERY: usize = 8;
+
+/// Position reports a sweep aims for while it cruises: fewer and a short sweep (a piece of a sweep that follows
+/// the BRDF) could end without a report on its cruise, its readings then placed by the commanded profile alone.
+const REPORTS_PER_CRUISE: usize = 4;
+
+/// A position report every this many readings: [`POSITION_EVERY`], or often enough for
+/// [`REPORTS_PER_CRUISE`] reports over a cruise of `cruise_s` with a reading every `period_s`.
+fn report_every(cruise_s: f64, period_s: f64) -> usize {
+    let readings = if period_s > 0.0 && cruise_s > 0.0 {
+        (cruise_s / period_s).floor() as usize
+    } else {
+        0
+    };
+    (readings / REPORTS_PER_CRUISE).clamp(1, POSITION_EVERY)
+}
 
 /// The sweep's motion may take this much longer than its profile (and 5 s) before the run gives up on it.
 const OVERRUN: f64 = 1.5;
+
+/// Intervals of the midpoint rule for a reading's mean position ([`Profile::mean_over`]): a trapezoid's
+/// position is piecewise quadratic, so the rule is within a ramp's arc / (12 x 64^2) of exact.
+const MEAN_SAMPLES: usize = 64;
 
 /// One reading as taken, before attribution.
 struct Taken {
@@ -82,6 +105,21 @@ impl Profile {
             d - 0.5 * self.a * r * r
         };
         self.from_deg + sign * s.min(d)
+    }
+
+    /// The time-average of the position over clock times `[ta, tb]` (by the midpoint rule on
+    /// [`MEAN_SAMPLES`] intervals): where a reading integrated over that window belongs. At cruise it is the
+    /// middle of the arc covered; in a ramp it lies towards the slower end (a third of the arc from rest for a
+    /// window that starts at rest), which the middle of the arc would miss by a sixth of the arc.
+    fn mean_over(&self, ta: f64, tb: f64) -> f64 {
+        if tb <= ta {
+            return self.at(ta);
+        }
+        let h = (tb - ta) / MEAN_SAMPLES as f64;
+        (0..MEAN_SAMPLES)
+            .map(|k| self.at(ta + (k as f64 + 0.5) * h))
+            .sum::<f64>()
+            / MEAN_SAMPLES as f64
     }
 
     /// The clock time at which the cruise passes `x` (None outside the cruise).
@@ -227,15 +265,25 @@ impl Run<'_> {
             .await?;
         let started = self.t();
         let what = format!("start the sweep of {} to {to_deg:.4} deg", axis.config.name);
+        // The arm starts when the controller has the command, which is sent at once; the driver may hold its
+        // reply back (the SMC100's pause after a command that sets something). The profile starts when the
+        // command goes out, so that the loop below ends with the motion, not that pause later. The readings
+        // start after the reply: a reading whose window spans the command would be placed by the profile while
+        // the simulated meter (simulator/src/pm100/physics.rs) fixes a window's poses when it is asked, before
+        // the motion it does not know of yet.
+        let clock = self.motion.clock();
+        let profile = profile_of(clock.now_s());
         self.motion
             .device(Device::Axis(axis), &what, || axis.driver.start_move(to_deg))
             .await?;
-        let clock = self.motion.clock();
-        let profile = profile_of(clock.now_s());
         let deadline = profile.t0_s + OVERRUN * profile.duration_s() + 5.0;
         tracing::info!(campaign = %self.id, segment, axis = %axis.config.name, from_deg, to_deg,
             speed_deg_s = arc.request.speed_deg_s, "sweep started");
 
+        let every = report_every(
+            profile.duration_s() - 2.0 * profile.ramp_s(),
+            gonio_scheduler::sweep::sweep_reading_period_s(arc.request.averaging),
+        );
         let mut taken: Vec<Taken> = Vec::new();
         let mut reports: Vec<(f64, f64)> = Vec::new();
         loop {
@@ -243,7 +291,7 @@ impl Run<'_> {
                 return Err(Interrupt::Estop);
             }
             let requested_s = clock.now_s();
-            let ask_position = taken.len() % POSITION_EVERY == POSITION_EVERY - 1;
+            let ask_position = taken.len() % every == every - 1;
             let read = acquisition::read(&self.motion, band_nm, &acquisition, &mut self.configured_nm);
             let (reading, position) = if ask_position {
                 // Each report is stamped with the middle of its own exchange, not when the reading beside it
@@ -303,7 +351,14 @@ impl Run<'_> {
             .filter_map(|(t, x)| profile.cruise_time_of(*x).map(|tp| t - tp))
             .collect();
         lags.sort_by(f64::total_cmp);
-        let lag = lags.get(lags.len() / 2).copied().unwrap_or(0.0);
+        // None measured (a sweep too short to cruise past a report): the axis's lag from its last sweep.
+        let lag = match lags.get(lags.len() / 2) {
+            Some(lag) => {
+                self.sweep_lags.insert(axis.config.name.clone(), *lag);
+                *lag
+            }
+            None => self.sweep_lags.get(&axis.config.name).copied().unwrap_or(0.0),
+        };
         let spread = match (lags.first(), lags.last()) {
             (Some(a), Some(b)) => b - a,
             _ => 0.0,
@@ -331,7 +386,7 @@ impl Run<'_> {
                     signed(profile.at(ta - lag) + load_offset),
                     signed(profile.at(tb - lag) + load_offset),
                 );
-                let mid = 0.5 * (a + b);
+                let mid = signed(profile.mean_over(ta - lag, tb - lag) + load_offset);
                 self.sweep_reading(
                     segment,
                     k,
@@ -453,6 +508,19 @@ mod tests {
     use super::Profile;
 
     #[test]
+    fn short_sweeps_ask_for_their_position_more_often() {
+        use super::{POSITION_EVERY, report_every};
+        // 10 s of cruise at a reading every 4 ms: the usual cadence.
+        assert_eq!(report_every(10.0, 0.004), POSITION_EVERY);
+        // Half a second at a reading every 91 ms: 5 readings, a report with each.
+        assert_eq!(report_every(0.5, 0.091), 1);
+        // 16 readings: four reports.
+        assert_eq!(report_every(16.0 * 0.091, 0.091), 4);
+        assert_eq!(report_every(0.0, 0.091), 1);
+        assert_eq!(report_every(-1.0, 0.0), 1);
+    }
+
+    #[test]
     fn the_profile_reaches_its_end_at_its_duration_and_cruise_times_invert_it() {
         let p = Profile {
             t0_s: 2.0,
@@ -470,5 +538,17 @@ mod tests {
             assert!((p.at(t) - x).abs() < 1e-9, "{x}: {}", p.at(t));
         }
         assert!(p.cruise_time_of(9.99).is_none(), "in the ramp");
+        // The mean position over a window: the arc's middle at cruise; a third of the way from rest.
+        let (ta, tb) = (2.5, 3.5);
+        assert!((p.mean_over(ta, tb) - 0.5 * (p.at(ta) + p.at(tb))).abs() < 1e-9);
+        let ramp = 4.0 / 80.0;
+        let third = 10.0 - (10.0 - p.at(2.0 + ramp)) / 3.0;
+        assert!(
+            // The midpoint rule's error on a ramp: its arc (0.1 deg) / (12 x 64^2), 2e-6 deg.
+            (p.mean_over(2.0, 2.0 + ramp) - third).abs() < 3e-6,
+            "{}",
+            p.mean_over(2.0, 2.0 + ramp)
+        );
+        assert_eq!(p.mean_over(3.0, 3.0), p.at(3.0));
     }
 }

@@ -22,6 +22,7 @@ mod align;
 mod align_sample;
 mod characterise;
 mod engine;
+mod follow;
 mod layering;
 mod loaders_fuzz;
 mod motion;

@@ -394,4 +394,28 @@ pub struct SweepSpec {
     /// Meter samples averaged into one sweep reading.
     #[serde(default = "one")]
     pub averaging: u32,
+    /// Speed that follows the BRDF (`crate::sweep::follow`): `speed_deg_s` is then the top speed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub follow: Option<FollowSpec>,
+}
+
+/// `follow = { ... }` in a `[[plan.sweeps]]` entry: the arc is swept in pieces of constant speed, each as fast as
+/// the BRDF measured by an earlier sweep of the same arcs (the first pass) allows for the smearing tolerance.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FollowSpec {
+    /// The first pass: the `sweeps.csv` of an earlier run (or its run directory) that swept these arcs.
+    pub first_pass: String,
+    /// The largest relative smearing allowed per reading (e.g. 0.002).
+    pub tolerance_rel: f64,
+    /// The slowest speed used (deg/s); default `speed_deg_s` / 64.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_speed_deg_s: Option<f64>,
+    /// The shortest piece of one speed (degrees; a piece is a move of its own); default 2.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_piece_deg: Option<f64>,
+    /// The first pass's readings are averaged in bins this wide before the BRDF's bend is taken (degrees);
+    /// default 0.5.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resolution_deg: Option<f64>,
 }

@@ -14,7 +14,7 @@
 //! [`profile_time_s`] is the time to sweep the pieces one after the other, each a move of its own.
 
 /// A stretch of an arc swept at one speed.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FollowPiece {
     /// The stretch, in the arc's signed degrees (`from_deg < to_deg`).
     pub from_deg: f64,
@@ -47,11 +47,22 @@ const LADDER: f64 = std::f64::consts::SQRT_2;
 /// cannot make a profile (fewer than three, not increasing, a value not positive and finite, a request not
 /// positive).
 pub fn speed_profile(samples: &[(f64, f64)], req: &FollowRequest) -> Vec<FollowPiece> {
+    speed_profile_curves(std::slice::from_ref(&samples.to_vec()), req)
+}
+
+/// As [`speed_profile`] for several curves on one grid (the bands of one arc): each sample's speed is the
+/// slowest any curve needs there. Empty when the curves do not share their grid.
+pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> Vec<FollowPiece> {
+    let Some(samples) = curves.first() else {
+        return Vec::new();
+    };
     let ok = samples.len() >= 3
         && samples.windows(2).all(|w| w[1].0 > w[0].0)
-        && samples
-            .iter()
-            .all(|(s, f)| s.is_finite() && f.is_finite() && *f > 0.0)
+        && curves.iter().all(|c| {
+            c.len() == samples.len()
+                && c.iter().zip(samples).all(|(a, b)| a.0 == b.0)
+                && c.iter().all(|(s, f)| s.is_finite() && f.is_finite() && *f > 0.0)
+        })
         && [
             req.integration_s,
             req.tolerance_rel,
@@ -67,12 +78,18 @@ pub fn speed_profile(samples: &[(f64, f64)], req: &FollowRequest) -> Vec<FollowP
     }
     let n = samples.len();
     let h = (samples[n - 1].0 - samples[0].0) / (n - 1) as f64;
-    // |f''| / f at each sample (per degree squared), the ends taking their neighbours'.
+    // |f''| / f at each sample (per degree squared), the ends taking their neighbours', the largest over the
+    // curves.
     let mut bend: Vec<f64> = (0..n)
         .map(|i| {
             let i = i.clamp(1, n - 2);
-            let (a, b, c) = (samples[i - 1].1, samples[i].1, samples[i + 1].1);
-            ((a - 2.0 * b + c) / (h * h)).abs() / b
+            curves
+                .iter()
+                .map(|c| {
+                    let (a, b, d) = (c[i - 1].1, c[i].1, c[i + 1].1);
+                    ((a - 2.0 * b + d) / (h * h)).abs() / b
+                })
+                .fold(0.0, f64::max)
         })
         .collect();
     // A reading at the top speed spans this many samples: each sample takes the worst bend within it.

@@ -18,7 +18,7 @@ use std::collections::BTreeMap;
 
 use gonio_instrument::{AxisRole, Instrument};
 
-use super::spec::SweepRequest;
+use super::spec::{MIN_PIECE_DEG, SweepRequest};
 use crate::constraints::{ANGLE_TOLERANCE_DEG, Constraints, Reason};
 use crate::kinematics::{Kinematics, Pose};
 use crate::plan::SweptArm;
@@ -29,9 +29,6 @@ pub const SCAN_STEP_DEG: f64 = 0.05;
 
 /// A piece's ends lie within this of the boundary of what is allowed (degrees).
 pub const EDGE_TOLERANCE_DEG: f64 = 1e-6;
-
-/// Pieces shorter than this are not swept (degrees): they hold too few readings to be worth a move.
-pub const MIN_PIECE_DEG: f64 = 0.1;
 
 /// Signed reference angles tried to find the axis solutions of a request (any valid one serves), besides
 /// [`ARC_REFERENCES`] angles spread over the request's own arc (a solution whose swept axis leaves its limits

@@ -1,12 +1,15 @@
 //! `[[plan.sweeps]]` as written in a campaign file, and its validation into one request per swept arc.
 
 use crate::kinematics::Geometry;
-use crate::plan::{PlanError, SweepSpec, SweptArm, angle_list};
+use crate::plan::{FollowSpec, PlanError, SweepSpec, SweptArm, angle_list};
 
 /// Sweeps a plan may request at most (held angles x planes, all entries together): each is a few seconds to a
 /// few minutes of instrument time, so this is far beyond any campaign and keeps a submitted file from asking
 /// the path check for unbounded work.
 pub const MAX_SWEEPS: usize = 10_000;
+
+/// Pieces shorter than this are not swept (degrees): they hold too few readings to be worth a move.
+pub const MIN_PIECE_DEG: f64 = 0.1;
 
 /// The fastest sweep speed accepted (deg/s) whatever the axis allows: beyond it a reading of a few milliseconds
 /// smears over degrees.
@@ -100,6 +103,51 @@ fn arc(entry: usize, key: &str, value: &toml::Value) -> Result<(f64, f64), PlanE
     Ok((from, to))
 }
 
+/// `follow = { ... }` within its bounds (`speed_deg_s` is the top speed).
+fn check_follow(entry: usize, f: &FollowSpec, top_deg_s: f64) -> Result<(), PlanError> {
+    let bad = |what: &str, expected: &str, got: f64| {
+        invalid(entry, "follow", format!("{what}: expected {expected}, got {got}"))
+    };
+    if f.first_pass.trim().is_empty() {
+        return Err(invalid(
+            entry,
+            "follow",
+            "first_pass: expected the sweeps.csv of an earlier run (or its directory)",
+        ));
+    }
+    if !(f.tolerance_rel.is_finite() && f.tolerance_rel > 0.0 && f.tolerance_rel <= 0.5) {
+        return Err(bad(
+            "tolerance_rel",
+            "a relative smearing in (0, 0.5]",
+            f.tolerance_rel,
+        ));
+    }
+    if let Some(v) = f.min_speed_deg_s
+        && !(v.is_finite() && v > 0.0 && v <= top_deg_s)
+    {
+        return Err(bad(
+            "min_speed_deg_s",
+            &format!("deg/s in (0, {top_deg_s}] (speed_deg_s)"),
+            v,
+        ));
+    }
+    if let Some(d) = f.min_piece_deg
+        && !(d.is_finite() && (MIN_PIECE_DEG..=90.0).contains(&d))
+    {
+        return Err(bad(
+            "min_piece_deg",
+            &format!("degrees in [{MIN_PIECE_DEG}, 90]"),
+            d,
+        ));
+    }
+    if let Some(d) = f.resolution_deg
+        && !(d.is_finite() && (0.05..=5.0).contains(&d))
+    {
+        return Err(bad("resolution_deg", "degrees in [0.05, 5]", d));
+    }
+    Ok(())
+}
+
 /// Validate every entry and expand it into one request per (plane, held angle), in file order.
 pub fn requests(
     specs: &[SweepSpec],
@@ -150,6 +198,9 @@ pub fn requests(
                     spec.speed_deg_s
                 ),
             ));
+        }
+        if let Some(f) = &spec.follow {
+            check_follow(entry, f, spec.speed_deg_s)?;
         }
         if !(1..=10_000).contains(&spec.averaging) {
             return Err(invalid(

@@ -15,6 +15,7 @@ mod common;
 
 mod adaptive;
 mod adaptive_first_pass;
+mod follow;
 mod kinematics_and_moves;
 mod plans_and_order;
 mod stress;

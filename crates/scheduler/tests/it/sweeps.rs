@@ -16,7 +16,7 @@ use crate::common::{random_instrument, simulated};
 
 fn sweeps(text: &str, inst: &Instrument, bands: &[f64]) -> Result<SweepPlan, PlanError> {
     let spec = PlanSpec::from_toml(text, "test.toml")?;
-    build_sweeps(&spec.sweeps, inst, &TimeModel::new(inst), None, bands, None)
+    build_sweeps(&spec.sweeps, inst, &TimeModel::new(inst), None, bands, None, &[])
 }
 
 /// Every rule at one pose, by the forward kinematics: what the pose really points at.
