@@ -10,6 +10,7 @@ use gonio_results::sweeps::{SweepReading, parse_sweeps_csv};
 use gonio_scheduler::kinematics::Geometry;
 use gonio_scheduler::plan::PlanSpec;
 use gonio_scheduler::sweep::{ArcProfile, PassReading, arc_profile, requests, swept_role};
+use gonio_scheduler::timing::TimeModel;
 
 use crate::error::{CampaignError, Located};
 use crate::sources::{self, Sources};
@@ -58,6 +59,7 @@ pub(crate) fn profiles(
         instrument.axis(swept_role(arm)).map(|a| a.max_speed_deg_s)
     })
     .map_err(|e| at.plan(&e))?;
+    let time = TimeModel::new(instrument);
     let mut read: Vec<(String, Vec<PassReading>)> = Vec::new();
     let mut out = Vec::new();
     for r in &reqs {
@@ -77,7 +79,7 @@ pub(crate) fn profiles(
             .map(|(_, r)| r.as_slice())
             .unwrap_or_default();
         out.push(
-            arc_profile(r, readings, follow)
+            arc_profile(r, readings, follow, &time)
                 .map_err(|e| located(format!("{e} (first pass {})", follow.first_pass)))?,
         );
     }

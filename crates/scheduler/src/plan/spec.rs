@@ -418,4 +418,8 @@ pub struct FollowSpec {
     /// default 0.5.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub resolution_deg: Option<f64>,
+    /// What `tolerance_rel` is relative to: `"reading"` (each reading's value, the default) or `"peak"` (the
+    /// largest value along the arc).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relative_to: Option<crate::sweep::follow::RelativeTo>,
 }

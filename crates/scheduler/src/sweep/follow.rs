@@ -20,7 +20,8 @@ pub struct FollowPiece {
     pub from_deg: f64,
     pub to_deg: f64,
     pub speed_deg_s: f64,
-    /// The largest relative smearing predicted for a reading in the piece (`|f''| (v T)^2 / (24 f)`).
+    /// The largest relative smearing predicted for a reading in the piece (`|f''| (v T)^2 / (24 f)`, with the
+    /// arc's peak for `f` when the tolerance is relative to it).
     pub smearing_rel: f64,
 }
 
@@ -37,7 +38,29 @@ pub struct FollowRequest {
     pub min_speed_deg_s: f64,
     /// The shortest piece (deg): a piece is a move of its own, with its ramps.
     pub min_piece_deg: f64,
+    /// What the tolerance is relative to: each reading's own value, or the largest value along the arc (in the
+    /// same band): the smearing of a reading is then held within `tolerance_rel x` the arc's peak, which lets
+    /// the low tails of a lobe go fast.
+    pub relative_to: RelativeTo,
+    /// The swept axis's acceleration (deg/s^2) and what each piece costs besides its motion (s: its speed set
+    /// and restored, its start and stop seen, the reading under way at its end). Neighbouring pieces are merged
+    /// (at the slower speed) while that saves time; `per_piece_s = 0` merges none.
+    pub accel_deg_s2: f64,
+    pub per_piece_s: f64,
 }
+
+/// What a smearing tolerance is relative to (`relative_to` in `follow = { ... }`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RelativeTo {
+    /// Each reading's own value: every reading within the tolerance of itself.
+    #[default]
+    Reading,
+    /// The largest value along the arc: the smearing of every reading within the tolerance of the peak.
+    Peak,
+}
+
+use crate::timing::trapezoid_time_s;
 
 /// Ratio between consecutive speeds of the ladder.
 const LADDER: f64 = std::f64::consts::SQRT_2;
@@ -78,16 +101,24 @@ pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> 
     }
     let n = samples.len();
     let h = (samples[n - 1].0 - samples[0].0) / (n - 1) as f64;
-    // |f''| / f at each sample (per degree squared), the ends taking their neighbours', the largest over the
-    // curves.
+    // |f''| / f at each sample (per degree squared), or |f''| over the curve's peak, the ends taking their
+    // neighbours', the largest over the curves.
+    let scales: Vec<Option<f64>> = curves
+        .iter()
+        .map(|c| match req.relative_to {
+            RelativeTo::Reading => None,
+            RelativeTo::Peak => Some(c.iter().map(|p| p.1).fold(0.0, f64::max)),
+        })
+        .collect();
     let mut bend: Vec<f64> = (0..n)
         .map(|i| {
             let i = i.clamp(1, n - 2);
             curves
                 .iter()
-                .map(|c| {
+                .zip(&scales)
+                .map(|(c, peak)| {
                     let (a, b, d) = (c[i - 1].1, c[i].1, c[i + 1].1);
-                    ((a - 2.0 * b + d) / (h * h)).abs() / b
+                    ((a - 2.0 * b + d) / (h * h)).abs() / peak.unwrap_or(b)
                 })
                 .fold(0.0, f64::max)
         })
@@ -156,6 +187,36 @@ pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> 
         runs[a] = (runs[a].0, runs[b].1, runs[a].2.max(runs[b].2));
         runs.remove(b);
     }
+    // Merging may leave neighbours of one speed: one piece (one move) each.
+    runs.dedup_by(|next, kept| {
+        let same = next.2 == kept.2;
+        if same {
+            kept.1 = next.1;
+        }
+        same
+    });
+    // A piece costs its ramps and its exchanges: merge the neighbours whose merging saves the most time, while
+    // one does (merging only ever slows a stretch down, so every reading stays within the tolerance).
+    if req.per_piece_s > 0.0 && req.accel_deg_s2 > 0.0 && req.accel_deg_s2.is_finite() {
+        let time = |r: &(usize, usize, u32)| {
+            trapezoid_time_s(length(r), speed_of(r.2), req.accel_deg_s2) + req.per_piece_s
+        };
+        let joined = |a: &(usize, usize, u32), b: &(usize, usize, u32)| (a.0, b.1, a.2.max(b.2));
+        loop {
+            let best = (1..runs.len())
+                .map(|i| {
+                    let gain = time(&runs[i - 1]) + time(&runs[i]) - time(&joined(&runs[i - 1], &runs[i]));
+                    (i, gain)
+                })
+                .filter(|(_, gain)| *gain > 0.0)
+                .max_by(|a, b| a.1.total_cmp(&b.1));
+            let Some((i, _)) = best else {
+                break;
+            };
+            runs[i - 1] = joined(&runs[i - 1], &runs[i]);
+            runs.remove(i);
+        }
+    }
     let last = runs.len().saturating_sub(1);
     runs.iter()
         .enumerate()
@@ -187,17 +248,7 @@ pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> 
 pub fn profile_time_s(pieces: &[FollowPiece], accel_deg_s2: f64, per_piece_s: f64) -> f64 {
     pieces
         .iter()
-        .map(|p| {
-            let d = (p.to_deg - p.from_deg).abs();
-            let v = p.speed_deg_s;
-            let ramp = v * v / accel_deg_s2;
-            let motion = if d >= ramp {
-                d / v + v / accel_deg_s2
-            } else {
-                2.0 * (d / accel_deg_s2).sqrt()
-            };
-            motion + per_piece_s
-        })
+        .map(|p| trapezoid_time_s(p.to_deg - p.from_deg, p.speed_deg_s, accel_deg_s2) + per_piece_s)
         .sum()
 }
 
@@ -213,6 +264,9 @@ mod tests {
             top_speed_deg_s: 20.0,
             min_speed_deg_s: 0.05,
             min_piece_deg: 1.0,
+            relative_to: RelativeTo::Reading,
+            accel_deg_s2: 80.0,
+            per_piece_s: 0.0,
         }
     }
 
@@ -313,6 +367,100 @@ mod tests {
         assert!((profile_time_s(&[one], 80.0, 0.0) - (2.0 + 5.0 / 80.0)).abs() < 1e-12);
         let short = FollowPiece { to_deg: 0.1, ..one };
         assert!((profile_time_s(&[short], 80.0, 0.0) - 2.0 * (0.1f64 / 80.0).sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_tolerance_relative_to_the_peak_lets_the_tails_go_fast_and_holds_every_reading_to_the_peak() {
+        // A lobe whose Gaussian tails bend more and more relative to themselves.
+        let glossy = |s: f64| 1e-3 + 50.0 * (-(s / 3.0).powi(2)).exp();
+        let samples = sampled(glossy, -40.0, 40.0, 0.05);
+        let req = request();
+        let own = speed_profile(&samples, &req);
+        let peak_req = FollowRequest {
+            relative_to: RelativeTo::Peak,
+            ..req
+        };
+        let peak = speed_profile(&samples, &peak_req);
+        let time = |p: &[FollowPiece]| profile_time_s(p, 80.0, 0.3);
+        let at = |p: &[FollowPiece], s: f64| {
+            p.iter()
+                .find(|q| q.from_deg <= s && s <= q.to_deg)
+                .unwrap()
+                .speed_deg_s
+        };
+        // The tails (8 deg out: the lobe 1e-3 of its peak) slow down relative to themselves, not to the peak.
+        assert!(at(&own, 8.0) < req.top_speed_deg_s / 4.0, "{own:?}");
+        assert_eq!(at(&peak, 8.0), req.top_speed_deg_s, "{peak:?}");
+        assert!(
+            time(&peak) < time(&own) / 2.0,
+            "{} against {}",
+            time(&peak),
+            time(&own)
+        );
+        // Each reading's smearing, by integration, within the tolerance of the peak (1.2 x: leading order).
+        for p in &peak {
+            let mut s = p.from_deg;
+            while s <= p.to_deg {
+                let r = reading(&glossy, s, p.speed_deg_s, req.integration_s);
+                let e = (r - glossy(s)).abs() / 50.001;
+                assert!(e <= 1.2 * req.tolerance_rel, "at {s}: {e:.2e} in {p:?}");
+                s += 0.01;
+            }
+        }
+    }
+
+    #[test]
+    fn pieces_are_merged_while_merging_saves_time_and_every_reading_stays_within_the_tolerance() {
+        let samples = sampled(lobe, -80.0, 80.0, 0.05);
+        let overhead = 0.5;
+        let all = speed_profile(&samples, &request());
+        let merged_req = FollowRequest {
+            per_piece_s: overhead,
+            ..request()
+        };
+        let merged = speed_profile(&samples, &merged_req);
+        let (t_all, t_merged) = (
+            profile_time_s(&all, 80.0, overhead),
+            profile_time_s(&merged, 80.0, overhead),
+        );
+        eprintln!(
+            "{} pieces {t_all:.2} s, merged {} pieces {t_merged:.2} s",
+            all.len(),
+            merged.len()
+        );
+        assert!(merged.len() < all.len(), "{all:?}");
+        assert!(t_merged < t_all, "{t_merged} against {t_all}");
+        // No further merge of two neighbours saves time.
+        for w in merged.windows(2) {
+            let one = FollowPiece {
+                from_deg: w[0].from_deg,
+                to_deg: w[1].to_deg,
+                speed_deg_s: w[0].speed_deg_s.min(w[1].speed_deg_s),
+                smearing_rel: 0.0,
+            };
+            assert!(
+                profile_time_s(&[one], 80.0, overhead) >= profile_time_s(w, 80.0, overhead) - 1e-9,
+                "{w:?}"
+            );
+        }
+        // Every stretch at most as fast as before.
+        for p in &all {
+            let mid = 0.5 * (p.from_deg + p.to_deg);
+            let q = merged
+                .iter()
+                .find(|q| q.from_deg <= mid && mid <= q.to_deg)
+                .unwrap();
+            assert!(q.speed_deg_s <= p.speed_deg_s, "{q:?} over {p:?}");
+            assert!(q.smearing_rel <= request().tolerance_rel);
+        }
+    }
+
+    #[test]
+    fn neighbouring_pieces_never_share_a_speed() {
+        let pieces = speed_profile(&sampled(lobe, -80.0, 80.0, 0.05), &request());
+        for w in pieces.windows(2) {
+            assert_ne!(w[0].speed_deg_s, w[1].speed_deg_s, "{pieces:?}");
+        }
     }
 
     #[test]

@@ -18,9 +18,11 @@ use serde::{Deserialize, Serialize};
 use super::follow::{self, FollowPiece, FollowRequest};
 use super::path::{Piece, swept_role};
 use super::spec::{MIN_PIECE_DEG, SweepRequest};
+use super::sweep_reading_period_s;
+use super::walk::{positions_read_s, sweep_time_s};
 use crate::kinematics::Geometry;
 use crate::plan::FollowSpec;
-use crate::timing::DETECTOR_SAMPLE_S;
+use crate::timing::{DETECTOR_SAMPLE_S, TimeModel};
 
 /// A reading lies on an arc when both its directions are within this of the arc's at its swept angle (degrees).
 pub const ON_ARC_DEG: f64 = 0.05;
@@ -69,8 +71,18 @@ impl ArcProfile {
     }
 }
 
-/// The request the profile of `r` is computed for, from its entry's `follow` table.
-pub fn follow_request(r: &SweepRequest, spec: &FollowSpec) -> FollowRequest {
+/// The request the profile of `r` is computed for, from its entry's `follow` table and the time model of the
+/// swept axis (its acceleration, and what a piece costs besides its motion: `walk::sweep_time_s`).
+pub fn follow_request(r: &SweepRequest, spec: &FollowSpec, time: &TimeModel) -> FollowRequest {
+    let model = time.axes.iter().flatten().find(|m| m.role == swept_role(r.arm));
+    let period = sweep_reading_period_s(r.averaging);
+    let (accel_deg_s2, per_piece_s) = model.map_or((f64::INFINITY, 0.0), |m| {
+        let motion = m.leg.start_return_s;
+        (
+            m.accel_deg_s2,
+            sweep_time_s(m, motion, period, positions_read_s(time)) - motion,
+        )
+    });
     FollowRequest {
         integration_s: f64::from(r.averaging) * DETECTOR_SAMPLE_S,
         tolerance_rel: spec.tolerance_rel,
@@ -79,6 +91,9 @@ pub fn follow_request(r: &SweepRequest, spec: &FollowSpec) -> FollowRequest {
             .min_speed_deg_s
             .unwrap_or(r.speed_deg_s / DEFAULT_FLOOR_DIVISOR),
         min_piece_deg: spec.min_piece_deg.unwrap_or(DEFAULT_MIN_PIECE_DEG),
+        relative_to: spec.relative_to.unwrap_or_default(),
+        accel_deg_s2,
+        per_piece_s,
     }
 }
 
@@ -188,11 +203,13 @@ pub enum ProfileError {
     },
 }
 
-/// The profile of request `r` from the first pass's `readings`, or why there is none.
+/// The profile of request `r` from the first pass's `readings`, or why there is none. `time`: the instrument's
+/// time model, for what a piece of one speed costs ([`follow_request`]).
 pub fn arc_profile(
     r: &SweepRequest,
     readings: &[PassReading],
     spec: &FollowSpec,
+    time: &TimeModel,
 ) -> Result<ArcProfile, ProfileError> {
     let resolution = spec.resolution_deg.unwrap_or(DEFAULT_RESOLUTION_DEG);
     let curves = curves_on_arc(r, readings, resolution);
@@ -206,7 +223,7 @@ pub fn arc_profile(
             resolution_deg: resolution,
         });
     }
-    let mut pieces = follow::speed_profile_curves(&curves, &follow_request(r, spec));
+    let mut pieces = follow::speed_profile_curves(&curves, &follow_request(r, spec, time));
     // The profile runs between the first and the last bin's centre; the first pass covered half a bin more
     // at each end.
     let half_bin = (curves[0][1].0 - curves[0][0].0) / 2.0;
@@ -324,6 +341,10 @@ mod tests {
         }
     }
 
+    fn time() -> TimeModel {
+        TimeModel::new(&gonio_instrument::InstrumentFile::simulated().instrument)
+    }
+
     fn follow(tolerance_rel: f64) -> FollowSpec {
         FollowSpec {
             first_pass: "first".to_string(),
@@ -331,6 +352,7 @@ mod tests {
             min_speed_deg_s: None,
             min_piece_deg: None,
             resolution_deg: None,
+            relative_to: None,
         }
     }
 
@@ -414,7 +436,9 @@ mod tests {
         assert!((at(2.25) - (a + (b - a) * 5.0 / 11.0)).abs() < 1e-9);
         assert!(curves_on_arc(&r, &pass(&r, 0.0, 1.0, 0.5), 0.5).is_empty());
         assert!(curves_on_arc(&r, &[], 0.5).is_empty());
-        let err = arc_profile(&r, &[], &follow(1e-3)).unwrap_err().to_string();
+        let err = arc_profile(&r, &[], &follow(1e-3), &time())
+            .unwrap_err()
+            .to_string();
         assert!(
             err.contains("no readings along the detector sweep at 30 deg"),
             "{err}"
@@ -424,7 +448,7 @@ mod tests {
     #[test]
     fn the_profile_slows_down_at_the_lobe_only() {
         let r = request();
-        let profile = arc_profile(&r, &pass(&r, -80.0, 80.0, 0.02), &follow(1e-4)).expect("profile");
+        let profile = arc_profile(&r, &pass(&r, -80.0, 80.0, 0.02), &follow(1e-4), &time()).expect("profile");
         let at = |s: f64| {
             profile
                 .pieces

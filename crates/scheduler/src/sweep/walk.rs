@@ -5,7 +5,7 @@ use super::{SweepPlan, sweep_reading_period_s};
 use crate::kinematics::Pose;
 use crate::plan::Plan;
 use crate::schedule::{calibration_preamble, cover_walk};
-use crate::timing::{DETECTOR_SAMPLE_S, Move, TimeModel, trapezoid_time_s};
+use crate::timing::{AxisModel, DETECTOR_SAMPLE_S, Move, TimeModel, trapezoid_time_s};
 
 /// One sweep of one arc in one band.
 #[derive(Debug, Clone, PartialEq)]
@@ -84,6 +84,26 @@ pub struct SweepCalibration<'a> {
     pub opening: bool,
 }
 
+/// The time of one sweep on axis `m` whose motion takes `motion_s`, with a reading every `period_s`: the speed
+/// set; the move command; the readings until the motion is over (and the one under way then, half a period on
+/// average); the stop seen and checked; the speed restored; every axis's position read (`positions_read_s`).
+pub fn sweep_time_s(m: &AxisModel, motion_s: f64, period_s: f64, positions_read_s: f64) -> f64 {
+    let leg = &m.leg;
+    leg.set_speed_s
+        + leg.command_s
+        + motion_s.max(leg.start_return_s)
+        + 0.5 * period_s
+        + leg.status_s
+        + leg.arrived_s
+        + leg.set_speed_s
+        + positions_read_s
+}
+
+/// Every axis's position read after a sweep (s).
+pub fn positions_read_s(time: &TimeModel) -> f64 {
+    time.axes.iter().flatten().map(|m| m.leg.position_read_s).sum()
+}
+
 /// Order and time the sweeps from `start` (the pose and wheel position the instrument is in; none: at the first
 /// arc's start, the wheel on its first band). `calibration`: the session's calibration
 /// (`crate::schedule::calibration_preamble`: darks, then the normalisation) opens the sweeps when no point
@@ -131,7 +151,7 @@ pub fn schedule_sweeps(
     let every_s = calibration.and_then(|c| c.plan.calibration.sweep_every_s());
     let mut last_calibration = clock;
     // The exchanges of every sweep besides its motion (`LegTiming`), and every axis's position read after it.
-    let positions_read_s: f64 = time.axes.iter().flatten().map(|m| m.leg.position_read_s).sum();
+    let positions_read_s = positions_read_s(time);
     let mut left: Vec<usize> = (0..plan.arcs.len()).collect();
     while !left.is_empty() {
         if every_s.is_some_and(|e| clock - last_calibration >= e) {
@@ -184,18 +204,7 @@ pub fn schedule_sweeps(
             let (motion_s, sweep_s) = match model {
                 Some(m) => {
                     let t = trapezoid_time_s(arc.length_deg(), v, m.accel_deg_s2);
-                    let leg = &m.leg;
-                    // Speed set; the move command; the readings until the motion is over (and the one under way
-                    // then, half a period on average); the stop seen and checked; the speed restored; positions.
-                    let sweep = leg.set_speed_s
-                        + leg.command_s
-                        + t.max(leg.start_return_s)
-                        + 0.5 * period
-                        + leg.status_s
-                        + leg.arrived_s
-                        + leg.set_speed_s
-                        + positions_read_s;
-                    (t, sweep)
+                    (t, sweep_time_s(m, t, period, positions_read_s))
                 }
                 None => (0.0, 0.0),
             };

@@ -54,7 +54,13 @@ fn profiles(text: &str) -> Vec<ArcProfile> {
                     }
                 })
                 .collect();
-            arc_profile(r, &readings, spec.sweeps[r.entry].follow.as_ref().unwrap()).unwrap()
+            arc_profile(
+                r,
+                &readings,
+                spec.sweeps[r.entry].follow.as_ref().unwrap(),
+                &TimeModel::new(&inst),
+            )
+            .unwrap()
         })
         .collect()
 }
