@@ -113,7 +113,9 @@ async fn a_sweep_that_follows_the_brdf_keeps_every_reading_within_its_smearing_t
         .iter()
         .map(|a| a.request.speed_deg_s)
         .collect();
-    assert!(speeds.len() >= 3 && speeds.contains(&16.0), "{speeds:?}");
+    // The lobe's side slower, the rest at the top speed (pieces merged where a piece of its own costs more in
+    // ramps and exchanges than it saves).
+    assert!(speeds.len() >= 2 && speeds.contains(&16.0), "{speeds:?}");
     assert!(speeds.iter().any(|v| *v < 12.0), "{speeds:?}");
 
     let (followed, took, predicted) = run(&dir.path().join("follow"), dir.path(), &following).await;
