@@ -6,12 +6,14 @@
 //! cosine-weighted relative RMS error and the share of values whose k=2 interval holds the truth; the wall time
 //! is the process's (start-up, planning, the run, the completion and the files).
 //!
-//! Not here yet: curves of instrument time against error on a common validation set for the four strategies
-//! (grid, adaptive, constant-speed and BRDF-following sweeps); speed that follows the BRDF is not built.
+//! Speed that follows the BRDF against constant speed: crate::follow. Not here yet: curves of instrument time
+//! against error on a common validation set for the four strategies (grid, adaptive, constant-speed and
+//! BRDF-following sweeps).
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::path::Path;
+
+use crate::gonio_run::{GonioRun, gonio_run};
 
 /// The seed materials (config/materials).
 const MATERIALS: [&str; 5] = [
@@ -43,47 +45,14 @@ impl Outcome {
 
 /// Run `text` through `binary` on `instrument` and read `csv` (points.csv or sweeps.csv) of its results.
 fn run(binary: &Path, text: &str, instrument: &Path, csv: &str) -> Result<Outcome, String> {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos());
-    let dir: PathBuf =
-        std::env::temp_dir().join(format!("gonio-bench-sweeps-{}-{nanos}", std::process::id()));
-    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
-    let campaign = dir.join("campaign.toml");
-    std::fs::write(&campaign, text).map_err(|e| e.to_string())?;
-    let out = dir.join("out");
-    let start = Instant::now();
-    let o = std::process::Command::new(binary)
-        .arg("run")
-        .arg(&campaign)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .arg("--instrument")
-        .arg(instrument)
-        .output()
-        .map_err(|e| format!("cannot run {}: {e}", binary.display()))?;
-    let wall_s = start.elapsed().as_secs_f64();
-    let result = if o.status.success() {
-        read(&out, csv, wall_s)
-    } else {
-        Err(format!(
-            "gonio run failed: {}",
-            String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or("")
-        ))
-    };
-    let _ = std::fs::remove_dir_all(&dir);
-    result
+    let run = gonio_run(binary, text, instrument)?;
+    read(&run, csv)
 }
 
-fn read(out: &Path, csv: &str, wall_s: f64) -> Result<Outcome, String> {
-    let json: serde_json::Value = std::fs::read_to_string(out.join("run.json"))
-        .map_err(|e| e.to_string())
-        .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))?;
-    let instrument_s = json["timing"]["actual_instrument_s"]
-        .as_f64()
-        .ok_or("run.json has no timing.actual_instrument_s")?;
-    let text = std::fs::read_to_string(out.join(csv)).map_err(|e| format!("{csv}: {e}"))?;
+fn read(run: &GonioRun, csv: &str) -> Result<Outcome, String> {
+    let instrument_s = run.instrument_s()?;
+    let wall_s = run.wall_s;
+    let text = std::fs::read_to_string(run.out.join(csv)).map_err(|e| format!("{csv}: {e}"))?;
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().ok_or("empty csv")?.split(',').collect();
     let col = |name: &str| {
@@ -206,8 +175,7 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
     }
     s.push_str(
         "\nNot measured yet (issue 41): time against error on one validation set for the grid, adaptive plans, \
-         constant-speed sweeps and sweeps whose speed follows the BRDF (not built yet), and the in-process \
-         throughput without the process's start-up.\n",
+         constant-speed sweeps and sweeps whose speed follows the BRDF.\n",
     );
     s
 }
