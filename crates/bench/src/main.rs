@@ -18,12 +18,13 @@
 //! BINARY` also runs each through a gonio built from an earlier commit, side by side).
 //! `--accuracy` writes ACCURACY.md instead (issue 29's accuracy table, crate::accuracy).
 //! (7) sweeps against stop-and-go per seed material on both instrument files ([`sweeps`]).
-//! `--only <readings|campaigns|throughput|budget|timing|sweeps|follow>` prints one section and leaves BENCHMARKS.md alone; `--only stress-large` runs
+//! `--only <readings|campaigns|throughput|budget|timing|sweeps|follow|curves>` prints one section and leaves BENCHMARKS.md alone; `--only stress-large` runs
 //! the large stress tier and records it (docs/bench/stress-large.txt) without writing the report.
 
 mod accuracy;
 mod campaigns;
 mod criterion_summary;
+mod curves;
 mod error_budget;
 mod follow;
 mod gonio_run;
@@ -233,7 +234,9 @@ fn sweeps_section(root: &Path, target: &Path, quick: bool) -> String {
             binary.display()
         );
     }
-    sweeps::section(root, &binary, quick) + &follow::section(root, &binary, quick)
+    sweeps::section(root, &binary, quick)
+        + &follow::section(root, &binary, quick)
+        + &curves::section(root, &binary, quick)
 }
 
 /// Section 5: the realistic instrument's error budget and its throughput beside the ideal one's.
@@ -468,6 +471,13 @@ fn run_only(section: &str, quick: bool) {
         "sweeps" => {
             let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
             print!("{}", sweeps_section(&root, &target_dir(), quick));
+        }
+        "curves" => {
+            let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+            print!(
+                "{}",
+                curves::section(&root, &target_dir().join("release/gonio"), quick)
+            );
         }
         "follow" => {
             let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");

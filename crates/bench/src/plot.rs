@@ -191,3 +191,69 @@ pub fn campaign(path: &Path, material: &str, points: &[CampaignPoint]) -> PlotRe
     root.present()?;
     Ok(())
 }
+
+/// A named line of (x, y) points.
+pub type Series = (String, Vec<(f64, f64)>);
+
+/// A titled panel of lines.
+pub type Panel = (String, Vec<Series>);
+
+/// One material's instrument time against error, a panel per instrument file, a line per strategy.
+pub fn time_vs_error(path: &Path, material: &str, panels: &[Panel]) -> PlotResult {
+    let root = SVGBackend::new(path, (1200, 520)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let root = root.titled(
+        &format!("{material}: error on the in-plane validation set against instrument time"),
+        ("sans-serif", 22),
+    )?;
+    let areas = root.split_evenly((1, panels.len().max(1)));
+    for ((label, series), area) in panels.iter().zip(areas.iter()) {
+        let all: Vec<(f64, f64)> = series
+            .iter()
+            .flat_map(|(_, l)| l.iter().copied())
+            .filter(|(t, _)| *t > 0.0)
+            .map(|(t, e)| (t, e.max(ERROR_FLOOR)))
+            .collect();
+        if all.is_empty() {
+            continue;
+        }
+        let (x0, x1) = all
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(a, b), p| (a.min(p.0), b.max(p.0)));
+        let (y0, y1) = all
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(a, b), p| (a.min(p.1), b.max(p.1)));
+        let mut chart = ChartBuilder::on(area)
+            .caption(label, ("sans-serif", 18))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d((x0 / 1.5..x1 * 1.5).log_scale(), (y0 / 1.5..y1 * 1.5).log_scale())?;
+        chart
+            .configure_mesh()
+            .x_desc("instrument time (s)")
+            .y_desc("cos-weighted relative RMS")
+            .draw()?;
+        for (i, (name, line)) in series.iter().enumerate() {
+            let colour = Palette99::pick(i).to_rgba();
+            let mut line: Vec<(f64, f64)> = line.iter().map(|(t, e)| (*t, e.max(ERROR_FLOOR))).collect();
+            line.sort_by(|a, b| a.0.total_cmp(&b.0));
+            if line.is_empty() {
+                continue;
+            }
+            chart
+                .draw_series(LineSeries::new(line.clone(), colour.stroke_width(2)))?
+                .label(name.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+            chart.draw_series(line.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+    }
+    root.present()?;
+    Ok(())
+}
