@@ -173,3 +173,45 @@ fn a_run_without_valid_points_is_refused() {
     );
     assert!(!run.join("plot.svg").exists());
 }
+
+/// A run of sweeps alone: its readings are drawn, averaged along each arc (a few hundred marks, not tens of
+/// thousands), as the in-plane curve of their incidence; `--points-only` leaves them out, and with them
+/// everything there was to draw.
+#[test]
+fn sweep_readings_are_drawn_thinned_and_points_only_leaves_them_out() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let campaign = "[campaign]\nid = \"swept\"\n[sample]\nradius_mm = 12.5\n[plan]\nbands_nm = [550.0]\n\
+                    [[plan.sweeps]]\ntheta_i_deg = [30.0]\ntheta_o_deg = { from = 0.0, to = 70.0 }\n\
+                    speed_deg_s = 10.0\n[calibration]\nsimulate_operator = true\n[material]\n\
+                    preset = \"coloured-plastic\"\n";
+    let run = cli::dry_run(dir.path(), "swept", campaign);
+    let readings = std::fs::read_to_string(run.join("sweeps.csv"))
+        .expect("sweeps.csv")
+        .lines()
+        .count()
+        - 1;
+    assert!(readings > 1000, "{readings} readings");
+    let o = gonio().arg("plot").arg(&run).output().expect("plot");
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let stderr = text(&o.stderr);
+    assert!(
+        stderr.contains(&format!("{readings} sweep readings drawn as ")),
+        "{stderr}"
+    );
+    let svg = std::fs::read_to_string(run.join("plot.svg")).expect("plot.svg");
+    let (texts, _, circles) = svg_texts(&svg);
+    assert!(
+        texts.iter().any(|t| t == "in-plane slices, 550 nm (swept)"),
+        "{texts:?}"
+    );
+    assert!(texts.iter().any(|t| t == "theta_i = 30 deg"), "{texts:?}");
+    // 70 degrees in bins of half a degree: about 140 marks in the polar panel (and as many heat-map cells).
+    assert!((100..2000).contains(&circles), "{circles} circles");
+    let o = gonio()
+        .arg("plot")
+        .arg(&run)
+        .arg("--points-only")
+        .output()
+        .expect("plot --points-only");
+    assert!(!o.status.success(), "a run of sweeps alone has no point to draw");
+}

@@ -23,6 +23,7 @@ use gonio_instrument::InstrumentFile;
 use gonio_results::export::{self, ExportContext};
 use gonio_results::provenance_summary::{ExportSetup, provenance_lines};
 use gonio_results::run::Run;
+use gonio_results::sweeps::SweepReading;
 use gonio_results::{astm, merl_export, rgl, zemax};
 use serde_json::{Value, json};
 
@@ -62,7 +63,14 @@ impl RunSource {
         if points_only {
             return Ok((run, 0));
         }
-        let readings = match (&self.run, &self.data, &self.campaign) {
+        let readings = self.sweep_readings()?;
+        let n = readings.len();
+        Ok((gonio_results::sweeps::with_readings(run, &readings), n))
+    }
+
+    /// The run's sweep readings: the `sweeps.csv` beside the points CSV, or the store's; none without.
+    pub fn sweep_readings(&self) -> Result<Vec<SweepReading>, CliError> {
+        Ok(match (&self.run, &self.data, &self.campaign) {
             (Some(path), _, _) => {
                 let dir = if path.is_dir() {
                     path.clone()
@@ -86,9 +94,7 @@ impl RunSource {
                 gonio_engine::export::sweep_readings(&store, record.id).map_err(|e| store_err(&origin, e))?
             }
             _ => Vec::new(),
-        };
-        let n = readings.len();
-        Ok((gonio_results::sweeps::with_readings(run, &readings), n))
+        })
     }
 
     /// A directory to write derived files into by default: the run directory (or the CSV's), else the current

@@ -2,7 +2,10 @@
 //! (gonio_results::plot has the layout): in-plane polar slices per band, a (theta_o, phi_o) heat map per
 //! incidence angle, and, with `--model` (a fitted material file, or any material file or preset), the model
 //! against the measurement. The SVG goes to `--out`, by default `plot.svg` in the run directory (the current
-//! directory for a run read from a daemon's store); its path is printed on stdout.
+//! directory for a run read from a daemon's store); its path is printed on stdout. A run's sweep readings are
+//! drawn with its points, averaged in bins of [`SWEEP_BIN_DEG`] of arc per sweep (a picture of a hundred
+//! thousand readings would be megabytes; the readings themselves are in sweeps.csv); `--points-only` leaves
+//! them out.
 
 use std::path::PathBuf;
 
@@ -25,10 +28,29 @@ pub struct PlotArgs {
     /// The band of the heat maps, nm (default: the band nearest 550 nm).
     #[arg(long)]
     pub band: Option<f64>,
+    /// Leave the run's sweep readings out (by default they are drawn, averaged in bins of 0.5 deg of arc).
+    #[arg(long)]
+    pub points_only: bool,
 }
 
+/// Sweep readings are drawn averaged in bins this wide along each sweep's arc (degrees).
+pub const SWEEP_BIN_DEG: f64 = 0.5;
+
 pub fn run(args: PlotArgs) -> Result<(), CliError> {
-    let run = args.source.load()?;
+    let mut run = args.source.load()?;
+    if !args.points_only {
+        let readings = args.source.sweep_readings()?;
+        if !readings.is_empty() {
+            let bins = gonio_results::sweeps::binned(&readings, SWEEP_BIN_DEG);
+            eprintln!(
+                "gonio: {} sweep readings drawn as {} averages over {SWEEP_BIN_DEG} deg of arc (--points-only leaves \
+                 them out)",
+                readings.len(),
+                bins.len()
+            );
+            run = gonio_results::sweeps::with_readings(run, &bins);
+        }
+    }
     let model = match &args.model {
         Some(m) => Some((
             Material::from_file_or_preset(m).map_err(|e| CliError::input(format!("--model: {e}")))?,

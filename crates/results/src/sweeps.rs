@@ -253,6 +253,47 @@ pub fn with_readings(mut run: Run, readings: &[SweepReading]) -> Run {
     run
 }
 
+/// The sweep readings thinned for a picture: per segment (one arc in one band), the valid readings (a value, no
+/// flag) in bins of `bin_deg` of arc (by their arc's middle), each bin one reading: the mean value, the
+/// uncertainty of that mean (independent readings), and the geometry and time of the bin's middle reading.
+/// What a plot draws, never what is stored or exported. Empty for a `bin_deg` not positive.
+pub fn binned(readings: &[SweepReading], bin_deg: f64) -> Vec<SweepReading> {
+    if !(bin_deg.is_finite() && bin_deg > 0.0) {
+        return Vec::new();
+    }
+    let mid = |r: &SweepReading| 0.5 * (r.arc_from_deg + r.arc_to_deg);
+    let mut groups: std::collections::BTreeMap<(u32, i64), Vec<&SweepReading>> = Default::default();
+    for r in readings
+        .iter()
+        .filter(|r| r.flags.is_empty() && r.brdf_sr.is_some_and(f64::is_finite) && mid(r).is_finite())
+    {
+        let bin = (mid(r) / bin_deg).floor() as i64;
+        groups.entry((r.segment, bin)).or_default().push(r);
+    }
+    groups
+        .into_values()
+        .filter_map(|mut group| {
+            group.sort_by(|a, b| mid(a).total_cmp(&mid(b)));
+            let centre = *group.get(group.len() / 2)?;
+            let n = group.len() as f64;
+            let value = group.iter().filter_map(|r| r.brdf_sr).sum::<f64>() / n;
+            let u = group
+                .iter()
+                .map(|r| r.brdf_u_sr.map(|u| u * u))
+                .sum::<Option<f64>>()
+                .map(|v| v.sqrt() / n);
+            Some(SweepReading {
+                brdf_sr: Some(value),
+                brdf_u_sr: u,
+                brdf_aperture_sr: None,
+                signal_w: None,
+                truth_point_sr: None,
+                ..centre.clone()
+            })
+        })
+        .collect()
+}
+
 /// A dry-run's sweep readings against the simulator's truth at their arcs' middles.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SweepTruthSummary {
@@ -316,6 +357,40 @@ mod tests {
             },
             truth_point_sr: Some(t),
         }
+    }
+
+    #[test]
+    fn readings_are_binned_per_segment_with_the_mean_and_its_uncertainty() {
+        // Segment 3: readings every 0.1 deg from 20.0 to 20.9 (values 1..10), one failed; segment 4 at 20.05.
+        let mut rows: Vec<SweepReading> = (0..10)
+            .map(|k| {
+                let mut r = reading(k, Some(f64::from(k + 1)), 0.3, 0.5);
+                r.arc_from_deg = 20.0 + 0.1 * f64::from(k) - 0.01;
+                r.arc_to_deg = r.arc_from_deg + 0.02;
+                r.t_s = f64::from(k);
+                r
+            })
+            .collect();
+        rows.push(reading(10, None, 0.3, 0.5));
+        rows.push(SweepReading {
+            segment: 4,
+            arc_from_deg: 20.04,
+            arc_to_deg: 20.06,
+            ..reading(11, Some(7.0), 0.3, 0.5)
+        });
+        let bins = binned(&rows, 0.5);
+        assert_eq!(bins.len(), 3, "{bins:?}");
+        // 20.0..20.4 (values 1..5) and 20.5..20.9 (values 6..10) in segment 3, then segment 4's one.
+        let (a, b, c) = (&bins[0], &bins[1], &bins[2]);
+        assert_eq!((a.segment, b.segment, c.segment), (3, 3, 4));
+        assert!((a.brdf_sr.unwrap() - 3.0).abs() < 1e-12 && (b.brdf_sr.unwrap() - 8.0).abs() < 1e-12);
+        // The uncertainty of a mean of five independent readings of u = 0.3.
+        assert!((a.brdf_u_sr.unwrap() - 0.3 / 5f64.sqrt()).abs() < 1e-12);
+        // The geometry and time of the bin's middle reading; the truth is not carried.
+        assert_eq!((a.k, a.t_s), (2, 2.0));
+        assert_eq!(a.truth_point_sr, None);
+        assert_eq!(c.brdf_sr, Some(7.0));
+        assert!(binned(&rows, 0.0).is_empty() && binned(&rows, f64::NAN).is_empty());
     }
 
     #[test]
