@@ -188,7 +188,7 @@ fn runs(binary: &Path, material: &str, instrument: &Path, quick: bool) -> Vec<Re
     let first_pass =
         std::env::temp_dir().join(format!("gonio-bench-curves-{}-first.csv", std::process::id()));
     let measure = |kind: Kind, setting: String, plan: String| -> Result<Run, String> {
-        let run = gonio_run(binary, &campaign(material, &plan), instrument)?;
+        let run = gonio_run(binary, &campaign(material, &plan), Some(instrument))?;
         let values = values(&run, kind)?;
         if kind == Kind::Constant && setting == "4 deg/s, 1 samples" {
             let text = std::fs::read_to_string(run.out.join("sweeps.csv")).map_err(|e| e.to_string())?;

@@ -149,14 +149,14 @@ fn one_case(
         .first()
         .ok_or("no speed profile")?;
     let slowest = profile.slowest_deg_s();
-    let followed = gonio_run(binary, &text, instrument)?.sweeps()?;
+    let followed = gonio_run(binary, &text, Some(instrument))?.sweeps()?;
     // The fastest constant speed that meets the tolerance.
     let (mut speed, mut best): (f64, Option<(f64, f64, f64)>) = (slowest, None);
     for _ in 0..CONSTANT_TRIES {
         let readings = gonio_run(
             binary,
             &campaign("constant", material, speed, AVERAGING, ""),
-            instrument,
+            Some(instrument),
         )?
         .sweeps()?;
         let worst = truth.worst(&readings, to_peak);
@@ -219,7 +219,7 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
             let first = gonio_run(
                 binary,
                 &campaign("first", material, FIRST_PASS_DEG_S, 1, ""),
-                &instrument,
+                Some(&instrument),
             )
             .and_then(|r| r.sweeps());
             let first = match first {

@@ -22,12 +22,16 @@ impl Drop for GonioRun {
 }
 
 impl GonioRun {
+    /// The run's run.json.
+    pub fn run_json(&self) -> Result<serde_json::Value, String> {
+        std::fs::read_to_string(self.out.join("run.json"))
+            .map_err(|e| e.to_string())
+            .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))
+    }
+
     /// The run's instrument time (run.json `timing.actual_instrument_s`), s.
     pub fn instrument_s(&self) -> Result<f64, String> {
-        let json: serde_json::Value = std::fs::read_to_string(self.out.join("run.json"))
-            .map_err(|e| e.to_string())
-            .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))?;
-        json["timing"]["actual_instrument_s"]
+        self.run_json()?["timing"]["actual_instrument_s"]
             .as_f64()
             .ok_or_else(|| "run.json has no timing.actual_instrument_s".to_string())
     }
@@ -40,8 +44,9 @@ impl GonioRun {
     }
 }
 
-/// Run campaign `text` through `binary` on `instrument` in a fresh directory.
-pub fn gonio_run(binary: &Path, text: &str, instrument: &Path) -> Result<GonioRun, String> {
+/// Run campaign `text` through `binary` on `instrument` (None: the binary's embedded simulated instrument) in a
+/// fresh directory.
+pub fn gonio_run(binary: &Path, text: &str, instrument: Option<&Path>) -> Result<GonioRun, String> {
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos());
@@ -55,14 +60,17 @@ pub fn gonio_run(binary: &Path, text: &str, instrument: &Path) -> Result<GonioRu
     let campaign = run.dir.join("campaign.toml");
     std::fs::write(&campaign, text).map_err(|e| e.to_string())?;
     let start = Instant::now();
-    let o = std::process::Command::new(binary)
+    let mut command = std::process::Command::new(binary);
+    command
         .arg("run")
         .arg(&campaign)
         .arg("--out")
         .arg(&run.out)
-        .arg("--quiet")
-        .arg("--instrument")
-        .arg(instrument)
+        .arg("--quiet");
+    if let Some(i) = instrument {
+        command.arg("--instrument").arg(i);
+    }
+    let o = command
         .output()
         .map_err(|e| format!("cannot run {}: {e}", binary.display()))?;
     if !o.status.success() {

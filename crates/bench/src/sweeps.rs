@@ -45,7 +45,7 @@ impl Outcome {
 
 /// Run `text` through `binary` on `instrument` and read `csv` (points.csv or sweeps.csv) of its results.
 fn run(binary: &Path, text: &str, instrument: &Path, csv: &str) -> Result<Outcome, String> {
-    let run = gonio_run(binary, text, instrument)?;
+    let run = gonio_run(binary, text, Some(instrument))?;
     read(&run, csv)
 }
 

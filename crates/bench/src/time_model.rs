@@ -16,7 +16,6 @@
 //! with `[simulator.actual]` from a dry-run's run.json: the same hardware, its file as measured.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 /// The target: every row within this fraction.
 const TARGET: f64 = 0.02;
@@ -111,57 +110,21 @@ impl Run {
 
 /// `gonio run` of `text` on `instrument` (None: the embedded simulated instrument) through `binary`.
 pub fn dry_run(binary: &Path, text: &str, instrument: Option<&Path>) -> Result<Run, String> {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos());
-    let dir = std::env::temp_dir().join(format!("gonio-bench-time-{}-{nanos}", std::process::id()));
-    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
-    let campaign = dir.join("campaign.toml");
-    std::fs::write(&campaign, text).map_err(|e| e.to_string())?;
-    let out = dir.join("out");
-    let mut command = std::process::Command::new(binary);
-    command
-        .arg("run")
-        .arg(&campaign)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet");
-    if let Some(i) = instrument {
-        command.arg("--instrument").arg(i);
-    }
-    let start = Instant::now();
-    let o = command
-        .output()
-        .map_err(|e| format!("cannot run {}: {e}", binary.display()))?;
-    let wall_s = start.elapsed().as_secs_f64();
-    let result = if o.status.success() {
-        std::fs::read_to_string(out.join("run.json"))
-            .map_err(|e| e.to_string())
-            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).map_err(|e| e.to_string()))
-            .and_then(|v| {
-                let number = |x: &serde_json::Value, what: &str| {
-                    x.as_f64().ok_or_else(|| format!("run.json has no {what}"))
-                };
-                Ok(Run {
-                    points: v["campaign"]["points_done"]
-                        .as_u64()
-                        .ok_or("run.json has no campaign.points_done")?,
-                    predicted_s: number(
-                        &v["timing"]["predicted_instrument_s"],
-                        "timing.predicted_instrument_s",
-                    )?,
-                    actual_s: number(&v["timing"]["actual_instrument_s"], "timing.actual_instrument_s")?,
-                    wall_s,
-                })
-            })
-    } else {
-        Err(format!(
-            "gonio run failed: {}",
-            String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or("")
-        ))
-    };
-    let _ = std::fs::remove_dir_all(&dir);
-    result
+    let run = crate::gonio_run::gonio_run(binary, text, instrument)?;
+    let v = run.run_json()?;
+    let number =
+        |x: &serde_json::Value, what: &str| x.as_f64().ok_or_else(|| format!("run.json has no {what}"));
+    Ok(Run {
+        points: v["campaign"]["points_done"]
+            .as_u64()
+            .ok_or("run.json has no campaign.points_done")?,
+        predicted_s: number(
+            &v["timing"]["predicted_instrument_s"],
+            "timing.predicted_instrument_s",
+        )?,
+        actual_s: number(&v["timing"]["actual_instrument_s"], "timing.actual_instrument_s")?,
+        wall_s: run.wall_s,
+    })
 }
 
 /// realistic.toml with the dynamics `gonio selftest --write` measured on its simulated hardware, that hardware
