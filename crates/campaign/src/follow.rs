@@ -69,7 +69,13 @@ pub(crate) fn profiles(
         let key = || format!("sweeps #{}", r.entry + 1);
         let located = |message: String| at.err(&format!("plan.{}", key()), "follow", message);
         if !read.iter().any(|(name, _)| *name == follow.first_pass) {
-            let path = sources::file_path(sources, base, &follow.first_pass).map_err(located)?;
+            // The file, or the run directory holding it (a daemon's policy admits files only: its sweeps.csv).
+            let path = sources::file_path(sources, base, &follow.first_pass)
+                .or_else(|e| {
+                    let in_dir = format!("{}/{SWEEPS_CSV}", follow.first_pass.trim_end_matches('/'));
+                    sources::file_path(sources, base, &in_dir).map_err(|_| e)
+                })
+                .map_err(located)?;
             let readings = read_first_pass(&path).map_err(located)?;
             read.push((follow.first_pass.clone(), readings));
         }

@@ -113,3 +113,33 @@ fn a_first_pass_of_other_arcs_is_refused_with_the_arc_it_lacks() {
         .to_string();
     assert!(err.contains("garbage.csv"), "{err}");
 }
+
+#[test]
+fn a_campaign_submitted_to_the_daemon_reads_its_first_pass_inside_the_data_directory_only() {
+    let data = tempfile::tempdir().unwrap();
+    let outside = tempfile::tempdir().unwrap();
+    std::fs::create_dir(data.path().join("first")).unwrap();
+    std::fs::write(data.path().join("first/sweeps.csv"), first_pass()).unwrap();
+    std::fs::write(outside.path().join("sweeps.csv"), first_pass()).unwrap();
+    let file = InstrumentFile::simulated();
+    let confined = Sources::Confined(data.path().to_path_buf());
+    // The run directory or its file, inside the data directory.
+    for name in ["first", "first/", "first/sweeps.csv"] {
+        let text = CAMPAIGN.replace("first_pass = \"first\"", &format!("first_pass = \"{name}\""));
+        let p =
+            load_and_prepare(&text, "submitted", &confined, &file).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(p.campaign.sweep_profiles.len(), 1, "{name}");
+    }
+    // Outside it: refused, with the rule.
+    for name in [
+        "../first/sweeps.csv".to_string(),
+        outside.path().join("sweeps.csv").display().to_string(),
+    ] {
+        let text = CAMPAIGN.replace("first_pass = \"first\"", &format!("first_pass = \"{name}\""));
+        let err = load_and_prepare(&text, "submitted", &confined, &file)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("[plan.sweeps #1] follow"), "{err}");
+        assert!(err.contains("data directory"), "{name}: {err}");
+    }
+}
