@@ -30,14 +30,8 @@ use gonio_scheduler::kinematics::{Geometry, Kinematics, Pose};
 
 use crate::campaigns::{errors, reconstructor, truth_fn};
 use crate::gonio_run::{GonioRun, gonio_run};
+use crate::readings::MATERIALS;
 
-const MATERIALS: [&str; 5] = [
-    "mirror",
-    "white-styrofoam",
-    "construction-paper",
-    "coloured-plastic",
-    "gold",
-];
 const INCIDENCES_DEG: [f64; 4] = [15.0, 30.0, 45.0, 60.0];
 const GRID_STEPS_DEG: [f64; 9] = [10.0, 5.0, 2.5, 1.25, 0.625, 0.3125, 0.15625, 0.078125, 0.0390625];
 const ADAPTIVE_BUDGETS: [u32; 3] = [100, 400, 1600];

@@ -166,29 +166,49 @@ pub fn campaign(path: &Path, material: &str, points: &[CampaignPoint]) -> PlotRe
             .build_cartesian_2d((x0 / 1.5..x1 * 1.5).log_scale(), (y0 / 1.5..y1 * 1.5).log_scale())?;
         chart.configure_mesh().x_desc(x_name).y_desc(y_name).draw()?;
         for (i, s) in strategies.iter().enumerate() {
-            let colour = Palette99::pick(i).to_rgba();
             let line: Vec<(f64, f64)> = points
                 .iter()
                 .filter(|p| p.strategy == *s)
                 .filter_map(xy)
                 .collect();
-            if line.is_empty() {
-                continue;
-            }
-            chart
-                .draw_series(LineSeries::new(line.clone(), colour.stroke_width(2)))?
-                .label(s.name())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
-            chart.draw_series(line.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
+            draw_line(&mut chart, i, s.name(), line)?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
+        draw_legend(&mut chart)?;
     }
     root.present()?;
+    Ok(())
+}
+
+/// A log-log chart of an SVG.
+type LogChart<'a, 'b> = ChartContext<'a, SVGBackend<'b>, Cartesian2d<LogCoord<f64>, LogCoord<f64>>>;
+
+/// `line` as legend entry `name` in the palette's colour `i`: a line through the points and a dot at each.
+fn draw_line<'a, 'b: 'a>(
+    chart: &mut LogChart<'a, 'b>,
+    i: usize,
+    name: &str,
+    line: Vec<(f64, f64)>,
+) -> PlotResult {
+    if line.is_empty() {
+        return Ok(());
+    }
+    let colour = Palette99::pick(i).to_rgba();
+    chart
+        .draw_series(LineSeries::new(line.clone(), colour.stroke_width(2)))?
+        .label(name)
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+    chart.draw_series(line.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
+    Ok(())
+}
+
+/// The legend box, upper right.
+fn draw_legend<'a, 'b: 'a>(chart: &mut LogChart<'a, 'b>) -> PlotResult {
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
     Ok(())
 }
 
@@ -235,24 +255,11 @@ pub fn time_vs_error(path: &Path, material: &str, panels: &[Panel]) -> PlotResul
             .y_desc("cos-weighted relative RMS")
             .draw()?;
         for (i, (name, line)) in series.iter().enumerate() {
-            let colour = Palette99::pick(i).to_rgba();
             let mut line: Vec<(f64, f64)> = line.iter().map(|(t, e)| (*t, e.max(ERROR_FLOOR))).collect();
             line.sort_by(|a, b| a.0.total_cmp(&b.0));
-            if line.is_empty() {
-                continue;
-            }
-            chart
-                .draw_series(LineSeries::new(line.clone(), colour.stroke_width(2)))?
-                .label(name.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
-            chart.draw_series(line.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
+            draw_line(&mut chart, i, name, line)?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
+        draw_legend(&mut chart)?;
     }
     root.present()?;
     Ok(())

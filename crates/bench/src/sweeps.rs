@@ -14,15 +14,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use crate::gonio_run::{GonioRun, gonio_run};
-
-/// The seed materials (config/materials).
-const MATERIALS: [&str; 5] = [
-    "mirror",
-    "white-styrofoam",
-    "construction-paper",
-    "coloured-plastic",
-    "gold",
-];
+use crate::readings::MATERIALS;
 
 /// The targets: values per instrument hour against stop-and-go, and k=2 coverage.
 const VALUES_RATIO_TARGET: f64 = 100.0;
