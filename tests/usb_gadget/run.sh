@@ -13,7 +13,8 @@
 # GONIO_USB_TIER_CACHE, default /var/tmp/gonio-usb-tier, so that a second run downloads nothing; the run says where
 # and how large it is. Prints SKIPPED with the reason when it cannot run.
 # GONIO_USB_TIER_ACCEL=kvm|tcg|auto (default auto: KVM when it can boot a stock kernel, else TCG).
-# A guest whose kernel hangs (its hung-task report on the console) is booted once more, the first console kept.
+# A guest whose kernel hangs (its hung-task report on the console) is booted again (up to three times), each
+# hung console kept.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 repo=$(cd "$here/../.." && pwd)
@@ -176,18 +177,22 @@ wait_guest() {
     wait $qpid 2>/dev/null || true
 }
 wait_guest
-# Seen once in two runs on the same binary (2026-12-03, TCG): the guest's kernel hung (init blocked for minutes)
-# in the gadget's unbind from dummy_hcd (the "unplug" fault), before gonio could react. A hang of the guest's
-# kernel is not a verdict on gonio: boot the guest once more, keeping the first console, and say so.
-if ! grep -aq '^tier: PASS' "$log" && grep -aq 'blocked for more than' "$log"; then
-    cp "$log" "$log.first"
-    echo "note: a kernel task hung inside the guest (console kept in $log.first):"
-    grep -a "^tier:\|blocked for more than" "$log.first" | sed 's/\r$//' | tail -n 4
-    echo "note: booting the guest once more"
+# Seen once in two runs on the same binary (2026-12-03, TCG), and twice in a row on 2026-12-05 after a passing
+# run of the same driver code: the guest's kernel hung (init blocked for minutes) in the gadget's unbind from
+# dummy_hcd (the "unplug" fault), before gonio could react. A hang of the guest's kernel is not a verdict on
+# gonio: boot the guest again, up to HANG_RETRIES times, keeping each hung console, and say so.
+HANG_RETRIES=3
+retry=0
+while [ $retry -lt $HANG_RETRIES ] && ! grep -aq '^tier: PASS' "$log" && grep -aq 'blocked for more than' "$log"; do
+    retry=$((retry + 1))
+    cp "$log" "$log.hung$retry"
+    echo "note: a kernel task hung inside the guest (console kept in $log.hung$retry):"
+    grep -a "^tier:\|blocked for more than" "$log.hung$retry" | sed 's/\r$//' | tail -n 4
+    echo "note: booting the guest again ($retry of $HANG_RETRIES)"
     boot=$(date +%s)
     boot "$accel"
     wait_guest
-fi
+done
 end=$(date +%s)
 # The guest's report: every line it prefixed with "tier:".
 grep -a "^tier:" "$log" | sed 's/\r$//' || true
