@@ -153,17 +153,12 @@ pub fn campaign(path: &Path, material: &str, points: &[CampaignPoint]) -> PlotRe
             ))?;
             continue;
         }
-        let (x0, x1) = all
-            .iter()
-            .fold((f64::INFINITY, 0.0f64), |(a, b), p| (a.min(p.0), b.max(p.0)));
-        let (y0, y1) = all
-            .iter()
-            .fold((f64::INFINITY, 0.0f64), |(a, b), p| (a.min(p.1), b.max(p.1)));
+        let (xs, ys) = padded_ranges(&all);
         let mut chart = ChartBuilder::on(panel)
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d((x0 / 1.5..x1 * 1.5).log_scale(), (y0 / 1.5..y1 * 1.5).log_scale())?;
+            .build_cartesian_2d(xs.log_scale(), ys.log_scale())?;
         chart.configure_mesh().x_desc(x_name).y_desc(y_name).draw()?;
         for (i, s) in strategies.iter().enumerate() {
             let line: Vec<(f64, f64)> = points
@@ -177,6 +172,15 @@ pub fn campaign(path: &Path, material: &str, points: &[CampaignPoint]) -> PlotRe
     }
     root.present()?;
     Ok(())
+}
+
+/// The x and y ranges of positive `points`, widened by a factor 1.5 each way for a log-log chart.
+fn padded_ranges(points: &[(f64, f64)]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+    let (x0, x1, y0, y1) = points.iter().fold(
+        (f64::INFINITY, 0.0f64, f64::INFINITY, 0.0f64),
+        |(x0, x1, y0, y1), p| (x0.min(p.0), x1.max(p.0), y0.min(p.1), y1.max(p.1)),
+    );
+    (x0 / 1.5..x1 * 1.5, y0 / 1.5..y1 * 1.5)
 }
 
 /// A log-log chart of an SVG.
@@ -237,18 +241,13 @@ pub fn time_vs_error(path: &Path, material: &str, panels: &[Panel]) -> PlotResul
         if all.is_empty() {
             continue;
         }
-        let (x0, x1) = all
-            .iter()
-            .fold((f64::INFINITY, 0.0f64), |(a, b), p| (a.min(p.0), b.max(p.0)));
-        let (y0, y1) = all
-            .iter()
-            .fold((f64::INFINITY, 0.0f64), |(a, b), p| (a.min(p.1), b.max(p.1)));
+        let (xs, ys) = padded_ranges(&all);
         let mut chart = ChartBuilder::on(area)
             .caption(label, ("sans-serif", 18))
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d((x0 / 1.5..x1 * 1.5).log_scale(), (y0 / 1.5..y1 * 1.5).log_scale())?;
+            .build_cartesian_2d(xs.log_scale(), ys.log_scale())?;
         chart
             .configure_mesh()
             .x_desc("instrument time (s)")

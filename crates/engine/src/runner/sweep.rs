@@ -20,8 +20,9 @@
 //!
 //! What a segment (one sweep of one arc in one band) stores is committed in one transaction with all its
 //! readings (crate::store::sweeps): a sweep interrupted (pause, crash) is swept again whole on resume, and no
-//! reading is stored twice. Not yet: the characterisation's corrections (the ranges' gains, the signature), the completion's corrections
-//! (aperture, smearing) and the exports of sweep readings; the run writes them to `sweeps.csv`.
+//! reading is stored twice. The completion corrects the readings (aperture, smearing: crate::budget::sweeps); the
+//! characterisation's corrections (the ranges' gains, the signature) are not applied to them yet. The run writes
+//! them to `sweeps.csv`; the exports, fits and plots read them from there or from the store.
 
 use gonio_brdf::{Direction, Wavelength};
 use gonio_scheduler::kinematics::Pose;
