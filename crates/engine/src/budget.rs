@@ -5,7 +5,8 @@
 //!
 //! Where each part comes from today:
 //! - `signal-noise`, `dark`: the meter's reading uncertainty (crate::acquisition::meter_reading) through the
-//!   equation.
+//!   equation; when the campaign completes, the dark is interpolated between the darks around the value and
+//!   `dark` becomes the interpolation's uncertainty ([`dark`]).
 //! - `normalisation` (shared by the band): the direct-beam or reference readings carried to the point's time
 //!   (crate::calibration), through the equation; when the campaign completes, the value is normalised again
 //!   between the readings around it and the drift's curvature added, independent per point ([`drift`]).
@@ -20,11 +21,12 @@
 //!   when the campaign completes ([`complete`]).
 
 mod complete;
+mod dark;
 mod drift;
 mod positioning;
 mod sweeps;
 
-pub use complete::completions;
+pub use complete::{NoiseFloor, completions};
 pub use sweeps::sweep_completions;
 
 use gonio_brdf::measurement::BrdfValue;

@@ -547,6 +547,10 @@ impl<'a> Run<'a> {
             &calibrations,
             &self.file.instrument,
             self.reference.is_some(),
+            self.detector.as_ref().map(|detector| crate::budget::NoiseFloor {
+                detector,
+                averaging: self.c.campaign.acquisition.averaging,
+            }),
         );
         lock(&self.store).update_completions(self.id, &updates)?;
         // The sweep readings likewise (crate::budget::sweeps), when there are any.

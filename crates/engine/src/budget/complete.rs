@@ -1,4 +1,6 @@
 //! What a point's value and budget need the campaign's other points for, done once it has completed:
+//! - the dark's drift: each value net of the dark interpolated between its band's darks before and after it,
+//!   the interpolation's uncertainty its `dark` component ([`super::dark`]);
 //! - the source's drift: each value normalised again between the readings before and after it, the drift's
 //!   curvature in the budget ([`super::drift`]);
 //! - pointing: the angles' uncertainty (an applied alignment's, else the instrument file's `alignment_u_deg`)
@@ -25,6 +27,8 @@ use gonio_results::band_component::{FilterBand, band_components};
 use gonio_results::budget::{components, groups};
 use gonio_results::run::{BAND_TOLERANCE_NM, Run};
 
+use super::dark::{Darkened, redark, sensitivity_per_w};
+use crate::characterise::correction::{DetectorCorrection, FLAG_BELOW_NEBRDF};
 use crate::store::{CalibrationRecord, CampaignRecord, PointCompletion, PointRecord};
 
 /// The angles' standard uncertainty (deg): an applied alignment's (the root sum of squares of the uncertainties
@@ -71,6 +75,15 @@ pub(super) fn filter_bands(instrument: &Instrument) -> impl Fn(f64) -> Option<Fi
     }
 }
 
+/// A characterised detector's noise floor as the campaign read it: each value re-darkened is flagged
+/// `below-nebrdf` again by its new value (the flag first went by the value net of a stale dark).
+#[derive(Debug, Clone, Copy)]
+pub struct NoiseFloor<'a> {
+    pub detector: &'a DetectorCorrection,
+    /// Samples averaged per reading.
+    pub averaging: u32,
+}
+
 /// The completion of a campaign's committed points (module doc): one entry per point it changes. `relative`:
 /// normalised by a reference sample rather than the direct beam.
 pub fn completions(
@@ -79,6 +92,7 @@ pub fn completions(
     calibrations: &[CalibrationRecord],
     instrument: &Instrument,
     relative: bool,
+    floor: Option<NoiseFloor<'_>>,
 ) -> Vec<PointCompletion> {
     // The points as a run, which the aperture's model is fitted to; each step below updates its values.
     let mut run = Run {
@@ -99,6 +113,46 @@ pub fn completions(
             flags: None,
         })
         .collect();
+
+    let darkened: Vec<Darkened> = committed
+        .iter()
+        .map(|p| Darkened {
+            band_nm: p.band_nm,
+            t_s: p.t_s,
+            dark_w: p.dark_w,
+        })
+        .collect();
+    for (index, ((point, completion), d)) in run
+        .points
+        .iter_mut()
+        .zip(&mut done)
+        .zip(redark(calibrations, &darkened))
+        .enumerate()
+    {
+        let (Some(d), Some(value)) = (d, point.brdf_sr) else {
+            continue;
+        };
+        let Some(per_w) = sensitivity_per_w(&completion.budget, d.used_u_w) else {
+            continue;
+        };
+        let redarked = value - per_w * (d.dark_w - d.used_w);
+        completion.budget.set(components::DARK, per_w * d.u_w, None);
+        completion.brdf_sr = Some(redarked);
+        point.brdf_sr = Some(redarked);
+        if let (Some(floor), Some(c)) = (floor, committed.get(index)) {
+            let below = floor
+                .detector
+                .below_nebrdf(redarked, c.band_nm, floor.averaging, c.theta_o_deg);
+            let flagged = point.flags.iter().any(|f| f == FLAG_BELOW_NEBRDF);
+            if below != flagged {
+                point.flags.retain(|f| f != FLAG_BELOW_NEBRDF);
+                if below {
+                    point.flags.push(FLAG_BELOW_NEBRDF.to_string());
+                }
+                completion.flags = Some(point.flags.clone());
+            }
+        }
+    }
 
     for ((point, completion), r) in run
         .points

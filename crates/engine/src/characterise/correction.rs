@@ -74,6 +74,20 @@ impl DetectorCorrection {
     pub fn nebrdf_sr(&self, band_nm: f64, samples: u32, theta_o_deg: f64) -> Option<f64> {
         self.band(band_nm).map(|s| s.nebrdf_sr(samples, theta_o_deg))
     }
+
+    /// The least standard deviation of a reading averaging `samples` in `band_nm` (W): the darks' measured noise
+    /// over `sqrt(samples)`, when measured.
+    pub fn noise_floor_w(&self, band_nm: f64, samples: u32) -> Option<f64> {
+        let w = self.band(band_nm)?.dark_noise_one_sample_w?;
+        Some(w / f64::from(samples.max(1)).sqrt()).filter(|w| w.is_finite() && *w > 0.0)
+    }
+
+    /// Whether `value_sr` (a reading averaging `samples` at `theta_o_deg` in `band_nm`) is below three NEBRDF:
+    /// a point flagged [`FLAG_BELOW_NEBRDF`]. False where the NEBRDF was not measured.
+    pub fn below_nebrdf(&self, value_sr: f64, band_nm: f64, samples: u32, theta_o_deg: f64) -> bool {
+        self.nebrdf_sr(band_nm, samples, theta_o_deg)
+            .is_some_and(|ne| value_sr < 3.0 * ne)
+    }
 }
 
 #[cfg(test)]
@@ -90,6 +104,7 @@ mod tests {
                 brdf_sr: vec![1e-3, 1e-5],
                 u_sr: vec![1e-5, 1e-6],
                 nebrdf_one_sample_sr: 1e-4,
+                dark_noise_one_sample_w: Some(2e-13),
             }],
         })
     }

@@ -117,6 +117,7 @@ pub fn finish(
                 brdf_sr,
                 u_sr,
                 nebrdf_one_sample_sr: s.noise_one_sample_w / norm,
+                dark_noise_one_sample_w: Some(s.noise_one_sample_w).filter(|w| w.is_finite()),
             }
         })
         .collect();

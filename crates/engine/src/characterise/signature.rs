@@ -21,6 +21,12 @@ pub struct BandSignature {
     /// (1/sr): the darks' noise over `P Omega`. At averaging `N` and polar angle `theta_o` it is this over
     /// `sqrt(N) cos(theta_o)`.
     pub nebrdf_one_sample_sr: f64,
+    /// The darks' noise itself (W): the standard deviation of single-sample readings on the blank, from which
+    /// the NEBRDF was worked out. No reading in the band is less noisy (over `sqrt(N)` at averaging `N`), whatever
+    /// the meter's noise model says: on realistic.toml the head's amplifier doubles it on the lowest range.
+    /// Absent from calibration files written before it was kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dark_noise_one_sample_w: Option<f64>,
 }
 
 /// The angle between the detector arm and the beam's forward direction for arm angles in the arms' plane (deg):
@@ -106,6 +112,7 @@ mod tests {
             brdf_sr: vec![4e-3, 2e-3, 1e-5],
             u_sr: vec![1e-4, 1e-4, 1e-6],
             nebrdf_one_sample_sr: 1e-4,
+            dark_noise_one_sample_w: None,
         };
         assert_eq!(s.at(1.0), None);
         assert_eq!(s.at(2.0), Some((4e-3, 1e-4)));

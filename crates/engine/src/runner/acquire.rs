@@ -108,9 +108,17 @@ impl<'a> Run<'a> {
                 r.power_w.abs() * self.file.instrument.detector.range_gain_u(),
             ),
         };
+        // A characterised meter's measured dark noise is the least any reading has (the model knows the shot,
+        // Johnson and quantisation noise, not the head's amplifier).
+        let averaging = self.c.campaign.acquisition.averaging;
+        let floor_w = self
+            .detector
+            .as_ref()
+            .and_then(|d| d.noise_floor_w(nm, averaging))
+            .unwrap_or(0.0);
         Ok(SampleReading {
             power_w,
-            noise_w: r.std_w,
+            noise_w: r.std_w.max(floor_w),
             range_u_w,
             overload: r.overload,
             range: r.range,
@@ -145,9 +153,7 @@ impl<'a> Run<'a> {
             SignatureAt::Unknown => (value, 0.0),
         };
         let averaging = self.c.campaign.acquisition.averaging;
-        if d.nebrdf_sr(band_nm, averaging, g.theta_o_deg)
-            .is_some_and(|ne| value < 3.0 * ne)
-        {
+        if d.below_nebrdf(value, band_nm, averaging, g.theta_o_deg) {
             flags.push(FLAG_BELOW_NEBRDF.to_string());
         }
         (value, u_stray)

@@ -1,0 +1,198 @@
+//! The dark's drift between dark readings, with hindsight.
+//!
+//! While a campaign runs, each value is net of its band's last dark reading (crate::calibration::Darks): the
+//! only dark known then. Room light leaking past the baffles is in every dark and every reading, and it is not
+//! constant: on realistic.toml it varies by 20 % over half an hour, so a dark taken a minute before a point is
+//! off by a few 1e-12 W by the time of the point, more than the signal of a mirror away from its specular
+//! direction. Those values came out a few 1e-5 1/sr from a truth of zero, many of their stated uncertainties
+//! away (issue 29). Once the campaign has completed (it ends with a dark), the dark after each point is known
+//! too: the point's dark becomes the straight line between its band's darks before and after it
+//! ([`redark`]), whose own uncertainty is the two readings' through the interpolation and what a straight line
+//! still misses, the drift's curvature, from the neighbouring darks' second difference:
+//! `|D''| (t - t_k) (t_k+1 - t) / 2` (as the source's drift, super::drift).
+//!
+//! A value moves by `-dv/dD` times the change of its dark, with `dv/dD` recovered from the value's own budget:
+//! its `dark` component is the dark reading's standard uncertainty times `|dv/dD|` (the measurement equation's
+//! sensitivity to the dark, gonio_brdf::measurement), and the dark always lowers the value.
+
+use std::collections::BTreeMap;
+
+use gonio_results::budget::{Budget, components};
+
+use crate::store::CalibrationRecord;
+
+/// A dark reading: instrument time (s), value and standard uncertainty (W).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Dark {
+    t_s: f64,
+    value_w: f64,
+    u_w: f64,
+}
+
+/// What the re-darkening needs of a value: its band, its time (s) and the dark it was net of while running (W).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Darkened {
+    pub band_nm: f64,
+    pub t_s: f64,
+    pub dark_w: f64,
+}
+
+/// One value's dark, with hindsight.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Redarked {
+    /// The dark it was net of while running (W).
+    pub used_w: f64,
+    /// That dark's standard uncertainty as read (W).
+    pub used_u_w: f64,
+    /// The dark interpolated to its time (W).
+    pub dark_w: f64,
+    /// The interpolated dark's standard uncertainty (W): the two readings' and the drift's curvature.
+    pub u_w: f64,
+}
+
+/// Each band's dark readings, in time order.
+fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<Dark>> {
+    let mut out: BTreeMap<u64, Vec<Dark>> = BTreeMap::new();
+    for r in records.iter().filter(|r| r.kind == "dark") {
+        let Some(nm) = r.band_nm else { continue };
+        if r.t_s.is_finite() && r.value_w.is_finite() && r.u_w.is_finite() {
+            out.entry(nm.to_bits()).or_default().push(Dark {
+                t_s: r.t_s,
+                value_w: r.value_w,
+                u_w: r.u_w,
+            });
+        }
+    }
+    for list in out.values_mut() {
+        list.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
+    }
+    out
+}
+
+/// The second derivative through three darks (W/s^2); `None` when two share a time.
+fn second_derivative(a: Dark, b: Dark, c: Dark) -> Option<f64> {
+    let (d1, d2, span) = (b.t_s - a.t_s, c.t_s - b.t_s, c.t_s - a.t_s);
+    (d1 > 0.0 && d2 > 0.0).then(|| 2.0 * ((c.value_w - b.value_w) / d2 - (b.value_w - a.value_w) / d1) / span)
+}
+
+/// The dark of each value (module doc), in their order: `None` for a value whose band has no dark after it,
+/// or whose dark is not the band's last one before it (a value not net of a stored dark).
+pub fn redark(records: &[CalibrationRecord], values: &[Darkened]) -> Vec<Option<Redarked>> {
+    let series = series(records);
+    values
+        .iter()
+        .map(|v| {
+            let s = series.get(&v.band_nm.to_bits())?;
+            let k1 = s.iter().position(|d| d.t_s > v.t_s)?;
+            let k = k1.checked_sub(1)?;
+            let (before, after) = (s[k], s[k1]);
+            // The value must be net of the dark before it (ties in time go to the dark kept last).
+            if before.value_w != v.dark_w {
+                return None;
+            }
+            let x = (v.t_s - before.t_s) / (after.t_s - before.t_s);
+            let dark_w = before.value_w + (after.value_w - before.value_w) * x;
+            let curvature = [
+                k.checked_sub(1)
+                    .and_then(|j| second_derivative(s[j], before, after)),
+                s.get(k1 + 1).and_then(|&c| second_derivative(before, after, c)),
+            ]
+            .into_iter()
+            .flatten()
+            .map(f64::abs)
+            .fold(0.0f64, f64::max);
+            let curvature_w = curvature * (v.t_s - before.t_s) * (after.t_s - v.t_s) / 2.0;
+            let u_w = (before.u_w * (1.0 - x)).hypot(after.u_w * x).hypot(curvature_w);
+            dark_w.is_finite().then_some(Redarked {
+                used_w: before.value_w,
+                used_u_w: before.u_w,
+                dark_w,
+                u_w,
+            })
+        })
+        .collect()
+}
+
+/// `|dv/dD|` of a value (1/sr per W) from its budget's `dark` component and the dark reading's standard
+/// uncertainty `used_u_w` (module doc); `None` without either.
+pub fn sensitivity_per_w(budget: &Budget, used_u_w: f64) -> Option<f64> {
+    let u_sr = budget
+        .entries
+        .iter()
+        .find(|e| e.component == components::DARK && e.shared.is_none())?
+        .u_sr;
+    let per_w = u_sr / used_u_w;
+    (used_u_w > 0.0 && per_w.is_finite() && per_w > 0.0).then_some(per_w)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dark(t_s: f64, value_w: f64) -> CalibrationRecord {
+        CalibrationRecord {
+            kind: "dark".into(),
+            band_nm: Some(550.0),
+            t_s,
+            value_w,
+            u_w: 2e-13,
+        }
+    }
+
+    /// Room light on a 30-minute cycle: 2e-11 W, 20 % of it varying.
+    fn ambient(t: f64) -> f64 {
+        2e-10 + 4e-12 * (std::f64::consts::TAU * t / 1800.0).sin()
+    }
+
+    #[test]
+    fn a_value_takes_the_dark_interpolated_to_its_time_and_curvature_covers_the_rest() {
+        let records: Vec<_> = (0..8)
+            .map(|k| dark(60.0 * f64::from(k), ambient(60.0 * f64::from(k))))
+            .collect();
+        for t in [70.0, 150.0, 239.0, 400.0] {
+            let used = records
+                .iter()
+                .rev()
+                .find(|r| r.t_s <= t)
+                .map(|r| r.value_w)
+                .unwrap_or(0.0);
+            let v = Darkened {
+                band_nm: 550.0,
+                t_s: t,
+                dark_w: used,
+            };
+            let r = redark(&records, &[v])[0].expect("between two darks");
+            assert_eq!(r.used_w, used);
+            let before = (used - ambient(t)).abs();
+            let after = (r.dark_w - ambient(t)).abs();
+            assert!(before > 1e-13, "{t}: {before}");
+            assert!(after < before / 5.0, "{t}: {after} vs {before}");
+            // The uncertainty covers what is left and stays near the readings' own.
+            assert!(r.u_w >= after, "{t}: {} vs {after}", r.u_w);
+            assert!(r.u_w < 3e-13, "{t}: {}", r.u_w);
+        }
+    }
+
+    #[test]
+    fn a_value_after_the_last_dark_or_of_another_dark_is_left_alone() {
+        let records = vec![dark(0.0, 1e-10), dark(60.0, 1.1e-10)];
+        let late = Darkened {
+            band_nm: 550.0,
+            t_s: 90.0,
+            dark_w: 1.1e-10,
+        };
+        let other_band = Darkened {
+            band_nm: 650.0,
+            ..late
+        };
+        let not_that_dark = Darkened {
+            band_nm: 550.0,
+            t_s: 30.0,
+            dark_w: 0.0,
+        };
+        assert_eq!(
+            redark(&records, &[late, other_band, not_that_dark]),
+            vec![None, None, None]
+        );
+    }
+}
