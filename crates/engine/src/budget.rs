@@ -26,7 +26,8 @@ mod drift;
 mod positioning;
 mod sweeps;
 
-pub use complete::{NoiseFloor, completions};
+pub use complete::{NoiseFloor, RunContext, completions};
+pub use dark::{DarkSensitivity, Darkened};
 pub use sweeps::sweep_completions;
 
 use gonio_brdf::measurement::BrdfValue;

@@ -541,16 +541,21 @@ impl<'a> Run<'a> {
                 s.calibrations(self.id)?,
             )
         };
+        let dark_sensitivity = |d: &crate::budget::Darkened| self.dark_per_w(d);
+        let context = crate::budget::RunContext {
+            relative: self.reference.is_some(),
+            dark_sensitivity: &dark_sensitivity,
+            floor: self.detector.as_ref().map(|detector| crate::budget::NoiseFloor {
+                detector,
+                averaging: self.c.campaign.acquisition.averaging,
+            }),
+        };
         let updates = crate::budget::completions(
             &record,
             &committed,
             &calibrations,
             &self.file.instrument,
-            self.reference.is_some(),
-            self.detector.as_ref().map(|detector| crate::budget::NoiseFloor {
-                detector,
-                averaging: self.c.campaign.acquisition.averaging,
-            }),
+            &context,
         );
         lock(&self.store).update_completions(self.id, &updates)?;
         // The sweep readings likewise (crate::budget::sweeps), when there are any.
@@ -561,7 +566,7 @@ impl<'a> Run<'a> {
                 &readings,
                 &calibrations,
                 &self.file.instrument,
-                self.reference.is_some(),
+                &context,
             );
             lock(&self.store).update_sweep_completions(self.id, &sweeps)?;
         }

@@ -27,7 +27,7 @@ use gonio_results::band_component::{FilterBand, band_components};
 use gonio_results::budget::{components, groups};
 use gonio_results::run::{BAND_TOLERANCE_NM, Run};
 
-use super::dark::{Darkened, redark, sensitivity_per_w};
+use super::dark::{DarkSensitivity, Darkened, redark};
 use crate::characterise::correction::{DetectorCorrection, FLAG_BELOW_NEBRDF};
 use crate::store::{CalibrationRecord, CampaignRecord, PointCompletion, PointRecord};
 
@@ -84,16 +84,34 @@ pub struct NoiseFloor<'a> {
     pub averaging: u32,
 }
 
-/// The completion of a campaign's committed points (module doc): one entry per point it changes. `relative`:
-/// normalised by a reference sample rather than the direct beam.
+/// What the completion needs of the run besides its stored records.
+pub struct RunContext<'a> {
+    /// Normalised by a reference sample rather than the direct beam.
+    pub relative: bool,
+    /// The measurement equation's sensitivity to a value's dark.
+    pub dark_sensitivity: &'a DarkSensitivity<'a>,
+    /// A characterised detector's noise floor; `None` without a characterisation.
+    pub floor: Option<NoiseFloor<'a>>,
+}
+
+impl std::fmt::Debug for RunContext<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RunContext")
+            .field("relative", &self.relative)
+            .field("floor", &self.floor)
+            .finish_non_exhaustive()
+    }
+}
+
+/// The completion of a campaign's committed points (module doc): one entry per point it changes.
 pub fn completions(
     record: &CampaignRecord,
     committed: &[PointRecord],
     calibrations: &[CalibrationRecord],
     instrument: &Instrument,
-    relative: bool,
-    floor: Option<NoiseFloor<'_>>,
+    context: &RunContext<'_>,
 ) -> Vec<PointCompletion> {
+    let (relative, floor) = (context.relative, context.floor);
     // The points as a run, which the aperture's model is fitted to; each step below updates its values.
     let mut run = Run {
         origin: format!("campaign {} ({})", record.id, record.name),
@@ -119,7 +137,9 @@ pub fn completions(
         .map(|p| Darkened {
             band_nm: p.band_nm,
             t_s: p.t_s,
-            dark_w: p.dark_w,
+            dark_w: Some(p.dark_w),
+            geometry_deg: [p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg],
+            incident_w: p.incident_w,
         })
         .collect();
     for (index, ((point, completion), d)) in run
@@ -132,7 +152,7 @@ pub fn completions(
         let (Some(d), Some(value)) = (d, point.brdf_sr) else {
             continue;
         };
-        let Some(per_w) = sensitivity_per_w(&completion.budget, d.used_u_w) else {
+        let Some(per_w) = (context.dark_sensitivity)(&darkened[index]) else {
             continue;
         };
         let redarked = value - per_w * (d.dark_w - d.used_w);

@@ -11,13 +11,10 @@
 //! still misses, the drift's curvature, from the neighbouring darks' second difference:
 //! `|D''| (t - t_k) (t_k+1 - t) / 2` (as the source's drift, super::drift).
 //!
-//! A value moves by `-dv/dD` times the change of its dark, with `dv/dD` recovered from the value's own budget:
-//! its `dark` component is the dark reading's standard uncertainty times `|dv/dD|` (the measurement equation's
-//! sensitivity to the dark, gonio_brdf::measurement), and the dark always lowers the value.
+//! A value moves by `-dv/dD` times the change of its dark: the measurement equation's sensitivity to the dark
+//! at the value's geometry, band and normalisation, which the run works out ([`DarkSensitivity`]).
 
 use std::collections::BTreeMap;
-
-use gonio_results::budget::{Budget, components};
 
 use crate::store::CalibrationRecord;
 
@@ -29,13 +26,22 @@ struct Dark {
     u_w: f64,
 }
 
-/// What the re-darkening needs of a value: its band, its time (s) and the dark it was net of while running (W).
+/// What the re-darkening needs of a value: its band, its time (s), the dark it was net of while running (W;
+/// `None`: the band's last dark before it, as the run took it) and what the equation's sensitivity needs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Darkened {
     pub band_nm: f64,
     pub t_s: f64,
-    pub dark_w: f64,
+    pub dark_w: Option<f64>,
+    /// theta_i, phi_i, theta_o, phi_o (deg).
+    pub geometry_deg: [f64; 4],
+    /// The normalisation it was divided by (W).
+    pub incident_w: f64,
 }
+
+/// How much a value moves per watt of its dark (1/sr per W, positive: the dark lowers it), by the measurement
+/// equation the run took it with; `None` where the equation refuses the value's geometry.
+pub type DarkSensitivity<'a> = dyn Fn(&Darkened) -> Option<f64> + 'a;
 
 /// One value's dark, with hindsight.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -87,7 +93,7 @@ pub fn redark(records: &[CalibrationRecord], values: &[Darkened]) -> Vec<Option<
             let k = k1.checked_sub(1)?;
             let (before, after) = (s[k], s[k1]);
             // The value must be net of the dark before it (ties in time go to the dark kept last).
-            if before.value_w != v.dark_w {
+            if v.dark_w.is_some_and(|d| d != before.value_w) {
                 return None;
             }
             let x = (v.t_s - before.t_s) / (after.t_s - before.t_s);
@@ -113,18 +119,6 @@ pub fn redark(records: &[CalibrationRecord], values: &[Darkened]) -> Vec<Option<
         .collect()
 }
 
-/// `|dv/dD|` of a value (1/sr per W) from its budget's `dark` component and the dark reading's standard
-/// uncertainty `used_u_w` (module doc); `None` without either.
-pub fn sensitivity_per_w(budget: &Budget, used_u_w: f64) -> Option<f64> {
-    let u_sr = budget
-        .entries
-        .iter()
-        .find(|e| e.component == components::DARK && e.shared.is_none())?
-        .u_sr;
-    let per_w = u_sr / used_u_w;
-    (used_u_w > 0.0 && per_w.is_finite() && per_w > 0.0).then_some(per_w)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -136,6 +130,16 @@ mod tests {
             t_s,
             value_w,
             u_w: 2e-13,
+        }
+    }
+
+    fn at(t_s: f64, dark_w: Option<f64>) -> Darkened {
+        Darkened {
+            band_nm: 550.0,
+            t_s,
+            dark_w,
+            geometry_deg: [30.0, 0.0, 50.0, 0.0],
+            incident_w: 1e-3,
         }
     }
 
@@ -156,11 +160,7 @@ mod tests {
                 .find(|r| r.t_s <= t)
                 .map(|r| r.value_w)
                 .unwrap_or(0.0);
-            let v = Darkened {
-                band_nm: 550.0,
-                t_s: t,
-                dark_w: used,
-            };
+            let v = at(t, Some(used));
             let r = redark(&records, &[v])[0].expect("between two darks");
             assert_eq!(r.used_w, used);
             let before = (used - ambient(t)).abs();
@@ -176,23 +176,19 @@ mod tests {
     #[test]
     fn a_value_after_the_last_dark_or_of_another_dark_is_left_alone() {
         let records = vec![dark(0.0, 1e-10), dark(60.0, 1.1e-10)];
-        let late = Darkened {
-            band_nm: 550.0,
-            t_s: 90.0,
-            dark_w: 1.1e-10,
-        };
+        let late = at(90.0, Some(1.1e-10));
         let other_band = Darkened {
             band_nm: 650.0,
             ..late
         };
-        let not_that_dark = Darkened {
-            band_nm: 550.0,
-            t_s: 30.0,
-            dark_w: 0.0,
-        };
+        let not_that_dark = at(30.0, Some(0.0));
         assert_eq!(
             redark(&records, &[late, other_band, not_that_dark]),
             vec![None, None, None]
         );
+        // Without its dark named, a value takes the band's last before it.
+        let r = redark(&records, &[at(30.0, None)])[0].expect("between two darks");
+        assert_eq!(r.used_w, 1e-10);
+        assert!((r.dark_w - 1.05e-10).abs() < 1e-22, "{}", r.dark_w);
     }
 }

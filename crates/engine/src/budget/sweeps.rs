@@ -1,4 +1,6 @@
 //! The completion of a campaign's sweep readings, as `complete` does for its points:
+//! - the dark: each reading net of the dark interpolated between its band's darks before and after it
+//!   (super::dark);
 //! - the source's drift: each reading normalised again between its band's readings before and after it, the
 //!   drift's curvature in its uncertainty (`super::drift`);
 //! - the aperture: a sweep reading, like a point, is the BRDF averaged over the detector's aperture; the models
@@ -27,6 +29,8 @@ use gonio_results::points::Point;
 use gonio_results::run::Run;
 use gonio_results::sweeps::SweepReading;
 
+use super::complete::RunContext;
+use super::dark::{DarkSensitivity, Darkened, redark};
 use super::drift::{Normalised, renormalise_values};
 use crate::store::{CalibrationRecord, CampaignRecord, SweepCompletion};
 
@@ -76,16 +80,19 @@ fn smearing_ratio(model: &gonio_brdf::Material, r: &SweepReading, light: bool) -
     ((ratio - 1.0).abs() <= MAX_SMEARING).then_some(ratio)
 }
 
-/// The completion of `readings` (module doc): one entry per reading, in their order. `relative`: normalised by
-/// a reference sample (the absolute equation's `tan(theta_o)` then plays no part in pointing).
+/// The completion of `readings` (module doc): one entry per reading, in their order.
 pub fn sweep_completions(
     record: &CampaignRecord,
     readings: &[SweepReading],
     calibrations: &[CalibrationRecord],
     instrument: &Instrument,
-    relative: bool,
+    context: &RunContext<'_>,
 ) -> Vec<SweepCompletion> {
-    // The drift first: the readings renormalised, as the aperture's models are then fitted to them.
+    let relative = context.relative;
+    // The dark and the drift first: the readings net of the dark interpolated to their time and renormalised,
+    // as the aperture's models are then fitted to them.
+    let redarked = redarked(readings, calibrations, context.dark_sensitivity);
+    let readings = &redarked[..];
     let timed: Vec<Normalised> = readings
         .iter()
         .map(|r| Normalised {
@@ -246,6 +253,41 @@ pub fn sweep_completions(
             out.brdf_sr = Some(value);
             out.brdf_u_sr = Some(var.sqrt());
             out
+        })
+        .collect()
+}
+
+/// `readings` net of their band's dark interpolated to their time (super::dark), the reading's share of the
+/// dark it was net of replaced in its uncertainty by the interpolation's.
+fn redarked(
+    readings: &[SweepReading],
+    calibrations: &[CalibrationRecord],
+    sensitivity: &DarkSensitivity<'_>,
+) -> Vec<SweepReading> {
+    let darkened: Vec<Darkened> = readings
+        .iter()
+        .map(|r| Darkened {
+            band_nm: r.band_nm,
+            t_s: r.t_s,
+            dark_w: None,
+            geometry_deg: [r.theta_i_deg, r.phi_i_deg, r.theta_o_deg, r.phi_o_deg],
+            incident_w: r.incident_w.unwrap_or(f64::NAN),
+        })
+        .collect();
+    readings
+        .iter()
+        .zip(&darkened)
+        .zip(redark(calibrations, &darkened))
+        .map(|((r, darkened), d)| {
+            let mut r = r.clone();
+            if let (Some(d), Some(v), Some(u)) = (d, r.brdf_sr, r.brdf_u_sr)
+                && let Some(per_w) = sensitivity(darkened)
+            {
+                r.brdf_sr = Some(v - per_w * (d.dark_w - d.used_w));
+                let others = (u * u - (per_w * d.used_u_w).powi(2)).max(0.0);
+                r.brdf_u_sr = Some((others + (per_w * d.u_w).powi(2)).sqrt());
+            }
+            r
         })
         .collect()
 }

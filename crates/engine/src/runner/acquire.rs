@@ -159,6 +159,29 @@ impl<'a> Run<'a> {
         (value, u_stray)
     }
 
+    /// The measurement equation's sensitivity to a value's dark (1/sr per W; crate::budget::DarkSensitivity):
+    /// the equation is linear in the net signal, so it is the value of a net signal of a thousandth of the
+    /// normalisation, over that signal.
+    pub(super) fn dark_per_w(&self, v: &crate::budget::Darkened) -> Option<f64> {
+        let [ti, pi, to, po] = v.geometry_deg;
+        let inputs = self.equation_inputs(
+            v.band_nm,
+            Direction::from_spherical_deg(ti, pi),
+            Direction::from_spherical_deg(to, po),
+        );
+        let signal_w = 1e-3 * v.incident_w;
+        let value = brdf_of_reading(
+            &inputs,
+            Reading::exact(signal_w),
+            Reading::exact(0.0),
+            Reading::exact(v.incident_w),
+        )
+        .ok()?
+        .value_per_sr;
+        let per_w = value / signal_w;
+        (per_w.is_finite() && per_w > 0.0).then_some(per_w)
+    }
+
     /// What the measurement equation needs besides the readings, for a reading in `band_nm` at (wi, wo): the
     /// same for points and sweep readings.
     pub(super) fn equation_inputs(&self, band_nm: f64, wi: Direction, wo: Direction) -> EquationInputs<'_> {
