@@ -58,6 +58,7 @@ use std::sync::{Arc, Mutex};
 
 use gonio_brdf::measurement::Reading;
 use gonio_instrument::InstrumentFile;
+use gonio_instrument::signature::SignatureUncertainty;
 use gonio_scheduler::schedule::{Step, StepKind};
 
 use crate::calibration::{Darks, Normalisations};
@@ -136,6 +137,9 @@ struct Run<'a> {
     correction: Option<PoseCorrection>,
     /// The stored characterisation applied to every reading and value (crate::characterise::correction).
     detector: Option<DetectorCorrection>,
+    /// The instrument signature as the instrument file knows it: the uncertainty of every value no measured
+    /// signature was subtracted from.
+    signature_u: SignatureUncertainty,
     done: u64,
     total: u64,
     /// The pass being measured: its predicted duration, the index after its last point, and the predicted
@@ -255,6 +259,8 @@ pub(crate) async fn run(
         }
         None => (None, None),
     };
+    let signature_u = SignatureUncertainty::from_detector(&file.instrument.detector)
+        .map_err(|e| not_runnable(e.to_string()))?;
     let faults_to = control.clone();
     let motion = Motion::new(
         rig,
@@ -306,6 +312,7 @@ pub(crate) async fn run(
         reference,
         correction,
         detector,
+        signature_u,
         done,
         total,
         pass_total_s: 0.0,

@@ -30,6 +30,7 @@ pub mod imperfections;
 pub mod leakage;
 pub mod meter_noise;
 pub mod responsivity;
+pub mod signature;
 mod validate;
 
 use std::path::Path;
@@ -310,6 +311,13 @@ pub struct Detector {
     /// distance are known (`2 u_r / r` and `2 u_d / d` in quadrature); absent: [`DEFAULT_SOLID_ANGLE_U`].
     #[serde(default)]
     pub solid_angle_u: Option<f64>,
+    /// The instrument signature (ASTM E2387: what the detector reads with no sample, as a BRDF-equivalent along
+    /// the normal, 1/sr) as well as it is known without a characterisation: a standard uncertainty on every value
+    /// no measured signature was subtracted from. A number, or a table from the angle between the detector and
+    /// the undeviated beam (deg) to the level there (crate::signature). A characterisation (`gonio align --steps
+    /// characterisation`) measures the signature and replaces it. Absent: [`DEFAULT_SIGNATURE_U_SR`].
+    #[serde(default)]
+    pub signature_u_sr: Option<toml::Value>,
     /// The sensor's wavelength limits (nm), which the meter reads from the sensor head and reports for
     /// `SENS:CORR:WAV? MIN` / `MAX`; simulation. Default: 400 to 1100 nm (Thorlabs S120C photodiode sensor).
     #[serde(default = "default_sensor_wavelength_nm")]
@@ -323,6 +331,11 @@ pub const DEFAULT_RANGE_GAIN_U: f64 = 1.0e-3;
 /// The solid angle's relative uncertainty when the instrument file does not state it: a 2.5 mm aperture known
 /// to 1 um and its 250 mm distance known to 0.1 mm give 0.08 % each, 0.11 % together.
 pub const DEFAULT_SOLID_ANGLE_U: f64 = 1.1e-3;
+
+/// The instrument signature's standard uncertainty when the instrument file does not state it (1/sr): Stover,
+/// "Optical Scattering" (2nd ed., SPIE 1995), ch. 6, puts a well-baffled scatterometer's signature at 1e-7..1e-5
+/// 1/sr away from the beam; an open lab goniometer is taken at the high end.
+pub const DEFAULT_SIGNATURE_U_SR: f64 = 1.0e-5;
 
 impl Detector {
     /// Each range's relative gain uncertainty before a characterisation: the file's, else

@@ -254,6 +254,7 @@ impl Instrument {
                 ));
             }
         }
+        crate::signature::SignatureUncertainty::from_detector(d).map_err(|e| e.0)?;
         if !(d.dark_current_a.is_finite() && d.dark_current_a >= 0.0) {
             return Err(format!(
                 "[instrument.detector]: dark_current_a must be >= 0, got {}",

@@ -2,7 +2,6 @@
 //! the signature subtracted from every value, and the points below the NEBRDF flagged.
 
 use super::DetectorCalibration;
-use super::signature::alpha_deg;
 
 /// What the signature does to one value.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -48,19 +47,14 @@ impl DetectorCorrection {
             .find(|s| (s.band_nm - band_nm).abs() < 1e-6)
     }
 
-    /// The signature at a pose's arm angles (deg) for a value viewed at `theta_o_deg` in `band_nm`.
-    pub fn signature(
-        &self,
-        band_nm: f64,
-        light_deg: f64,
-        detector_deg: f64,
-        theta_o_deg: f64,
-    ) -> SignatureAt {
+    /// The signature `alpha_deg` from the beam's forward direction (super::signature::alpha_deg) for a value
+    /// viewed at `theta_o_deg` in `band_nm`.
+    pub fn signature(&self, band_nm: f64, alpha_deg: f64, theta_o_deg: f64) -> SignatureAt {
         let Some(s) = self.band(band_nm) else {
             return SignatureAt::Unknown;
         };
         let cos = theta_o_deg.to_radians().cos();
-        match s.at(alpha_deg(light_deg, detector_deg)) {
+        match s.at(alpha_deg) {
             Some((f, u)) if cos > 0.0 => SignatureAt::Subtract {
                 brdf_sr: f / cos,
                 u_sr: u / cos,
@@ -94,6 +88,7 @@ impl DetectorCorrection {
 mod tests {
     use super::*;
     use crate::characterise::BandSignature;
+    use crate::characterise::signature::alpha_deg;
 
     fn correction() -> DetectorCorrection {
         DetectorCorrection::new(DetectorCalibration {
@@ -113,15 +108,21 @@ mod tests {
     fn the_signature_is_subtracted_over_the_cosine_and_refused_near_the_beam() {
         let c = correction();
         // Light at -60, detector at 60: 60 deg from the beam's forward direction.
-        match c.signature(550.0, -60.0, 60.0, 60.0) {
+        match c.signature(550.0, alpha_deg(-60.0, 60.0), 60.0) {
             SignatureAt::Subtract { brdf_sr, .. } => {
                 let (f, _) = c.calibration.signature[0].at(60.0).expect("inside");
                 assert!((brdf_sr - 2.0 * f).abs() < 1e-15, "{brdf_sr}");
             }
             other => panic!("{other:?}"),
         }
-        assert_eq!(c.signature(550.0, -89.0, 89.0, 89.0), SignatureAt::NearBeam);
-        assert_eq!(c.signature(450.0, -60.0, 60.0, 60.0), SignatureAt::Unknown);
+        assert_eq!(
+            c.signature(550.0, alpha_deg(-89.0, 89.0), 89.0),
+            SignatureAt::NearBeam
+        );
+        assert_eq!(
+            c.signature(450.0, alpha_deg(-60.0, 60.0), 60.0),
+            SignatureAt::Unknown
+        );
         assert_eq!(c.reading(1e-6, Some(2)), (1e-6, 0.0));
         assert!(
             c.nebrdf_sr(550.0, 1, 0.0)

@@ -36,6 +36,13 @@ pub fn alpha_deg(light_deg: f64, detector_deg: f64) -> f64 {
     d.min(360.0 - d)
 }
 
+/// The angle between the detector and the beam's forward direction (deg) at the directions towards the source
+/// `wi` and the detector `wo`: the angle between `wo` and `-wi`, the same in the sample's frame as between the
+/// arms ([`alpha_deg`] of the pose that reaches them).
+pub fn alpha_between_deg(wi: &gonio_brdf::Direction, wo: &gonio_brdf::Direction) -> f64 {
+    (-wi.dot(wo)).clamp(-1.0, 1.0).acos().to_degrees()
+}
+
 impl BandSignature {
     /// The signature at `alpha` (1/sr) and its standard uncertainty, interpolated linearly in `ln alpha`; beyond
     /// the largest angle measured, the value there. `None` nearer the beam than the smallest angle measured,
@@ -102,6 +109,19 @@ mod tests {
         assert!((alpha_deg(-60.0, 60.0) - 60.0).abs() < 1e-12);
         assert!((alpha_deg(-85.0, 85.0) - 10.0).abs() < 1e-12);
         assert!((alpha_deg(-30.0, -20.0) - 170.0).abs() < 1e-12);
+        // From the directions: the specular arrangement at 30 deg (light at -30, detector at 30) is 120 deg
+        // from the beam, as the arms say.
+        use gonio_brdf::Direction;
+        let (wi, wo) = (
+            Direction::from_spherical_deg(30.0, 0.0),
+            Direction::from_spherical_deg(30.0, 180.0),
+        );
+        assert!((alpha_between_deg(&wi, &wo) - alpha_deg(-30.0, 30.0)).abs() < 1e-9);
+        let (wi, wo) = (
+            Direction::from_spherical_deg(85.0, 0.0),
+            Direction::from_spherical_deg(85.0, 180.0),
+        );
+        assert!((alpha_between_deg(&wi, &wo) - 10.0).abs() < 1e-9);
     }
 
     #[test]

@@ -8,6 +8,7 @@ use crate::acquisition::{self, EquationInputs, Normalisation, brdf_of_reading, f
 use crate::budget;
 use crate::characterise::correction::{FLAG_BELOW_NEBRDF, FLAG_NEAR_BEAM, SignatureAt};
 use crate::characterise::ranges::near_range_boundary;
+use crate::characterise::signature::alpha_between_deg;
 use crate::motion::MotionError;
 use gonio_campaign::Range;
 use gonio_results::budget::Budget;
@@ -17,15 +18,15 @@ pub const FLAG_UNREACHABLE: &str = "unreachable";
 
 /// A sample reading with its uncertainty in parts (W).
 #[derive(Debug, Clone, Copy)]
-struct SampleReading {
-    power_w: f64,
+pub(super) struct SampleReading {
+    pub power_w: f64,
     /// The reading's own noise and resolution.
-    noise_w: f64,
-    /// The characterisation's correction of the range's gain and linearity (0 without one).
-    range_u_w: f64,
-    overload: bool,
+    pub noise_w: f64,
+    /// The range's gain: the characterisation's correction's uncertainty, else the instrument file's.
+    pub range_u_w: f64,
+    pub overload: bool,
     /// Index into the instrument's `ranges_w`.
-    range: Option<usize>,
+    pub range: Option<usize>,
 }
 
 impl<'a> Run<'a> {
@@ -98,9 +99,21 @@ impl<'a> Run<'a> {
             // Back to auto-range at the next reading.
             self.configured_nm = None;
         }
-        // A characterised meter: the reading as the true signal (crate::characterise::ranges), the correction's
-        // own uncertainty apart (it is the range's, shared by the readings on it). An uncharacterised one: the
-        // reading as the meter gives it, its range's gain as uncertain as the instrument file says.
+        Ok(self.characterised(&r, nm, self.c.campaign.acquisition.averaging))
+    }
+
+    /// A meter's reading at wavelength `nm` averaging `averaging` samples, as the characterisation corrects it:
+    /// the reading as the true signal (crate::characterise::ranges), the correction's own uncertainty apart (it is
+    /// the range's, shared by the readings on it), and the darks' measured noise the least the reading has (the
+    /// meter's model knows the shot, Johnson and quantisation noise, not the head's amplifier). An
+    /// uncharacterised meter: the reading as the meter gives it, its range's gain as uncertain as the instrument
+    /// file says.
+    pub(super) fn characterised(
+        &self,
+        r: &acquisition::MeterReading,
+        nm: f64,
+        averaging: u32,
+    ) -> SampleReading {
         let (power_w, range_u_w) = match &self.detector {
             Some(d) if !r.overload && d.calibration.ranges.is_some() => d.reading(r.power_w, r.range),
             _ => (
@@ -108,52 +121,53 @@ impl<'a> Run<'a> {
                 r.power_w.abs() * self.file.instrument.detector.range_gain_u(),
             ),
         };
-        // A characterised meter's measured dark noise is the least any reading has (the model knows the shot,
-        // Johnson and quantisation noise, not the head's amplifier).
-        let averaging = self.c.campaign.acquisition.averaging;
         let floor_w = self
             .detector
             .as_ref()
             .and_then(|d| d.noise_floor_w(nm, averaging))
             .unwrap_or(0.0);
-        Ok(SampleReading {
+        SampleReading {
             power_w,
             noise_w: r.std_w.max(floor_w),
             range_u_w,
             overload: r.overload,
             range: r.range,
-        })
+        }
     }
 
-    /// A characterised instrument: the signature subtracted from a value and the point flagged where the
-    /// signature was not measured or the value is below three NEBRDF (crate::characterise::correction).
-    /// Returns the value and the subtracted signature's standard uncertainty (1/sr; 0 when none was).
-    fn less_signature(
+    /// The instrument signature in a value viewed from `wo` with the light from `wi` at polar angle
+    /// `theta_o_deg`, for readings averaging `averaging` samples: a characterised instrument's subtracted (the
+    /// value flagged where it was not measured or is below three NEBRDF, crate::characterise::correction), else
+    /// the instrument file's `signature_u_sr` as an uncertainty (gonio_instrument::signature). Returns the value
+    /// and the signature's standard uncertainty in it (1/sr).
+    pub(super) fn less_signature(
         &self,
         value: f64,
-        step: &Step,
-        g: &gonio_scheduler::kinematics::Geometry,
-        band_nm: f64,
+        (wi, wo): (&Direction, &Direction),
+        theta_o_deg: f64,
+        (band_nm, averaging): (f64, u32),
         flags: &mut Vec<String>,
     ) -> (f64, f64) {
-        let Some(d) = &self.detector else {
-            return (value, 0.0);
+        let alpha = alpha_between_deg(wi, wo);
+        let cos = theta_o_deg.to_radians().cos();
+        // What the file knows of the signature, over the equation's cosine (none is divided at grazing angles).
+        let unmeasured = if cos > 0.0 {
+            self.signature_u.at(alpha) / cos
+        } else {
+            0.0
         };
-        let (value, u_stray) = match d.signature(
-            band_nm,
-            step.pose.light_deg,
-            step.pose.detector_deg,
-            g.theta_o_deg,
-        ) {
+        let Some(d) = &self.detector else {
+            return (value, unmeasured);
+        };
+        let (value, u_stray) = match d.signature(band_nm, alpha, theta_o_deg) {
             SignatureAt::Subtract { brdf_sr, u_sr } => (value - brdf_sr, u_sr),
             SignatureAt::NearBeam => {
                 flags.push(FLAG_NEAR_BEAM.to_string());
-                (value, 0.0)
+                (value, unmeasured)
             }
-            SignatureAt::Unknown => (value, 0.0),
+            SignatureAt::Unknown => (value, unmeasured),
         };
-        let averaging = self.c.campaign.acquisition.averaging;
-        if d.below_nebrdf(value, band_nm, averaging, g.theta_o_deg) {
+        if d.below_nebrdf(value, band_nm, averaging, theta_o_deg) {
             flags.push(FLAG_BELOW_NEBRDF.to_string());
         }
         (value, u_stray)
@@ -274,8 +288,13 @@ impl<'a> Run<'a> {
                 let inputs = self.equation_inputs(band_nm, wi, wo);
                 match brdf_of_reading(&inputs, Reading::new(signal, r.noise_w), dark, incident) {
                     Ok(v) => {
-                        let (value, u_stray) =
-                            self.less_signature(v.value_per_sr, step, &g, band_nm, &mut flags);
+                        let (value, u_stray) = self.less_signature(
+                            v.value_per_sr,
+                            (&wi, &wo),
+                            g.theta_o_deg,
+                            (band_nm, self.c.campaign.acquisition.averaging),
+                            &mut flags,
+                        );
                         let parts = budget::Parts {
                             equation: &v,
                             relative: self.reference.is_some(),

@@ -20,9 +20,12 @@
 //!
 //! What a segment (one sweep of one arc in one band) stores is committed in one transaction with all its
 //! readings (crate::store::sweeps): a sweep interrupted (pause, crash) is swept again whole on resume, and no
-//! reading is stored twice. The completion corrects the readings (aperture, smearing: crate::budget::sweeps); the
-//! characterisation's corrections (the ranges' gains, the signature) are not applied to them yet. The run writes
-//! them to `sweeps.csv`; the exports, fits and plots read them from there or from the store.
+//! reading is stored twice. Each reading takes the characterisation's corrections as a point does (the ranges'
+//! gains, the darks' noise as its least, the signature subtracted or else the instrument file's in its
+//! uncertainty, the NEBRDF flag; crate::runner::acquire), except that a reading within 1 % of a range's full
+//! scale cannot be read again on the range above while the arm moves. The completion corrects the readings (the
+//! dark, the drift, aperture, smearing: crate::budget::sweeps). The run writes them to `sweeps.csv`; the exports,
+//! fits and plots read them from there or from the store.
 
 use gonio_brdf::{Direction, Wavelength};
 use gonio_scheduler::kinematics::Pose;
@@ -444,33 +447,42 @@ impl Run<'_> {
                 flags.push("saturated".to_string());
             }
             Ok(r) => {
+                // As for a point: the characterisation's corrections, the signature.
+                let averaging = arc.request.averaging;
+                let r = self.characterised(r, band_nm, averaging);
                 signal = Some(r.power_w);
                 let inputs = self.equation_inputs(band_nm, wi, wo);
                 let incident = self
                     .normalisation(band_nm, t_s)
                     .unwrap_or(Reading::exact(f64::NAN));
                 incident_w = Some(incident.value_w).filter(|w| w.is_finite());
-                let range_u_w = r.power_w.abs() * self.file.instrument.detector.range_gain_u();
                 match brdf_of_reading(
                     &inputs,
-                    Reading::new(r.power_w, r.std_w),
+                    Reading::new(r.power_w, r.noise_w),
                     self.dark(band_nm),
                     incident,
                 ) {
                     Ok(v) => {
+                        let (value, u_stray) = self.less_signature(
+                            v.value_per_sr,
+                            (&wi, &wo),
+                            g.theta_o_deg,
+                            (band_nm, averaging),
+                            &mut flags,
+                        );
                         let parts = budget::Parts {
                             equation: &v,
                             relative: self.reference.is_some(),
                             band_nm,
                             range: r.range,
                             range_rel: if r.power_w != 0.0 {
-                                range_u_w / r.power_w.abs()
+                                r.range_u_w / r.power_w.abs()
                             } else {
                                 0.0
                             },
-                            stray_light_sr: 0.0,
+                            stray_light_sr: u_stray,
                         };
-                        brdf = Some(v.value_per_sr);
+                        brdf = Some(value);
                         brdf_u = Some(budget::of_point(&parts).total_sr());
                     }
                     Err(e) => flags.push(flag_for(&e)),
