@@ -8,9 +8,10 @@
 //!
 //! [`speed_profile`] turns samples of the BRDF along an arc (from a first pass at the top speed, or from a
 //! model) into pieces of constant speed: each sample's speed is the slowest any reading near it needs (the
-//! curvature's largest magnitude within a reading's arc at the top speed around it), rounded down to a ladder
-//! of speeds a factor `sqrt(2)` apart so that the pieces stay few; pieces shorter than `min_piece_deg` are
-//! merged into a slower neighbour. Each piece carries the largest smearing predicted for its readings.
+//! curvature's largest magnitude within a reading's arc at the top speed around it); the arc is cut where that
+//! speed crosses a ladder of speeds a factor `sqrt(2)` apart, so that the pieces stay few, and each piece is
+//! swept at the slowest speed any of its samples allows; pieces shorter than `min_piece_deg` are merged into a
+//! slower neighbour. Each piece carries the largest smearing predicted for its readings.
 //! [`profile_time_s`] is the time to sweep the pieces one after the other, each a move of its own.
 
 /// A stretch of an arc swept at one speed.
@@ -136,14 +137,22 @@ pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> 
     let smearing = |v: f64, bend: f64| bend * (v * req.integration_s).powi(2) / 24.0;
     // The ladder step of each sample: 0 is the top speed, k is top / LADDER^k, never below the floor.
     let floor_step = ((req.top_speed_deg_s / req.min_speed_deg_s).ln() / LADDER.ln()).floor() as u32;
-    let speed_of = |step: u32| (req.top_speed_deg_s / LADDER.powi(step as i32)).max(req.min_speed_deg_s);
-    let steps: Vec<u32> = bend
+    // The fastest speed each sample allows, between the floor and the top speed.
+    let need: Vec<f64> = bend
         .iter()
         .map(|&b| {
             if b <= 0.0 {
-                return 0;
+                return req.top_speed_deg_s;
             }
-            let v = (24.0 * req.tolerance_rel / b).sqrt() / req.integration_s;
+            // A hair under the speed that smears exactly the tolerance, so that rounding never puts a piece
+            // over it.
+            ((24.0 * req.tolerance_rel / b).sqrt() / req.integration_s * (1.0 - 1e-9))
+                .clamp(req.min_speed_deg_s, req.top_speed_deg_s)
+        })
+        .collect();
+    let steps: Vec<u32> = need
+        .iter()
+        .map(|&v| {
             if v >= req.top_speed_deg_s {
                 0
             } else {
@@ -197,9 +206,11 @@ pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> 
     });
     // A piece costs its ramps and its exchanges: merge the neighbours whose merging saves the most time, while
     // one does (merging only ever slows a stretch down, so every reading stays within the tolerance).
+    // A piece's speed: the slowest any of its samples allows (at least its ladder step's speed).
+    let speed = |r: &(usize, usize, u32)| need[r.0..=r.1].iter().copied().fold(f64::INFINITY, f64::min);
     if req.per_piece_s > 0.0 && req.accel_deg_s2 > 0.0 && req.accel_deg_s2.is_finite() {
         let time = |r: &(usize, usize, u32)| {
-            trapezoid_time_s(length(r), speed_of(r.2), req.accel_deg_s2) + req.per_piece_s
+            trapezoid_time_s(length(r), speed(r), req.accel_deg_s2) + req.per_piece_s
         };
         let joined = |a: &(usize, usize, u32), b: &(usize, usize, u32)| (a.0, b.1, a.2.max(b.2));
         loop {
@@ -220,8 +231,9 @@ pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> 
     let last = runs.len().saturating_sub(1);
     runs.iter()
         .enumerate()
-        .map(|(j, &(a, b, k))| {
-            let v = speed_of(k);
+        .map(|(j, r)| {
+            let (a, b) = (r.0, r.1);
+            let v = speed(r);
             let worst = bend[a..=b].iter().copied().fold(0.0, f64::max);
             FollowPiece {
                 // Pieces meet half-way between their samples; the arc's ends are its first and last samples.
@@ -324,7 +336,8 @@ mod tests {
         assert_eq!(at(40.0).speed_deg_s, req.top_speed_deg_s);
         // The smearing of each reading, by integration, within the tolerance (1.2 x: the leading order).
         for p in &pieces {
-            assert!(p.smearing_rel <= req.tolerance_rel, "{p:?}");
+            // A piece at the speed that just meets the tolerance smears it, to rounding.
+            assert!(p.smearing_rel <= req.tolerance_rel * (1.0 + 1e-12), "{p:?}");
             let mut s = p.from_deg;
             while s <= p.to_deg {
                 let r = reading(&lobe, s, p.speed_deg_s, req.integration_s);
@@ -392,7 +405,7 @@ mod tests {
         assert!(at(&own, 8.0) < req.top_speed_deg_s / 4.0, "{own:?}");
         assert_eq!(at(&peak, 8.0), req.top_speed_deg_s, "{peak:?}");
         assert!(
-            time(&peak) < time(&own) / 2.0,
+            time(&peak) < 0.6 * time(&own),
             "{} against {}",
             time(&peak),
             time(&own)
@@ -451,7 +464,7 @@ mod tests {
                 .find(|q| q.from_deg <= mid && mid <= q.to_deg)
                 .unwrap();
             assert!(q.speed_deg_s <= p.speed_deg_s, "{q:?} over {p:?}");
-            assert!(q.smearing_rel <= request().tolerance_rel);
+            assert!(q.smearing_rel <= request().tolerance_rel * (1.0 + 1e-12));
         }
     }
 

@@ -31,6 +31,8 @@ pub const ON_ARC_DEG: f64 = 0.05;
 pub const DEFAULT_FLOOR_DIVISOR: f64 = 64.0;
 pub const DEFAULT_MIN_PIECE_DEG: f64 = 2.0;
 pub const DEFAULT_RESOLUTION_DEG: f64 = 0.5;
+/// How far beyond the profile's ends its end pieces' speeds carry on (deg): [`split_piece`].
+const EDGE_DEG: f64 = 1.0;
 
 /// One reading of the first pass.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -252,19 +254,30 @@ pub fn arc_profile(
 pub fn split_piece(r: &SweepRequest, piece: &Piece, profile: &ArcProfile) -> Vec<(Piece, f64)> {
     let (a, b) = (piece.from_deg, piece.to_deg);
     let slowest = profile.slowest_deg_s();
+    // Beyond the profile (the first pass's readings stop short of the arc's ends by up to a bin or so), its end
+    // piece's speed carries on for EDGE_DEG: a sliver at another speed would be a move of its own, for a
+    // fraction of a degree; farther out, where the first pass saw nothing, the slowest.
+    let (first, last) = (profile.pieces.first(), profile.pieces.last());
     let speed_at = |s: f64| {
         profile
             .pieces
             .iter()
             .find(|p| p.from_deg <= s && s <= p.to_deg)
+            .or(first.filter(|p| s < p.from_deg && p.from_deg - s <= EDGE_DEG))
+            .or(last.filter(|p| s > p.to_deg && s - p.to_deg <= EDGE_DEG))
             .map_or(slowest, |p| p.speed_deg_s)
     };
     let mut cuts: Vec<f64> = vec![a];
+    let edges = [
+        first.map(|p| p.from_deg - EDGE_DEG),
+        last.map(|p| p.to_deg + EDGE_DEG),
+    ];
     cuts.extend(
         profile
             .pieces
             .iter()
             .flat_map(|p| [p.from_deg, p.to_deg])
+            .chain(edges.into_iter().flatten())
             .filter(|x| *x > a && *x < b),
     );
     cuts.push(b);
@@ -503,16 +516,25 @@ mod tests {
         };
         let cut = split_piece(&r, &piece, &profile);
         let spans: Vec<(f64, f64, f64)> = cut.iter().map(|(q, v)| (q.from_deg, q.to_deg, *v)).collect();
-        // The 0.05-degree piece joins its slower neighbour; 50 to 60 is beyond the first pass.
+        // The 0.05-degree piece joins its slower neighbour; beyond the first pass (50), the end piece's speed
+        // for a degree, then the slowest.
         assert_eq!(
             spans,
             vec![
                 (-10.0, 20.0, 20.0),
                 (20.0, 40.0, 2.0),
-                (40.0, 50.0, 20.0),
-                (50.0, 60.0, 2.0)
+                (40.0, 51.0, 20.0),
+                (51.0, 60.0, 2.0)
             ]
         );
+        // A path that ends just past the first pass's end is no sliver at another speed.
+        let short = Piece {
+            to_deg: 50.3,
+            to_pose: Pose::new(-30.0, 50.3, 0.0, 0.0),
+            ..piece
+        };
+        let last = split_piece(&r, &short, &profile).pop().expect("pieces");
+        assert_eq!((last.0.from_deg, last.0.to_deg, last.1), (40.0, 50.3, 20.0));
         for (q, _) in &cut {
             assert!((q.from_pose.detector_deg - q.from_deg).abs() < 1e-9);
             assert!((q.to_pose.detector_deg - q.to_deg).abs() < 1e-9);
