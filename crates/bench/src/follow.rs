@@ -263,7 +263,11 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
                             r.constant_deg_s,
                             r.constant_s,
                             r.constant_worst,
-                            if ratio <= RATIO_TARGET { "met" } else { "NOT met" }
+                            match (ratio <= RATIO_TARGET, r.follow_worst <= tolerance) {
+                                (true, true) => "met",
+                                (_, false) => "NOT met: following smeared over the tolerance",
+                                (false, true) => "NOT met",
+                            }
                         );
                     }
                     Err(e) => {
