@@ -127,6 +127,22 @@ pub fn dry_run(binary: &Path, text: &str, instrument: Option<&Path>) -> Result<R
     })
 }
 
+/// Instrument-file keys added after the `--before` binary was built, which it refuses as unknown; none of them
+/// changes a campaign's timing.
+const KEYS_SINCE_BEFORE: [&str; 1] = ["signature_u_sr"];
+
+/// `path` without [`KEYS_SINCE_BEFORE`], written under `dir` for the earlier binary.
+fn for_before(path: &Path, dir: &Path, name: &str) -> Result<PathBuf, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let kept: Vec<&str> = text
+        .lines()
+        .filter(|l| !KEYS_SINCE_BEFORE.iter().any(|k| l.trim_start().starts_with(k)))
+        .collect();
+    let out = dir.join(format!("before-{}.toml", name.replace([' ', ','], "-")));
+    std::fs::write(&out, kept.join("\n") + "\n").map_err(|e| format!("{}: {e}", out.display()))?;
+    Ok(out)
+}
+
 /// realistic.toml with the dynamics `gonio selftest --write` measured on its simulated hardware, that hardware
 /// pinned by `[simulator.actual]` (module doc). Written under `dir`.
 fn self_tested(binary: &Path, root: &Path, dir: &Path) -> Result<PathBuf, String> {
@@ -250,17 +266,25 @@ pub fn section(root: &Path, binary: &Path, before: Option<&Path>, quick: bool) -
         Ok(path) => instruments.push(("realistic, self-tested", Some(path))),
         Err(e) => notes.push_str(&format!("realistic, self-tested: not measured ({e}).\n")),
     }
+    // The earlier binary reads the same instrument files without the keys added since.
+    let before_instruments: Vec<Option<PathBuf>> = instruments
+        .iter()
+        .map(|(name, path)| {
+            let path = path.as_deref()?;
+            Some(for_before(path, &scratch, name).unwrap_or_else(|_| path.to_path_buf()))
+        })
+        .collect();
     let mut rows = Vec::new();
     for (label, text, shipped) in campaigns(root, quick) {
         let label = if shipped { label } else { format!("{label} *") };
-        for (name, path) in &instruments {
+        for ((name, path), before_path) in instruments.iter().zip(&before_instruments) {
             let name: &'static str = name;
             eprintln!("    {label} on {name}...");
             rows.push(Row {
                 campaign: label.clone(),
                 instrument: name,
                 now: dry_run(binary, &text, path.as_deref()),
-                before: before.map(|b| dry_run(b, &text, path.as_deref())),
+                before: before.map(|b| dry_run(b, &text, before_path.as_deref())),
             });
         }
     }

@@ -341,7 +341,10 @@ mod tests {
         // The smearing of each reading, by integration, within the tolerance (1.2 x: the leading order).
         for p in &pieces {
             // A piece at the speed that just meets the tolerance smears it, to rounding.
-            assert!(p.smearing_rel <= SMEARING_MARGIN * req.tolerance_rel * (1.0 + 1e-12), "{p:?}");
+            assert!(
+                p.smearing_rel <= SMEARING_MARGIN * req.tolerance_rel * (1.0 + 1e-12),
+                "{p:?}"
+            );
             let mut s = p.from_deg;
             while s <= p.to_deg {
                 let r = reading(&lobe, s, p.speed_deg_s, req.integration_s);
