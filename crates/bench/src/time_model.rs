@@ -134,9 +134,21 @@ const KEYS_SINCE_BEFORE: [&str; 1] = ["signature_u_sr"];
 /// `path` without [`KEYS_SINCE_BEFORE`], written under `dir` for the earlier binary.
 fn for_before(path: &Path, dir: &Path, name: &str) -> Result<PathBuf, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    // A key as `key = ...`, or as a table of its own (`[instrument.detector.key]`, as `gonio selftest --write`
+    // writes one) up to the next header.
+    let mut in_removed_table = false;
     let kept: Vec<&str> = text
         .lines()
-        .filter(|l| !KEYS_SINCE_BEFORE.iter().any(|k| l.trim_start().starts_with(k)))
+        .filter(|l| {
+            let t = l.trim_start();
+            if t.starts_with('[') {
+                in_removed_table = KEYS_SINCE_BEFORE
+                    .iter()
+                    .any(|k| t.trim_end().trim_end_matches(']').ends_with(&format!(".{k}")));
+                return !in_removed_table;
+            }
+            !in_removed_table && !KEYS_SINCE_BEFORE.iter().any(|k| t.starts_with(k))
+        })
         .collect();
     let out = dir.join(format!("before-{}.toml", name.replace([' ', ','], "-")));
     std::fs::write(&out, kept.join("\n") + "\n").map_err(|e| format!("{}: {e}", out.display()))?;
@@ -389,6 +401,32 @@ fn markdown(rows: &[Row], with_before: bool) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_earlier_binary_gets_the_files_without_the_keys_added_since() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let inline = dir.path().join("inline.toml");
+        std::fs::write(
+            &inline,
+            "[instrument.detector]\nsolid_angle_u = 1e-3\nsignature_u_sr = { 3 = 5e-3 }\naveraging = 10\n",
+        )
+        .expect("write");
+        let table = dir.path().join("table.toml");
+        std::fs::write(
+            &table,
+            "[instrument.detector]\naveraging = 10\n[instrument.detector.signature_u_sr]\n3 = 5e-3\n90 = 1.5e-5\n\
+             [instrument.source]\npower_w = 1e-3\n",
+        )
+        .expect("write");
+        let read = |p: PathBuf| std::fs::read_to_string(p).expect("read");
+        let a = read(for_before(&inline, dir.path(), "inline").expect("written"));
+        assert_eq!(a, "[instrument.detector]\nsolid_angle_u = 1e-3\naveraging = 10\n");
+        let b = read(for_before(&table, dir.path(), "table").expect("written"));
+        assert_eq!(
+            b,
+            "[instrument.detector]\naveraging = 10\n[instrument.source]\npower_w = 1e-3\n"
+        );
+    }
 
     #[test]
     fn the_demo_grid_changes_only_its_steps_and_name() {
