@@ -75,10 +75,11 @@ fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<Dark>> {
     out
 }
 
-/// The second derivative through three darks (W/s^2); `None` when two share a time.
+/// The second derivative through three darks (W/s^2), as the source's drift takes it; `None` when two share a
+/// time.
 fn second_derivative(a: Dark, b: Dark, c: Dark) -> Option<f64> {
-    let (d1, d2, span) = (b.t_s - a.t_s, c.t_s - b.t_s, c.t_s - a.t_s);
-    (d1 > 0.0 && d2 > 0.0).then(|| 2.0 * ((c.value_w - b.value_w) / d2 - (b.value_w - a.value_w) / d1) / span)
+    let point = |d: Dark| (d.t_s, d.value_w);
+    super::drift::second_derivative(point(a), point(b), point(c))
 }
 
 /// The dark of each value (module doc), in their order: `None` for a value whose band has no dark after it,

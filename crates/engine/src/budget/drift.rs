@@ -51,7 +51,7 @@ fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<(f64, f64)>> {
 }
 
 /// The second derivative through three readings (W/s^2); `None` when two share a time.
-fn second_derivative(a: (f64, f64), b: (f64, f64), c: (f64, f64)) -> Option<f64> {
+pub(super) fn second_derivative(a: (f64, f64), b: (f64, f64), c: (f64, f64)) -> Option<f64> {
     let (d1, d2, span) = (b.0 - a.0, c.0 - b.0, c.0 - a.0);
     (d1 > 0.0 && d2 > 0.0).then(|| 2.0 * ((c.1 - b.1) / d2 - (b.1 - a.1) / d1) / span)
 }
