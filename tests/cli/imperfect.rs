@@ -287,8 +287,8 @@ fn the_band_component_covers_the_filters_centre_error_on_a_spectrally_steep_samp
 /// over half an hour, the head's amplifier noise the meter's model does not know), characterised by
 /// `gonio align --steps characterisation`, each value is net of the dark interpolated between the darks around
 /// it once the campaign completes and no reading is taken as less noisy than the darks measured: the k = 2
-/// intervals then hold zero. Net of the last dark as the run went, with the model's noise, they held it for
-/// about one value in five (crates/engine/src/budget/dark.rs).
+/// intervals then hold zero. Net of the last dark as the run went, with the model's noise, most of them did
+/// not (crates/engine/src/budget/dark.rs).
 #[test]
 fn a_mirror_away_from_its_specular_direction_reads_zero_within_its_uncertainty() {
     let dir = tempfile::tempdir().expect("tempdir");

@@ -47,12 +47,7 @@ pub fn reading_time_vs_error(path: &Path, points: &[ReadingPoint]) -> PlotResult
         }
     }
     for (i, (name, xy)) in series.into_iter().enumerate() {
-        let colour = Palette99::pick(i).to_rgba();
-        chart
-            .draw_series(LineSeries::new(xy.clone(), colour.stroke_width(2)))?
-            .label(name)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
-        chart.draw_series(xy.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
+        draw_line(&mut chart, i, &name, xy)?;
     }
     chart
         .configure_series_labels()

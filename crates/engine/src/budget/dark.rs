@@ -75,13 +75,6 @@ fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<Dark>> {
     out
 }
 
-/// The second derivative through three darks (W/s^2), as the source's drift takes it; `None` when two share a
-/// time.
-fn second_derivative(a: Dark, b: Dark, c: Dark) -> Option<f64> {
-    let point = |d: Dark| (d.t_s, d.value_w);
-    super::drift::second_derivative(point(a), point(b), point(c))
-}
-
 /// The dark of each value (module doc), in their order: `None` for a value whose band has no dark after it,
 /// or whose dark is not the band's last one before it (a value not net of a stored dark).
 pub fn redark(records: &[CalibrationRecord], values: &[Darkened]) -> Vec<Option<Redarked>> {
@@ -99,15 +92,7 @@ pub fn redark(records: &[CalibrationRecord], values: &[Darkened]) -> Vec<Option<
             }
             let x = (v.t_s - before.t_s) / (after.t_s - before.t_s);
             let dark_w = before.value_w + (after.value_w - before.value_w) * x;
-            let curvature = [
-                k.checked_sub(1)
-                    .and_then(|j| second_derivative(s[j], before, after)),
-                s.get(k1 + 1).and_then(|&c| second_derivative(before, after, c)),
-            ]
-            .into_iter()
-            .flatten()
-            .map(f64::abs)
-            .fold(0.0f64, f64::max);
+            let curvature = super::drift::bracket_curvature(s, k, |d| (d.t_s, d.value_w));
             let curvature_w = curvature * (v.t_s - before.t_s) * (after.t_s - v.t_s) / 2.0;
             let u_w = (before.u_w * (1.0 - x)).hypot(after.u_w * x).hypot(curvature_w);
             dark_w.is_finite().then_some(Redarked {

@@ -50,10 +50,27 @@ fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<(f64, f64)>> {
     out
 }
 
-/// The second derivative through three readings (W/s^2); `None` when two share a time.
-pub(super) fn second_derivative(a: (f64, f64), b: (f64, f64), c: (f64, f64)) -> Option<f64> {
+/// The second derivative through three readings (time s, W) (W/s^2); `None` when two share a time.
+fn second_derivative(a: (f64, f64), b: (f64, f64), c: (f64, f64)) -> Option<f64> {
     let (d1, d2, span) = (b.0 - a.0, c.0 - b.0, c.0 - a.0);
     (d1 > 0.0 && d2 > 0.0).then(|| 2.0 * ((c.1 - b.1) / d2 - (b.1 - a.1) / d1) / span)
+}
+
+/// The drift's curvature about the readings `s[k]` and `s[k + 1]` (`at`: a reading's time s and value W): the
+/// larger second derivative's magnitude through them and the reading before or after (W/s^2), 0 without
+/// either. What a straight line between the two misses (the source's drift here, the dark's in super::dark).
+pub(super) fn bracket_curvature<T>(s: &[T], k: usize, at: impl Fn(&T) -> (f64, f64)) -> f64 {
+    let (Some(a), Some(b)) = (s.get(k).map(&at), s.get(k + 1).map(&at)) else {
+        return 0.0;
+    };
+    [
+        k.checked_sub(1).and_then(|j| second_derivative(at(&s[j]), a, b)),
+        s.get(k + 2).and_then(|c| second_derivative(a, b, at(c))),
+    ]
+    .into_iter()
+    .flatten()
+    .map(f64::abs)
+    .fold(0.0f64, f64::max)
 }
 
 /// What the renormalisation needs of a value: its band, whether it has a value, the normalisation it was
@@ -106,15 +123,7 @@ pub fn renormalise_values(records: &[CalibrationRecord], values: &[Normalised]) 
             if !(interpolated > 0.0 && interpolated.is_finite()) {
                 return None;
             }
-            let curvature = [
-                k.checked_sub(1)
-                    .and_then(|j| second_derivative(s[j], s[k], s[k1])),
-                s.get(k1 + 1).and_then(|&c| second_derivative(s[k], s[k1], c)),
-            ]
-            .into_iter()
-            .flatten()
-            .map(f64::abs)
-            .fold(0.0f64, f64::max);
+            let curvature = bracket_curvature(s, k, |&r| r);
             Some(Renormalised {
                 factor: p.incident_w / interpolated,
                 curvature_rel: curvature * (p.t_s - t0) * (t1 - p.t_s) / 2.0 / interpolated,
