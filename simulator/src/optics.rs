@@ -214,6 +214,8 @@ pub struct Optics {
     object: u64,
     /// Distance from the arms' axis to the detector's aperture (mm): eccentricity moves the viewing direction.
     detector_distance_mm: f64,
+    /// The aperture's radius and distance (mm) as the instrument file states them; the hidden truth's differ.
+    nominal_aperture_mm: [f64; 2],
     material: Material,
     bands: RwLock<Vec<std::sync::Arc<Resolved>>>,
     /// The photodiode's responsivity, which weights a finite band (crate::imperfections::filters).
@@ -266,6 +268,7 @@ impl Optics {
             seating: RwLock::new(Seating::default()),
             object: 0,
             detector_distance_mm: det.distance_mm,
+            nominal_aperture_mm: [det.aperture_radius_mm, det.distance_mm],
             material: sample.material,
             bands: RwLock::new(Vec::new()),
             responsivity: crate::responsivity::Responsivity::from_detector(det)

@@ -60,6 +60,23 @@ fn read_points(csv: &Path) -> Result<Vec<ClassPoint>, String> {
         .collect())
 }
 
+/// `gonio align` with the bring-up's steps (the alignment, the characterisation and the sample's own alignment)
+/// on `instrument`, its calibration written to `out`.
+pub fn align(binary: &Path, instrument: &Path, out: &Path) -> Result<(), String> {
+    run(
+        binary,
+        &[
+            "align".as_ref(),
+            "--instrument".as_ref(),
+            instrument.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+            "--steps".as_ref(),
+            "alignment,characterisation,sample-alignment".as_ref(),
+        ],
+    )
+}
+
 /// `gonio ARGS...` through `binary`, standard input closed; the last line of its error output on failure.
 pub fn run(binary: &Path, args: &[&std::ffi::OsStr]) -> Result<(), String> {
     let out = Command::new(binary)
@@ -99,18 +116,7 @@ pub fn bring_up(root: &Path, binary: &Path, seeds: &[u64]) -> Result<Vec<Pair>, 
             let instrument = here.join("instrument.toml");
             std::fs::write(&instrument, &text).map_err(|e| format!("{}: {e}", instrument.display()))?;
             let cal = here.join("cal.toml");
-            run(
-                binary,
-                &[
-                    "align".as_ref(),
-                    "--instrument".as_ref(),
-                    instrument.as_os_str(),
-                    "--out".as_ref(),
-                    cal.as_os_str(),
-                    "--steps".as_ref(),
-                    "alignment,characterisation,sample-alignment".as_ref(),
-                ],
-            )?;
+            align(binary, &instrument, &cal)?;
             let demo_run = |name: &str, calibration: Option<&Path>| -> Result<Variant, String> {
                 let out_dir = here.join(name);
                 let mut args: Vec<&std::ffi::OsStr> = vec![

@@ -219,12 +219,12 @@ pub fn brdf_of_reading(
     norm: Reading,
 ) -> Result<BrdfValue, MeasurementError> {
     let inst = inputs.instrument;
-    // Positioning: the arms' arrival tolerance as a uniform distribution.
-    let tol_deg = inst.axes.iter().map(|a| a.tolerance_deg).fold(0.0f64, f64::max);
+    // Positioning: the arms' arrival tolerance (where they stopped is read back and accounted for when the
+    // campaign completes, crate::budget).
     let geometry = MeasurementGeometry {
         wi: inputs.wi,
         wo: inputs.wo,
-        angle_std_rad: tol_deg.to_radians() / 3f64.sqrt(),
+        angle_std_rad: inst.arrival_u_deg().to_radians(),
     };
     let footprint = Footprint {
         beam_radius_mm: inst.source.beam_radius_mm,

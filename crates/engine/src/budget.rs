@@ -11,7 +11,9 @@
 //!   (crate::calibration), through the equation; when the campaign completes, the value is normalised again
 //!   between the readings around it and the drift's curvature added, independent per point ([`drift`]).
 //! - `solid-angle` (absolute) or `certificate` (relative), shared by the campaign.
-//! - `pointing`: the axes' arrival tolerance through the equation's angular sensitivity.
+//! - `pointing`: the axes' arrival tolerance through the equation's angular sensitivity; when the campaign
+//!   completes and the read-back pose has brought the value to its nominal geometry, the read-back's resolution
+//!   instead, with the alignment's uncertainty times the fitted model's slope ([`complete`]).
 //! - `range` (shared by the range): the characterisation's range-gain and linearity correction, relative to
 //!   the reading, carried to the value.
 //! - `stray-light`: the uncertainty of the subtracted signature (characterised instruments).

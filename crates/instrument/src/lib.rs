@@ -87,6 +87,24 @@ impl Instrument {
     pub fn alignment_u_deg(&self) -> f64 {
         self.alignment_u_deg.unwrap_or(DEFAULT_ALIGNMENT_U_DEG)
     }
+
+    /// Where an axis stops against its target while nothing but the controller says so (deg, standard): its
+    /// arrival tolerance as a uniform distribution, the loosest axis's.
+    pub fn arrival_u_deg(&self) -> f64 {
+        let tolerance = self.axes.iter().map(|a| a.tolerance_deg).fold(0.0f64, f64::max);
+        tolerance / 3f64.sqrt()
+    }
+
+    /// Where an axis stands against its read-back position (deg, standard): the encoder's resolution as a
+    /// uniform distribution one step wide, the coarsest axis's.
+    pub fn read_back_u_deg(&self) -> f64 {
+        let resolution = self
+            .axes
+            .iter()
+            .map(|a| a.encoder_resolution_deg)
+            .fold(0.0f64, f64::max);
+        resolution / 12f64.sqrt()
+    }
 }
 
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]

@@ -18,7 +18,8 @@
 //! No honest correction (the point is flagged [`FLAG_NARROW_LOBE`] and keeps its aperture average): the model's
 //! lobe is narrower than the aperture (its roughness below the aperture's half-angle: a mirror, or a fit that
 //! ran to its bound) and within reach of it, or the correction exceeds [`NARROW_LIMIT`] (the average no longer
-//! says what the peak is).
+//! says what the peak is), or a value near the specular direction is [`UNRESOLVED_RATIO`] times off the
+//! model's average (the fit missed a lobe it had too few points of).
 //! Its uncertainty, `u = value x max(1, 2 |c - 1|)` (the point-value fit widens a lobe narrower than the
 //! aperture, so the model's `c` understates the bias), covers a point value anywhere from 0 (a mirror's, delta
 //! lobe excluded) to three times the average; a finite lobe's peak can lie higher, and no average tells how
@@ -43,6 +44,9 @@ pub const ACCEPTABLE_RMS_RATIO: f64 = 1.5;
 pub const CORRECTION_U_FRACTION: f64 = 0.25;
 /// A larger `|c - 1|` is not corrected: the point is flagged.
 pub const NARROW_LIMIT: f64 = 0.1;
+/// A value near the specular direction this many times the best model's aperture average (or less than its
+/// inverse) is a lobe the model does not resolve ([`unresolved_lobe`]): a misfit, not a shape to correct by.
+pub const UNRESOLVED_RATIO: f64 = 2.0;
 /// The angle step of the slopes' central differences (deg): small against every lobe the models fit, large
 /// against rounding.
 pub const SLOPE_STEP_DEG: f64 = 0.01;
@@ -208,6 +212,19 @@ fn factor(
     wavelength: Wavelength,
     half_angle_rad: f64,
 ) -> Option<f64> {
+    let (point, average) = point_and_average(model, wi, wo, wavelength, half_angle_rad)?;
+    let c = point / average;
+    (c.is_finite() && c > 0.0 && point > 0.0).then_some(c)
+}
+
+/// One model's value at the nominal geometry and its cos-weighted average over the aperture (1/sr).
+fn point_and_average(
+    model: &Material,
+    wi: &Direction,
+    wo: &Direction,
+    wavelength: Wavelength,
+    half_angle_rad: f64,
+) -> Option<(f64, f64)> {
     let point = model.eval(wi, wo, wavelength).ok()?;
     let cos_o = wo.cos_theta();
     let omega = cone_solid_angle_sr(half_angle_rad);
@@ -225,9 +242,7 @@ fn factor(
         },
     )
     .ok()?;
-    let average = integral.value / (omega * cos_o);
-    let c = point / average;
-    (c.is_finite() && c > 0.0 && point > 0.0).then_some(c)
+    Some((point, integral.value / (omega * cos_o)))
 }
 
 /// Whether a lobe of roughness `alpha` about the mirror direction of `wi` can reach the aperture about `wo`:
@@ -239,6 +254,33 @@ fn lobe_within_reach(wi: &Direction, wo: &Direction, alpha: f64, half_angle_rad:
     cos.clamp(-1.0, 1.0).acos() <= 2.0 * half_angle_rad + 6.0 * alpha
 }
 
+/// Whether `p` sees a lobe the best model does not resolve: within reach of the specular direction (a lobe of
+/// no width, [`lobe_within_reach`]) and its value more than [`UNRESOLVED_RATIO`] times the model's aperture
+/// average, or less than its inverse.
+/// A fit can miss a lobe narrower than the aperture altogether (few points near it: a mirror measured at a
+/// hundred geometries came out with a smooth model and its specular values, thousands of 1/sr, "corrected" by
+/// a few tenths of a percent); the model's correction says nothing about such a point.
+fn unresolved_lobe(
+    p: &Point,
+    best: &Fitted,
+    wi: &Direction,
+    wo: &Direction,
+    wavelength: Wavelength,
+    half_angle_rad: f64,
+) -> bool {
+    if !lobe_within_reach(wi, wo, 0.0, half_angle_rad) {
+        return false;
+    }
+    let (Some(value), Some((_, average))) = (
+        p.value(),
+        point_and_average(&best.material, wi, wo, wavelength, half_angle_rad),
+    ) else {
+        return false;
+    };
+    let ratio = value / average;
+    !(average > 0.0 && (1.0 / UNRESOLVED_RATIO..=UNRESOLVED_RATIO).contains(&ratio))
+}
+
 fn correction(p: &Point, half_angle_rad: f64, models: &[&Fitted]) -> Option<Correction> {
     p.value()?;
     let best = models.first()?;
@@ -247,7 +289,8 @@ fn correction(p: &Point, half_angle_rad: f64, models: &[&Fitted]) -> Option<Corr
     let c = factor(&best.material, &wi, &wo, wavelength, half_angle_rad);
     let lobe_too_narrow = best
         .alpha
-        .is_some_and(|a| a < half_angle_rad && lobe_within_reach(&wi, &wo, a, half_angle_rad));
+        .is_some_and(|a| a < half_angle_rad && lobe_within_reach(&wi, &wo, a, half_angle_rad))
+        || unresolved_lobe(p, best, &wi, &wo, wavelength, half_angle_rad);
     let c = match c {
         Some(c) if !lobe_too_narrow && (c - 1.0).abs() <= NARROW_LIMIT => c,
         // At least the whole value, and twice the bias the model sees: fitted to point values, a lobe narrower

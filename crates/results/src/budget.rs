@@ -122,6 +122,11 @@ impl Budget {
         }
     }
 
+    /// One component's standard uncertainty (1/sr), its entries in quadrature; 0 when it has none.
+    pub fn component_sr(&self, component: &str) -> f64 {
+        rss(self.entries.iter().filter(|e| e.component == component))
+    }
+
     /// Every component scaled by `factor` (a value rescaled by a correction carries its budget along).
     pub fn scaled(&self, factor: f64) -> Budget {
         Budget {

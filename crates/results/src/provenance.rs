@@ -442,6 +442,8 @@ pub(crate) mod tests {
                 sample_tilt_y_deg: -0.02,
                 eccentricity_x_mm: 0.1,
                 eccentricity_y_mm: -0.2,
+                aperture_radius_error_mm: 0.0012,
+                detector_distance_error_mm: -0.08,
                 seatings: vec![SeatingRecord {
                     index: 0,
                     tilt_x_deg: 0.01,

@@ -28,6 +28,10 @@
 //!   `P = C - (C.n / s.n) s`: the spot moves, the incidence direction does not. The detector's aperture centre
 //!   is at `D = C + d o` (d = detector distance, o its arm direction), so the sample sees it along
 //!   `wo = (D - P) / |D - P|`, not `o`, and the detector's field is centred on `Q = C - (C.n / o.n) o`.
+//! - **The aperture's size**: its true radius is the file's `aperture_radius_mm` plus `N(0,
+//!   aperture_radius_sd_mm)` and its true distance (d above) the file's `distance_mm` plus `N(0,
+//!   detector_distance_sd_mm)`, one draw each: the solid angle the detector really subtends, which the absolute
+//!   equation takes from the file (crate::optics::imperfect).
 //!
 //! The true geometry of a pose is these applied in turn: axis angles -> stage frame (crate::kinematics) -> sample
 //! frame -> arms' lab vectors about C -> directions and spot in the sample frame.
@@ -120,6 +124,10 @@ pub struct GeometryTruth {
     pub eccentricity_mm: [f64; 2],
     /// Standard deviation of each component of a mounting's tilt (degrees), from the file.
     pub reseat_tilt_sd_deg: f64,
+    /// The detector aperture's true radius less the file's (mm).
+    pub aperture_radius_error_mm: f64,
+    /// The aperture's true distance from the arms' axis less the file's (mm).
+    pub detector_distance_error_mm: f64,
     #[serde(skip)]
     draws: Draws,
 }
@@ -147,6 +155,7 @@ impl GeometryTruth {
             .collect();
         let (tx, ty) = draws.normal_pair("sample-tilt", 0);
         let (ex, ey) = draws.normal_pair("eccentricity", 0);
+        let (ar, ad) = draws.normal_pair("aperture", 0);
         GeometryTruth {
             axes,
             sample_tilt: Tilt {
@@ -155,6 +164,8 @@ impl GeometryTruth {
             },
             eccentricity_mm: [settings.eccentricity_sd_mm * ex, settings.eccentricity_sd_mm * ey],
             reseat_tilt_sd_deg: settings.reseat_tilt_sd_deg,
+            aperture_radius_error_mm: settings.aperture_radius_sd_mm * ar,
+            detector_distance_error_mm: settings.detector_distance_sd_mm * ad,
             draws,
         }
     }
@@ -167,6 +178,8 @@ impl GeometryTruth {
             && self.sample_tilt.is_zero()
             && self.eccentricity_mm == [0.0, 0.0]
             && self.reseat_tilt_sd_deg == 0.0
+            && self.aperture_radius_error_mm == 0.0
+            && self.detector_distance_error_mm == 0.0
     }
 
     /// The extra tilt of the sample's `k`-th mounting (0: the first).

@@ -6,6 +6,8 @@
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
+use gonio_brdf::radiometry::{aperture_half_angle_rad, aperture_solid_angle_sr};
+
 use crate::imperfections::{HiddenTruth, Tilt};
 use crate::kinematics::{self, LabVector, PoseGeometry};
 use crate::scene::Pose;
@@ -41,7 +43,16 @@ impl Optics {
                     .collect()
             })
             .unwrap_or_default();
-        let aperture_radius_mm = self.detector_distance_mm * self.aperture_half_rad.tan();
+        // The aperture as it really is: the solid angle the absolute equation takes from the file is off by
+        // what its radius and distance are.
+        let [mut aperture_radius_mm, mut distance_mm] = self.nominal_aperture_mm;
+        if let Some(g) = truth.and_then(|t| t.geometry.as_ref()) {
+            aperture_radius_mm += g.aperture_radius_error_mm;
+            distance_mm += g.detector_distance_error_mm;
+        }
+        self.detector_distance_mm = distance_mm;
+        self.aperture_half_rad = aperture_half_angle_rad(aperture_radius_mm, distance_mm);
+        self.aperture_sr = aperture_solid_angle_sr(aperture_radius_mm, distance_mm);
         self.beam = truth
             .and_then(|t| t.beam)
             .map(|b| super::beam::BeamOptics::new(b, aperture_radius_mm, self.detector_distance_mm));

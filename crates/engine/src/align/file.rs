@@ -165,11 +165,22 @@ impl CalibrationFile {
     /// its direction when the beam's lateral offset is not observable. The sample's own tilt
     /// (`sample_own_tilt_*`, crate::align::sample_tilt), when it was measured, replaces the mirror's.
     pub fn params(&self) -> GeometryParams {
+        self.pick(|v| v.value)
+    }
+
+    /// Each of [`Self::params`]'s standard uncertainties, the same values picked (0 where a parameter keeps
+    /// its nominal 0): what the angles of a campaign the calibration was applied to are uncertain by.
+    pub fn params_u(&self) -> GeometryParams {
+        self.pick(|v| v.u)
+    }
+
+    /// The parameters by [`Self::params`]'s rules, each value's `of`.
+    fn pick(&self, of: impl Fn(&Value) -> f64) -> GeometryParams {
         let mut x = [0.0; N_PARAMS];
         let get = |name: &str| self.values.iter().find(|v| v.name == name);
         for (k, (name, _)) in PARAM_NAMES.iter().enumerate() {
             if let Some(v) = get(name).filter(|v| v.observable) {
-                x[k] = v.value;
+                x[k] = of(v);
             }
         }
         // Aligned on the sample itself: its own tilt, as it sat, stands for the mirror's.
@@ -181,7 +192,7 @@ impl CalibrationFile {
                 get(own).filter(|v| v.observable),
                 PARAM_NAMES.iter().position(|(n, _)| *n == of_mirror),
             ) {
-                x[k] = v.value;
+                x[k] = of(v);
             }
         }
         let lateral_seen = get("beam_lateral_mm").is_some_and(|v| v.observable);
@@ -190,7 +201,7 @@ impl CalibrationFile {
             get("beam_line_deg").filter(|v| v.observable),
             PARAM_NAMES.iter().position(|(n, _)| *n == "beam_deg"),
         ) {
-            x[k] = line.value;
+            x[k] = of(line);
         }
         GeometryParams::from_slice(&x)
     }

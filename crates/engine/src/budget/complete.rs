@@ -3,11 +3,13 @@
 //!   the interpolation's uncertainty its `dark` component ([`super::dark`]);
 //! - the source's drift: each value normalised again between the readings before and after it, the drift's
 //!   curvature in the budget ([`super::drift`]);
-//! - pointing: the angles' uncertainty (an applied alignment's, else the instrument file's `alignment_u_deg`)
-//!   times the fitted model's slope, and the absolute equation's `tan(theta_o)`, added to `pointing`;
+//! - pointing: an applied alignment's parameters, each by its uncertainty, through its model and the fitted
+//!   model at the read-back pose (super::positioning::Pointed::alignment_rel_u); without an alignment, the
+//!   instrument file's `alignment_u_deg` times the fitted model's slope and the absolute equation's
+//!   `tan(theta_o)`; added to `pointing`;
 //! - positioning: each value brought from where the axes really stopped (read back) to the nominal geometry by
 //!   the fitted model's ratio between the two, part of it as the `positioning` component
-//!   ([`super::positioning`]);
+//!   ([`super::positioning`]), the run's arrival tolerance in `pointing` then the read-back's resolution;
 //! - the aperture: each value corrected from the aperture average to the BRDF at the nominal geometry with a
 //!   model fitted to the campaign's data (gonio_results::aperture), the correction's own uncertainty added as
 //!   the `aperture` component, the average kept beside it (`brdf_aperture_sr`); a lobe narrower than the
@@ -207,36 +209,27 @@ pub fn completions(
             residual_rms = c.residual_rms,
             "aperture correction from the fitted model"
         );
-        let angle_u_rad = angle_u_deg(record, instrument).to_radians();
-        for (((point, completion), slopes), committed) in
-            run.points.iter().zip(&mut done).zip(&c.slopes).zip(committed)
-        {
-            let (Some([gi, go, gphi]), Some(value)) = (slopes, point.brdf_sr) else {
-                continue;
-            };
-            // The absolute equation divides by the nominal cos(theta_o): a detector angle off by d moves the
-            // value by -tan(theta_o) d besides the BRDF's own slope.
-            let tan_o = if !relative {
-                committed.theta_o_deg.to_radians().tan()
-            } else {
-                0.0
-            };
-            let rel = angle_u_rad * gi.hypot(go - tan_o).hypot(*gphi);
-            if rel.is_finite() && rel > 0.0 {
-                completion
-                    .budget
-                    .add(components::POINTING, (value * rel).abs(), None);
-            }
-        }
         // Where the axes really stopped against the nominal geometry (super::positioning): the value brought
         // to the nominal geometry by the fitted model's ratio, a quarter of the correction its uncertainty.
-        let pointed = super::positioning::Pointed::new(record, instrument);
+        // Once the read-back says where the axes stopped, the arrival tolerance the run's pointing component
+        // took is no longer unknown: what is left of it is the encoder's resolution.
+        let pointed = super::positioning::Pointed::new(record.alignment_toml.as_deref(), instrument);
+        let read_back_share = instrument.read_back_u_deg() / instrument.arrival_u_deg();
         for ((point, completion), committed) in run.points.iter_mut().zip(&mut done).zip(committed) {
             let Some(value) = point.brdf_sr else { continue };
             let Some(rel) = pointed.relative_deviation(&c.material, committed, !relative) else {
                 continue;
             };
-            if rel == 0.0 || rel.abs() > super::positioning::MAX_REL_CORRECTION {
+            if rel.abs() > super::positioning::MAX_REL_CORRECTION {
+                continue;
+            }
+            if read_back_share.is_finite() {
+                let arrival = completion.budget.component_sr(components::POINTING);
+                completion
+                    .budget
+                    .set(components::POINTING, arrival * read_back_share, None);
+            }
+            if rel == 0.0 {
                 continue;
             }
             let factor = 1.0 / (1.0 + rel);
@@ -249,6 +242,37 @@ pub fn completions(
             );
             completion.brdf_sr = Some(corrected);
             point.brdf_sr = Some(corrected);
+        }
+        // The angles' uncertainty through the value: an applied alignment's parameters one by one through its
+        // model (super::positioning), else one angle uncertainty times the fitted model's slopes.
+        let angle_u_rad = angle_u_deg(record, instrument).to_radians();
+        for (((point, completion), slopes), committed) in
+            run.points.iter().zip(&mut done).zip(&c.slopes).zip(committed)
+        {
+            let Some(value) = point.brdf_sr else { continue };
+            let propagated = pointed
+                .has_alignment_u()
+                .then(|| pointed.alignment_rel_u(&c.material, committed, !relative))
+                .flatten();
+            let rel = match (propagated, slopes) {
+                (Some(rel), _) => rel,
+                (None, Some([gi, go, gphi])) => {
+                    // The absolute equation divides by the nominal cos(theta_o): a detector angle off by d
+                    // moves the value by -tan(theta_o) d besides the BRDF's own slope.
+                    let tan_o = if !relative {
+                        committed.theta_o_deg.to_radians().tan()
+                    } else {
+                        0.0
+                    };
+                    angle_u_rad * gi.hypot(go - tan_o).hypot(*gphi)
+                }
+                (None, None) => continue,
+            };
+            if rel.is_finite() && rel > 0.0 {
+                completion
+                    .budget
+                    .add(components::POINTING, (value * rel).abs(), None);
+            }
         }
         for ((point, completion), correction) in run.points.iter_mut().zip(&mut done).zip(&c.points) {
             let Some(value) = point.brdf_sr else { continue };

@@ -92,7 +92,7 @@ pub fn redark(records: &[CalibrationRecord], values: &[Darkened]) -> Vec<Option<
             }
             let x = (v.t_s - before.t_s) / (after.t_s - before.t_s);
             let dark_w = before.value_w + (after.value_w - before.value_w) * x;
-            let curvature = super::drift::bracket_curvature(s, k, |d| (d.t_s, d.value_w));
+            let curvature = super::drift::bracket_curvature(s, k, |d| (d.t_s, d.value_w, d.u_w));
             let curvature_w = curvature * (v.t_s - before.t_s) * (after.t_s - v.t_s) / 2.0;
             let u_w = (before.u_w * (1.0 - x)).hypot(after.u_w * x).hypot(curvature_w);
             dark_w.is_finite().then_some(Redarked {

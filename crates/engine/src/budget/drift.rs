@@ -25,10 +25,10 @@ pub struct Renormalised {
     pub curvature_rel: f64,
 }
 
-/// Each band's net normalisation readings (time s, W), in time order.
-fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<(f64, f64)>> {
-    let mut darks: BTreeMap<u64, f64> = BTreeMap::new();
-    let mut out: BTreeMap<u64, Vec<(f64, f64)>> = BTreeMap::new();
+/// Each band's net normalisation readings (time s, W, its standard uncertainty W), in time order.
+fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<Sample>> {
+    let mut darks: BTreeMap<u64, (f64, f64)> = BTreeMap::new();
+    let mut out: BTreeMap<u64, Vec<Sample>> = BTreeMap::new();
     let mut ordered: Vec<&CalibrationRecord> = records.iter().collect();
     ordered.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
     for r in ordered {
@@ -36,12 +36,14 @@ fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<(f64, f64)>> {
         let key = nm.to_bits();
         match r.kind.as_str() {
             "dark" => {
-                darks.insert(key, r.value_w);
+                darks.insert(key, (r.value_w, r.u_w));
             }
             "direct-beam" | "reference" => {
-                let net = r.value_w - darks.get(&key).copied().unwrap_or(0.0);
-                if net > 0.0 && net.is_finite() && r.t_s.is_finite() {
-                    out.entry(key).or_default().push((r.t_s, net));
+                let (dark_w, dark_u_w) = darks.get(&key).copied().unwrap_or((0.0, 0.0));
+                let net = r.value_w - dark_w;
+                let u_w = r.u_w.hypot(dark_u_w);
+                if net > 0.0 && net.is_finite() && r.t_s.is_finite() && u_w.is_finite() {
+                    out.entry(key).or_default().push((r.t_s, net, u_w));
                 }
             }
             _ => {}
@@ -50,16 +52,33 @@ fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<(f64, f64)>> {
     out
 }
 
-/// The second derivative through three readings (time s, W) (W/s^2); `None` when two share a time.
-fn second_derivative(a: (f64, f64), b: (f64, f64), c: (f64, f64)) -> Option<f64> {
+/// A reading for the curvature: time (s), value and its standard uncertainty (W).
+pub(super) type Sample = (f64, f64, f64);
+
+/// The second derivative through three readings (W/s^2), net of what the readings' own noise puts in it: the
+/// root of its square less the noise's variance (0 when the noise explains it all). A straight drift read
+/// with noise has second differences as large as the noise makes them; taken whole, that noise would be
+/// counted twice (the readings' uncertainties are already in the interpolation). `None` when two share a time.
+fn second_derivative(a: Sample, b: Sample, c: Sample) -> Option<f64> {
     let (d1, d2, span) = (b.0 - a.0, c.0 - b.0, c.0 - a.0);
-    (d1 > 0.0 && d2 > 0.0).then(|| 2.0 * ((c.1 - b.1) / d2 - (b.1 - a.1) / d1) / span)
+    if !(d1 > 0.0 && d2 > 0.0) {
+        return None;
+    }
+    let raw = 2.0 * ((c.1 - b.1) / d2 - (b.1 - a.1) / d1) / span;
+    let (wa, wb, wc) = (
+        2.0 / (d1 * span),
+        2.0 * (1.0 / d1 + 1.0 / d2) / span,
+        2.0 / (d2 * span),
+    );
+    let noise = (wa * a.2).powi(2) + (wb * b.2).powi(2) + (wc * c.2).powi(2);
+    Some((raw * raw - noise).max(0.0).sqrt())
 }
 
-/// The drift's curvature about the readings `s[k]` and `s[k + 1]` (`at`: a reading's time s and value W): the
-/// larger second derivative's magnitude through them and the reading before or after (W/s^2), 0 without
-/// either. What a straight line between the two misses (the source's drift here, the dark's in super::dark).
-pub(super) fn bracket_curvature<T>(s: &[T], k: usize, at: impl Fn(&T) -> (f64, f64)) -> f64 {
+/// The drift's curvature about the readings `s[k]` and `s[k + 1]` (`at`: a reading's time s, value and
+/// uncertainty W): the larger second derivative's magnitude through them and the reading before or after
+/// (W/s^2), net of the readings' noise, 0 without either. What a straight line between the two misses (the
+/// source's drift here, the dark's in super::dark).
+pub(super) fn bracket_curvature<T>(s: &[T], k: usize, at: impl Fn(&T) -> Sample) -> f64 {
     let (Some(a), Some(b)) = (s.get(k).map(&at), s.get(k + 1).map(&at)) else {
         return 0.0;
     };
@@ -69,7 +88,6 @@ pub(super) fn bracket_curvature<T>(s: &[T], k: usize, at: impl Fn(&T) -> (f64, f
     ]
     .into_iter()
     .flatten()
-    .map(f64::abs)
     .fold(0.0f64, f64::max)
 }
 
@@ -115,9 +133,9 @@ pub fn renormalise_values(records: &[CalibrationRecord], values: &[Normalised]) 
                 return None;
             }
             // The readings around the point: k at or before it, k + 1 after it.
-            let k1 = s.iter().position(|(t, _)| *t > p.t_s)?;
+            let k1 = s.iter().position(|(t, _, _)| *t > p.t_s)?;
             let k = k1.checked_sub(1)?;
-            let ((t0, n0), (t1, n1)) = (s[k], s[k1]);
+            let ((t0, n0, _), (t1, n1, _)) = (s[k], s[k1]);
             let x = (p.t_s - t0) / (t1 - t0);
             let interpolated = n0 + (n1 - n0) * x;
             if !(interpolated > 0.0 && interpolated.is_finite()) {
@@ -198,6 +216,33 @@ mod tests {
         // The curvature term covers what is left, and is not wildly larger.
         assert!(r.curvature_rel >= after, "{} vs {after}", r.curvature_rel);
         assert!(r.curvature_rel < 5.0 * after, "{} vs {after}", r.curvature_rel);
+    }
+
+    #[test]
+    fn curvature_is_what_the_second_difference_has_beyond_the_readings_noise() {
+        // Readings every 600 s with a standard uncertainty of 1e-7 W each: the second difference's noise is
+        // 2 sqrt(6) 1e-7 / (600 * 1200) W/s^2 for evenly spaced readings.
+        let u = 1e-7;
+        let noise = 2.0 * 6f64.sqrt() * u / (600.0 * 1200.0);
+        let at = |values: [f64; 3]| {
+            let s: Vec<Sample> = values
+                .iter()
+                .enumerate()
+                .map(|(k, v)| (600.0 * k as f64, *v, u))
+                .collect();
+            bracket_curvature(&s, 0, |&r| r)
+        };
+        // A straight drift read with noise as large as the readings' uncertainty: no curvature is claimed.
+        assert_eq!(at([1e-3, 1e-3 + 1e-7, 1e-3]), 0.0);
+        // A real bend ten times the noise: what is left of it is the bend, within the noise's share.
+        let bend = 10.0 * noise;
+        let second = bend * 600.0 * 1200.0 / 2.0;
+        let c = at([1e-3, 1e-3 - second / 2.0, 1e-3]);
+        assert!((c - bend).abs() < 0.01 * bend, "{c} vs {bend}");
+        // Without uncertainties the second difference is taken whole.
+        let s = [(0.0, 1e-3, 0.0), (600.0, 1e-3 + 1e-7, 0.0), (1200.0, 1e-3, 0.0)];
+        let whole = bracket_curvature(&s, 0, |&r| r);
+        assert!((whole - 2.0 * 2e-7 / (600.0 * 1200.0)).abs() < 1e-20, "{whole}");
     }
 
     #[test]

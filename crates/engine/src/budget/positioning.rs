@@ -15,7 +15,8 @@ use gonio_instrument::{AxisRole, Instrument};
 use gonio_scheduler::kinematics::{Kinematics, Pose};
 
 use crate::align::correction::PoseCorrection;
-use crate::store::{CampaignRecord, PointRecord};
+use crate::align::model::GeometryParams;
+use crate::store::PointRecord;
 
 /// The correction's standard uncertainty, as a fraction of it (module doc).
 pub(super) const U_OF_CORRECTION: f64 = 0.25;
@@ -28,26 +29,81 @@ pub(super) const MAX_REL_CORRECTION: f64 = 0.1;
 pub(super) struct Pointed {
     kinematics: Kinematics,
     correction: Option<PoseCorrection>,
+    /// The applied alignment's model with one parameter moved by its standard uncertainty, one per parameter
+    /// the alignment measured ([`Pointed::alignment_rel_u`]).
+    perturbed: Vec<PoseCorrection>,
     roles: Vec<(String, AxisRole)>,
 }
 
 impl Pointed {
-    pub(super) fn new(record: &CampaignRecord, instrument: &Instrument) -> Pointed {
-        let correction = record.alignment_toml.as_deref().and_then(|text| {
-            crate::align::file::CalibrationFile::parse(text, "the stored alignment")
-                .ok()
-                .map(|cal| PoseCorrection::new(instrument, cal.params()))
-        });
+    /// `alignment_toml`: the calibration applied to the campaign (`gonio align`'s file), if one was.
+    pub(super) fn new(alignment_toml: Option<&str>, instrument: &Instrument) -> Pointed {
+        let cal = alignment_toml
+            .and_then(|text| crate::align::file::CalibrationFile::parse(text, "the stored alignment").ok());
+        let correction = cal.as_ref().map(|c| PoseCorrection::new(instrument, c.params()));
+        let perturbed = cal
+            .as_ref()
+            .map(|c| {
+                let (x, u) = (c.params().to_vec(), c.params_u().to_vec());
+                (0..x.len())
+                    .filter(|&k| u[k] > 0.0 && u[k].is_finite())
+                    .map(|k| {
+                        let mut moved = x;
+                        moved[k] += u[k];
+                        PoseCorrection::new(instrument, GeometryParams::from_slice(&moved))
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
         Pointed {
             kinematics: Kinematics::new(instrument),
             correction,
+            perturbed,
             roles: instrument.axes.iter().map(|a| (a.name.clone(), a.role)).collect(),
         }
+    }
+
+    /// Whether an alignment was applied whose parameters' uncertainties [`Pointed::alignment_rel_u`] propagates.
+    pub(super) fn has_alignment_u(&self) -> bool {
+        !self.perturbed.is_empty()
+    }
+
+    /// The relative standard uncertainty of `p`'s value from the applied alignment's: each parameter moved by
+    /// its standard uncertainty, the change of `model`'s value (with the absolute equation's cos(theta_o) when
+    /// `absolute`) between the directions the model gives at the read-back pose with and without the move, in
+    /// quadrature. The parameters are taken as independent (the calibration file keeps no covariance); each
+    /// moves only the angles it acts on, where one angle uncertainty for every angle (their root sum of
+    /// squares) counted them all on each. `None` without an applied alignment, a read-back or a model value.
+    pub(super) fn alignment_rel_u(&self, model: &Material, p: &PointRecord, absolute: bool) -> Option<f64> {
+        let pose = self.pose(p)?;
+        let wavelength = Wavelength::from_nm(p.band_nm).ok()?;
+        let (wi, wo) = self.correction.as_ref()?.directions(&pose)?;
+        let weighted = |wi: &Direction, wo: &Direction| -> Option<f64> {
+            let f = model.eval(wi, wo, wavelength).ok()?;
+            let v = if absolute { f * wo.z() } else { f };
+            v.is_finite().then_some(v)
+        };
+        let at = weighted(&wi, &wo).filter(|v| *v > 0.0)?;
+        let mut sum = 0.0;
+        for c in &self.perturbed {
+            let (wi_k, wo_k) = c.directions(&pose)?;
+            sum += (weighted(&wi_k, &wo_k)? / at - 1.0).powi(2);
+        }
+        Some(sum.sqrt())
     }
 
     /// The sample-frame directions towards the source and the detector at `p`'s read-back pose; `None` without
     /// a read-back of both arms.
     pub(super) fn directions(&self, p: &PointRecord) -> Option<(Direction, Direction)> {
+        let pose = self.pose(p)?;
+        match &self.correction {
+            Some(c) => c.directions(&pose),
+            None => Some(self.kinematics.forward(&pose)),
+        }
+    }
+
+    /// `p`'s read-back pose; `None` without a read-back of both arms.
+    fn pose(&self, p: &PointRecord) -> Option<Pose> {
         let mut pose = Pose::new(0.0, 0.0, 0.0, 0.0);
         let mut arms = 0;
         for (name, value) in &p.readback_deg {
@@ -58,13 +114,7 @@ impl Pointed {
             arms += usize::from(matches!(role, AxisRole::LightArm | AxisRole::DetectorArm));
             pose.set(*role, *value);
         }
-        if arms < 2 {
-            return None;
-        }
-        match &self.correction {
-            Some(c) => c.directions(&pose),
-            None => Some(self.kinematics.forward(&pose)),
-        }
+        (arms >= 2).then_some(pose)
     }
 
     /// The relative change of `p`'s value between its nominal geometry and where the instrument pointed, by
@@ -92,5 +142,93 @@ impl Pointed {
         };
         let rel = there * cosine / at_nominal - 1.0;
         rel.is_finite().then_some(rel)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lambertian() -> Material {
+        Material::from_document(
+            "[material]\nmodel = \"lambertian\"\nalbedo = 0.8",
+            "test",
+            std::path::Path::new("."),
+        )
+        .expect("valid material")
+    }
+
+    /// A calibration whose only measured parameter is the detector arm's zero: 0 +- `u_deg`.
+    fn calibration(u_deg: f64) -> String {
+        format!(
+            "[calibration]\ninstrument = \"simulated.toml\"\ninstrument_sha256 = \"0\"\nsoftware = \"test\"\n\
+             created_utc = \"2026-12-05T00:00:00Z\"\ndry_run = true\nmethod = \"test\"\n\n[[values]]\n\
+             name = \"detector_zero_deg\"\nvalue = 0.0\nu = {u_deg}\nunit = \"deg\"\nobservable = true\n"
+        )
+    }
+
+    fn point_at(pose: &Pose, instrument: &Instrument) -> PointRecord {
+        let role = |r: AxisRole| {
+            let a = instrument.axes.iter().find(|a| a.role == r).expect("axis");
+            (a.name.clone(), pose.get(r))
+        };
+        PointRecord {
+            index: 0,
+            band_nm: 550.0,
+            theta_i_deg: 0.0,
+            phi_i_deg: 0.0,
+            theta_o_deg: 0.0,
+            phi_o_deg: 0.0,
+            signal_w: 1e-7,
+            dark_w: 0.0,
+            incident_w: 1e-3,
+            brdf_sr: Some(0.25),
+            brdf_u_sr: Some(1e-4),
+            flags: Vec::new(),
+            t_s: 0.0,
+            readback_deg: [
+                AxisRole::LightArm,
+                AxisRole::DetectorArm,
+                AxisRole::SampleTilt,
+                AxisRole::SampleRotation,
+            ]
+            .map(role)
+            .to_vec(),
+            truth_point_sr: None,
+            truth_aperture_sr: None,
+            truth_effects_json: None,
+            brdf_aperture_sr: None,
+            budget: Default::default(),
+        }
+    }
+
+    #[test]
+    fn an_alignments_detector_zero_moves_a_diffuse_value_by_tan_theta_o() {
+        let instrument = gonio_instrument::InstrumentFile::simulated().instrument;
+        let u_deg = 0.01;
+        let text = calibration(u_deg);
+        let pointed = Pointed::new(Some(&text), &instrument);
+        assert!(pointed.has_alignment_u());
+        for pose in [Pose::new(-30.0, 60.0, 0.0, 0.0), Pose::new(-20.0, 75.0, 0.0, 0.0)] {
+            let p = point_at(&pose, &instrument);
+            let (_, wo) = pointed.directions(&p).expect("directions");
+            let theta_o = wo.z().acos();
+            // A Lambertian value read by the absolute equation moves only through the detector's cosine.
+            let expected = theta_o.tan() * u_deg.to_radians();
+            let rel = pointed
+                .alignment_rel_u(&lambertian(), &p, true)
+                .expect("propagated");
+            assert!((rel - expected).abs() < 0.01 * expected, "{rel} vs {expected}");
+            // Normalised by a reference at the same geometry, the cosine cancels: nothing moves it.
+            let relative = pointed
+                .alignment_rel_u(&lambertian(), &p, false)
+                .expect("propagated");
+            assert!(relative < 1e-9, "{relative}");
+        }
+        // Without an applied alignment there is nothing to propagate.
+        let none = Pointed::new(None, &instrument);
+        assert!(!none.has_alignment_u());
+        let p = point_at(&Pose::new(-30.0, 60.0, 0.0, 0.0), &instrument);
+        assert_eq!(none.alignment_rel_u(&lambertian(), &p, true), None);
     }
 }

@@ -103,6 +103,8 @@ fn record(hidden: &HiddenTruth, mountings: usize) -> SimulatorTruth {
             sample_tilt_y_deg: g.sample_tilt.y_deg,
             eccentricity_x_mm: g.eccentricity_mm[0],
             eccentricity_y_mm: g.eccentricity_mm[1],
+            aperture_radius_error_mm: g.aperture_radius_error_mm,
+            detector_distance_error_mm: g.detector_distance_error_mm,
             seatings: (0..=mountings as u64)
                 .map(|index| {
                     let t = g.seating_tilt(index);

@@ -129,8 +129,7 @@ impl<'a> Run<'a> {
                 Interrupt::Pause(format!("no safe move from {current:?} to the reference geometry {geometry:?}"))
             })?;
             self.motion.move_to(&pose).await?;
-            let tol_deg = self.file.instrument.axes.iter().map(|a| a.tolerance_deg).fold(0.0f64, f64::max);
-            let angle_std_rad = tol_deg.to_radians() / 3f64.sqrt();
+            let angle_std_rad = self.file.instrument.arrival_u_deg().to_radians();
             for b in bands {
                 if let Some(p) = self.band_position(*b) {
                     self.wheel_to(p).await?;

@@ -34,6 +34,15 @@ pub struct GeometryImperfections {
     /// Cycles of that error per revolution (1 = an encoder disc mounted off-centre; 0 means 1).
     #[serde(default)]
     pub encoder_error_harmonic: u32,
+    /// Standard deviation of the detector aperture's true radius about the file's `aperture_radius_mm` (mm):
+    /// how well it was measured. With the distance below, what the solid angle in the absolute equation is
+    /// off by; the file's `solid_angle_u` is the lab's claim of it.
+    #[serde(default)]
+    pub aperture_radius_sd_mm: f64,
+    /// Standard deviation of the aperture's true distance from the arms' axis about the file's `distance_mm`
+    /// (mm).
+    #[serde(default)]
+    pub detector_distance_sd_mm: f64,
 }
 
 impl GeometryImperfections {
@@ -46,6 +55,8 @@ impl GeometryImperfections {
             && self.reseat_tilt_sd_deg == 0.0
             && self.eccentricity_sd_mm == 0.0
             && self.encoder_error_amplitude_deg == 0.0
+            && self.aperture_radius_sd_mm == 0.0
+            && self.detector_distance_sd_mm == 0.0
     }
 
     /// The harmonic in use (0 in the file means 1).
@@ -89,6 +100,18 @@ impl GeometryImperfections {
                 1.0,
                 "an encoder that far off fails its own check",
             ),
+            (
+                "aperture_radius_sd_mm",
+                self.aperture_radius_sd_mm,
+                0.5,
+                "an aperture known that poorly has not been measured",
+            ),
+            (
+                "detector_distance_sd_mm",
+                self.detector_distance_sd_mm,
+                10.0,
+                "a distance known that poorly has not been measured",
+            ),
         ] {
             super::check(G, key, value, limit, why)?;
         }
@@ -121,6 +144,8 @@ mod tests {
             ("reseat_tilt_sd_deg", 2),
             ("eccentricity_sd_mm", 3),
             ("encoder_error_amplitude_deg", 4),
+            ("aperture_radius_sd_mm", 5),
+            ("detector_distance_sd_mm", 6),
         ] {
             for bad in [-1.0, f64::NAN, f64::INFINITY, 1e6] {
                 let mut g = GeometryImperfections::default();
@@ -129,7 +154,9 @@ mod tests {
                     1 => &mut g.sample_tilt_sd_deg,
                     2 => &mut g.reseat_tilt_sd_deg,
                     3 => &mut g.eccentricity_sd_mm,
-                    _ => &mut g.encoder_error_amplitude_deg,
+                    4 => &mut g.encoder_error_amplitude_deg,
+                    5 => &mut g.aperture_radius_sd_mm,
+                    _ => &mut g.detector_distance_sd_mm,
                 };
                 *slot = bad;
                 let msg = g.validate().expect_err("refused").to_string();

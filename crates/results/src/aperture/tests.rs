@@ -183,3 +183,47 @@ fn the_slopes_follow_the_lobe() {
     }
     assert!(checked >= 20, "{checked} points on the lobe's flanks");
 }
+
+#[test]
+fn a_specular_value_the_model_does_not_resolve_is_not_corrected_by_it() {
+    // A fit that missed the lobe: a smooth matte model, and points near the specular direction reading what a
+    // mirror's delta puts through the aperture.
+    let matte = Material::from_document(
+        "[material]\nmodel = \"lambertian\"\nalbedo = 0.5\n",
+        "matte",
+        std::path::Path::new("."),
+    )
+    .expect("material");
+    let best = Fitted {
+        model: FitModel::OrenNayar,
+        material: matte.clone(),
+        rms: 0.01,
+        alpha: None,
+    };
+    let models = [&best];
+    let at = |g: [f64; 4], value: f64| {
+        let mut p = Point::at(550.0, g, 0.0);
+        p.brdf_sr = Some(value);
+        p.brdf_u_sr = Some(1e-4 * value);
+        p
+    };
+    let matte_value = 0.5 / std::f64::consts::PI;
+    // 0.1 degree from the specular direction, a thousand times the model: flagged, the value its uncertainty.
+    let spike = at([30.0, 0.0, 30.1, 180.0], 1000.0 * matte_value);
+    assert!(matches!(
+        correction(&spike, HALF_ANGLE_RAD, &models),
+        Some(Correction::NarrowLobe { u_rel }) if u_rel >= 1.0
+    ));
+    // The same geometry reading what the model says: corrected as usual.
+    let matching = at([30.0, 0.0, 30.1, 180.0], 1.05 * matte_value);
+    assert!(matches!(
+        correction(&matching, HALF_ANGLE_RAD, &models),
+        Some(Correction::Applied { .. })
+    ));
+    // Far from the specular direction a misfit is the fit's business (its residual), not a lobe's.
+    let far = at([30.0, 0.0, 60.0, 90.0], 1000.0 * matte_value);
+    assert!(matches!(
+        correction(&far, HALF_ANGLE_RAD, &models),
+        Some(Correction::Applied { .. })
+    ));
+}

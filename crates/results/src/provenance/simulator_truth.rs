@@ -163,6 +163,12 @@ pub struct GeometryTruthRecord {
     /// Where the arms' rotation axis crosses the horizontal plane through the sample centre (lab X, Y; mm).
     pub eccentricity_x_mm: f64,
     pub eccentricity_y_mm: f64,
+    /// The detector aperture's true radius and its distance from the arms' axis less the file's (mm): the
+    /// solid angle the absolute equation takes from the file is off by these (absent from runs before them).
+    #[serde(default)]
+    pub aperture_radius_error_mm: f64,
+    #[serde(default)]
+    pub detector_distance_error_mm: f64,
     /// The sample's mountings: index 0 the first, one more per removal. One per calibration reading of the run
     /// is listed (an upper bound on the removals it made).
     pub seatings: Vec<SeatingRecord>,

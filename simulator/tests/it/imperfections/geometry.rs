@@ -363,3 +363,32 @@ fn eccentricity_alone_moves_the_footprint_across_the_sample_edge() {
         );
     }
 }
+
+#[test]
+fn the_apertures_size_alone_scales_a_diffuse_reading_by_its_true_solid_angle() {
+    let file = file_with(
+        GeometryImperfections {
+            aperture_radius_sd_mm: 0.01,
+            detector_distance_sd_mm: 1.0,
+            ..Default::default()
+        },
+        23,
+    );
+    let truth = geometry_truth(&file);
+    let (dr, dd) = (truth.aperture_radius_error_mm, truth.detector_distance_error_mm);
+    assert!(dr != 0.0 && dd != 0.0, "both drawn");
+    // The solid angle of a disc of radius r at distance d, written here: 2 pi (1 - d / sqrt(d^2 + r^2)).
+    let det = &file.instrument.detector;
+    let cap = |r: f64, d: f64| 2.0 * std::f64::consts::PI * (1.0 - d / (d * d + r * r).sqrt());
+    let expected =
+        cap(det.aperture_radius_mm + dr, det.distance_mm + dd) / cap(det.aperture_radius_mm, det.distance_mm);
+    assert!((expected - 1.0).abs() > 1e-4, "a visible change: {expected}");
+    // A Lambertian sample fills the aperture evenly: the power scales with the solid angle, not the direction.
+    for p in [pose(30.0, -40.0, 0.0, 0.0), pose(-20.0, 60.0, 10.0, 45.0)] {
+        let ratio = power_ratio(&file, &p);
+        assert!(
+            (ratio - expected).abs() < 1e-6 * expected,
+            "{ratio} vs {expected}"
+        );
+    }
+}
