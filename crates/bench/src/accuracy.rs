@@ -21,6 +21,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::bring_up::run as gonio;
 
+mod fits;
 mod report;
 use crate::error_budget::variant_text;
 pub use report::markdown;
@@ -245,6 +246,9 @@ pub struct Run {
     pub points: Vec<Point>,
     /// Why the run stopped before its end (the last line of gonio's error), when it did.
     pub stopped: Option<String>,
+    /// `gonio fit` with the material's own model (crate::accuracy::fits); `None` for the mirror (its delta
+    /// lobe is no model gonio fits).
+    pub fit: Option<Result<fits::FitOutcome, String>>,
 }
 
 /// Every set-up and material, through the release binary `binary`.
@@ -308,6 +312,7 @@ pub fn run(root: &Path, binary: &Path, geometries_per_material: usize) -> Result
                     std::fs::read_to_string(&csv_path).map_err(|e| format!("{}: {e}", csv_path.display()))?;
                 let table =
                     parse_points_csv(&csv, &csv_path.display().to_string()).map_err(|e| e.to_string())?;
+                let fit = (material != "mirror").then(|| fits::fit(binary, &out_dir, material));
                 out.push(Run {
                     setup: setup.name.clone(),
                     seed,
@@ -315,6 +320,7 @@ pub fn run(root: &Path, binary: &Path, geometries_per_material: usize) -> Result
                     planned: geoms.len(),
                     points: table.points,
                     stopped,
+                    fit,
                 });
             }
         }

@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use gonio_results::angular_class::AngularClass;
 use gonio_results::points::Point;
 
+use super::fits::FitOutcome;
 use super::{BANDS, COMMAND, MATERIALS, Run, SEEDS, checked_value, class_row, setups};
 
 fn pct(v: f64) -> String {
@@ -130,6 +131,7 @@ pub fn markdown(runs: &[Run], geometries_per_material: usize, duration_s: f64) -
             }
         );
     }
+    fits_section(&mut s, runs, &setups);
     let stopped: Vec<&Run> = runs.iter().filter(|r| r.stopped.is_some()).collect();
     if !stopped.is_empty() {
         let _ = writeln!(
@@ -230,4 +232,101 @@ fn points_of<'a>(runs: &'a [Run], setup: &str, material: &str) -> Vec<&'a Point>
         .filter(|r| r.setup == setup && r.material == material)
         .flat_map(|r| r.points.iter())
         .collect()
+}
+
+/// `gonio fit` with each material's own model on every run (super::fits), against issue 29's fit targets.
+fn fits_section(s: &mut String, runs: &[Run], setups: &[String]) {
+    let _ = writeln!(
+        s,
+        "\n## Fits with the true model\n\n`gonio fit --model <the material's own>` (its default robust loss, every \
+         band) on each run above, as a lab runs it (crates/bench/src/accuracy/fits.rs). Targets: chi2/dof between \
+         0.7 and 1.5 against the points' independent uncertainties, and each fitted parameter within its k = 2 \
+         interval (independent and shared uncertainties in quadrature) of the simulated value in at least 93 % of \
+         instruments. Per parameter: how often it is within k = 2, over the instruments, and its rms z.\n\n\
+         | set-up | material | fits | chi2/dof: median (range) | chi2/dof in 0.7-1.5 | parameters: within k = 2, rms z | verdict |\n\
+         | --- | --- | ---: | --- | ---: | --- | --- |"
+    );
+    for name in setups {
+        for &material in MATERIALS {
+            let fits: Vec<&Result<FitOutcome, String>> = runs
+                .iter()
+                .filter(|r| &r.setup == name && r.material == material)
+                .filter_map(|r| r.fit.as_ref())
+                .collect();
+            if fits.is_empty() {
+                continue;
+            }
+            let done: Vec<&FitOutcome> = fits.iter().filter_map(|f| f.as_ref().ok()).collect();
+            let mut chi2: Vec<f64> = done.iter().map(|f| f.chi2_per_dof).collect();
+            chi2.sort_by(f64::total_cmp);
+            let in_range = chi2.iter().filter(|c| (0.7..=1.5).contains(*c)).count();
+            let mut names: Vec<&str> = Vec::new();
+            for f in &done {
+                for p in &f.params {
+                    if !names.contains(&p.name.as_str()) {
+                        names.push(&p.name);
+                    }
+                }
+            }
+            let mut worst_share = 1.0f64;
+            let params: Vec<String> = names
+                .iter()
+                .map(|n| {
+                    let z: Vec<f64> = done
+                        .iter()
+                        .flat_map(|f| f.params.iter().filter(|p| p.name == *n).map(|p| p.z()))
+                        .filter(|z| z.is_finite())
+                        .collect();
+                    let share = z.iter().filter(|z| z.abs() <= 2.0).count() as f64 / z.len().max(1) as f64;
+                    worst_share = worst_share.min(share);
+                    let rms = (z.iter().map(|z| z * z).sum::<f64>() / z.len().max(1) as f64).sqrt();
+                    format!("{n} {} ({})", pct(share), num(rms))
+                })
+                .collect();
+            let median = chi2.get(chi2.len() / 2).copied().unwrap_or(f64::NAN);
+            let mut missed = Vec::new();
+            if !(0.7..=1.5).contains(&median) {
+                missed.push("chi2/dof");
+            }
+            if worst_share < 0.93 {
+                missed.push("parameters");
+            }
+            if done.len() < fits.len() {
+                missed.push("fits that failed");
+            }
+            let _ = writeln!(
+                s,
+                "| {name} | {material} | {} of {} | {} ({} to {}) | {} | {} | {} |",
+                done.len(),
+                fits.len(),
+                num(median),
+                num(chi2.first().copied().unwrap_or(f64::NAN)),
+                num(chi2.last().copied().unwrap_or(f64::NAN)),
+                pct(in_range as f64 / done.len().max(1) as f64),
+                params.join(", "),
+                if missed.is_empty() {
+                    "met".to_string()
+                } else {
+                    format!("missed: {}", missed.join(", "))
+                }
+            );
+        }
+    }
+    let failed: Vec<(&Run, &String)> = runs
+        .iter()
+        .filter_map(|r| match &r.fit {
+            Some(Err(e)) => Some((r, e)),
+            _ => None,
+        })
+        .collect();
+    for (r, e) in failed.iter().take(5) {
+        let _ = writeln!(
+            s,
+            "\n- fit failed: {}, seed {}, {}: {}",
+            r.setup,
+            r.seed,
+            r.material,
+            e.replace('|', "/")
+        );
+    }
 }
