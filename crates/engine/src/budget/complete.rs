@@ -96,6 +96,24 @@ pub struct RunContext<'a> {
     pub floor: Option<NoiseFloor<'a>>,
 }
 
+impl NoiseFloor<'_> {
+    /// `flags` with `below-nebrdf` as `value` (1/sr, in `band_nm`, viewed at `theta_o_deg`) now says; whether
+    /// that changed them.
+    pub(super) fn reflag(&self, flags: &mut Vec<String>, value: f64, band_nm: f64, theta_o_deg: f64) -> bool {
+        let below = self
+            .detector
+            .below_nebrdf(value, band_nm, self.averaging, theta_o_deg);
+        let flagged = flags.iter().any(|f| f == FLAG_BELOW_NEBRDF);
+        if below != flagged {
+            flags.retain(|f| f != FLAG_BELOW_NEBRDF);
+            if below {
+                flags.push(FLAG_BELOW_NEBRDF.to_string());
+            }
+        }
+        below != flagged
+    }
+}
+
 impl std::fmt::Debug for RunContext<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("RunContext")
@@ -161,18 +179,10 @@ pub fn completions(
         completion.budget.set(components::DARK, per_w * d.u_w, None);
         completion.brdf_sr = Some(redarked);
         point.brdf_sr = Some(redarked);
-        if let (Some(floor), Some(c)) = (floor, committed.get(index)) {
-            let below = floor
-                .detector
-                .below_nebrdf(redarked, c.band_nm, floor.averaging, c.theta_o_deg);
-            let flagged = point.flags.iter().any(|f| f == FLAG_BELOW_NEBRDF);
-            if below != flagged {
-                point.flags.retain(|f| f != FLAG_BELOW_NEBRDF);
-                if below {
-                    point.flags.push(FLAG_BELOW_NEBRDF.to_string());
-                }
-                completion.flags = Some(point.flags.clone());
-            }
+        if let (Some(floor), Some(c)) = (floor, committed.get(index))
+            && floor.reflag(&mut point.flags, redarked, c.band_nm, c.theta_o_deg)
+        {
+            completion.flags = Some(point.flags.clone());
         }
     }
 
@@ -319,4 +329,41 @@ pub fn completions(
         .filter(|(c, p)| c.budget != p.budget || c.brdf_sr.is_some() || c.flags.is_some())
         .map(|(c, _)| c)
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::characterise::{BandSignature, DetectorCalibration};
+
+    #[test]
+    fn a_value_is_flagged_below_the_noise_floor_by_what_it_now_is() {
+        // One NEBRDF of 1e-4 1/sr for one sample at normal viewing: averaging 4, 5e-5; three of them 1.5e-4.
+        let detector = DetectorCorrection::new(DetectorCalibration {
+            ranges: None,
+            signature: vec![BandSignature {
+                band_nm: 550.0,
+                alpha_deg: vec![3.0, 90.0],
+                brdf_sr: vec![1e-3, 1e-5],
+                u_sr: vec![1e-5, 1e-6],
+                nebrdf_one_sample_sr: 1e-4,
+                dark_noise_one_sample_w: Some(2e-13),
+            }],
+        });
+        let floor = NoiseFloor {
+            detector: &detector,
+            averaging: 4,
+        };
+        let ne3 = 3.0 * detector.nebrdf_sr(550.0, 4, 0.0).expect("measured");
+        let mut flags = vec!["other".to_string()];
+        // Below: flagged, once.
+        assert!(floor.reflag(&mut flags, 0.5 * ne3, 550.0, 0.0));
+        assert!(!floor.reflag(&mut flags, 0.5 * ne3, 550.0, 0.0));
+        assert_eq!(flags, ["other", FLAG_BELOW_NEBRDF]);
+        // Lifted above it by a new dark: the flag goes, the others stay.
+        assert!(floor.reflag(&mut flags, 2.0 * ne3, 550.0, 0.0));
+        assert_eq!(flags, ["other"]);
+        // A band the characterisation did not measure says nothing.
+        assert!(!floor.reflag(&mut flags, 0.0, 650.0, 0.0));
+    }
 }

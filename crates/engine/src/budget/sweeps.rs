@@ -30,7 +30,7 @@ use gonio_results::run::Run;
 use gonio_results::sweeps::SweepReading;
 
 use super::complete::RunContext;
-use super::dark::{DarkSensitivity, Darkened, redark};
+use super::dark::{Darkened, redark};
 use super::drift::{Normalised, renormalise_values};
 use crate::store::{CalibrationRecord, CampaignRecord, SweepCompletion};
 
@@ -91,7 +91,8 @@ pub fn sweep_completions(
     let relative = context.relative;
     // The dark and the drift first: the readings net of the dark interpolated to their time and renormalised,
     // as the aperture's models are then fitted to them.
-    let redarked = redarked(readings, calibrations, context.dark_sensitivity);
+    let committed = readings;
+    let redarked = redarked(readings, calibrations, context);
     let readings = &redarked[..];
     let timed: Vec<Normalised> = readings
         .iter()
@@ -183,15 +184,17 @@ pub fn sweep_completions(
     let band = band_components(&snapped, super::complete::filter_bands(instrument));
     readings
         .iter()
+        .zip(committed)
         .zip(&nearest)
         .zip(&light_sweep)
-        .map(|((r, &c), &light)| {
+        .map(|(((r, was), &c), &light)| {
             let mut out = SweepCompletion {
                 segment: r.segment,
                 k: r.k,
                 brdf_sr: r.brdf_sr,
                 brdf_u_sr: r.brdf_u_sr,
-                flags: None,
+                // The new dark may have put a reading below the noise floor or lifted it above.
+                flags: (r.flags != was.flags).then(|| r.flags.clone()),
             };
             let (Some(value), Some(u), Some(fitted)) = (r.brdf_sr, r.brdf_u_sr, &fitted) else {
                 return out;
@@ -258,12 +261,14 @@ pub fn sweep_completions(
 }
 
 /// `readings` net of their band's dark interpolated to their time (super::dark), the reading's share of the
-/// dark it was net of replaced in its uncertainty by the interpolation's.
+/// dark it was net of replaced in its uncertainty by the interpolation's, and flagged `below-nebrdf` again by
+/// the new value on a characterised detector (as points are, super::complete).
 fn redarked(
     readings: &[SweepReading],
     calibrations: &[CalibrationRecord],
-    sensitivity: &DarkSensitivity<'_>,
+    context: &RunContext<'_>,
 ) -> Vec<SweepReading> {
+    let sensitivity = context.dark_sensitivity;
     let darkened: Vec<Darkened> = readings
         .iter()
         .map(|r| Darkened {
@@ -283,9 +288,13 @@ fn redarked(
             if let (Some(d), Some(v), Some(u)) = (d, r.brdf_sr, r.brdf_u_sr)
                 && let Some(per_w) = sensitivity(darkened)
             {
-                r.brdf_sr = Some(v - per_w * (d.dark_w - d.used_w));
+                let value = v - per_w * (d.dark_w - d.used_w);
+                r.brdf_sr = Some(value);
                 let others = (u * u - (per_w * d.used_u_w).powi(2)).max(0.0);
                 r.brdf_u_sr = Some((others + (per_w * d.u_w).powi(2)).sqrt());
+                if let Some(floor) = context.floor {
+                    floor.reflag(&mut r.flags, value, r.band_nm, r.theta_o_deg);
+                }
             }
             r
         })
