@@ -129,10 +129,11 @@ pub fn dry_run(binary: &Path, text: &str, instrument: Option<&Path>) -> Result<R
 
 /// Instrument-file keys added after the `--before` binary was built, which it refuses as unknown; none of them
 /// changes a campaign's timing.
-const KEYS_SINCE_BEFORE: [&str; 3] = [
+const KEYS_SINCE_BEFORE: [&str; 4] = [
     "signature_u_sr",
     "aperture_radius_sd_mm",
     "detector_distance_sd_mm",
+    "reseat_u_deg",
 ];
 
 /// `path` without [`KEYS_SINCE_BEFORE`], written under `dir` for the earlier binary.

@@ -17,6 +17,8 @@
 //! - `range` (shared by the range): the characterisation's range-gain and linearity correction, relative to
 //!   the reading, carried to the value.
 //! - `stray-light`: the uncertainty of the subtracted signature (characterised instruments).
+//! - `sample`: the sample's re-seating between mountings (the holder's repeatability through the fitted model),
+//!   added when the campaign completes ([`complete`]).
 //! - `aperture`: the correction from the aperture average to the BRDF at the nominal geometry, or the whole
 //!   bias of a lobe narrower than the aperture, added when the campaign completes ([`complete`]).
 //! - `band` (shared by the band): the finite filter band, from the bands measured at the same geometry, added

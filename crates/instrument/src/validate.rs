@@ -234,6 +234,13 @@ impl Instrument {
                 "[instrument]: alignment_u_deg is a standard uncertainty in degrees, in [0, 10], got {u}"
             ));
         }
+        if let Some(u) = self.sample_holder.reseat_u_deg
+            && !(u.is_finite() && (0.0..=5.0).contains(&u))
+        {
+            return Err(format!(
+                "[instrument.sample_holder]: reseat_u_deg is a standard uncertainty in degrees, in [0, 5], got {u}"
+            ));
+        }
         if let Some(t) = s.colour_temperature_k
             && !(t.is_finite() && (500.0..=20_000.0).contains(&t))
         {

@@ -6,7 +6,8 @@
 //! - pointing: an applied alignment's parameters, each by its uncertainty, through its model and the fitted
 //!   model at the read-back pose (super::positioning::Pointed::alignment_rel_u); without an alignment, the
 //!   instrument file's `alignment_u_deg` times the fitted model's slope and the absolute equation's
-//!   `tan(theta_o)`; added to `pointing`;
+//!   `tan(theta_o)`; added to `pointing`; the holder's re-seating repeatability through the same models, the
+//!   `sample` component;
 //! - positioning: each value brought from where the axes really stopped (read back) to the nominal geometry by
 //!   the fitted model's ratio between the two, part of it as the `positioning` component
 //!   ([`super::positioning`]), the run's arrival tolerance in `pointing` then the read-back's resolution;
@@ -282,6 +283,22 @@ pub fn completions(
                 completion
                     .budget
                     .add(components::POINTING, (value * rel).abs(), None);
+            }
+        }
+        // The sample's re-seating between mountings, which no alignment measures (super::positioning).
+        for (((point, completion), committed), slopes) in
+            run.points.iter().zip(&mut done).zip(committed).zip(&c.slopes)
+        {
+            let (Some(value), Some(_)) = (point.brdf_sr, slopes) else {
+                continue;
+            };
+            if let Some(rel) = pointed.reseat_rel_u(&c.material, committed, !relative)
+                && rel.is_finite()
+                && rel > 0.0
+            {
+                completion
+                    .budget
+                    .add(components::SAMPLE, (value * rel).abs(), None);
             }
         }
         for ((point, completion), correction) in run.points.iter_mut().zip(&mut done).zip(&c.points) {

@@ -15,7 +15,7 @@ use gonio_instrument::{AxisRole, Instrument};
 use gonio_scheduler::kinematics::{Kinematics, Pose};
 
 use crate::align::correction::PoseCorrection;
-use crate::align::model::GeometryParams;
+use crate::align::model::{GeometryParams, PARAM_NAMES};
 use crate::store::PointRecord;
 
 /// The correction's standard uncertainty, as a fraction of it (module doc).
@@ -29,9 +29,14 @@ pub(super) const MAX_REL_CORRECTION: f64 = 0.1;
 pub(super) struct Pointed {
     kinematics: Kinematics,
     correction: Option<PoseCorrection>,
+    /// The model the uncertainties are propagated through: the applied alignment's, else the nominal one.
+    base: PoseCorrection,
     /// The applied alignment's model with one parameter moved by its standard uncertainty, one per parameter
     /// the alignment measured ([`Pointed::alignment_rel_u`]).
     perturbed: Vec<PoseCorrection>,
+    /// The base model with the sample's tilt moved by the holder's re-seating uncertainty, one per tilt
+    /// component ([`Pointed::reseat_rel_u`]); empty when the file states a holder that repeats exactly.
+    reseated: Vec<PoseCorrection>,
     roles: Vec<(String, AxisRole)>,
 }
 
@@ -40,25 +45,38 @@ impl Pointed {
     pub(super) fn new(alignment_toml: Option<&str>, instrument: &Instrument) -> Pointed {
         let cal = alignment_toml
             .and_then(|text| crate::align::file::CalibrationFile::parse(text, "the stored alignment").ok());
-        let correction = cal.as_ref().map(|c| PoseCorrection::new(instrument, c.params()));
+        let params = cal.as_ref().map(|c| c.params()).unwrap_or_default();
+        let moved = |k: usize, by: f64| {
+            let mut x = params.to_vec();
+            x[k] += by;
+            PoseCorrection::new(instrument, GeometryParams::from_slice(&x))
+        };
         let perturbed = cal
             .as_ref()
             .map(|c| {
-                let (x, u) = (c.params().to_vec(), c.params_u().to_vec());
-                (0..x.len())
+                let u = c.params_u().to_vec();
+                (0..u.len())
                     .filter(|&k| u[k] > 0.0 && u[k].is_finite())
-                    .map(|k| {
-                        let mut moved = x;
-                        moved[k] += u[k];
-                        PoseCorrection::new(instrument, GeometryParams::from_slice(&moved))
-                    })
+                    .map(|k| moved(k, u[k]))
                     .collect()
             })
             .unwrap_or_default();
+        let reseat_u = instrument.sample_holder.reseat_u_deg();
+        let reseated = if reseat_u > 0.0 && reseat_u.is_finite() {
+            ["sample_tilt_x_deg", "sample_tilt_y_deg"]
+                .iter()
+                .filter_map(|name| PARAM_NAMES.iter().position(|(n, _)| n == name))
+                .map(|k| moved(k, reseat_u))
+                .collect()
+        } else {
+            Vec::new()
+        };
         Pointed {
             kinematics: Kinematics::new(instrument),
-            correction,
+            correction: cal.as_ref().map(|_| PoseCorrection::new(instrument, params)),
+            base: PoseCorrection::new(instrument, params),
             perturbed,
+            reseated,
             roles: instrument.axes.iter().map(|a| (a.name.clone(), a.role)).collect(),
         }
     }
@@ -75,9 +93,33 @@ impl Pointed {
     /// moves only the angles it acts on, where one angle uncertainty for every angle (their root sum of
     /// squares) counted them all on each. `None` without an applied alignment, a read-back or a model value.
     pub(super) fn alignment_rel_u(&self, model: &Material, p: &PointRecord, absolute: bool) -> Option<f64> {
+        self.correction.as_ref()?;
+        self.rel_u_through(&self.perturbed, model, p, absolute)
+    }
+
+    /// The relative standard uncertainty of `p`'s value from the sample's re-seating: its tilt moved by the
+    /// holder's repeatability (`[instrument.sample_holder] reseat_u_deg`), one component at a time, as
+    /// [`Pointed::alignment_rel_u`] moves the alignment's parameters. `None` for a holder that repeats
+    /// exactly, without a read-back or a model value.
+    pub(super) fn reseat_rel_u(&self, model: &Material, p: &PointRecord, absolute: bool) -> Option<f64> {
+        if self.reseated.is_empty() {
+            return None;
+        }
+        self.rel_u_through(&self.reseated, model, p, absolute)
+    }
+
+    /// `model`'s relative change at `p`'s read-back pose from the base model's directions to each of `moved`'s,
+    /// in quadrature.
+    fn rel_u_through(
+        &self,
+        moved: &[PoseCorrection],
+        model: &Material,
+        p: &PointRecord,
+        absolute: bool,
+    ) -> Option<f64> {
         let pose = self.pose(p)?;
         let wavelength = Wavelength::from_nm(p.band_nm).ok()?;
-        let (wi, wo) = self.correction.as_ref()?.directions(&pose)?;
+        let (wi, wo) = self.base.directions(&pose)?;
         let weighted = |wi: &Direction, wo: &Direction| -> Option<f64> {
             let f = model.eval(wi, wo, wavelength).ok()?;
             let v = if absolute { f * wo.z() } else { f };
@@ -85,7 +127,7 @@ impl Pointed {
         };
         let at = weighted(&wi, &wo).filter(|v| *v > 0.0)?;
         let mut sum = 0.0;
-        for c in &self.perturbed {
+        for c in moved {
             let (wi_k, wo_k) = c.directions(&pose)?;
             sum += (weighted(&wi_k, &wo_k)? / at - 1.0).powi(2);
         }
@@ -225,10 +267,27 @@ mod tests {
                 .expect("propagated");
             assert!(relative < 1e-9, "{relative}");
         }
-        // Without an applied alignment there is nothing to propagate.
+        // Without an applied alignment there is nothing to propagate; this file's holder repeats exactly.
         let none = Pointed::new(None, &instrument);
         assert!(!none.has_alignment_u());
         let p = point_at(&Pose::new(-30.0, 60.0, 0.0, 0.0), &instrument);
         assert_eq!(none.alignment_rel_u(&lambertian(), &p, true), None);
+        assert_eq!(none.reseat_rel_u(&lambertian(), &p, true), None);
+    }
+
+    #[test]
+    fn a_reseated_sample_tilts_a_diffuse_value_by_tan_theta_o() {
+        let mut instrument = gonio_instrument::InstrumentFile::simulated().instrument;
+        let u_deg = 0.01;
+        instrument.sample_holder.reseat_u_deg = Some(u_deg);
+        let pointed = Pointed::new(None, &instrument);
+        for pose in [Pose::new(-30.0, 60.0, 0.0, 0.0), Pose::new(-10.0, 40.0, 0.0, 0.0)] {
+            let p = point_at(&pose, &instrument);
+            let (_, wo) = pointed.directions(&p).expect("directions");
+            // A tilt in the plane of incidence turns theta_o by the tilt; one across it, to second order only.
+            let expected = wo.z().acos().tan() * u_deg.to_radians();
+            let rel = pointed.reseat_rel_u(&lambertian(), &p, true).expect("propagated");
+            assert!((rel - expected).abs() < 0.05 * expected, "{rel} vs {expected}");
+        }
     }
 }
