@@ -26,6 +26,8 @@
 //! The records and loading are here; [`Instrument::validate`]'s rules in `validate`.
 
 mod actual;
+mod holder;
+pub use holder::{DEFAULT_RESEAT_U_DEG, SampleHolder};
 pub mod imperfections;
 pub mod leakage;
 pub mod meter_noise;
@@ -446,31 +448,6 @@ impl FilterPosition {
     pub fn out_of_band_transmission(&self) -> f64 {
         self.out_of_band_transmission
             .unwrap_or(DEFAULT_OUT_OF_BAND_TRANSMISSION)
-    }
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct SampleHolder {
-    /// Radius of the largest sample the holder takes (mm); a campaign may state a smaller sample.
-    pub max_sample_radius_mm: f64,
-    /// How differently the sample sits each time it goes back into the holder (after a direct-beam reading,
-    /// or a reference's turn): the standard uncertainty of each of the two components of its normal's tilt
-    /// (degrees), the holder's repeatability. No alignment measures it: it is in every value's budget
-    /// (`re-seating`). Absent: [`DEFAULT_RESEAT_U_DEG`].
-    #[serde(default)]
-    pub reseat_u_deg: Option<f64>,
-}
-
-/// A holder's re-seating repeatability when the instrument file does not state it (deg per tilt component): a
-/// sample pressed back by hand against the same reference face, about a hundredth of a degree (a kinematic
-/// mount repeats to microradians; state it).
-pub const DEFAULT_RESEAT_U_DEG: f64 = 0.01;
-
-impl SampleHolder {
-    /// Each tilt component's re-seating standard uncertainty (deg): the file's, else [`DEFAULT_RESEAT_U_DEG`].
-    pub fn reseat_u_deg(&self) -> f64 {
-        self.reseat_u_deg.unwrap_or(DEFAULT_RESEAT_U_DEG)
     }
 }
 
