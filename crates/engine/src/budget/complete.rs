@@ -351,22 +351,11 @@ pub fn completions(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::characterise::{BandSignature, DetectorCalibration};
 
     #[test]
     fn a_value_is_flagged_below_the_noise_floor_by_what_it_now_is() {
         // One NEBRDF of 1e-4 1/sr for one sample at normal viewing: averaging 4, 5e-5; three of them 1.5e-4.
-        let detector = DetectorCorrection::new(DetectorCalibration {
-            ranges: None,
-            signature: vec![BandSignature {
-                band_nm: 550.0,
-                alpha_deg: vec![3.0, 90.0],
-                brdf_sr: vec![1e-3, 1e-5],
-                u_sr: vec![1e-5, 1e-6],
-                nebrdf_one_sample_sr: 1e-4,
-                dark_noise_one_sample_w: Some(2e-13),
-            }],
-        });
+        let detector = crate::characterise::correction::tests::correction();
         let floor = NoiseFloor {
             detector: &detector,
             averaging: 4,

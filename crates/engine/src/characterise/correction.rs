@@ -85,12 +85,14 @@ impl DetectorCorrection {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::characterise::BandSignature;
     use crate::characterise::signature::alpha_deg;
 
-    fn correction() -> DetectorCorrection {
+    /// A characterisation of the 550 nm band only: a signature measured from 3 to 90 deg, one NEBRDF of 1e-4
+    /// 1/sr for one sample at normal viewing.
+    pub(crate) fn correction() -> DetectorCorrection {
         DetectorCorrection::new(DetectorCalibration {
             ranges: None,
             signature: vec![BandSignature {
