@@ -151,7 +151,7 @@ pub fn renormalise_values(records: &[CalibrationRecord], values: &[Normalised]) 
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     fn record(kind: &str, t_s: f64, value_w: f64) -> CalibrationRecord {
@@ -164,7 +164,8 @@ mod tests {
         }
     }
 
-    fn point_at(t_s: f64, band_nm: f64) -> PointRecord {
+    /// A point with a value at `t_s` in `band_nm`, no read-back: the budget's tests build theirs from it.
+    pub(in crate::budget) fn point_at(t_s: f64, band_nm: f64) -> PointRecord {
         PointRecord {
             index: 0,
             band_nm,

@@ -28,7 +28,8 @@ pub(super) const MAX_REL_CORRECTION: f64 = 0.1;
 /// plays which role.
 pub(super) struct Pointed {
     kinematics: Kinematics,
-    correction: Option<PoseCorrection>,
+    /// Whether an alignment was applied: `base` is then its model, the directions the values stand for.
+    aligned: bool,
     /// The model the uncertainties are propagated through: the applied alignment's, else the nominal one.
     base: PoseCorrection,
     /// The applied alignment's model with one parameter moved by its standard uncertainty, one per parameter
@@ -73,7 +74,7 @@ impl Pointed {
         };
         Pointed {
             kinematics: Kinematics::new(instrument),
-            correction: cal.as_ref().map(|_| PoseCorrection::new(instrument, params)),
+            aligned: cal.is_some(),
             base: PoseCorrection::new(instrument, params),
             perturbed,
             reseated,
@@ -93,7 +94,9 @@ impl Pointed {
     /// moves only the angles it acts on, where one angle uncertainty for every angle (their root sum of
     /// squares) counted them all on each. `None` without an applied alignment, a read-back or a model value.
     pub(super) fn alignment_rel_u(&self, model: &Material, p: &PointRecord, absolute: bool) -> Option<f64> {
-        self.correction.as_ref()?;
+        if !self.aligned {
+            return None;
+        }
         self.rel_u_through(&self.perturbed, model, p, absolute)
     }
 
@@ -138,9 +141,10 @@ impl Pointed {
     /// a read-back of both arms.
     pub(super) fn directions(&self, p: &PointRecord) -> Option<(Direction, Direction)> {
         let pose = self.pose(p)?;
-        match &self.correction {
-            Some(c) => c.directions(&pose),
-            None => Some(self.kinematics.forward(&pose)),
+        if self.aligned {
+            self.base.directions(&pose)
+        } else {
+            Some(self.kinematics.forward(&pose))
         }
     }
 
@@ -215,19 +219,6 @@ mod tests {
             (a.name.clone(), pose.get(r))
         };
         PointRecord {
-            index: 0,
-            band_nm: 550.0,
-            theta_i_deg: 0.0,
-            phi_i_deg: 0.0,
-            theta_o_deg: 0.0,
-            phi_o_deg: 0.0,
-            signal_w: 1e-7,
-            dark_w: 0.0,
-            incident_w: 1e-3,
-            brdf_sr: Some(0.25),
-            brdf_u_sr: Some(1e-4),
-            flags: Vec::new(),
-            t_s: 0.0,
             readback_deg: [
                 AxisRole::LightArm,
                 AxisRole::DetectorArm,
@@ -236,11 +227,7 @@ mod tests {
             ]
             .map(role)
             .to_vec(),
-            truth_point_sr: None,
-            truth_aperture_sr: None,
-            truth_effects_json: None,
-            brdf_aperture_sr: None,
-            budget: Default::default(),
+            ..super::super::drift::tests::point_at(0.0, 550.0)
         }
     }
 
