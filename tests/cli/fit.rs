@@ -219,7 +219,8 @@ fn phong_recovers_its_parameters() {
     assert_close(&r, "exponent", None, 60.0, 0.6);
 }
 
-/// Copies a run directory, multiplying the BRDF of every `every`-th valid point by `factor`.
+/// Copies a run directory, multiplying the BRDF of every `every`-th valid point by `factor` (its value and the
+/// aperture average beside it: a reading that was wrong is wrong in both, and a fit reads the average).
 fn corrupt(run: &Path, to: &Path, every: usize, factor: f64) -> usize {
     std::fs::create_dir_all(to).expect("mkdir");
     std::fs::copy(run.join("run.json"), to.join("run.json")).expect("copy run.json");
@@ -231,8 +232,11 @@ fn corrupt(run: &Path, to: &Path, every: usize, factor: f64) -> usize {
         let mut r: Vec<String> = line.split(',').map(str::to_string).collect();
         if i > 0 && r[11].is_empty() && !r[9].is_empty() {
             if n % every == 0 {
-                let f: f64 = r[9].parse().expect("number");
-                r[9] = format!("{}", f * factor);
+                for column in [9, 17] {
+                    if let Some(f) = r.get(column).and_then(|v| v.parse::<f64>().ok()) {
+                        r[column] = format!("{}", f * factor);
+                    }
+                }
                 changed += 1;
             }
             n += 1;

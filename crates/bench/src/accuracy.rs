@@ -206,11 +206,8 @@ pub fn class_row(points: &[&Point]) -> ClassRow {
         }
         if f != 0.0 {
             u.push(2.0 * s / f.abs());
-            for e in &p.budget.entries {
-                components
-                    .entry(e.component.clone())
-                    .or_default()
-                    .push(e.u_sr / f.abs());
+            for (name, u) in p.budget.by_component() {
+                components.entry(name.to_string()).or_default().push(u / f.abs());
             }
         }
     }

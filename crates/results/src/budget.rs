@@ -8,6 +8,12 @@
 //! `name=u;name@group=u;...` with `u` in 1/sr in shortest round-trip form, e.g.
 //! `signal-noise=1.2e-6;solid-angle@campaign=3.1e-4`. Component names are [`components`]'; a reader keeps
 //! names it does not know (a newer gonio's), so the total stays what was written.
+//!
+//! A shared entry may be negative: it is then the signed change one error of the group's size (its standard
+//! uncertainty) makes to this point, where the same error moves the group's points different ways (an
+//! alignment parameter raises a value on one side of the specular direction and lowers it on the other). Its
+//! magnitude is the standard uncertainty; the sign is what lets a fit move the group's points together as the
+//! error would (crate::fit). An independent entry is never negative.
 
 use std::fmt::Write as _;
 
@@ -65,6 +71,22 @@ pub mod groups {
     pub fn range(index: usize) -> String {
         format!("range-{index}")
     }
+
+    /// The points whose dark was interpolated from one dark reading: the `k`-th of a band's darks (nm), in time
+    /// order.
+    pub fn dark(nm: f64, k: usize) -> String {
+        format!("dark-{}-{k}", nm + 0.0)
+    }
+
+    /// Without an applied alignment, the instrument file's angle uncertainty taken as one unknown offset of
+    /// the incidence angle shared by the campaign's points (`pointing`); with one, each of its parameters is a
+    /// group under its own name (`detector_zero_deg`, `sample_tilt_x_deg`, ...: crates/engine's alignment
+    /// model), and the sample's re-seating (`sample`) its two tilts under theirs.
+    pub const THETA_I: &str = "theta_i";
+    /// As [`THETA_I`], for the detection angle.
+    pub const THETA_O: &str = "theta_o";
+    /// As [`THETA_I`], for the azimuth between source and detector.
+    pub const PHI: &str = "phi";
 }
 
 /// One component of a point's budget.
@@ -156,10 +178,22 @@ impl Budget {
         rss(self.entries.iter().filter(|e| e.shared.is_some()))
     }
 
-    /// The `n` largest components, largest first.
-    pub fn largest(&self, n: usize) -> Vec<&BudgetEntry> {
-        let mut v: Vec<&BudgetEntry> = self.entries.iter().collect();
-        v.sort_by(|a, b| b.u_sr.total_cmp(&a.u_sr));
+    /// Each component's standard uncertainty (1/sr; its entries in quadrature, whatever their groups), in the
+    /// order the components were first added.
+    pub fn by_component(&self) -> Vec<(&str, f64)> {
+        let mut names: Vec<&str> = Vec::new();
+        for e in &self.entries {
+            if !names.contains(&e.component.as_str()) {
+                names.push(&e.component);
+            }
+        }
+        names.into_iter().map(|n| (n, self.component_sr(n))).collect()
+    }
+
+    /// The `n` largest components ([`Budget::by_component`]), largest first.
+    pub fn largest(&self, n: usize) -> Vec<(&str, f64)> {
+        let mut v = self.by_component();
+        v.sort_by(|a, b| b.1.total_cmp(&a.1));
         v.truncate(n);
         v
     }
@@ -196,13 +230,15 @@ impl Budget {
                 .trim()
                 .parse()
                 .map_err(|_| err(format!("`{value}` is not a number")))?;
-            if !u_sr.is_finite() || u_sr < 0.0 {
-                return Err(err(format!("`{item}`: an uncertainty is a finite number >= 0")));
-            }
             let (component, shared) = match key.split_once('@') {
                 Some((c, g)) => (c.trim(), Some(g.trim().to_string())),
                 None => (key.trim(), None),
             };
+            if !u_sr.is_finite() || (u_sr < 0.0 && shared.is_none()) {
+                return Err(err(format!(
+                    "`{item}`: an uncertainty is a finite number, >= 0 unless shared"
+                )));
+            }
             if component.is_empty() || shared.as_deref() == Some("") {
                 return Err(err(format!("`{item}` has an empty name")));
             }
@@ -258,7 +294,7 @@ mod tests {
         assert_eq!(b.total_sr(), 13.0);
         assert_eq!(b.shared_sr(), 4.0);
         assert!((b.independent_sr() - 153f64.sqrt()).abs() < 1e-12);
-        assert_eq!(b.largest(1)[0].component, components::POINTING);
+        assert_eq!(b.largest(1)[0].0, components::POINTING);
         // The same component and group twice: combined.
         b.add(components::POINTING, 5.0, None);
         assert_eq!(
@@ -268,9 +304,16 @@ mod tests {
                 .count(),
             1
         );
-        assert_eq!(b.largest(1)[0].u_sr, 13.0);
+        assert_eq!(b.largest(1)[0].1, 13.0);
         b.set(components::POINTING, 0.0, None);
         assert_eq!(b.total_sr(), 5.0);
+        // A component split over groups (one per alignment parameter, signed) counts as one, its entries in
+        // quadrature.
+        b.add(components::POINTING, -6.0, Some("detector_zero_deg".into()));
+        b.add(components::POINTING, 8.0, Some("sample_tilt_x_deg".into()));
+        assert_eq!(b.largest(1)[0], (components::POINTING, 10.0));
+        assert_eq!(b.shared_sr(), 116f64.sqrt());
+        assert_eq!(b.by_component().len(), 3);
     }
 
     #[test]
@@ -286,9 +329,22 @@ mod tests {
         );
         assert_eq!(Budget::parse_compact(&text).unwrap(), b);
         assert_eq!(Budget::parse_compact("").unwrap(), Budget::default());
-        for bad in ["noise", "noise=x", "noise=-1", "=1", "noise@=1", "noise=inf"] {
+        for bad in [
+            "noise",
+            "noise=x",
+            "noise=-1",
+            "=1",
+            "noise@=1",
+            "noise=inf",
+            "pointing@theta_o=nan",
+        ] {
             assert!(Budget::parse_compact(bad).is_err(), "{bad}");
         }
+        // A shared entry keeps its sign through the text.
+        let signed = Budget::parse_compact("pointing@theta_o=-0.0002").unwrap();
+        assert_eq!(signed.entries[0].u_sr, -2e-4);
+        assert_eq!(signed.to_compact(), "pointing@theta_o=-0.0002");
+        assert_eq!(signed.total_sr(), 2e-4);
         let j = b.to_json();
         assert_eq!(j["range"]["shared"], "range-2");
         assert_eq!(j["signal-noise"]["shared"], Value::Null);

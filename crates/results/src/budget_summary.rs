@@ -67,8 +67,10 @@ pub fn summarise(points: &[Point]) -> Option<BudgetSummary> {
     let mut largest = BTreeMap::<String, u64>::new();
     let mut shared_by = BTreeMap::<String, Vec<String>>::new();
     for (p, f) in &with {
+        for (name, u) in p.budget.by_component() {
+            relative.entry(name.to_string()).or_default().push(u / f);
+        }
         for e in &p.budget.entries {
-            relative.entry(e.component.clone()).or_default().push(e.u_sr / f);
             let groups = shared_by.entry(e.component.clone()).or_default();
             if let Some(g) = &e.shared
                 && !groups.contains(g)
@@ -77,7 +79,7 @@ pub fn summarise(points: &[Point]) -> Option<BudgetSummary> {
             }
         }
         if let Some(top) = p.budget.largest(1).first() {
-            *largest.entry(top.component.clone()).or_default() += 1;
+            *largest.entry(top.0.to_string()).or_default() += 1;
         }
     }
     let components = relative

@@ -4,10 +4,11 @@
 //! - the source's drift: each value normalised again between the readings before and after it, the drift's
 //!   curvature in the budget ([`super::drift`]);
 //! - pointing: an applied alignment's parameters, each by its uncertainty, through its model and the fitted
-//!   model at the read-back pose (super::positioning::Pointed::alignment_rel_u); without an alignment, the
-//!   instrument file's `alignment_u_deg` times the fitted model's slope and the absolute equation's
-//!   `tan(theta_o)`; added to `pointing`; the holder's re-seating repeatability through the same models, the
-//!   `sample` component;
+//!   model at the read-back pose (super::positioning::Pointed::alignment_shifts); without an alignment, the
+//!   instrument file's `alignment_u_deg` on theta_i, theta_o and the azimuth times the fitted model's slopes
+//!   and the absolute equation's `tan(theta_o)`; added to `pointing`, one signed entry per parameter or angle
+//!   shared by the campaign's points (one error moves them all); the holder's re-seating repeatability through
+//!   the same models, the `sample` component, shared and signed the same way;
 //! - positioning: each value brought from where the axes really stopped (read back) to the nominal geometry by
 //!   the fitted model's ratio between the two, part of it as the `positioning` component
 //!   ([`super::positioning`]), the run's arrival tolerance in `pointing` then the read-back's resolution;
@@ -51,6 +52,22 @@ pub(super) fn angle_u_deg(record: &CampaignRecord, instrument: &Instrument) -> f
             .sum::<f64>()
             .sqrt(),
         None => instrument.alignment_u_deg(),
+    }
+}
+
+/// Adds `component` to `budget` once per shared error: `value` times each signed relative shift, in the group
+/// of the parameter or angle it moves (a shift that is not finite or is 0 adds nothing).
+fn add_shifts(
+    budget: &mut gonio_results::budget::Budget,
+    component: &str,
+    value: f64,
+    shifts: &[(&str, f64)],
+) {
+    for (name, rel) in shifts {
+        let u = value * rel;
+        if u.is_finite() && u != 0.0 {
+            budget.add(component, u, Some((*name).to_string()));
+        }
     }
 }
 
@@ -177,7 +194,19 @@ pub fn completions(
             continue;
         };
         let redarked = value - per_w * (d.dark_w - d.used_w);
-        completion.budget.set(components::DARK, per_w * d.u_w, None);
+        // The curvature is the value's own; the two readings' noise is shared by every value between them.
+        completion
+            .budget
+            .set(components::DARK, per_w * d.curvature_u_w, None);
+        for (k, u_w) in d.readings_u_w {
+            if u_w > 0.0 {
+                completion.budget.add(
+                    components::DARK,
+                    per_w * u_w,
+                    Some(groups::dark(darkened[index].band_nm, k)),
+                );
+            }
+        }
         completion.brdf_sr = Some(redarked);
         point.brdf_sr = Some(redarked);
         if let (Some(floor), Some(c)) = (floor, committed.get(index))
@@ -255,7 +284,10 @@ pub fn completions(
             point.brdf_sr = Some(corrected);
         }
         // The angles' uncertainty through the value: an applied alignment's parameters one by one through its
-        // model (super::positioning), else one angle uncertainty times the fitted model's slopes.
+        // model (super::positioning), else one angle uncertainty on each of theta_i, theta_o and the azimuth
+        // times the fitted model's slopes. Either way one error per parameter or angle, the same for every
+        // point of the campaign: a signed component shared by the campaign's points under that parameter's
+        // name (crate::budget), which a fit propagates apart instead of taking it for scatter.
         let angle_u_rad = angle_u_deg(record, instrument).to_radians();
         for (((point, completion), slopes), committed) in
             run.points.iter().zip(&mut done).zip(&c.slopes).zip(committed)
@@ -263,10 +295,10 @@ pub fn completions(
             let Some(value) = point.brdf_sr else { continue };
             let propagated = pointed
                 .has_alignment_u()
-                .then(|| pointed.alignment_rel_u(&c.material, committed, !relative))
+                .then(|| pointed.alignment_shifts(&c.material, committed, !relative))
                 .flatten();
-            let rel = match (propagated, slopes) {
-                (Some(rel), _) => rel,
+            let shifts = match (propagated, slopes) {
+                (Some(shifts), _) => shifts,
                 (None, Some([gi, go, gphi])) => {
                     // The absolute equation divides by the nominal cos(theta_o): a detector angle off by d
                     // moves the value by -tan(theta_o) d besides the BRDF's own slope.
@@ -275,30 +307,26 @@ pub fn completions(
                     } else {
                         0.0
                     };
-                    angle_u_rad * gi.hypot(go - tan_o).hypot(*gphi)
+                    vec![
+                        (groups::THETA_I, angle_u_rad * gi),
+                        (groups::THETA_O, angle_u_rad * (go - tan_o)),
+                        (groups::PHI, angle_u_rad * gphi),
+                    ]
                 }
                 (None, None) => continue,
             };
-            if rel.is_finite() && rel > 0.0 {
-                completion
-                    .budget
-                    .add(components::POINTING, (value * rel).abs(), None);
-            }
+            add_shifts(&mut completion.budget, components::POINTING, value, &shifts);
         }
-        // The sample's re-seating between mountings, which no alignment measures (super::positioning).
+        // The sample's re-seating between mountings, which no alignment measures (super::positioning): one
+        // mounting per campaign, shared and signed as the alignment's parameters are.
         for (((point, completion), committed), slopes) in
             run.points.iter().zip(&mut done).zip(committed).zip(&c.slopes)
         {
             let (Some(value), Some(_)) = (point.brdf_sr, slopes) else {
                 continue;
             };
-            if let Some(rel) = pointed.reseat_rel_u(&c.material, committed, !relative)
-                && rel.is_finite()
-                && rel > 0.0
-            {
-                completion
-                    .budget
-                    .add(components::SAMPLE, (value * rel).abs(), None);
+            if let Some(shifts) = pointed.reseat_shifts(&c.material, committed, !relative) {
+                add_shifts(&mut completion.budget, components::SAMPLE, value, &shifts);
             }
         }
         for ((point, completion), correction) in run.points.iter_mut().zip(&mut done).zip(&c.points) {

@@ -9,7 +9,11 @@
 //! too: the point's dark becomes the straight line between its band's darks before and after it
 //! ([`redark`]), whose own uncertainty is the two readings' through the interpolation and what a straight line
 //! still misses, the drift's curvature, from the neighbouring darks' second difference:
-//! `|D''| (t - t_k) (t_k+1 - t) / 2` (as the source's drift, super::drift).
+//! `|D''| (t - t_k) (t_k+1 - t) / 2` (as the source's drift, super::drift). The two readings' errors are the
+//! same for every value between them, so they are kept apart from the curvature ([`Redarked::readings_u_w`]):
+//! the budget shares them by dark reading (a campaign on the ideal instrument has only a band's first and last
+//! darks, and their noise moved the fitted albedo of a dark sample at 450 nm by several of its independent
+//! uncertainties while it was counted as scatter).
 //!
 //! A value moves by `-dv/dD` times the change of its dark: the measurement equation's sensitivity to the dark
 //! at the value's geometry, band and normalisation, which the run works out ([`DarkSensitivity`]).
@@ -52,8 +56,20 @@ pub struct Redarked {
     pub used_u_w: f64,
     /// The dark interpolated to its time (W).
     pub dark_w: f64,
+    /// The two dark readings it is interpolated between, each by its position in its band's darks (in time
+    /// order) and its standard uncertainty times its weight in the interpolation (W). Every value between the
+    /// same two darks takes the same two readings' errors: shared, not scatter.
+    pub readings_u_w: [(usize, f64); 2],
+    /// What a straight line between them still misses, the drift's curvature (W): each value's own.
+    pub curvature_u_w: f64,
+}
+
+impl Redarked {
     /// The interpolated dark's standard uncertainty (W): the two readings' and the drift's curvature.
-    pub u_w: f64,
+    pub fn u_w(&self) -> f64 {
+        let [(_, a), (_, b)] = self.readings_u_w;
+        a.hypot(b).hypot(self.curvature_u_w)
+    }
 }
 
 /// Each band's dark readings, in time order.
@@ -94,12 +110,12 @@ pub fn redark(records: &[CalibrationRecord], values: &[Darkened]) -> Vec<Option<
             let dark_w = before.value_w + (after.value_w - before.value_w) * x;
             let curvature = super::drift::bracket_curvature(s, k, |d| (d.t_s, d.value_w, d.u_w));
             let curvature_w = curvature * (v.t_s - before.t_s) * (after.t_s - v.t_s) / 2.0;
-            let u_w = (before.u_w * (1.0 - x)).hypot(after.u_w * x).hypot(curvature_w);
             dark_w.is_finite().then_some(Redarked {
                 used_w: before.value_w,
                 used_u_w: before.u_w,
                 dark_w,
-                u_w,
+                readings_u_w: [(k, before.u_w * (1.0 - x)), (k1, after.u_w * x)],
+                curvature_u_w: curvature_w.abs(),
             })
         })
         .collect()
@@ -154,8 +170,14 @@ mod tests {
             assert!(before > 1e-13, "{t}: {before}");
             assert!(after < before / 5.0, "{t}: {after} vs {before}");
             // The uncertainty covers what is left and stays near the readings' own.
-            assert!(r.u_w >= after, "{t}: {} vs {after}", r.u_w);
-            assert!(r.u_w < 3e-13, "{t}: {}", r.u_w);
+            assert!(r.u_w() >= after, "{t}: {} vs {after}", r.u_w());
+            assert!(r.u_w() < 3e-13, "{t}: {}", r.u_w());
+            // The two readings it lies between, by their place in the band's darks, weighted by nearness.
+            let k = (t / 60.0).floor() as usize;
+            let x = t / 60.0 - k as f64;
+            let [(a, ua), (b, ub)] = r.readings_u_w;
+            assert_eq!((a, b), (k, k + 1));
+            assert!((ua - 2e-13 * (1.0 - x)).abs() < 1e-25 && (ub - 2e-13 * x).abs() < 1e-25);
         }
     }
 

@@ -33,11 +33,11 @@ pub(super) struct Pointed {
     /// The model the uncertainties are propagated through: the applied alignment's, else the nominal one.
     base: PoseCorrection,
     /// The applied alignment's model with one parameter moved by its standard uncertainty, one per parameter
-    /// the alignment measured ([`Pointed::alignment_rel_u`]).
-    perturbed: Vec<PoseCorrection>,
+    /// the alignment measured, with the parameter's name ([`Pointed::alignment_shifts`]).
+    perturbed: Vec<(&'static str, PoseCorrection)>,
     /// The base model with the sample's tilt moved by the holder's re-seating uncertainty, one per tilt
-    /// component ([`Pointed::reseat_rel_u`]); empty when the file states a holder that repeats exactly.
-    reseated: Vec<PoseCorrection>,
+    /// component ([`Pointed::reseat_shifts`]); empty when the file states a holder that repeats exactly.
+    reseated: Vec<(&'static str, PoseCorrection)>,
     roles: Vec<(String, AxisRole)>,
 }
 
@@ -50,7 +50,10 @@ impl Pointed {
         let moved = |k: usize, by: f64| {
             let mut x = params.to_vec();
             x[k] += by;
-            PoseCorrection::new(instrument, GeometryParams::from_slice(&x))
+            (
+                PARAM_NAMES[k].0,
+                PoseCorrection::new(instrument, GeometryParams::from_slice(&x)),
+            )
         };
         let perturbed = cal
             .as_ref()
@@ -82,44 +85,57 @@ impl Pointed {
         }
     }
 
-    /// Whether an alignment was applied whose parameters' uncertainties [`Pointed::alignment_rel_u`] propagates.
+    /// Whether an alignment was applied whose parameters' uncertainties [`Pointed::alignment_shifts`] propagates.
     pub(super) fn has_alignment_u(&self) -> bool {
         !self.perturbed.is_empty()
     }
 
-    /// The relative standard uncertainty of `p`'s value from the applied alignment's: each parameter moved by
-    /// its standard uncertainty, the change of `model`'s value (with the absolute equation's cos(theta_o) when
-    /// `absolute`) between the directions the model gives at the read-back pose with and without the move, in
-    /// quadrature. The parameters are taken as independent (the calibration file keeps no covariance); each
-    /// moves only the angles it acts on, where one angle uncertainty for every angle (their root sum of
-    /// squares) counted them all on each. `None` without an applied alignment, a read-back or a model value.
-    pub(super) fn alignment_rel_u(&self, model: &Material, p: &PointRecord, absolute: bool) -> Option<f64> {
-        if !self.aligned {
-            return None;
-        }
-        self.rel_u_through(&self.perturbed, model, p, absolute)
-    }
-
-    /// The relative standard uncertainty of `p`'s value from the sample's re-seating: its tilt moved by the
-    /// holder's repeatability (`[instrument.sample_holder] reseat_u_deg`), one component at a time, as
-    /// [`Pointed::alignment_rel_u`] moves the alignment's parameters. `None` for a holder that repeats
-    /// exactly, without a read-back or a model value.
-    pub(super) fn reseat_rel_u(&self, model: &Material, p: &PointRecord, absolute: bool) -> Option<f64> {
-        if self.reseated.is_empty() {
-            return None;
-        }
-        self.rel_u_through(&self.reseated, model, p, absolute)
-    }
-
-    /// `model`'s relative change at `p`'s read-back pose from the base model's directions to each of `moved`'s,
-    /// in quadrature.
-    fn rel_u_through(
+    /// What the applied alignment's uncertainty does to `p`'s value, parameter by parameter: each parameter
+    /// moved by its standard uncertainty, the signed relative change of `model`'s value (with the absolute
+    /// equation's cos(theta_o) when `absolute`) between the directions the model gives at the read-back pose
+    /// with and without the move, with the parameter's name. Each moves only the angles it acts on, where one
+    /// angle uncertainty for every angle (their root sum of squares) counted them all on each. One parameter's
+    /// error is the same for every point of the campaign, so the sign matters: it says which way that error
+    /// moves this point against the others (crate::budget's shared components; a fit propagates them). The
+    /// parameters are taken as independent of each other (the calibration file keeps no covariance). `None`
+    /// without an applied alignment, a read-back or a model value.
+    pub(super) fn alignment_shifts(
         &self,
-        moved: &[PoseCorrection],
         model: &Material,
         p: &PointRecord,
         absolute: bool,
-    ) -> Option<f64> {
+    ) -> Option<Vec<(&'static str, f64)>> {
+        if !self.aligned {
+            return None;
+        }
+        self.shifts_through(&self.perturbed, model, p, absolute)
+    }
+
+    /// What the sample's re-seating does to `p`'s value: its tilt moved by the holder's repeatability
+    /// (`[instrument.sample_holder] reseat_u_deg`), one component at a time, as [`Pointed::alignment_shifts`]
+    /// moves the alignment's parameters (one mounting serves the whole campaign: shared, signed). `None` for a
+    /// holder that repeats exactly, without a read-back or a model value.
+    pub(super) fn reseat_shifts(
+        &self,
+        model: &Material,
+        p: &PointRecord,
+        absolute: bool,
+    ) -> Option<Vec<(&'static str, f64)>> {
+        if self.reseated.is_empty() {
+            return None;
+        }
+        self.shifts_through(&self.reseated, model, p, absolute)
+    }
+
+    /// `model`'s signed relative change at `p`'s read-back pose from the base model's directions to each of
+    /// `moved`'s, with its name.
+    fn shifts_through(
+        &self,
+        moved: &[(&'static str, PoseCorrection)],
+        model: &Material,
+        p: &PointRecord,
+        absolute: bool,
+    ) -> Option<Vec<(&'static str, f64)>> {
         let pose = self.pose(p)?;
         let wavelength = Wavelength::from_nm(p.band_nm).ok()?;
         let (wi, wo) = self.base.directions(&pose)?;
@@ -129,12 +145,13 @@ impl Pointed {
             v.is_finite().then_some(v)
         };
         let at = weighted(&wi, &wo).filter(|v| *v > 0.0)?;
-        let mut sum = 0.0;
-        for c in moved {
-            let (wi_k, wo_k) = c.directions(&pose)?;
-            sum += (weighted(&wi_k, &wo_k)? / at - 1.0).powi(2);
-        }
-        Some(sum.sqrt())
+        moved
+            .iter()
+            .map(|(name, c)| {
+                let (wi_k, wo_k) = c.directions(&pose)?;
+                Some((*name, weighted(&wi_k, &wo_k)? / at - 1.0))
+            })
+            .collect()
     }
 
     /// The sample-frame directions towards the source and the detector at `p`'s read-back pose; `None` without
@@ -238,28 +255,43 @@ mod tests {
         let text = calibration(u_deg);
         let pointed = Pointed::new(Some(&text), &instrument);
         assert!(pointed.has_alignment_u());
+        let mut signs = Vec::new();
         for pose in [Pose::new(-30.0, 60.0, 0.0, 0.0), Pose::new(-20.0, 75.0, 0.0, 0.0)] {
             let p = point_at(&pose, &instrument);
             let (_, wo) = pointed.directions(&p).expect("directions");
             let theta_o = wo.z().acos();
             // A Lambertian value read by the absolute equation moves only through the detector's cosine.
             let expected = theta_o.tan() * u_deg.to_radians();
-            let rel = pointed
-                .alignment_rel_u(&lambertian(), &p, true)
+            let shifts = pointed
+                .alignment_shifts(&lambertian(), &p, true)
                 .expect("propagated");
-            assert!((rel - expected).abs() < 0.01 * expected, "{rel} vs {expected}");
+            // The one parameter the file measured, by name, signed: the same error moves every point with the
+            // detector on this side the same way.
+            assert_eq!(shifts.len(), 1, "{shifts:?}");
+            let (name, rel) = shifts[0];
+            assert_eq!(name, "detector_zero_deg");
+            assert!(rel != 0.0);
+            assert!(
+                (rel.abs() - expected).abs() < 0.01 * expected,
+                "{rel} vs {expected}"
+            );
+            signs.push(rel.signum());
             // Normalised by a reference at the same geometry, the cosine cancels: nothing moves it.
             let relative = pointed
-                .alignment_rel_u(&lambertian(), &p, false)
+                .alignment_shifts(&lambertian(), &p, false)
                 .expect("propagated");
-            assert!(relative < 1e-9, "{relative}");
+            assert!(relative[0].1.abs() < 1e-9, "{relative:?}");
         }
+        assert_eq!(
+            signs[0], signs[1],
+            "one detector zero moves both values the same way"
+        );
         // Without an applied alignment there is nothing to propagate; this file's holder repeats exactly.
         let none = Pointed::new(None, &instrument);
         assert!(!none.has_alignment_u());
         let p = point_at(&Pose::new(-30.0, 60.0, 0.0, 0.0), &instrument);
-        assert_eq!(none.alignment_rel_u(&lambertian(), &p, true), None);
-        assert_eq!(none.reseat_rel_u(&lambertian(), &p, true), None);
+        assert_eq!(none.alignment_shifts(&lambertian(), &p, true), None);
+        assert_eq!(none.reseat_shifts(&lambertian(), &p, true), None);
     }
 
     #[test]
@@ -273,7 +305,12 @@ mod tests {
             let (_, wo) = pointed.directions(&p).expect("directions");
             // A tilt in the plane of incidence turns theta_o by the tilt; one across it, to second order only.
             let expected = wo.z().acos().tan() * u_deg.to_radians();
-            let rel = pointed.reseat_rel_u(&lambertian(), &p, true).expect("propagated");
+            let shifts = pointed
+                .reseat_shifts(&lambertian(), &p, true)
+                .expect("propagated");
+            let names: Vec<&str> = shifts.iter().map(|(n, _)| *n).collect();
+            assert_eq!(names, ["sample_tilt_x_deg", "sample_tilt_y_deg"]);
+            let rel = shifts.iter().map(|(_, r)| r * r).sum::<f64>().sqrt();
             assert!((rel - expected).abs() < 0.05 * expected, "{rel} vs {expected}");
         }
     }

@@ -291,7 +291,7 @@ fn redarked(
                 let value = v - per_w * (d.dark_w - d.used_w);
                 r.brdf_sr = Some(value);
                 let others = (u * u - (per_w * d.used_u_w).powi(2)).max(0.0);
-                r.brdf_u_sr = Some((others + (per_w * d.u_w).powi(2)).sqrt());
+                r.brdf_u_sr = Some((others + (per_w * d.u_w()).powi(2)).sqrt());
                 if let Some(floor) = context.floor {
                     floor.reflag(&mut r.flags, value, r.band_nm, r.theta_o_deg);
                 }

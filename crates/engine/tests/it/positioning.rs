@@ -55,6 +55,8 @@ async fn values_are_brought_from_where_the_axes_stopped_to_the_nominal_geometry(
         tilt.encoder_resolution_deg,
         tilt.tolerance_deg,
     ) = (Some(0.01), 0.01, 0.01);
+    // A holder that re-seats the sample to 0.01 degree: one error per mounting, shared by every value.
+    file.instrument.sample_holder.reseat_u_deg = Some(0.01);
     let instrument_text = toml::to_string(&file).expect("toml");
     let text = campaign();
     let dir = tempfile::tempdir().expect("tempdir");
@@ -75,7 +77,23 @@ async fn values_are_brought_from_where_the_axes_stopped_to_the_nominal_geometry(
     // resolution: on this file (no alignment uncertainty) the whole component, tan(theta_o) times the
     // tolerance's 0.01 deg / sqrt(3) while running, becomes half of it (0.01 deg steps / sqrt(12)).
     let (mut read_back, mut tilted_out) = (0, 0);
+    // The re-seating's two tilts: one shared entry each per value, signed (the same tilt raises some values
+    // and lowers others), in the group of the tilt it stands for.
+    let (mut raised, mut lowered) = (0, 0);
     for p in &points {
+        for e in p.budget.entries.iter().filter(|e| e.component == "sample") {
+            let group = e.shared.as_deref();
+            assert!(
+                matches!(group, Some("sample_tilt_x_deg" | "sample_tilt_y_deg")),
+                "point {}: {:?}",
+                p.index,
+                p.budget
+            );
+            if group == Some("sample_tilt_x_deg") {
+                raised += usize::from(e.u_sr > 0.0);
+                lowered += usize::from(e.u_sr < 0.0);
+            }
+        }
         let (Some(v), Some(u), Some(truth)) = (p.brdf_sr, p.brdf_u_sr, p.truth_point_sr) else {
             continue;
         };
@@ -119,6 +137,10 @@ async fn values_are_brought_from_where_the_axes_stopped_to_the_nominal_geometry(
     }
     eprintln!(
         "{corrected} points corrected by more than 0.02 %; {covered} of {valid} within 2 u of the truth"
+    );
+    assert!(
+        raised >= 10 && lowered >= 10,
+        "one tilt raised {raised} values and lowered {lowered}"
     );
     assert!(
         corrected >= 3,

@@ -34,8 +34,11 @@
 //! beyond its statistical uncertainty). When the caller gives the aperture's half-angle, the starts use point
 //! values (cheap) and the refinement averages the model over the aperture with a 7-point disk rule (exact to
 //! degree 5 in the offsets: the lobe's curvature across the aperture is captured). A value that a completed
-//! campaign already corrected to the nominal geometry (it has a `brdf_aperture_sr`, crate::aperture) is a point
-//! value and is met by the model's point value.
+//! campaign already corrected to the nominal geometry (it has a `brdf_aperture_sr`, crate::aperture) is fitted
+//! as the aperture average it was before the correction, with its independent uncertainty less the
+//! correction's (the `aperture` component): the correction came from a model fitted to the same points, so its
+//! error is shared by them and is no scatter, and fitting the averages with the averaged model needs no
+//! correction at all. Without the half-angle, the corrected values are met as point values.
 
 pub mod lm;
 
@@ -199,9 +202,13 @@ pub struct ResidualStats {
     pub log_rms: f64,
     /// Largest `|m - f| / f`.
     pub max_relative: f64,
-    /// `sum((m - f)/u)^2 / (n - p)` with the stated uncertainties: about 1 when the model explains the data
-    /// to within them.
+    /// `r^T V^-1 r / (n - p)` with `r = m - f` and `V` the points' whole stated budget: the independent parts
+    /// on the diagonal, each shared group's signed entries fully correlated within it ([`shared`]): about 1 when
+    /// the model explains the data to within what the budget says, correlations included.
     pub chi2_per_dof: f64,
+    /// `sum((m - f)/u)^2 / (n - p)` against the independent parts alone: above the other when what the points
+    /// share leaves structure the model cannot absorb (an angle error tilting a lobe).
+    pub chi2_per_dof_independent: f64,
 }
 
 /// The result of a fit.
@@ -219,13 +226,15 @@ pub struct FitReport {
     pub downweighted: usize,
     /// Levenberg-Marquardt iterations, all rounds together.
     pub iterations: usize,
+    /// The fit linearised at its solution, for propagating what the points share ([`shared`]).
+    pub(crate) linear: Option<shared::Linear>,
 }
 
 /// Fits the model to the run (module doc), each parameter with its uncertainty from the points' independent
 /// errors and, apart, from what they share ([`shared`]).
 pub fn fit(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
     let mut report = fit_unshared(run, opts)?;
-    let shared = shared::shared_uncertainties(run, opts, &report.params);
+    let shared = shared::shared_uncertainties(run, opts, &report);
     for (p, u) in report.params.iter_mut().zip(shared) {
         p.shared_uncertainty = u;
     }
@@ -250,12 +259,15 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
         });
     }
     let obs: Vec<Obs> = run
-        .valid_points()
-        .filter_map(|p| {
+        .points
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| p.is_valid())
+        .filter_map(|(point, p)| {
             let band = bands
                 .iter()
                 .position(|b| (p.band_nm - b).abs() <= BAND_TOLERANCE_NM)?;
-            let f = p.value()?;
+            let value = p.value()?;
             let (wi, wo) = directions(p);
             if !(wi.is_above_horizon() && wo.is_above_horizon()) {
                 return None;
@@ -265,8 +277,27 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
             let u = p
                 .u_independent_sr()
                 .filter(|u| *u > 0.0 && u.is_finite())
-                .unwrap_or(1e-3 * f.abs().max(1e-12));
+                .unwrap_or(1e-3 * value.abs().max(1e-12));
+            let half_angle = opts.aperture_half_angle_rad.filter(|a| *a > 0.0 && a.is_finite());
+            let (f, u, aperture, per_value) = match (half_angle, p.brdf_aperture_sr) {
+                // A value a completed campaign corrected to the nominal geometry (crate::aperture) is met as
+                // the aperture average it was before, by the model averaged the same way: the fit needs no
+                // correction, nor the correction's uncertainty (module doc).
+                (Some(a), Some(average)) if average.is_finite() && value != 0.0 => {
+                    let scale = (average / value).abs();
+                    let correction_u = p.budget.component_sr(crate::budget::components::APERTURE);
+                    let u_average = (u * u - correction_u * correction_u).max(0.0).sqrt() * scale;
+                    let u_average = if u_average > 0.0 { u_average } else { u * scale };
+                    (average, u_average, aperture_samples(&wo, a), scale)
+                }
+                // Without a correction: the measured aperture average itself, met the same way.
+                (Some(a), None) => (value, u, aperture_samples(&wo, a), 1.0),
+                // A corrected value without the aperture's size (or without a usable average): a point value.
+                _ => (value, u, Vec::new(), 1.0),
+            };
             Some(Obs {
+                point,
+                per_value,
                 wi,
                 wo,
                 band,
@@ -274,13 +305,7 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
                 u,
                 cos_weight: wi.cos_theta() * wo.cos_theta(),
                 cos_i: wi.cos_theta(),
-                // A value a completed campaign corrected to the nominal geometry (crate::aperture) is a point
-                // value: the model meets it as one.
-                aperture: opts
-                    .aperture_half_angle_rad
-                    .filter(|a| *a > 0.0 && a.is_finite() && p.brdf_aperture_sr.is_none())
-                    .map(|a| aperture_samples(&wo, a))
-                    .unwrap_or_default(),
+                aperture,
             })
         })
         .collect();
@@ -437,8 +462,9 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
     let r = f
         .residuals(&x)
         .ok_or_else(|| fail("the model cannot be evaluated at the solution".into()))?;
-    let covariance = lm::jacobian(&f, &x, &r, &lower, &upper).and_then(|j| {
-        let (a, _) = lm::normal_equations(&j, &r);
+    let jac = lm::jacobian(&f, &x, &r, &lower, &upper);
+    let covariance = jac.as_ref().and_then(|j| {
+        let (a, _) = lm::normal_equations(j, &r);
         lm::spd_inverse(&a)
     });
     let dof = (obs.len() - p) as f64;
@@ -469,8 +495,24 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
         .ok_or_else(|| fail("the fitted parameters do not make a valid material".into()))?;
     let m = predict(opts, &defs, &nat, &obs, &bands, true)
         .ok_or_else(|| fail("the model cannot be evaluated at the solution".into()))?;
-    let residuals = residual_stats(&obs, &m, p);
+    let residuals = residual_stats(&obs, &m, p, shared::chi2_whole_budget(run, &obs, &m));
     let downweighted = weights.iter().filter(|w| **w < 0.5).count();
+    let linear = jac
+        .zip(covariance.clone())
+        .map(|(jacobian, covariance)| shared::Linear {
+            x: x.clone(),
+            jacobian,
+            covariance,
+            // r_k = sqrt(w_k) c_k (m_k - f_k) / u_k: the residual moves by -this per unit of the observation.
+            sensitivity: obs
+                .iter()
+                .zip(&weights)
+                .map(|(o, w)| w.sqrt() * o.cos_weight / o.u)
+                .collect(),
+            observed: obs.iter().map(|o| (o.point, o.per_value)).collect(),
+            defs: defs.clone(),
+            bands: bands.clone(),
+        });
     Ok(FitReport {
         model: opts.model,
         options: *opts,
@@ -482,6 +524,7 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
         residuals,
         downweighted,
         iterations,
+        linear,
     })
 }
 
@@ -492,3 +535,6 @@ fn lo_floor(d: &ParamDef) -> f64 {
         _ => d.lo,
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -6,6 +6,11 @@ use super::*;
 /// One observation.
 #[derive(Debug, Clone)]
 pub(super) struct Obs {
+    /// The point it is (index into the run's points).
+    pub(super) point: usize,
+    /// How much `f` moves per unit of the point's value (`brdf_sr`): 1, or the aperture average's ratio to
+    /// the corrected value when the fit reads the average.
+    pub(super) per_value: f64,
     pub(super) wi: Direction,
     pub(super) wo: Direction,
     pub(super) band: usize,

@@ -37,7 +37,8 @@ pub fn chi2_meaning(chi2_per_dof: f64) -> &'static str {
     }
 }
 
-pub(super) fn residual_stats(obs: &[Obs], m: &[f64], p: usize) -> ResidualStats {
+/// `chi2_whole`: the sum of squares against the whole budget (super::shared::chi2_whole_budget), when known.
+pub(super) fn residual_stats(obs: &[Obs], m: &[f64], p: usize, chi2_whole: Option<f64>) -> ResidualStats {
     let (mut num, mut den, mut log2, mut max_rel, mut chi2) = (0.0, 0.0, 0.0, 0.0f64, 0.0);
     for (o, m) in obs.iter().zip(m) {
         num += ((m - o.f) * o.cos_i).powi(2);
@@ -49,12 +50,14 @@ pub(super) fn residual_stats(obs: &[Obs], m: &[f64], p: usize) -> ResidualStats 
         chi2 += ((m - o.f) / o.u).powi(2);
     }
     let n = obs.len();
+    let dof = (n.saturating_sub(p)).max(1) as f64;
     ResidualStats {
         points: n,
         cos_weighted_relative_rms: if den > 0.0 { (num / den).sqrt() } else { f64::NAN },
         log_rms: (log2 / n.max(1) as f64).sqrt(),
         max_relative: max_rel,
-        chi2_per_dof: chi2 / (n.saturating_sub(p)).max(1) as f64,
+        chi2_per_dof: chi2_whole.unwrap_or(f64::NAN) / dof,
+        chi2_per_dof_independent: chi2 / dof,
     }
 }
 
@@ -117,18 +120,20 @@ impl FitReport {
         }
         s.push_str(
             "(standard uncertainties, k = 1: independent from the points' scatter about the model; shared from what \
-             the points have in common (solid angle, a band's normalisation, a range's gain), which moves them \
-             together and leaves no residual; combine them in quadrature for the total)\n",
+             the points have in common (solid angle, a band's normalisation, a range's gain, a dark reading, an \
+             alignment parameter), which moves them together; combine them in quadrature for the total)\n",
         );
         let r = &self.residuals;
         s.push_str(&format!(
             "residuals: cos-weighted relative RMS {:.3e}, log RMS {:.3e}, max relative {:.3e}, chi2/dof {:.3} \
-             against the points' independent uncertainties ({}), {} points down-weighted as outliers",
+             against the points' whole budget, what they share with its correlations ({}); {:.3} against the \
+             points' independent uncertainties alone; {} points down-weighted as outliers",
             r.cos_weighted_relative_rms,
             r.log_rms,
             r.max_relative,
             r.chi2_per_dof,
             chi2_meaning(r.chi2_per_dof),
+            r.chi2_per_dof_independent,
             self.downweighted
         ));
         s
@@ -157,6 +162,7 @@ impl FitReport {
                 "log_rms": self.residuals.log_rms,
                 "max_relative": self.residuals.max_relative,
                 "chi2_per_dof": self.residuals.chi2_per_dof,
+                "chi2_per_dof_independent": self.residuals.chi2_per_dof_independent,
                 "downweighted": self.downweighted,
             },
             "material": serde_json::to_value(self.material.spec()).unwrap_or(Value::Null),

@@ -1,57 +1,116 @@
 //! What the points of a fit share (crate::budget: a component with a group, fully correlated within it: the
-//! solid angle across the campaign, a band's normalisation, a range's gain) moves them together, so it does not
-//! show in the residuals and the fit's own covariance cannot see it. Its effect on each parameter is found by
-//! moving the group's points by the component's standard uncertainty and fitting again: the parameter's shift
-//! is that group's contribution (a linear propagation, by finite difference), and the groups, independent of
-//! each other, add in quadrature. Runs without budgets share nothing that is known.
+//! solid angle across the campaign, a band's normalisation, a range's gain, a dark reading, an alignment
+//! parameter) moves them together, so it does not show in the residuals and the fit's own covariance cannot see
+//! it. Its effect on each parameter is the fit's response to the group's points moving by the component's
+//! standard uncertainty, each by its own signed entry (an alignment parameter raises some points and lowers
+//! others): to first order, with the fit linearised at its solution ([`Linear`]: the Gauss-Newton step
+//! `dx = (J^T J)^-1 J^T (s * df)` for the data's move `df`, with the final weights), the same linear
+//! propagation a refit from the solution would make for so small a move, for one matrix product per group
+//! instead of a robust fit. The groups, independent of each other, add in quadrature. Runs without budgets
+//! share nothing that is known.
 
 use std::collections::BTreeMap;
 
-use super::{FitOptions, FittedParam, fit_unshared};
+use super::lm;
+use super::observations::Obs;
+use super::params::ParamDef;
+use super::report::fix_phong_params;
+use super::{FitOptions, FitReport, FittedParam};
 use crate::run::Run;
 
-/// Each parameter's shared standard uncertainty (the same order as `params`); `None` for a parameter that no
-/// group moves, or when a refit fails. A run whose points carry no shared component gives all `None`.
-pub(super) fn shared_uncertainties(run: &Run, opts: &FitOptions, params: &[FittedParam]) -> Vec<Option<f64>> {
+/// A fit linearised at its solution (internal parameters: crate::fit::params' transforms).
+#[derive(Debug, Clone)]
+pub(crate) struct Linear {
+    /// The solution.
+    pub(super) x: Vec<f64>,
+    /// The weighted residuals' Jacobian there, `n x p`.
+    pub(super) jacobian: Vec<Vec<f64>>,
+    /// `(J^T J)^-1`, unscaled.
+    pub(super) covariance: Vec<Vec<f64>>,
+    /// Per observation, how much its residual falls per unit rise of the observation (`sqrt(w) c / u`).
+    pub(super) sensitivity: Vec<f64>,
+    /// Per observation, its point (index into the run's points) and how much the observation moves per unit of
+    /// the point's value.
+    pub(super) observed: Vec<(usize, f64)>,
+    pub(super) defs: Vec<ParamDef>,
+    pub(super) bands: Vec<f64>,
+}
+
+impl Linear {
+    /// The parameters, as reported, after each point's value moves by `shift` (1/sr, by point index).
+    fn shifted(&self, opts: &FitOptions, shift: &BTreeMap<usize, f64>) -> Vec<FittedParam> {
+        let p = self.x.len();
+        let mut g = vec![0.0; p];
+        for ((row, s), (point, per_value)) in self.jacobian.iter().zip(&self.sensitivity).zip(&self.observed)
+        {
+            let Some(df) = shift.get(point) else { continue };
+            let dr = s * per_value * df;
+            for (gj, jkj) in g.iter_mut().zip(row) {
+                *gj += jkj * dr;
+            }
+        }
+        let params = self
+            .defs
+            .iter()
+            .enumerate()
+            .map(|(j, d)| {
+                let dx: f64 = self.covariance[j].iter().zip(&g).map(|(c, g)| c * g).sum();
+                FittedParam {
+                    key: d.key,
+                    band_nm: d.band.and_then(|b| self.bands.get(b).copied()),
+                    value: d.transform.to_natural(self.x[j] + dx),
+                    std_uncertainty: None,
+                    shared_uncertainty: None,
+                    at_bound: false,
+                }
+            })
+            .collect();
+        fix_phong_params(opts, params, &self.bands)
+    }
+}
+
+/// Each parameter's shared standard uncertainty (the same order as `report.params`); `None` for a parameter
+/// that no group moves, or when the fit could not be linearised. A run whose points carry no shared component
+/// gives all `None`.
+pub(super) fn shared_uncertainties(run: &Run, opts: &FitOptions, report: &FitReport) -> Vec<Option<f64>> {
+    let params = &report.params;
+    let Some(linear) = &report.linear else {
+        return vec![None; params.len()];
+    };
     // (component, group) -> the points it moves and by how much.
-    let mut groups: BTreeMap<(String, String), Vec<(usize, f64)>> = BTreeMap::new();
+    let mut groups: BTreeMap<(String, String), BTreeMap<usize, f64>> = BTreeMap::new();
     for (i, p) in run.points.iter().enumerate() {
         if p.value().is_none() {
             continue;
         }
         for e in &p.budget.entries {
             if let Some(g) = &e.shared
-                && e.u_sr > 0.0
+                && e.u_sr != 0.0
                 && e.u_sr.is_finite()
             {
                 groups
                     .entry((e.component.clone(), g.clone()))
                     .or_default()
-                    .push((i, e.u_sr));
+                    .insert(i, e.u_sr);
             }
         }
     }
+    // The linearisation's own parameters at the solution, so that only the shift is measured.
+    let at_solution = linear.shifted(opts, &BTreeMap::new());
     let mut sum2 = vec![0.0f64; params.len()];
     let mut moved = vec![false; params.len()];
     for members in groups.values() {
-        let mut shifted = run.clone();
-        for &(i, u) in members {
-            if let Some(f) = shifted.points[i].brdf_sr.as_mut() {
-                *f += u;
-            }
-        }
-        let Ok(refit) = fit_unshared(&shifted, opts) else {
-            return vec![None; params.len()];
-        };
+        let shifted = linear.shifted(opts, members);
         for (k, p) in params.iter().enumerate() {
-            let Some(q) = refit
-                .params
-                .iter()
-                .find(|q| q.key == p.key && q.band_nm == p.band_nm)
-            else {
+            let find = |list: &[FittedParam]| {
+                list.iter()
+                    .find(|q| q.key == p.key && q.band_nm == p.band_nm)
+                    .map(|q| q.value)
+            };
+            let (Some(after), Some(before)) = (find(&shifted), find(&at_solution)) else {
                 continue;
             };
-            let d = q.value - p.value;
+            let d = after - before;
             if d.is_finite() && d != 0.0 {
                 sum2[k] += d * d;
                 moved[k] = true;
@@ -62,4 +121,51 @@ pub(super) fn shared_uncertainties(run: &Run, opts: &FitOptions, params: &[Fitte
         .zip(&moved)
         .map(|(s, m)| m.then(|| s.sqrt()))
         .collect()
+}
+
+/// The sum of squares of the residuals `m - f` against the points' whole budget, shared components with their
+/// correlations: `z^T (I + T T^T)^-1 z` with `z_k = (m_k - f_k) / u_k` (u: the independent part) and `T_kg` each
+/// shared group's signed entry over `u_k` (the covariance `D + S S^T` whitened by `D`), by Woodbury's identity
+/// (`z^T z - (T^T z)^T (I + T^T T)^-1 T^T z`, one G x G system for G groups). Without shared entries it is
+/// `z^T z`. What the points share moves them together: against the independent part alone it reads as misfit
+/// (an alignment's zero tilts a whole lobe by many independent uncertainties); here it counts as what it is.
+pub(super) fn chi2_whole_budget(run: &Run, obs: &[Obs], m: &[f64]) -> Option<f64> {
+    let mut columns: BTreeMap<(&str, &str), usize> = BTreeMap::new();
+    let mut entries: Vec<Vec<(usize, f64)>> = Vec::with_capacity(obs.len());
+    for o in obs {
+        let mut row = Vec::new();
+        for e in run.points.get(o.point)?.budget.entries.iter() {
+            let Some(g) = &e.shared else { continue };
+            if !(e.u_sr.is_finite() && e.u_sr != 0.0) {
+                continue;
+            }
+            let next = columns.len();
+            let c = *columns.entry((e.component.as_str(), g.as_str())).or_insert(next);
+            row.push((c, e.u_sr * o.per_value / o.u));
+        }
+        entries.push(row);
+    }
+    let z: Vec<f64> = obs.iter().zip(m).map(|(o, m)| (m - o.f) / o.u).collect();
+    let zz: f64 = z.iter().map(|v| v * v).sum();
+    let g = columns.len();
+    if g == 0 {
+        return Some(zz);
+    }
+    let mut a = vec![vec![0.0; g]; g];
+    let mut b = vec![0.0; g];
+    for (row, zk) in entries.iter().zip(&z) {
+        for &(i, ti) in row {
+            b[i] += ti * zk;
+            for &(j, tj) in row {
+                a[i][j] += ti * tj;
+            }
+        }
+    }
+    for (i, r) in a.iter_mut().enumerate() {
+        r[i] += 1.0;
+    }
+    let l = lm::cholesky(&a)?;
+    let x = lm::cholesky_solve(&l, &b);
+    let chi2 = zz - b.iter().zip(&x).map(|(b, x)| b * x).sum::<f64>();
+    chi2.is_finite().then_some(chi2.max(0.0))
 }

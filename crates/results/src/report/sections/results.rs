@@ -202,13 +202,15 @@ pub fn fit(input: &ReportInput<'_>) -> String {
     ));
     s.push_str(&html::p(&format!(
         "Standard uncertainties (k = 1). Independent: from the points' scatter about the model. Shared: from what \
-         the points have in common (the solid angle, a band's normalisation, a range's gain), which moves them \
-         together and leaves no residual; the fit is repeated with each such group moved by its uncertainty. \
-         Combine the two in quadrature for the total. chi2/dof compares the residuals with the points' \
-         independent uncertainties: {:.3} for {}: {}.",
+         the points have in common (the solid angle, a band's normalisation, a range's gain, a dark reading, an \
+         alignment parameter), which moves them together; the fit's response to each such group moved by its \
+         uncertainty. Combine the two in quadrature for the total. chi2/dof compares the residuals with the \
+         points' whole budget, what they share with its correlations: {:.3} for {}: {} ({:.3} against the \
+         independent uncertainties alone).",
         best.residuals.chi2_per_dof,
         best.model.name(),
-        crate::fit::chi2_meaning(best.residuals.chi2_per_dof)
+        crate::fit::chi2_meaning(best.residuals.chi2_per_dof),
+        best.residuals.chi2_per_dof_independent
     )));
     s
 }

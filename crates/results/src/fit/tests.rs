@@ -1,0 +1,242 @@
+use super::*;
+
+use gonio_brdf::integrate::{Region, Rule, integrate_infallible};
+use gonio_brdf::radiometry::cone_solid_angle_sr;
+
+use crate::budget::{Budget, components};
+use crate::points::Point;
+
+const HALF_ANGLE_RAD: f64 = 0.01;
+
+/// The cos-weighted aperture average of `material` at 550 nm by a fine rule, independent of the fit's 7-point one.
+fn aperture_average(material: &Material, wi: &Direction, wo: &Direction) -> f64 {
+    let wl = Wavelength::from_nm(550.0).expect("band");
+    let rule = Rule::LobeAdapted {
+        lobe_width_rad: HALF_ANGLE_RAD / 8.0,
+        n_per_panel: 8,
+        n_azimuth: 32,
+    };
+    let integral = integrate_infallible(
+        |w| material.eval(wi, w, wl).unwrap_or(0.0) * w.cos_theta().max(0.0),
+        &Region::cone(*wo, HALF_ANGLE_RAD),
+        rule,
+    );
+    integral.value / (cone_solid_angle_sr(HALF_ANGLE_RAD) * wo.cos_theta())
+}
+
+/// Gold's aperture averages (noise-free), each stored as a completed campaign stores it: the average in
+/// `brdf_aperture_sr` and beside it a value "corrected" to the nominal geometry by a correction that is 2 %
+/// wrong near the specular direction (the correction's error: the `aperture` component says 2 %), with an
+/// independent noise of 1e-4 of the value.
+fn gold_run() -> Run {
+    let gold = Material::preset("gold").expect("preset");
+    let mut points = Vec::new();
+    for ti in [10.0, 30.0, 50.0] {
+        for k in 0..20 {
+            let k = f64::from(k);
+            for g in [
+                [ti, 0.0, ti + (k - 10.0) * 0.8, 180.0],
+                [ti, 0.0, 5.0 + 3.5 * k, 180.0 + 8.0 * k],
+            ] {
+                let mut p = Point::at(550.0, g, 0.0);
+                let (wi, wo) = directions(&p);
+                let average = aperture_average(&gold, &wi, &wo);
+                let near_specular = (g[2] - ti).abs() < 4.0 && g[3] == 180.0;
+                let wrong = if near_specular { 1.02 } else { 1.0 };
+                let value = average * wrong;
+                p.brdf_sr = Some(value);
+                p.brdf_aperture_sr = Some(average);
+                let mut budget = Budget::default();
+                budget.add(components::SIGNAL_NOISE, 1e-4 * value, None);
+                budget.add(components::APERTURE, 0.02 * value, None);
+                p.brdf_u_sr = Some(budget.total_sr());
+                p.budget = budget;
+                points.push(p);
+            }
+        }
+    }
+    Run {
+        origin: "test".into(),
+        name: "gold".into(),
+        points,
+        axis_names: Vec::new(),
+        dry_run: true,
+        provenance: None,
+    }
+}
+
+fn alpha(report: &FitReport) -> f64 {
+    report
+        .params
+        .iter()
+        .find(|p| p.key == "alpha")
+        .map(|p| p.value)
+        .expect("alpha")
+}
+
+#[test]
+fn corrected_values_are_fitted_as_the_aperture_averages_they_were() {
+    let run = gold_run();
+    let mut opts = FitOptions::new(FitModel::Conductor);
+    opts.aperture_half_angle_rad = Some(HALF_ANGLE_RAD);
+    let report = fit(&run, &opts).expect("fit");
+    // The averages against the averaged model, weighted by the noise alone: gold's roughness comes back, and
+    // the residuals are what the 7-point rule leaves (far under the 1e-4 noise the points state).
+    assert!(
+        (alpha(&report) / 0.08 - 1.0).abs() < 1e-4,
+        "alpha {}",
+        alpha(&report)
+    );
+    assert!(
+        report.residuals.chi2_per_dof < 0.1,
+        "chi2/dof {}",
+        report.residuals.chi2_per_dof
+    );
+    // Without the aperture's size the corrected values are all there is: their 2 % error near the specular
+    // direction, down-weighted by the correction's uncertainty, still pulls the roughness further away.
+    let point_values = fit(&run, &FitOptions::new(FitModel::Conductor)).expect("fit");
+    assert!(
+        (alpha(&point_values) / 0.08 - 1.0).abs() > 10.0 * (alpha(&report) / 0.08 - 1.0).abs(),
+        "alpha {} from the corrected values, {} from the averages",
+        alpha(&point_values),
+        alpha(&report)
+    );
+}
+
+/// White styrofoam's point values (noise-free), each with an independent noise of 1e-3 of the value, the
+/// campaign's solid angle (1e-3, the same way for all) and one angle error that raises the values beyond
+/// theta_o = 40 degrees and lowers those before it (signed: crate::budget).
+fn styrofoam_run() -> Run {
+    let foam = Material::preset("white-styrofoam").expect("preset");
+    let wl = Wavelength::from_nm(450.0).expect("band");
+    let mut points = Vec::new();
+    for ti in [0.0, 20.0, 40.0, 60.0] {
+        for k in 0..16 {
+            let k = f64::from(k);
+            let mut p = Point::at(450.0, [ti, 0.0, 2.0 + 5.0 * k, 20.0 * k], 0.0);
+            let (wi, wo) = directions(&p);
+            let value = foam.eval(&wi, &wo, wl).expect("eval");
+            p.brdf_sr = Some(value);
+            let mut budget = Budget::default();
+            budget.add(components::SIGNAL_NOISE, 1e-3 * value, None);
+            budget.add(components::SOLID_ANGLE, 1e-3 * value, Some("campaign".into()));
+            let side = if p.theta_o_deg > 40.0 { 1.0 } else { -1.0 };
+            budget.add(components::POINTING, side * 2e-3 * value, Some("theta_o".into()));
+            p.brdf_u_sr = Some(budget.total_sr());
+            p.budget = budget;
+            points.push(p);
+        }
+    }
+    Run {
+        origin: "test".into(),
+        name: "styrofoam".into(),
+        points,
+        axis_names: Vec::new(),
+        dry_run: true,
+        provenance: None,
+    }
+}
+
+#[test]
+fn what_the_points_share_moves_the_parameters_as_refitting_the_moved_points_does() {
+    let run = styrofoam_run();
+    // Plain least squares: a robust loss reweights noise-free points by residuals of nothing, and the refit's
+    // weights would then differ from the solution's by more than the move itself.
+    let opts = FitOptions {
+        loss: Loss::None,
+        ..FitOptions::new(FitModel::OrenNayar)
+    };
+    let report = fit(&run, &opts).expect("fit");
+    // Each group moved in turn and the whole robust fit repeated: the reference the linearisation must meet.
+    let refit_shift = |group: &str| -> Vec<f64> {
+        let mut moved = run.clone();
+        for p in &mut moved.points {
+            let u: f64 = p
+                .budget
+                .entries
+                .iter()
+                .filter(|e| e.shared.as_deref() == Some(group))
+                .map(|e| e.u_sr)
+                .sum();
+            p.brdf_sr = p.brdf_sr.map(|f| f + u);
+        }
+        let refit = fit_unshared(&moved, &opts).expect("refit");
+        refit
+            .params
+            .iter()
+            .zip(&report.params)
+            .map(|(a, b)| a.value - b.value)
+            .collect()
+    };
+    let (omega, angle) = (refit_shift("campaign"), refit_shift("theta_o"));
+    for (k, p) in report.params.iter().enumerate() {
+        let expected = omega[k].hypot(angle[k]);
+        let got = p.shared_uncertainty.expect("moved by what is shared");
+        assert!(
+            (got / expected - 1.0).abs() < 0.02,
+            "{}: {got} against {expected} by refitting",
+            p.key
+        );
+    }
+    // The signed angle error tilts the values against theta_o: it moves the roughness, which a common scale
+    // (the solid angle) cannot; the solid angle moves the albedo by its 1e-3.
+    let sigma = report
+        .params
+        .iter()
+        .position(|p| p.key == "sigma_deg")
+        .expect("sigma");
+    let albedo = report
+        .params
+        .iter()
+        .position(|p| p.key == "albedo")
+        .expect("albedo");
+    assert!(
+        angle[sigma].abs() > 100.0 * omega[sigma].abs(),
+        "{angle:?} {omega:?}"
+    );
+    assert!(
+        (omega[albedo] / report.params[albedo].value - 1e-3).abs() < 1e-5,
+        "{omega:?}"
+    );
+}
+
+#[test]
+fn chi2_counts_what_the_points_share_as_shared() {
+    // The angle error happened, three of its standard uncertainties: every value moved by three times its
+    // signed entry, the values beyond theta_o = 40 degrees up and the others down.
+    let mut run = styrofoam_run();
+    for p in &mut run.points {
+        let e: f64 = p
+            .budget
+            .entries
+            .iter()
+            .filter(|e| e.shared.as_deref() == Some("theta_o"))
+            .map(|e| e.u_sr)
+            .sum();
+        p.brdf_sr = p.brdf_sr.map(|f| f + 3.0 * e);
+    }
+    let opts = FitOptions {
+        loss: Loss::None,
+        ..FitOptions::new(FitModel::OrenNayar)
+    };
+    let r = fit(&run, &opts).expect("fit").residuals;
+    // Against the independent 1e-3 alone the step is misfit, tens of its uncertainties; against the whole
+    // budget most of it is the one error of three standard uncertainties it is. (What is left: the fit,
+    // weighted by the independent parts, bent its roughness towards the step, and that bend is no shared error.)
+    assert!(r.chi2_per_dof_independent > 20.0, "{r:?}");
+    assert!(r.chi2_per_dof < r.chi2_per_dof_independent / 5.0, "{r:?}");
+    // Without anything shared the two are one.
+    let plain = fit(&styrofoam_run_without_shared(), &opts)
+        .expect("fit")
+        .residuals;
+    assert_eq!(plain.chi2_per_dof, plain.chi2_per_dof_independent);
+}
+
+fn styrofoam_run_without_shared() -> Run {
+    let mut run = styrofoam_run();
+    for p in &mut run.points {
+        p.budget.entries.retain(|e| e.shared.is_none());
+        p.brdf_u_sr = Some(p.budget.total_sr());
+    }
+    run
+}
