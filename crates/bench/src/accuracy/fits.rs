@@ -1,6 +1,6 @@
 //! Issue 29's fit targets: `gonio fit` with the true model (the simulated material's own, from the dry-run's
 //! run.json) on each accuracy run, as a lab runs it (its default robust loss, every band). What is held: the
-//! chi2/dof against the points' independent uncertainties (target 0.7 to 1.5), and whether each fitted parameter
+//! chi2/dof against the points' whole budget (target 0.7 to 1.5), and whether each fitted parameter
 //! lies within its k = 2 interval (independent and shared uncertainties in quadrature) of the simulated value
 //! (target: in at least 93 % of instruments).
 

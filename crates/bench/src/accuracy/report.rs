@@ -240,7 +240,8 @@ fn fits_section(s: &mut String, runs: &[Run], setups: &[String]) {
         s,
         "\n## Fits with the true model\n\n`gonio fit --model <the material's own>` (its default robust loss, every \
          band) on each run above, as a lab runs it (crates/bench/src/accuracy/fits.rs). Targets: chi2/dof between \
-         0.7 and 1.5 against the points' independent uncertainties, and each fitted parameter within its k = 2 \
+         0.7 and 1.5 against the points' whole budget (shared components with their correlations), and each \
+         fitted parameter within its k = 2 \
          interval (independent and shared uncertainties in quadrature) of the simulated value in at least 93 % of \
          instruments. Per parameter: how often it is within k = 2, over the instruments, and its rms z.\n\n\
          | set-up | material | fits | chi2/dof: median (range) | chi2/dof in 0.7-1.5 | parameters: within k = 2, rms z | verdict |\n\

@@ -160,7 +160,8 @@ pub fn minimise(
     project(&mut x);
     let mut r = f.residuals(&x)?;
     let mut c = cost(&r);
-    if !c.is_finite() {
+    // No residual: nothing to minimise (and no Jacobian to build the normal equations from).
+    if !c.is_finite() || r.is_empty() {
         return None;
     }
     let mut lambda = 1e-3;
