@@ -317,4 +317,4 @@ fn correction(p: &Point, half_angle_rad: f64, models: &[&Fitted]) -> Option<Corr
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -2,11 +2,11 @@ use super::*;
 
 use gonio_brdf::integrate::integrate_infallible;
 
-const HALF_ANGLE_RAD: f64 = 0.01;
+pub(crate) const HALF_ANGLE_RAD: f64 = 0.01;
 
-/// The cos-weighted aperture average of `material`, integrated independently of [`factor`] (a lobe-adapted
-/// rule centred on the aperture, fixed and fine).
-fn aperture_average(material: &Material, wi: &Direction, wo: &Direction, nm: f64) -> f64 {
+/// The cos-weighted aperture average of `material`, integrated independently of [`factor`] and of the fit's
+/// 7-point rule (a lobe-adapted rule centred on the aperture, fixed and fine).
+pub(crate) fn aperture_average(material: &Material, wi: &Direction, wo: &Direction, nm: f64) -> f64 {
     let wl = Wavelength::from_nm(nm).expect("band");
     let rule = Rule::LobeAdapted {
         lobe_width_rad: HALF_ANGLE_RAD / 8.0,

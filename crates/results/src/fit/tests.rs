@@ -1,28 +1,8 @@
 use super::*;
 
-use gonio_brdf::integrate::{Region, Rule, integrate_infallible};
-use gonio_brdf::radiometry::cone_solid_angle_sr;
-
+use crate::aperture::tests::{HALF_ANGLE_RAD, aperture_average};
 use crate::budget::{Budget, components};
 use crate::points::Point;
-
-const HALF_ANGLE_RAD: f64 = 0.01;
-
-/// The cos-weighted aperture average of `material` at 550 nm by a fine rule, independent of the fit's 7-point one.
-fn aperture_average(material: &Material, wi: &Direction, wo: &Direction) -> f64 {
-    let wl = Wavelength::from_nm(550.0).expect("band");
-    let rule = Rule::LobeAdapted {
-        lobe_width_rad: HALF_ANGLE_RAD / 8.0,
-        n_per_panel: 8,
-        n_azimuth: 32,
-    };
-    let integral = integrate_infallible(
-        |w| material.eval(wi, w, wl).unwrap_or(0.0) * w.cos_theta().max(0.0),
-        &Region::cone(*wo, HALF_ANGLE_RAD),
-        rule,
-    );
-    integral.value / (cone_solid_angle_sr(HALF_ANGLE_RAD) * wo.cos_theta())
-}
 
 /// Gold's aperture averages (noise-free), each stored as a completed campaign stores it: the average in
 /// `brdf_aperture_sr` and beside it a value "corrected" to the nominal geometry by a correction that is 2 %
@@ -40,7 +20,7 @@ fn gold_run() -> Run {
             ] {
                 let mut p = Point::at(550.0, g, 0.0);
                 let (wi, wo) = directions(&p);
-                let average = aperture_average(&gold, &wi, &wo);
+                let average = aperture_average(&gold, &wi, &wo, 550.0);
                 let near_specular = (g[2] - ti).abs() < 4.0 && g[3] == 180.0;
                 let wrong = if near_specular { 1.02 } else { 1.0 };
                 let value = average * wrong;
