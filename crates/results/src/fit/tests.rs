@@ -35,9 +35,14 @@ fn gold_run() -> Run {
             }
         }
     }
+    dry_run_of("gold", points)
+}
+
+/// A dry-run of these points, without provenance.
+fn dry_run_of(name: &str, points: Vec<Point>) -> Run {
     Run {
         origin: "test".into(),
-        name: "gold".into(),
+        name: name.into(),
         points,
         axis_names: Vec::new(),
         dry_run: true,
@@ -107,14 +112,7 @@ fn styrofoam_run() -> Run {
             points.push(p);
         }
     }
-    Run {
-        origin: "test".into(),
-        name: "styrofoam".into(),
-        points,
-        axis_names: Vec::new(),
-        dry_run: true,
-        provenance: None,
-    }
+    dry_run_of("styrofoam", points)
 }
 
 #[test]
