@@ -28,7 +28,7 @@ mod report;
 mod ringdown;
 mod settle;
 
-pub use noise::{AMBIENT_ALLOWANCE, MAX_FILL, NOISE_READINGS};
+pub use noise::{AMBIENT_ALLOWANCE, FLICKER_ALLOWANCE, FLICKER_WINDOW_S, MAX_FILL, NOISE_READINGS};
 pub use report::{Check, SelftestReport, Verdict, against, at_most, info, within};
 pub use settle::{SETTLE_REPEATS, STEP_DEG};
 

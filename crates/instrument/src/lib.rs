@@ -277,6 +277,12 @@ pub struct Source {
     /// Relative standard deviation of the source power from reading to reading (simulation).
     #[serde(default)]
     pub relative_noise: f64,
+    /// The source's slow fluctuation (flicker): the relative standard deviation of its power about a straight
+    /// line over two minutes, what averaging a reading does not remove and references minutes apart do not
+    /// follow. `gonio selftest` measures it on the direct beam; each value's budget carries it (`flicker`).
+    /// The simulator does not take it from here: its lamp's flicker is `[simulator.imperfections.source]`.
+    #[serde(default)]
+    pub flicker_rel: f64,
     /// The wavelength when there is no filter wheel (nm).
     #[serde(default)]
     pub wavelength_nm: Option<f64>,

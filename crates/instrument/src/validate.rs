@@ -215,6 +215,7 @@ impl Instrument {
             ("divergence_deg", s.divergence_deg),
             ("drift_per_hour", s.drift_per_hour),
             ("relative_noise", s.relative_noise),
+            ("flicker_rel", s.flicker_rel),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("[instrument.source]: {key} must be >= 0, got {v}"));

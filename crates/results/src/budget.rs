@@ -29,6 +29,11 @@ pub mod components {
     /// The normalisation: the direct beam (absolute) or the reference sample's reading (relative), read and
     /// interpolated between references with the source's drift model; shared by a band's points.
     pub const NORMALISATION: &str = "normalisation";
+    /// The source's slow fluctuation (the instrument file's `source.flicker_rel`, measured by `gonio selftest`):
+    /// the lamp's power at the moment the value was read against the straight line between its normalisation
+    /// readings (independent per point), and the fluctuation in those readings themselves (each shared by the
+    /// points normalised from it).
+    pub const FLICKER: &str = "flicker";
     /// The detector's solid angle from the instrument file's aperture and distance tolerances; shared by every
     /// point of an absolute campaign.
     pub const SOLID_ANGLE: &str = "solid-angle";
@@ -76,6 +81,12 @@ pub mod groups {
     /// order.
     pub fn dark(nm: f64, k: usize) -> String {
         format!("dark-{}-{k}", nm + 0.0)
+    }
+
+    /// The points normalised from one normalisation reading (direct beam or reference sample): the `k`-th of a
+    /// band's (nm), in time order.
+    pub fn normalisation_reading(nm: f64, k: usize) -> String {
+        format!("normalisation-{}-{k}", nm + 0.0)
     }
 
     /// Without an applied alignment, the instrument file's angle uncertainty taken as one unknown offset of

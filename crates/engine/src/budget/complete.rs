@@ -216,16 +216,21 @@ pub fn completions(
         }
     }
 
-    for ((point, completion), r) in run
+    for (((point, completion), r), c) in run
         .points
         .iter_mut()
         .zip(&mut done)
-        .zip(super::drift::renormalise(calibrations, committed))
+        .zip(super::drift::renormalise(
+            calibrations,
+            committed,
+            instrument.source.flicker_rel,
+        ))
+        .zip(committed)
     {
         let (Some(r), Some(value)) = (r, point.brdf_sr) else {
             continue;
         };
-        if r.factor == 1.0 && r.curvature_rel == 0.0 {
+        if r.factor == 1.0 && r.curvature_rel == 0.0 && r.flicker.own_rel == 0.0 {
             continue;
         }
         let renormalised = value * r.factor;
@@ -235,6 +240,17 @@ pub fn completions(
             completion
                 .budget
                 .add(components::NORMALISATION, curvature_u, None);
+        }
+        let own_u = (renormalised * r.flicker.own_rel).abs();
+        if own_u > 0.0 {
+            completion.budget.add(components::FLICKER, own_u, None);
+        }
+        for (k, rel) in &r.flicker.readings_rel {
+            let u = (renormalised * rel).abs();
+            if u > 0.0 {
+                let group = groups::normalisation_reading(c.band_nm, *k);
+                completion.budget.add(components::FLICKER, u, Some(group));
+            }
         }
         completion.brdf_sr = Some(renormalised);
         point.brdf_sr = Some(renormalised);

@@ -9,6 +9,11 @@
 //! the neighbouring readings' second difference and added to the budget as an independent `normalisation`
 //! component: `|N''| (t - t_k) (t_k+1 - t) / 2`, linear interpolation's error for a curvature `N''`.
 //!
+//! The lamp also flickers (`source.flicker_rel` in the instrument file, measured by `gonio selftest`): its power at
+//! the moment a value was read stands off the straight line by that much (independent per point), and so does
+//! each normalisation reading's, which moves every value interpolated from it together ([`Flicker`]). The
+//! second differences the curvature is estimated from hold the flicker too, and are taken net of it.
+//!
 //! The readings are the campaign's stored calibration records (`direct-beam` or `reference`, net of the band's
 //! last dark before them, as the run loop took them). A point after its band's last reading keeps its value.
 
@@ -17,16 +22,28 @@ use std::collections::BTreeMap;
 use crate::store::{CalibrationRecord, PointRecord};
 
 /// One point's renormalisation.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Renormalised {
     /// The value's factor: the normalisation used while running over the interpolated one.
     pub factor: f64,
     /// The interpolation's remaining relative standard uncertainty (the drift's curvature).
     pub curvature_rel: f64,
+    pub flicker: Flicker,
 }
 
-/// Each band's net normalisation readings (time s, W, its standard uncertainty W), in time order.
-fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<Sample>> {
+/// The source's flicker in one value (module doc), relative standard uncertainties.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Flicker {
+    /// At the moment the value was read: independent.
+    pub own_rel: f64,
+    /// In the normalisation readings it was interpolated from (the index of each among its band's readings, in
+    /// time order), weighted by the interpolation: shared by every value interpolated from that reading.
+    pub readings_rel: Vec<(usize, f64)>,
+}
+
+/// Each band's net normalisation readings (time s, W, its standard uncertainty W: the reading's and its dark's
+/// noise, and the source's flicker `flicker_rel` of it), in time order.
+fn series(records: &[CalibrationRecord], flicker_rel: f64) -> BTreeMap<u64, Vec<Sample>> {
     let mut darks: BTreeMap<u64, (f64, f64)> = BTreeMap::new();
     let mut out: BTreeMap<u64, Vec<Sample>> = BTreeMap::new();
     let mut ordered: Vec<&CalibrationRecord> = records.iter().collect();
@@ -41,7 +58,7 @@ fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<Sample>> {
             "direct-beam" | "reference" => {
                 let (dark_w, dark_u_w) = darks.get(&key).copied().unwrap_or((0.0, 0.0));
                 let net = r.value_w - dark_w;
-                let u_w = r.u_w.hypot(dark_u_w);
+                let u_w = r.u_w.hypot(dark_u_w).hypot(flicker_rel * net);
                 if net > 0.0 && net.is_finite() && r.t_s.is_finite() && u_w.is_finite() {
                     out.entry(key).or_default().push((r.t_s, net, u_w));
                 }
@@ -114,14 +131,22 @@ impl From<&PointRecord> for Normalised {
 
 /// The renormalisation of each point (module doc), in the points' order: `None` for a point that keeps its
 /// value (no reading after it, no normalisation, no value).
-pub fn renormalise(records: &[CalibrationRecord], points: &[PointRecord]) -> Vec<Option<Renormalised>> {
+pub fn renormalise(
+    records: &[CalibrationRecord],
+    points: &[PointRecord],
+    flicker_rel: f64,
+) -> Vec<Option<Renormalised>> {
     let values: Vec<Normalised> = points.iter().map(Normalised::from).collect();
-    renormalise_values(records, &values)
+    renormalise_values(records, &values, flicker_rel)
 }
 
 /// [`renormalise`] of values of any kind (points, sweep readings).
-pub fn renormalise_values(records: &[CalibrationRecord], values: &[Normalised]) -> Vec<Option<Renormalised>> {
-    let series = series(records);
+pub fn renormalise_values(
+    records: &[CalibrationRecord],
+    values: &[Normalised],
+    flicker_rel: f64,
+) -> Vec<Option<Renormalised>> {
+    let series = series(records, flicker_rel);
     values
         .iter()
         .map(|p| {
@@ -133,7 +158,19 @@ pub fn renormalise_values(records: &[CalibrationRecord], values: &[Normalised]) 
                 return None;
             }
             // The readings around the point: k at or before it, k + 1 after it.
-            let k1 = s.iter().position(|(t, _, _)| *t > p.t_s)?;
+            let Some(k1) = s.iter().position(|(t, _, _)| *t > p.t_s) else {
+                // After the band's last reading the value keeps the normalisation it was given while running,
+                // carried forward from the last reading (its weight taken as one).
+                let last = s.len().checked_sub(1)?;
+                return Some(Renormalised {
+                    factor: 1.0,
+                    curvature_rel: 0.0,
+                    flicker: Flicker {
+                        own_rel: flicker_rel,
+                        readings_rel: vec![(last, flicker_rel)],
+                    },
+                });
+            };
             let k = k1.checked_sub(1)?;
             let ((t0, n0, _), (t1, n1, _)) = (s[k], s[k1]);
             let x = (p.t_s - t0) / (t1 - t0);
@@ -145,6 +182,13 @@ pub fn renormalise_values(records: &[CalibrationRecord], values: &[Normalised]) 
             Some(Renormalised {
                 factor: p.incident_w / interpolated,
                 curvature_rel: curvature * (p.t_s - t0) * (t1 - p.t_s) / 2.0 / interpolated,
+                flicker: Flicker {
+                    own_rel: flicker_rel,
+                    readings_rel: vec![
+                        (k, flicker_rel * n0 * (1.0 - x) / interpolated),
+                        (k1, flicker_rel * n1 * x / interpolated),
+                    ],
+                },
             })
         })
         .collect()
@@ -206,8 +250,8 @@ pub(super) mod tests {
         };
         let mut p = point_at(900.0, 550.0);
         p.incident_w = extrapolated;
-        let r = renormalise(&records, &[p]);
-        let r = r[0].expect("renormalised");
+        let r = renormalise(&records, &[p], 0.0);
+        let r = r[0].clone().expect("renormalised");
         // The value times `factor` is normalised by the interpolation, which is far closer to the truth.
         let interpolated = extrapolated / r.factor;
         let before = (extrapolated / truth(900.0) - 1.0).abs();
@@ -247,13 +291,69 @@ pub(super) mod tests {
     }
 
     #[test]
-    fn a_point_after_the_last_reading_keeps_its_value() {
+    fn a_point_after_the_last_reading_keeps_its_value_and_the_last_readings_flicker() {
         let records = vec![
             record("direct-beam", 0.0, 1e-3),
             record("direct-beam", 600.0, 1e-3),
         ];
         let mut p = point_at(700.0, 550.0);
         p.incident_w = 1e-3;
-        assert_eq!(renormalise(&records, &[p]), vec![None]);
+        let r = renormalise(&records, &[p], 2e-4)[0].clone().expect("the flicker");
+        assert_eq!((r.factor, r.curvature_rel), (1.0, 0.0));
+        assert_eq!(r.flicker.own_rel, 2e-4);
+        assert_eq!(r.flicker.readings_rel, vec![(1, 2e-4)]);
+    }
+
+    #[test]
+    fn the_flicker_is_the_points_own_and_its_readings_by_nearness() {
+        let records: Vec<CalibrationRecord> = (0..3)
+            .map(|k| record("direct-beam", 600.0 * f64::from(k), 1e-3))
+            .collect();
+        let mut p = point_at(750.0, 550.0);
+        p.incident_w = 1e-3;
+        let r = renormalise(&records, &[p.clone()], 2e-4)[0]
+            .clone()
+            .expect("renormalised");
+        assert_eq!(r.flicker.own_rel, 2e-4);
+        // A quarter of the way from the reading at 600 s to the one at 1200 s.
+        let [(a, wa), (b, wb)] = r.flicker.readings_rel[..] else {
+            panic!("two readings: {:?}", r.flicker.readings_rel)
+        };
+        assert_eq!((a, b), (1, 2));
+        assert!(
+            (wa - 1.5e-4).abs() < 1e-12 && (wb - 0.5e-4).abs() < 1e-12,
+            "{wa} {wb}"
+        );
+        // Without flicker in the file, none in the budget, and the same factor.
+        let plain = renormalise(&records, &[p], 0.0)[0].clone().expect("renormalised");
+        assert_eq!(plain.factor, r.factor);
+        assert_eq!(plain.flicker.own_rel, 0.0);
+        assert!(plain.flicker.readings_rel.iter().all(|(_, w)| *w == 0.0));
+    }
+
+    #[test]
+    fn flicker_in_the_readings_is_not_taken_for_curvature() {
+        // Readings of a steady lamp that flickers by 2e-4: the second difference is that flicker's, not a bend.
+        let values = [1e-3, 1e-3 * (1.0 + 1e-4), 1e-3 * (1.0 - 1e-4), 1e-3];
+        let records: Vec<CalibrationRecord> = values
+            .iter()
+            .enumerate()
+            .map(|(k, v)| record("direct-beam", 600.0 * k as f64, *v))
+            .collect();
+        let mut p = point_at(900.0, 550.0);
+        p.incident_w = 1e-3;
+        let blind = renormalise(&records, &[p.clone()], 0.0)[0]
+            .clone()
+            .expect("renormalised");
+        let told = renormalise(&records, &[p], 2e-4)[0]
+            .clone()
+            .expect("renormalised");
+        // Blind to it: (3e-4 of 1e-3 W over (600 s)^2) x 300 s x 300 s / 2 = 3.75e-5 of the value.
+        assert!(
+            (blind.curvature_rel - 3.75e-5).abs() < 1e-9,
+            "{}",
+            blind.curvature_rel
+        );
+        assert_eq!(told.curvature_rel, 0.0);
     }
 }

@@ -103,7 +103,7 @@ pub fn sweep_completions(
             t_s: r.t_s,
         })
         .collect();
-    let drift = renormalise_values(calibrations, &timed);
+    let drift = renormalise_values(calibrations, &timed, instrument.source.flicker_rel);
     let renormalised: Vec<SweepReading> = readings
         .iter()
         .zip(&drift)
@@ -112,7 +112,18 @@ pub fn sweep_completions(
             if let (Some(d), Some(v), Some(u)) = (d, r.brdf_sr, r.brdf_u_sr) {
                 let value = v * d.factor;
                 r.brdf_sr = Some(value);
-                r.brdf_u_sr = Some((u * d.factor).hypot(value * d.curvature_rel));
+                // A sweep's readings are milliseconds apart: the lamp's flicker moves them together, so it
+                // is not averaged away over a sweep; each carries it whole.
+                let flicker = d
+                    .flicker
+                    .readings_rel
+                    .iter()
+                    .fold(d.flicker.own_rel, |a, (_, w)| a.hypot(*w));
+                r.brdf_u_sr = Some(
+                    (u * d.factor)
+                        .hypot(value * d.curvature_rel)
+                        .hypot(value * flicker),
+                );
             }
             r
         })

@@ -15,6 +15,14 @@
 //!   current, Johnson noise of the range's feedback resistor, the converter's quantisation: [`meter_floor_w2`])
 //!   is subtracted (gonio_instrument::meter_noise, the figures the simulated meter uses too); at the direct beam
 //!   it is a few percent of the source's at most.
+//! - Flicker (`source.flicker_rel`): right after, the same beam, range and set wavelength at the file's
+//!   averaging (what a campaign reads with), read back to back for [`FLICKER_WINDOW_S`] with each reading's
+//!   time. About the straight line through them (the drift references follow) the readings scatter by the
+//!   lamp's slow fluctuation and by their own white noise; half the variance of consecutive differences is the
+//!   white part (the flicker barely changes in one reading's time) and is subtracted ([`flicker_rel`]). A
+//!   two-minute record sees fluctuations faster than about a minute: slower ones are the drift's, which the
+//!   campaign's references and their curvature cover. One record of a 1/f fluctuation estimates its size to
+//!   some percent at best, so the verdict allows [`FLICKER_ALLOWANCE`] either way ([`flicker_check`]).
 
 use gonio_driver::{DetectorConfig, PowerRange};
 use gonio_instrument::meter_noise;
@@ -33,6 +41,12 @@ pub const NOISE_READINGS: usize = 800;
 /// Ambient light a dark reading may hold on top of the claimed dark current, as a fraction of the claim
 /// (realistic.toml's room light is 40 % of its head's dark current, varying by 20 %).
 pub const AMBIENT_ALLOWANCE: f64 = 0.6;
+/// How long the flicker's record lasts (s of instrument time).
+pub const FLICKER_WINDOW_S: f64 = 120.0;
+/// The flicker's verdict: the measured figure may differ from the claim by this factor (relative) either way.
+/// Four seeds of realistic.toml's lamp (flicker over 0.01-10 Hz) measure 0.89-0.99 of its rms (the straight
+/// line takes part of the slowest decade); a lamp whose flicker reaches further down scatters more.
+pub const FLICKER_ALLOWANCE: f64 = 0.3;
 /// The direct beam's largest share of the range's full scale: its noise and drift must not overload it.
 pub const MAX_FILL: f64 = 0.75;
 
@@ -196,13 +210,14 @@ fn best_setting(
     best.map(|(nm, range_w, _)| (nm, range_w))
 }
 
-/// The source's white relative noise on the direct beam at `pose` (module doc), or why it is not measured.
+/// The source's white relative noise on the direct beam at `pose` (module doc) and the meter's setting it was
+/// read with (set wavelength nm, range W), or why it is not measured.
 pub(super) async fn source_noise(
     motion: &mut Motion<'_>,
     pose: &Pose,
     band_nm: f64,
     tolerance: f64,
-) -> Result<Result<Check, String>, MotionError> {
+) -> Result<Result<(Check, (f64, f64)), String>, MotionError> {
     let inst = motion.rig().file().instrument.clone();
     let r = match responsivity(motion) {
         Ok(r) => r,
@@ -253,14 +268,113 @@ pub(super) async fn source_noise(
         return Ok(Err("no direct beam to measure the noise on".into()));
     };
     let claimed = inst.source.relative_noise;
-    Ok(Ok(against(
+    let check = against(
         "source.relative_noise".into(),
         "source's white relative noise (direct beam, differences of consecutive readings)",
         "1",
         claimed,
         measured,
         tolerance,
+    );
+    Ok(Ok((check, (nm, range_w))))
+}
+
+/// The source's flicker on the direct beam where [`source_noise`] left the meter (module doc), or why it is not
+/// measured. `nm` and `range_w`: that setting.
+pub(super) async fn source_flicker(
+    motion: &mut Motion<'_>,
+    nm: f64,
+    range_w: f64,
+) -> Result<Result<Check, String>, MotionError> {
+    let inst = motion.rig().file().instrument.clone();
+    configure(
+        motion,
+        DetectorConfig {
+            wavelength_nm: nm,
+            averaging: inst.detector.averaging,
+            range: PowerRange::Fixed {
+                full_scale_w: range_w,
+            },
+        },
+    )
+    .await?;
+    tracing::info!(
+        window_s = FLICKER_WINDOW_S,
+        averaging = inst.detector.averaging,
+        "self-test: the source's flicker on the direct beam"
+    );
+    let det = motion.rig().detector();
+    let clock = motion.clock();
+    let t0 = clock.now_s();
+    let mut samples = Vec::new();
+    loop {
+        let t = clock.now_s();
+        if t - t0 >= FLICKER_WINDOW_S {
+            break;
+        }
+        let r = motion
+            .device(Device::Detector, "read the meter", || det.read_power())
+            .await?;
+        if r.overload || !r.power_w.is_finite() {
+            return Ok(Err(format!("the direct beam overloads the {range_w:e} W range")));
+        }
+        samples.push((0.5 * (t + clock.now_s()), r.power_w));
+    }
+    let Some((measured, white)) = flicker_rel(&samples) else {
+        return Ok(Err(format!(
+            "too few readings in {FLICKER_WINDOW_S} s ({}) or no direct beam",
+            samples.len()
+        )));
+    };
+    Ok(Ok(flicker_check(
+        inst.source.flicker_rel,
+        measured,
+        white,
+        samples.len(),
     )))
+}
+
+/// The flicker of `samples` (time s, W): the relative standard deviation about their least-squares straight
+/// line, less the white part (half the variance of consecutive differences); and that white part's relative
+/// standard deviation. None with fewer than 20 samples or without a positive mean.
+pub fn flicker_rel(samples: &[(f64, f64)]) -> Option<(f64, f64)> {
+    if samples.len() < 20 {
+        return None;
+    }
+    let n = samples.len() as f64;
+    let (mt, mv) = samples
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (t, v)| (a + t / n, b + v / n));
+    if mv.is_nan() || mv <= 0.0 {
+        return None;
+    }
+    let stt: f64 = samples.iter().map(|(t, _)| (t - mt).powi(2)).sum();
+    let stv: f64 = samples.iter().map(|(t, v)| (t - mt) * (v - mv)).sum();
+    let slope = if stt > 0.0 { stv / stt } else { 0.0 };
+    let about_line = samples
+        .iter()
+        .map(|(t, v)| (v - mv - slope * (t - mt)).powi(2))
+        .sum::<f64>()
+        / (n - 2.0);
+    let white = samples.windows(2).map(|w| (w[1].1 - w[0].1).powi(2)).sum::<f64>() / (2.0 * (n - 1.0));
+    Some(((about_line - white).max(0.0).sqrt() / mv, white.sqrt() / mv))
+}
+
+/// The flicker's verdict: within [`FLICKER_ALLOWANCE`] of the claim either way, give or take what the readings'
+/// white noise (`white_rel` each, `readings` of them) leaves in the estimate: three of its standard deviations,
+/// a variance difference known to about sqrt(5 / readings) of the white variance.
+fn flicker_check(claimed: f64, measured: f64, white_rel: f64, readings: usize) -> Check {
+    let floor = white_rel * 3f64.sqrt() * (5.0 / readings.max(1) as f64).powf(0.25);
+    let pass = measured <= claimed * (1.0 + FLICKER_ALLOWANCE) + floor
+        && measured >= claimed / (1.0 + FLICKER_ALLOWANCE) - floor;
+    line(
+        "source.flicker_rel".into(),
+        "source's flicker (direct beam, two minutes about a straight line)",
+        "1",
+        claimed,
+        measured,
+        pass,
+    )
 }
 
 /// The white relative noise of `values` (module doc): consecutive differences, less the meter's own noise when
@@ -324,6 +438,57 @@ mod tests {
         let less = relative_noise(&values, 5.0e-4, 0.3, true).expect("a beam");
         assert!(less < plain && less > 0.9 * plain, "{less} vs {plain}");
         assert_eq!(relative_noise(&[0.0; 10], 5.0e-4, 0.3, true), None);
+    }
+
+    #[test]
+    fn the_flicker_is_the_scatter_about_a_line_less_the_white_noise() {
+        // Two minutes at 30 ms a reading: a ramp of 1 %, a slow sine of rms 2e-4 (period 20 s) and white noise of
+        // 1e-4 (uniform, from a xorshift generator).
+        let n = 4000;
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next_white = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+            1e-4 * 3f64.sqrt() * (2.0 * u - 1.0)
+        };
+        let whites: Vec<f64> = (0..n).map(|_| next_white()).collect();
+        let samples: Vec<(f64, f64)> = (0..n)
+            .map(|k| {
+                let t = 0.03 * k as f64;
+                let sine = 2e-4 * std::f64::consts::SQRT_2 * (std::f64::consts::TAU * t / 20.0).sin();
+                (t, 1e-4 * (1.0 + 0.01 * t / 120.0 + sine + whites[k]))
+            })
+            .collect();
+        let (flicker, white) = flicker_rel(&samples).expect("a beam");
+        assert!((flicker / 2e-4 - 1.0).abs() < 0.05, "{flicker}");
+        assert!((white / 1e-4 - 1.0).abs() < 0.05, "{white}");
+        // Without the sine: no flicker is claimed beyond the white noise's leftovers.
+        let flat: Vec<(f64, f64)> = (0..n)
+            .map(|k| (0.03 * k as f64, 1e-4 * (1.0 + whites[k])))
+            .collect();
+        let (none, _) = flicker_rel(&flat).expect("a beam");
+        assert!(none < 1e-5, "{none}");
+        assert_eq!(flicker_rel(&samples[..10]), None);
+    }
+
+    #[test]
+    fn the_flicker_passes_within_its_allowance_either_way() {
+        use super::super::report::Verdict::{Fail, Pass};
+        let c = |claimed: f64, measured: f64| flicker_check(claimed, measured, 3e-5, 4000).verdict;
+        assert_eq!(c(2e-4, 2e-4), Pass);
+        assert_eq!(c(2e-4, 2.5e-4), Pass);
+        assert_eq!(c(2e-4, 1.6e-4), Pass);
+        assert_eq!(c(2e-4, 4e-4), Fail, "a lamp twice as unsteady as claimed");
+        assert_eq!(
+            c(2e-4, 0.5e-4),
+            Fail,
+            "a claim four times what is there pads every budget"
+        );
+        // No flicker claimed: the white noise's leftovers pass, a real flicker does not.
+        assert_eq!(c(0.0, 5e-6), Pass);
+        assert_eq!(c(0.0, 1e-4), Fail);
     }
 
     #[test]

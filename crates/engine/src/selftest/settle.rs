@@ -220,10 +220,18 @@ pub(super) async fn measure_settling(
     record(&mut out, light, got);
     // The source's relative noise on the direct beam while the holder is still empty (crate::selftest::noise).
     match super::noise::source_noise(motion, &at_detector(detector_centre), band_nm, tolerance).await? {
-        Ok(c) => out.checks.push(c),
-        Err(why) => out
-            .not_measured
-            .push(format!("source.relative_noise: not measured ({why})")),
+        Ok((c, (nm, range_w))) => {
+            out.checks.push(c);
+            match super::noise::source_flicker(motion, nm, range_w).await? {
+                Ok(c) => out.checks.push(c),
+                Err(why) => out
+                    .not_measured
+                    .push(format!("source.flicker_rel: not measured ({why})")),
+            }
+        }
+        Err(why) => out.not_measured.push(format!(
+            "source.relative_noise, source.flicker_rel: not measured ({why})"
+        )),
     }
     meter.auto(motion).await?;
 
