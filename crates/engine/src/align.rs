@@ -22,6 +22,7 @@
 //! mirror cannot show it: it turns the tilt vector, which absorbs it), and the re-seating of a sample other than
 //! the mirror.
 
+pub mod beam_split;
 pub mod centre;
 pub mod correction;
 pub mod file;
@@ -579,14 +580,18 @@ fn report(
             observable: f.observable[k],
         })
         .collect::<Vec<_>>();
-    let (line, line_u) = f.beam_line_deg(dims);
-    estimates.push(Estimate {
-        name: "beam_line_deg".into(),
-        unit: "deg".into(),
-        value: line,
-        u: line_u,
-        observable: line_u < 0.05,
-    });
+    for (name, (line, line_u)) in [
+        ("beam_line_deg", f.beam_line_deg(dims)),
+        ("beam_elevation_line_deg", f.beam_elevation_line_deg(dims)),
+    ] {
+        estimates.push(Estimate {
+            name: name.into(),
+            unit: "deg".into(),
+            value: line,
+            u: line_u,
+            observable: line_u < 0.05,
+        });
+    }
     let mut unobservable: Vec<String> = estimates
         .iter()
         .filter(|e| !e.observable)

@@ -254,7 +254,10 @@ pub(crate) async fn run(
                 .and_then(|cal| cal.check_instrument(&rec.instrument_toml, &origin).map(|()| cal))
                 .map_err(|e| not_runnable(e.to_string()))?;
             (
-                Some(PoseCorrection::new(&file.instrument, cal.params())),
+                Some(PoseCorrection::new(
+                    &file.instrument,
+                    cal.params(&file.instrument),
+                )),
                 cal.detector.clone().map(DetectorCorrection::new),
             )
         }

@@ -283,6 +283,15 @@ pub struct Source {
     /// The simulator does not take it from here: its lamp's flicker is `[simulator.imperfections.source]`.
     #[serde(default)]
     pub flicker_rel: f64,
+    /// How well the beam's direction was set along the light arm's axis (deg, standard uncertainty; absent:
+    /// the file's `alignment_u_deg`). With `offset_u_mm` it splits the beam's line an alignment observes
+    /// between the beam's direction and its offset (gonio_engine::align::beam_split).
+    #[serde(default)]
+    pub pointing_u_deg: Option<f64>,
+    /// How well the beam was centred on the arms' axis (mm, standard uncertainty, across the beam; absent:
+    /// [`DEFAULT_BEAM_OFFSET_U_MM`]).
+    #[serde(default)]
+    pub offset_u_mm: Option<f64>,
     /// The wavelength when there is no filter wheel (nm).
     #[serde(default)]
     pub wavelength_nm: Option<f64>,
@@ -296,7 +305,23 @@ pub struct Source {
 /// at its usual operating point (they run at 2800-3400 K).
 pub const DEFAULT_COLOUR_TEMPERATURE_K: f64 = 3000.0;
 
+/// How well a beam is centred on the arms' axis when the instrument file does not say (mm, standard
+/// uncertainty): against a cross-hair or a pinhole on the axis by eye, about a tenth of a millimetre.
+pub const DEFAULT_BEAM_OFFSET_U_MM: f64 = 0.1;
+
 impl Source {
+    /// How well the beam's direction was set (deg, standard uncertainty): the file's `pointing_u_deg`, else
+    /// `alignment_u_deg` (the instrument's angles as known without an alignment).
+    pub fn pointing_u_or(&self, alignment_u_deg: f64) -> f64 {
+        self.pointing_u_deg.unwrap_or(alignment_u_deg)
+    }
+
+    /// How well the beam was centred on the arms' axis (mm, standard uncertainty): the file's `offset_u_mm`,
+    /// else [`DEFAULT_BEAM_OFFSET_U_MM`].
+    pub fn offset_u_or_default(&self) -> f64 {
+        self.offset_u_mm.unwrap_or(DEFAULT_BEAM_OFFSET_U_MM)
+    }
+
     /// The source's colour temperature (K): the file's, else [`DEFAULT_COLOUR_TEMPERATURE_K`].
     pub fn colour_temperature_k(&self) -> f64 {
         self.colour_temperature_k.unwrap_or(DEFAULT_COLOUR_TEMPERATURE_K)

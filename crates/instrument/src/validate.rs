@@ -221,6 +221,18 @@ impl Instrument {
                 return Err(format!("[instrument.source]: {key} must be >= 0, got {v}"));
             }
         }
+        for (key, v, limit) in [
+            ("pointing_u_deg", s.pointing_u_deg, 10.0),
+            ("offset_u_mm", s.offset_u_mm, 10.0),
+        ] {
+            if let Some(v) = v
+                && !(v.is_finite() && (0.0..=limit).contains(&v))
+            {
+                return Err(format!(
+                    "[instrument.source]: {key} is a standard uncertainty in [0, {limit}], got {v}"
+                ));
+            }
+        }
         if let Some(nm) = s.wavelength_nm
             && !(nm.is_finite() && nm > 0.0)
         {

@@ -83,7 +83,10 @@ impl CampaignRunner for EngineRunner {
     fn pose_correction(&self, alignment_toml: &str) -> Option<PoseCorrection> {
         // Checked against the instrument file when it became the daemon's current calibration.
         let cal = CalibrationFile::parse(alignment_toml, "<the daemon's calibration>").ok()?;
-        Some(PoseCorrection::new(&self.instrument.instrument, cal.params()))
+        Some(PoseCorrection::new(
+            &self.instrument.instrument,
+            cal.params(&self.instrument.instrument),
+        ))
     }
 
     fn points_csv(&self, store: &Store, record: &CampaignRecord) -> Result<String, StoreError> {

@@ -410,7 +410,11 @@ async fn the_consoles_move_by_geometry_uses_the_current_calibration() {
     assert_eq!(status, StatusCode::OK, "{aligned}");
     let aligned = pose_of(&aligned);
     let cal = CalibrationFile::parse(&text, "cal").expect("calibration");
-    let expected = PoseCorrection::new(&InstrumentFile::simulated().instrument, cal.params()).correct(&plain);
+    let expected = PoseCorrection::new(
+        &InstrumentFile::simulated().instrument,
+        cal.params(&InstrumentFile::simulated().instrument),
+    )
+    .correct(&plain);
     assert!(
         (aligned.detector_deg - plain.detector_deg + 0.05).abs() < 0.002,
         "{plain:?} -> {aligned:?}"

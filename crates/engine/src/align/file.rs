@@ -5,7 +5,10 @@
 use gonio_results::provenance_summary::{iso8601_utc, sha256_hex};
 use serde::{Deserialize, Serialize};
 
+use gonio_instrument::Instrument;
+
 use super::AlignmentReport;
+use super::beam_split::BeamSplit;
 use super::model::{GeometryParams, N_PARAMS, PARAM_NAMES};
 use crate::characterise::{DetectorCalibration, SourceDrift};
 
@@ -156,26 +159,93 @@ impl CalibrationFile {
         }
     }
 
-    /// The geometric model's parameters a correction applies (a value the file does not give is 0).
+    /// The geometric model's parameters a correction applies on `instrument` (a value the file does not give
+    /// is 0).
     ///
     /// A value the scans could not observe stays at its nominal 0: its fitted value is its prior's, moved along
     /// a direction the observations do not constrain by whatever they weakly see, and applying it would move
     /// the arms by that noise (a beam offset of half a millimetre "found" where the truth is a tenth). Where an
-    /// observed combination stands for it, the combination is kept: the beam's line (`beam_line_deg`) becomes
-    /// its direction when the beam's lateral offset is not observable. The sample's own tilt
-    /// (`sample_own_tilt_*`, crate::align::sample_tilt), when it was measured, replaces the mirror's.
-    pub fn params(&self) -> GeometryParams {
-        self.pick(|v| v.value)
+    /// observed combination stands for it, the combination is kept: the beam's line (`beam_line_deg`), when the
+    /// beam's lateral offset is not observable, is split between the beam's direction and its offset by the
+    /// instrument file's priors (crate::align::beam_split; all direction when they say nothing). The sample's own
+    /// tilt (`sample_own_tilt_*`, crate::align::sample_tilt), when it was measured, replaces the mirror's.
+    pub fn params(&self, instrument: &Instrument) -> GeometryParams {
+        let mut x = self.pick(|v| v.value);
+        for pair in &BEAM_PAIRS {
+            if let Some((line, _)) = self.beam_line(pair) {
+                pair.set(&mut x, beam_at(BeamSplit::of(instrument), line, false));
+            }
+        }
+        GeometryParams::from_slice(&x)
     }
 
-    /// Each of [`Self::params`]'s standard uncertainties, the same values picked (0 where a parameter keeps
-    /// its nominal 0): what the angles of a campaign the calibration was applied to are uncertain by.
-    pub fn params_u(&self) -> GeometryParams {
-        self.pick(|v| v.u)
+    /// The applied parameters ([`Self::params`]) moved by each uncertainty the file gives, one at a time, with
+    /// the name of what moved: each picked parameter by its standard uncertainty; in each plane (the arms' and
+    /// across it) where the beam's line stands for the beam, the line by its uncertainty (`beam_line_deg`,
+    /// `beam_elevation_line_deg`, split as the line is) and the beam's direction along the line held
+    /// (`beam_deg`, `beam_elevation_deg`, by the split's uncertainty); where a file has no line, the beam's
+    /// direction and offset by the file's priors. What an alignment's uncertainty does to a campaign's angles,
+    /// one independent error each (crate::budget's pointing).
+    pub fn perturbations(&self, instrument: &Instrument) -> Vec<(&'static str, GeometryParams)> {
+        let base = self.params(instrument).to_vec();
+        let u = self.pick(|v| v.u);
+        let moved = |change: &dyn Fn(&mut [f64; N_PARAMS])| {
+            let mut x = base;
+            change(&mut x);
+            GeometryParams::from_slice(&x)
+        };
+        let mut out: Vec<(&'static str, GeometryParams)> = (0..N_PARAMS)
+            .filter(|&k| u[k] > 0.0 && u[k].is_finite())
+            .map(|k| (PARAM_NAMES[k].0, moved(&|x| x[k] += u[k])))
+            .collect();
+        let split = BeamSplit::of(instrument);
+        for pair in &BEAM_PAIRS {
+            if let Some((line, line_u)) = self.beam_line(pair) {
+                if line_u > 0.0 {
+                    let beam = beam_at(split, line + line_u, false);
+                    out.push((pair.line, moved(&|x| pair.set(x, beam))));
+                }
+                if split.is_some_and(|s| s.held_line_u_deg > 0.0) {
+                    let beam = beam_at(split, line, true);
+                    out.push((pair.direction, moved(&|x| pair.set(x, beam))));
+                }
+                continue;
+            }
+            // A file whose alignment fitted the beam but holds no line for it (an older gonio's): the beam stays
+            // at 0 there, uncertain by the instrument file's priors.
+            let priors = [
+                (
+                    pair.direction,
+                    instrument.source.pointing_u_or(instrument.alignment_u_deg()),
+                ),
+                (pair.offset, instrument.source.offset_u_or_default()),
+            ];
+            for (name, prior) in priors {
+                if let Some(k) = PARAM_NAMES.iter().position(|(n, _)| *n == name)
+                    && self.values.iter().any(|v| v.name == name)
+                    && u[k] == 0.0
+                    && prior > 0.0
+                    && prior.is_finite()
+                {
+                    out.push((PARAM_NAMES[k].0, moved(&|x| x[k] += prior)));
+                }
+            }
+        }
+        out
     }
 
-    /// The parameters by [`Self::params`]'s rules, each value's `of`.
-    fn pick(&self, of: impl Fn(&Value) -> f64) -> GeometryParams {
+    /// The beam's observed line (value, u; deg) in `pair`'s plane when it stands for the beam: the line
+    /// observed, the offset not.
+    fn beam_line(&self, pair: &BeamPair) -> Option<(f64, f64)> {
+        let get = |name: &str| self.values.iter().find(|v| v.name == name);
+        if get(pair.offset).is_some_and(|v| v.observable) {
+            return None;
+        }
+        get(pair.line).filter(|v| v.observable).map(|v| (v.value, v.u))
+    }
+
+    /// The parameters by [`Self::params`]'s rules, each value's `of`, the beam's line aside.
+    fn pick(&self, of: impl Fn(&Value) -> f64) -> [f64; N_PARAMS] {
         let mut x = [0.0; N_PARAMS];
         let get = |name: &str| self.values.iter().find(|v| v.name == name);
         for (k, (name, _)) in PARAM_NAMES.iter().enumerate() {
@@ -195,14 +265,141 @@ impl CalibrationFile {
                 x[k] = of(v);
             }
         }
-        let lateral_seen = get("beam_lateral_mm").is_some_and(|v| v.observable);
-        if let (false, Some(line), Some(k)) = (
-            lateral_seen,
-            get("beam_line_deg").filter(|v| v.observable),
-            PARAM_NAMES.iter().position(|(n, _)| *n == "beam_deg"),
-        ) {
-            x[k] = of(line);
+        x
+    }
+}
+
+/// The beam's `(beam_deg, beam_lateral_mm)` for its line at `line_deg`: split by `split` (moved along the line
+/// by the split's uncertainty when `moved`), all direction without one.
+fn beam_at(split: Option<BeamSplit>, line_deg: f64, moved: bool) -> (f64, f64) {
+    match (split, moved) {
+        (Some(s), false) => s.params(line_deg),
+        (Some(s), true) => s.moved_along_line(line_deg),
+        (None, _) => (line_deg, 0.0),
+    }
+}
+
+/// The beam's observed line in one plane and the two parameters it stands for.
+struct BeamPair {
+    line: &'static str,
+    direction: &'static str,
+    offset: &'static str,
+}
+
+/// In the plane of the arms, and out of it.
+const BEAM_PAIRS: [BeamPair; 2] = [
+    BeamPair {
+        line: "beam_line_deg",
+        direction: "beam_deg",
+        offset: "beam_lateral_mm",
+    },
+    BeamPair {
+        line: "beam_elevation_line_deg",
+        direction: "beam_elevation_deg",
+        offset: "beam_vertical_mm",
+    },
+];
+
+impl BeamPair {
+    /// `x`'s direction and offset in this plane set to `beam`.
+    fn set(&self, x: &mut [f64], (direction, offset): (f64, f64)) {
+        let index = |name: &str| PARAM_NAMES.iter().position(|(n, _)| *n == name);
+        if let (Some(a), Some(h)) = (index(self.direction), index(self.offset)) {
+            x[a] = direction;
+            x[h] = offset;
         }
-        GeometryParams::from_slice(&x)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gonio_instrument::InstrumentFile;
+
+    fn value(name: &str, value: f64, u: f64, unit: &str, observable: bool) -> String {
+        format!(
+            "[[values]]\nname = \"{name}\"\nvalue = {value:e}\nu = {u:e}\nunit = \"{unit}\"\nobservable = {observable}\n"
+        )
+    }
+
+    /// A calibration whose beam is seen only as its lines (the elevation's when `elevation_line`).
+    fn calibration(elevation_line: bool) -> CalibrationFile {
+        let mut text = "[calibration]\ninstrument = \"x\"\ninstrument_sha256 = \"0\"\nsoftware = \"gonio\"\n\
+                        created_utc = \"now\"\ndry_run = true\nmethod = \"test\"\n"
+            .to_string();
+        text += &value("beam_deg", 0.5, 0.3, "deg", false);
+        text += &value("beam_lateral_mm", -1.0, 1.5, "mm", false);
+        text += &value("beam_elevation_deg", 0.4, 0.3, "deg", false);
+        text += &value("beam_vertical_mm", 1.0, 1.5, "mm", false);
+        text += &value("detector_zero_deg", 0.01, 0.002, "deg", true);
+        text += &value("beam_line_deg", 0.03, 0.01, "deg", true);
+        if elevation_line {
+            text += &value("beam_elevation_line_deg", -0.02, 0.01, "deg", true);
+        }
+        CalibrationFile::parse(&text, "test").expect("a calibration")
+    }
+
+    fn line(d: f64, direction_deg: f64, offset_mm: f64) -> f64 {
+        direction_deg - (offset_mm / d).asin().to_degrees()
+    }
+
+    #[test]
+    fn each_planes_line_is_split_by_the_priors_and_kept() {
+        let mut inst = InstrumentFile::simulated().instrument;
+        inst.source.pointing_u_deg = Some(0.01);
+        inst.source.offset_u_mm = Some(0.07);
+        let d = inst.detector.distance_mm;
+        let split = BeamSplit::of(&inst).expect("priors");
+        let p = calibration(true).params(&inst);
+        assert!(
+            (line(d, p.beam_deg, p.beam_lateral_mm) - 0.03).abs() < 1e-12,
+            "{p:?}"
+        );
+        assert!((p.beam_deg - split.direction_share * 0.03).abs() < 1e-15);
+        assert!(
+            (line(d, p.beam_elevation_deg, p.beam_vertical_mm) + 0.02).abs() < 1e-12,
+            "{p:?}"
+        );
+        assert_eq!(p.detector_zero_deg, 0.01);
+        let names: Vec<&str> = calibration(true)
+            .perturbations(&inst)
+            .iter()
+            .map(|(n, _)| *n)
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "detector_zero_deg",
+                "beam_line_deg",
+                "beam_deg",
+                "beam_elevation_line_deg",
+                "beam_elevation_deg"
+            ]
+        );
+        // Moving along the line held keeps the line; moving the line moves it by its uncertainty.
+        for (name, moved) in calibration(true).perturbations(&inst) {
+            let l = line(d, moved.beam_deg, moved.beam_lateral_mm);
+            match name {
+                "beam_deg" => assert!((l - 0.03).abs() < 1e-12 && moved.beam_deg > p.beam_deg),
+                "beam_line_deg" => assert!((l - 0.04).abs() < 1e-12),
+                _ => assert!((l - 0.03).abs() < 1e-12, "{name}"),
+            }
+        }
+    }
+
+    #[test]
+    fn a_file_without_the_elevations_line_moves_the_beam_out_of_the_plane_by_the_priors() {
+        let mut inst = InstrumentFile::simulated().instrument;
+        inst.source.pointing_u_deg = Some(0.01);
+        inst.source.offset_u_mm = Some(0.07);
+        let p = calibration(false).params(&inst);
+        assert_eq!((p.beam_elevation_deg, p.beam_vertical_mm), (0.0, 0.0));
+        let moved: Vec<(&str, GeometryParams)> = calibration(false).perturbations(&inst);
+        let find = |name: &str| moved.iter().find(|(n, _)| *n == name).map(|(_, m)| *m);
+        assert_eq!(
+            find("beam_elevation_deg").expect("moved").beam_elevation_deg,
+            0.01
+        );
+        assert_eq!(find("beam_vertical_mm").expect("moved").beam_vertical_mm, 0.07);
     }
 }

@@ -44,16 +44,30 @@ impl GeometryFit {
     /// uncertainty: the beam's direction and offset are observed only in this combination (module doc of
     /// crate::align).
     pub fn beam_line_deg(&self, dims: Dimensions) -> (f64, f64) {
+        self.line_deg(0, 1, dims)
+    }
+
+    /// The beam's line out of the plane, `beam_elevation_deg - asin(beam_vertical_mm / d)` (deg), with its
+    /// standard uncertainty: its elevation and height are observed only in this combination, as in the plane.
+    pub fn beam_elevation_line_deg(&self, dims: Dimensions) -> (f64, f64) {
+        self.line_deg(2, 3, dims)
+    }
+
+    /// `x[angle] - asin(x[offset] / d)` (deg) with its standard uncertainty from the covariance.
+    fn line_deg(&self, angle: usize, offset: usize, dims: Dimensions) -> (f64, f64) {
         let d = dims.detector_distance_mm;
-        let h = self.params.beam_lateral_mm;
-        let value = self.params.beam_deg - (h / d).clamp(-1.0, 1.0).asin().to_degrees();
-        // Gradient of the combination in (beam_deg, beam_lateral_mm).
+        let x = self.params.to_vec();
+        let h = x[offset];
+        let value = x[angle] - (h / d).clamp(-1.0, 1.0).asin().to_degrees();
+        // Gradient of the combination in (angle, offset).
         let g = [
             1.0,
             -(1.0 / (d * (1.0 - (h / d).powi(2)).max(1e-12).sqrt())).to_degrees(),
         ];
         let c = &self.covariance;
-        let var = g[0] * g[0] * c[0][0] + 2.0 * g[0] * g[1] * c[0][1] + g[1] * g[1] * c[1][1];
+        let var = g[0] * g[0] * c[angle][angle]
+            + 2.0 * g[0] * g[1] * c[angle][offset]
+            + g[1] * g[1] * c[offset][offset];
         (value, var.max(0.0).sqrt())
     }
 }
@@ -229,6 +243,13 @@ mod tests {
         assert!(
             (line - want_line).abs() < 3.0 * u_line + 1e-9 && u_line < 0.05,
             "{line} vs {want_line} ({u_line})"
+        );
+        // Out of the plane the same: the line is seen.
+        let (line, u_line) = f.beam_elevation_line_deg(dims);
+        let want_line = truth.beam_elevation_deg - (truth.beam_vertical_mm / 250.0).asin().to_degrees();
+        assert!(
+            (line - want_line).abs() < 3.0 * u_line + 1e-9 && u_line < 0.05,
+            "elevation: {line} vs {want_line} ({u_line})"
         );
         for key in [
             "detector_zero_deg",

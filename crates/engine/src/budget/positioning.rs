@@ -46,7 +46,7 @@ impl Pointed {
     pub(super) fn new(alignment_toml: Option<&str>, instrument: &Instrument) -> Pointed {
         let cal = alignment_toml
             .and_then(|text| crate::align::file::CalibrationFile::parse(text, "the stored alignment").ok());
-        let params = cal.as_ref().map(|c| c.params()).unwrap_or_default();
+        let params = cal.as_ref().map(|c| c.params(instrument)).unwrap_or_default();
         let moved = |k: usize, by: f64| {
             let mut x = params.to_vec();
             x[k] += by;
@@ -58,10 +58,9 @@ impl Pointed {
         let perturbed = cal
             .as_ref()
             .map(|c| {
-                let u = c.params_u().to_vec();
-                (0..u.len())
-                    .filter(|&k| u[k] > 0.0 && u[k].is_finite())
-                    .map(|k| moved(k, u[k]))
+                c.perturbations(instrument)
+                    .into_iter()
+                    .map(|(name, p)| (name, PoseCorrection::new(instrument, p)))
                     .collect()
             })
             .unwrap_or_default();
