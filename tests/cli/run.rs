@@ -440,10 +440,11 @@ fn dry_run_with_serial_devices_on_pseudo_terminals_matches_ground_truth() {
 }
 
 /// A valid row's budget columns (the layout of a dry-run on the ideal instrument: `brdf_u_indep_sr` at 18,
-/// `budget` at 19): the budget names its parts, and its independent part is at most the total `u`.
+/// `budget` at 19): the budget names its parts (each normalisation reading's noise shared by the values
+/// interpolated from it), and its independent part is at most the total `u`.
 fn assert_budget_columns(i: usize, r: &[&str], u: f64) {
     assert!(
-        r[19].contains("signal-noise=") && r[19].contains("normalisation@band-"),
+        r[19].contains("signal-noise=") && r[19].contains("normalisation@normalisation-"),
         "row {i}: budget {}",
         r[19]
     );

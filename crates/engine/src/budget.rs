@@ -9,7 +9,8 @@
 //!   `dark` becomes the interpolation's uncertainty ([`dark`]).
 //! - `normalisation` (shared by the band): the direct-beam or reference readings carried to the point's time
 //!   (crate::calibration), through the equation; when the campaign completes, the value is normalised again
-//!   between the readings around it and the drift's curvature added, independent per point ([`drift`]).
+//!   between the readings around it: their noise, by nearness, shared by the values interpolated from each
+//!   reading, and the drift's curvature added, independent per point ([`drift`]).
 //! - `flicker`: the lamp's slow fluctuation (the instrument file's `source.flicker_rel`, measured by the
 //!   self-test), added when the campaign completes: at the value's moment (independent) and at the two
 //!   normalisation readings it was interpolated from (each shared by the values interpolated from it) ([`drift`]).

@@ -230,11 +230,23 @@ pub fn completions(
         let (Some(r), Some(value)) = (r, point.brdf_sr) else {
             continue;
         };
-        if r.factor == 1.0 && r.curvature_rel == 0.0 && r.flicker.own_rel == 0.0 {
+        let readings_known = r.readings_rel.iter().any(|(_, w)| *w > 0.0);
+        if r.factor == 1.0 && r.curvature_rel == 0.0 && r.flicker.own_rel == 0.0 && !readings_known {
             continue;
         }
         let renormalised = value * r.factor;
         completion.budget = completion.budget.scaled(r.factor);
+        if readings_known {
+            // Each reading's noise is shared by the values interpolated from it, not by the whole band.
+            completion.budget.set(components::NORMALISATION, 0.0, None);
+            for (k, rel) in &r.readings_rel {
+                let u = (renormalised * rel).abs();
+                if u > 0.0 {
+                    let group = groups::normalisation_reading(c.band_nm, *k);
+                    completion.budget.add(components::NORMALISATION, u, Some(group));
+                }
+            }
+        }
         let curvature_u = (renormalised * r.curvature_rel).abs();
         if curvature_u > 0.0 {
             completion

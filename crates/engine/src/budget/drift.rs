@@ -28,6 +28,10 @@ pub struct Renormalised {
     pub factor: f64,
     /// The interpolation's remaining relative standard uncertainty (the drift's curvature).
     pub curvature_rel: f64,
+    /// The noise of the normalisation readings the value was interpolated from (the index of each among its
+    /// band's readings, in time order), relative, weighted by the interpolation: shared by every value
+    /// interpolated from that reading, as their flicker is ([`Flicker::readings_rel`]).
+    pub readings_rel: Vec<(usize, f64)>,
     pub flicker: Flicker,
 }
 
@@ -42,8 +46,8 @@ pub struct Flicker {
 }
 
 /// Each band's net normalisation readings (time s, W, its standard uncertainty W: the reading's and its dark's
-/// noise, and the source's flicker `flicker_rel` of it), in time order.
-fn series(records: &[CalibrationRecord], flicker_rel: f64) -> BTreeMap<u64, Vec<Sample>> {
+/// noise), in time order.
+fn series(records: &[CalibrationRecord]) -> BTreeMap<u64, Vec<Sample>> {
     let mut darks: BTreeMap<u64, (f64, f64)> = BTreeMap::new();
     let mut out: BTreeMap<u64, Vec<Sample>> = BTreeMap::new();
     let mut ordered: Vec<&CalibrationRecord> = records.iter().collect();
@@ -58,7 +62,7 @@ fn series(records: &[CalibrationRecord], flicker_rel: f64) -> BTreeMap<u64, Vec<
             "direct-beam" | "reference" => {
                 let (dark_w, dark_u_w) = darks.get(&key).copied().unwrap_or((0.0, 0.0));
                 let net = r.value_w - dark_w;
-                let u_w = r.u_w.hypot(dark_u_w).hypot(flicker_rel * net);
+                let u_w = r.u_w.hypot(dark_u_w);
                 if net > 0.0 && net.is_finite() && r.t_s.is_finite() && u_w.is_finite() {
                     out.entry(key).or_default().push((r.t_s, net, u_w));
                 }
@@ -146,7 +150,7 @@ pub fn renormalise_values(
     values: &[Normalised],
     flicker_rel: f64,
 ) -> Vec<Option<Renormalised>> {
-    let series = series(records, flicker_rel);
+    let series = series(records);
     values
         .iter()
         .map(|p| {
@@ -162,9 +166,11 @@ pub fn renormalise_values(
                 // After the band's last reading the value keeps the normalisation it was given while running,
                 // carried forward from the last reading (its weight taken as one).
                 let last = s.len().checked_sub(1)?;
+                let (_, n, u) = s[last];
                 return Some(Renormalised {
                     factor: 1.0,
                     curvature_rel: 0.0,
+                    readings_rel: vec![(last, u / n)],
                     flicker: Flicker {
                         own_rel: flicker_rel,
                         readings_rel: vec![(last, flicker_rel)],
@@ -172,16 +178,18 @@ pub fn renormalise_values(
                 });
             };
             let k = k1.checked_sub(1)?;
-            let ((t0, n0, _), (t1, n1, _)) = (s[k], s[k1]);
+            let ((t0, n0, u0), (t1, n1, u1)) = (s[k], s[k1]);
             let x = (p.t_s - t0) / (t1 - t0);
             let interpolated = n0 + (n1 - n0) * x;
             if !(interpolated > 0.0 && interpolated.is_finite()) {
                 return None;
             }
-            let curvature = bracket_curvature(s, k, |&r| r);
+            // The readings' flicker is in their second differences too: not curvature.
+            let curvature = bracket_curvature(s, k, |&(t, v, u)| (t, v, u.hypot(flicker_rel * v)));
             Some(Renormalised {
                 factor: p.incident_w / interpolated,
                 curvature_rel: curvature * (p.t_s - t0) * (t1 - p.t_s) / 2.0 / interpolated,
+                readings_rel: vec![(k, u0 * (1.0 - x) / interpolated), (k1, u1 * x / interpolated)],
                 flicker: Flicker {
                     own_rel: flicker_rel,
                     readings_rel: vec![
@@ -300,6 +308,7 @@ pub(super) mod tests {
         p.incident_w = 1e-3;
         let r = renormalise(&records, &[p], 2e-4)[0].clone().expect("the flicker");
         assert_eq!((r.factor, r.curvature_rel), (1.0, 0.0));
+        assert_eq!(r.readings_rel, vec![(1, 0.0)], "readings without noise");
         assert_eq!(r.flicker.own_rel, 2e-4);
         assert_eq!(r.flicker.readings_rel, vec![(1, 2e-4)]);
     }
@@ -329,6 +338,27 @@ pub(super) mod tests {
         assert_eq!(plain.factor, r.factor);
         assert_eq!(plain.flicker.own_rel, 0.0);
         assert!(plain.flicker.readings_rel.iter().all(|(_, w)| *w == 0.0));
+    }
+
+    #[test]
+    fn the_readings_noise_is_shared_by_nearness() {
+        // Readings of 1e-3 W every 600 s, each known to 3e-8 W (3e-5 of it), and a dark before them.
+        let mut records = vec![record("dark", 0.0, 0.0)];
+        records.extend((0..3).map(|k| CalibrationRecord {
+            u_w: 3e-8,
+            ..record("direct-beam", 1.0 + 600.0 * f64::from(k), 1e-3)
+        }));
+        let mut p = point_at(751.0, 550.0);
+        p.incident_w = 1e-3;
+        let r = renormalise(&records, &[p], 0.0)[0].clone().expect("renormalised");
+        let [(a, wa), (b, wb)] = r.readings_rel[..] else {
+            panic!("two readings: {:?}", r.readings_rel)
+        };
+        assert_eq!((a, b), (1, 2));
+        assert!(
+            (wa - 0.75 * 3e-5).abs() < 1e-12 && (wb - 0.25 * 3e-5).abs() < 1e-12,
+            "{wa} {wb}"
+        );
     }
 
     #[test]

@@ -103,6 +103,19 @@ pub fn normal_equations(jac: &[Vec<f64>], r: &[f64]) -> (Vec<Vec<f64>>, Vec<f64>
     (rows(&a), g.iter().copied().collect())
 }
 
+/// The sandwich covariance `A B A` of a weighted least-squares solution: `bread` is `(J^T J)^-1`, and
+/// `B = J^T diag(noise) J` with `noise[k]` the variance of residual `k` that the data's own errors give (for
+/// residuals `r_k = s_k (m_k - f_k)` with `f_k` of variance `v_k`: `s_k^2 v_k`). When the residuals are
+/// standardised by their own errors (`noise` all 1) it is `bread`; when they are weighted otherwise (a cosine
+/// weight, a robust weight) it is what their scatter does to the parameters, which `bread` alone is not.
+pub fn sandwich(bread: &[Vec<f64>], jac: &[Vec<f64>], noise: &[f64]) -> Vec<Vec<f64>> {
+    let a = matrix(bread);
+    let j = matrix(jac);
+    let d = DMatrix::from_diagonal(&DVector::from_column_slice(noise));
+    let b = j.tr_mul(&(d * &j));
+    rows(&(&a * b * &a))
+}
+
 /// The Cholesky factorisation of a symmetric positive-definite matrix; `None` when it is not numerically so: a
 /// pivot below 1e-14 of the largest diagonal element counts as singular (nalgebra's own test only refuses a
 /// pivot that is not positive, which lets a rank-deficient normal matrix through with a huge inverse).
@@ -222,6 +235,23 @@ pub fn minimise(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_sandwich_is_the_weighted_means_own_variance() {
+        // One parameter, the mean of f_k, fitted with weights s_k: r_k = s_k (x - f_k), f_k of variance v_k.
+        // Its variance is sum s^4 v / (sum s^2)^2; (J^T J)^-1 alone says 1 / sum s^2.
+        let (s, v) = ([1.0, 0.5, 0.2, 0.9], [1.0, 4.0, 0.25, 2.0]);
+        let jac: Vec<Vec<f64>> = s.iter().map(|s| vec![*s]).collect();
+        let s2: f64 = s.iter().map(|s| s * s).sum();
+        let bread = vec![vec![1.0 / s2]];
+        let noise: Vec<f64> = s.iter().zip(&v).map(|(s, v)| s * s * v).collect();
+        let got = super::sandwich(&bread, &jac, &noise)[0][0];
+        let want = s.iter().zip(&v).map(|(s, v)| s.powi(4) * v).sum::<f64>() / (s2 * s2);
+        assert!((got / want - 1.0).abs() < 1e-12, "{got} vs {want}");
+        // Residuals standardised by their errors: the bread.
+        let unit = vec![1.0; s.len()];
+        assert!((super::sandwich(&bread, &jac, &unit)[0][0] - 1.0 / s2).abs() < 1e-15);
+    }
+
     use super::*;
 
     #[test]
