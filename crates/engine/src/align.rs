@@ -29,6 +29,7 @@ pub mod file;
 pub mod fit;
 mod keys;
 pub mod model;
+pub mod priors;
 pub mod sample_tilt;
 pub(crate) mod scan;
 

@@ -13,7 +13,16 @@ pub struct SampleHolder {
     /// (`re-seating`). Absent: [`DEFAULT_RESEAT_U_DEG`].
     #[serde(default)]
     pub reseat_u_deg: Option<f64>,
+    /// How well the sample's surface was brought onto the arms' axis (mm, standard uncertainty of each of its
+    /// two components): without an alignment, what the pointing budget takes for the eccentricity. Absent:
+    /// [`DEFAULT_CENTRING_U_MM`].
+    #[serde(default)]
+    pub centring_u_mm: Option<f64>,
 }
+
+/// How well a sample's surface is on the arms' axis when the instrument file does not say (mm per component):
+/// brought there with a dial gauge or a laser, about a tenth of a millimetre.
+pub const DEFAULT_CENTRING_U_MM: f64 = 0.1;
 
 /// A holder's re-seating repeatability when the instrument file does not state it (deg per tilt component): a
 /// sample pressed back by hand against the same reference face, about a hundredth of a degree (a kinematic
@@ -24,5 +33,10 @@ impl SampleHolder {
     /// Each tilt component's re-seating standard uncertainty (deg): the file's, else [`DEFAULT_RESEAT_U_DEG`].
     pub fn reseat_u_deg(&self) -> f64 {
         self.reseat_u_deg.unwrap_or(DEFAULT_RESEAT_U_DEG)
+    }
+
+    /// Each component's centring standard uncertainty (mm): the file's, else [`DEFAULT_CENTRING_U_MM`].
+    pub fn centring_u_mm(&self) -> f64 {
+        self.centring_u_mm.unwrap_or(DEFAULT_CENTRING_U_MM)
     }
 }

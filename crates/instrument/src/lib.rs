@@ -27,7 +27,7 @@
 
 mod actual;
 mod holder;
-pub use holder::{DEFAULT_RESEAT_U_DEG, SampleHolder};
+pub use holder::{DEFAULT_CENTRING_U_MM, DEFAULT_RESEAT_U_DEG, SampleHolder};
 pub mod imperfections;
 pub mod leakage;
 pub mod meter_noise;

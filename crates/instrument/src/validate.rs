@@ -254,6 +254,13 @@ impl Instrument {
                 "[instrument.sample_holder]: reseat_u_deg is a standard uncertainty in degrees, in [0, 5], got {u}"
             ));
         }
+        if let Some(u) = self.sample_holder.centring_u_mm
+            && !(u.is_finite() && (0.0..=10.0).contains(&u))
+        {
+            return Err(format!(
+                "[instrument.sample_holder]: centring_u_mm is a standard uncertainty in millimetres, in [0, 10], got {u}"
+            ));
+        }
         if let Some(t) = s.colour_temperature_k
             && !(t.is_finite() && (500.0..=20_000.0).contains(&t))
         {

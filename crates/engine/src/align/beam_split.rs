@@ -132,8 +132,10 @@ mod tests {
 
     #[test]
     fn without_priors_in_the_file_the_alignment_tolerance_and_the_default_offset_serve() {
-        let inst = InstrumentFile::simulated().instrument;
-        assert_eq!(inst.source.pointing_u_deg, None);
+        let mut inst = InstrumentFile::simulated().instrument;
+        inst.source.pointing_u_deg = None;
+        inst.source.offset_u_mm = None;
+        inst.alignment_u_deg = Some(0.05);
         let s = BeamSplit::of(&inst).expect("defaults");
         let sa = inst.alignment_u_deg();
         let so = (gonio_instrument::DEFAULT_BEAM_OFFSET_U_MM / inst.detector.distance_mm)

@@ -212,22 +212,16 @@ impl CalibrationFile {
                 continue;
             }
             // A file whose alignment fitted the beam but holds no line for it (an older gonio's): the beam stays
-            // at 0 there, uncertain by the instrument file's priors.
-            let priors = [
-                (
-                    pair.direction,
-                    instrument.source.pointing_u_or(instrument.alignment_u_deg()),
-                ),
-                (pair.offset, instrument.source.offset_u_or_default()),
-            ];
-            for (name, prior) in priors {
+            // at 0 there, uncertain by the instrument file's priors (crate::align::priors).
+            let prior = super::priors::prior_u(instrument);
+            for name in [pair.direction, pair.offset] {
                 if let Some(k) = PARAM_NAMES.iter().position(|(n, _)| *n == name)
                     && self.values.iter().any(|v| v.name == name)
                     && u[k] == 0.0
-                    && prior > 0.0
-                    && prior.is_finite()
+                    && prior[k] > 0.0
+                    && prior[k].is_finite()
                 {
-                    out.push((PARAM_NAMES[k].0, moved(&|x| x[k] += prior)));
+                    out.push((PARAM_NAMES[k].0, moved(&|x| x[k] += prior[k])));
                 }
             }
         }

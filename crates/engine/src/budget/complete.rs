@@ -4,9 +4,10 @@
 //! - the source's drift: each value normalised again between the readings before and after it, the drift's
 //!   curvature in the budget ([`super::drift`]);
 //! - pointing: an applied alignment's parameters, each by its uncertainty, through its model and the fitted
-//!   model at the read-back pose (super::positioning::Pointed::alignment_shifts); without an alignment, the
-//!   instrument file's `alignment_u_deg` on theta_i, theta_o and the azimuth times the fitted model's slopes
-//!   and the absolute equation's `tan(theta_o)`; added to `pointing`, one signed entry per parameter or angle
+//!   model at the read-back pose (super::positioning::Pointed::pointing_shifts); without an alignment, the
+//!   geometric model's parameters by the instrument file's priors the same way (crate::align::priors); without
+//!   a read-back, the file's `alignment_u_deg` on theta_i, theta_o and the azimuth times the fitted model's
+//!   slopes and the absolute equation's `tan(theta_o)`; added to `pointing`, one signed entry per parameter or angle
 //!   shared by the campaign's points (one error moves them all); the holder's re-seating repeatability through
 //!   the same models, the `sample` component, shared and signed the same way;
 //! - positioning: each value brought from where the axes really stopped (read back) to the nominal geometry by
@@ -311,9 +312,9 @@ pub fn completions(
             completion.brdf_sr = Some(corrected);
             point.brdf_sr = Some(corrected);
         }
-        // The angles' uncertainty through the value: an applied alignment's parameters one by one through its
-        // model (super::positioning), else one angle uncertainty on each of theta_i, theta_o and the azimuth
-        // times the fitted model's slopes. Either way one error per parameter or angle, the same for every
+        // The angles' uncertainty through the value: an applied alignment's parameters (or the file's priors
+        // for them) one by one through the geometric model (super::positioning), else (no read-back) one angle
+        // uncertainty on each of theta_i, theta_o and the azimuth times the fitted model's slopes. Either way one error per parameter or angle, the same for every
         // point of the campaign: a signed component shared by the campaign's points under that parameter's
         // name (crate::budget), which a fit propagates apart instead of taking it for scatter.
         let angle_u_rad = angle_u_deg(record, instrument).to_radians();
@@ -322,8 +323,8 @@ pub fn completions(
         {
             let Some(value) = point.brdf_sr else { continue };
             let propagated = pointed
-                .has_alignment_u()
-                .then(|| pointed.alignment_shifts(&c.material, committed, !relative))
+                .has_pointing_u()
+                .then(|| pointed.pointing_shifts(&c.material, committed, !relative))
                 .flatten();
             let shifts = match (propagated, slopes) {
                 (Some(shifts), _) => shifts,

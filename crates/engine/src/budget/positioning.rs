@@ -33,7 +33,8 @@ pub(super) struct Pointed {
     /// The model the uncertainties are propagated through: the applied alignment's, else the nominal one.
     base: PoseCorrection,
     /// The applied alignment's model with one parameter moved by its standard uncertainty, one per parameter
-    /// the alignment measured, with the parameter's name ([`Pointed::alignment_shifts`]).
+    /// the alignment measured, with the parameter's name; without an alignment the nominal model moved by the
+    /// instrument file's priors ([`Pointed::pointing_shifts`]).
     perturbed: Vec<(&'static str, PoseCorrection)>,
     /// The base model with the sample's tilt moved by the holder's re-seating uncertainty, one per tilt
     /// component ([`Pointed::reseat_shifts`]); empty when the file states a holder that repeats exactly.
@@ -55,15 +56,22 @@ impl Pointed {
                 PoseCorrection::new(instrument, GeometryParams::from_slice(&x)),
             )
         };
-        let perturbed = cal
-            .as_ref()
-            .map(|c| {
-                c.perturbations(instrument)
-                    .into_iter()
-                    .map(|(name, p)| (name, PoseCorrection::new(instrument, p)))
+        // An alignment's uncertainties, else what the instrument file says the geometry is uncertain by before
+        // one (crate::align::priors), each parameter moved from its nominal 0.
+        let perturbed = match &cal {
+            Some(c) => c
+                .perturbations(instrument)
+                .into_iter()
+                .map(|(name, p)| (name, PoseCorrection::new(instrument, p)))
+                .collect(),
+            None => {
+                let prior = crate::align::priors::prior_u(instrument);
+                (0..prior.len())
+                    .filter(|&k| prior[k] > 0.0 && prior[k].is_finite())
+                    .map(|k| moved(k, prior[k]))
                     .collect()
-            })
-            .unwrap_or_default();
+            }
+        };
         let reseat_u = instrument.sample_holder.reseat_u_deg();
         let reseated = if reseat_u > 0.0 && reseat_u.is_finite() {
             ["sample_tilt_x_deg", "sample_tilt_y_deg"]
@@ -84,34 +92,33 @@ impl Pointed {
         }
     }
 
-    /// Whether an alignment was applied whose parameters' uncertainties [`Pointed::alignment_shifts`] propagates.
-    pub(super) fn has_alignment_u(&self) -> bool {
+    /// Whether there are geometric uncertainties for [`Pointed::pointing_shifts`] to propagate: an applied
+    /// alignment's, or the instrument file's priors without one.
+    pub(super) fn has_pointing_u(&self) -> bool {
         !self.perturbed.is_empty()
     }
 
-    /// What the applied alignment's uncertainty does to `p`'s value, parameter by parameter: each parameter
-    /// moved by its standard uncertainty, the signed relative change of `model`'s value (with the absolute
-    /// equation's cos(theta_o) when `absolute`) between the directions the model gives at the read-back pose
-    /// with and without the move, with the parameter's name. Each moves only the angles it acts on, where one
-    /// angle uncertainty for every angle (their root sum of squares) counted them all on each. One parameter's
-    /// error is the same for every point of the campaign, so the sign matters: it says which way that error
-    /// moves this point against the others (crate::budget's shared components; a fit propagates them). The
-    /// parameters are taken as independent of each other (the calibration file keeps no covariance). `None`
-    /// without an applied alignment, a read-back or a model value.
-    pub(super) fn alignment_shifts(
+    /// What the geometry's uncertainty does to `p`'s value, parameter by parameter: each parameter of the
+    /// applied alignment (or, without one, of the nominal geometry, by the instrument file's priors:
+    /// crate::align::priors) moved by its standard uncertainty, the signed relative change of `model`'s value
+    /// (with the absolute equation's cos(theta_o) when `absolute`) between the directions the model gives at
+    /// the read-back pose with and without the move, with the parameter's name. Each moves only the angles it
+    /// acts on, where one angle uncertainty for every angle (their root sum of squares) counted them all on
+    /// each. One parameter's error is the same for every point of the campaign, so the sign matters: it says
+    /// which way that error moves this point against the others (crate::budget's shared components; a fit
+    /// propagates them). The parameters are taken as independent of each other (the calibration file keeps no
+    /// covariance). `None` without a read-back or a model value.
+    pub(super) fn pointing_shifts(
         &self,
         model: &Material,
         p: &PointRecord,
         absolute: bool,
     ) -> Option<Vec<(&'static str, f64)>> {
-        if !self.aligned {
-            return None;
-        }
         self.shifts_through(&self.perturbed, model, p, absolute)
     }
 
     /// What the sample's re-seating does to `p`'s value: its tilt moved by the holder's repeatability
-    /// (`[instrument.sample_holder] reseat_u_deg`), one component at a time, as [`Pointed::alignment_shifts`]
+    /// (`[instrument.sample_holder] reseat_u_deg`), one component at a time, as [`Pointed::pointing_shifts`]
     /// moves the alignment's parameters (one mounting serves the whole campaign: shared, signed). `None` for a
     /// holder that repeats exactly, without a read-back or a model value.
     pub(super) fn reseat_shifts(
@@ -253,7 +260,7 @@ mod tests {
         let u_deg = 0.01;
         let text = calibration(u_deg);
         let pointed = Pointed::new(Some(&text), &instrument);
-        assert!(pointed.has_alignment_u());
+        assert!(pointed.has_pointing_u());
         let mut signs = Vec::new();
         for pose in [Pose::new(-30.0, 60.0, 0.0, 0.0), Pose::new(-20.0, 75.0, 0.0, 0.0)] {
             let p = point_at(&pose, &instrument);
@@ -262,7 +269,7 @@ mod tests {
             // A Lambertian value read by the absolute equation moves only through the detector's cosine.
             let expected = theta_o.tan() * u_deg.to_radians();
             let shifts = pointed
-                .alignment_shifts(&lambertian(), &p, true)
+                .pointing_shifts(&lambertian(), &p, true)
                 .expect("propagated");
             // The one parameter the file measured, by name, signed: the same error moves every point with the
             // detector on this side the same way.
@@ -277,7 +284,7 @@ mod tests {
             signs.push(rel.signum());
             // Normalised by a reference at the same geometry, the cosine cancels: nothing moves it.
             let relative = pointed
-                .alignment_shifts(&lambertian(), &p, false)
+                .pointing_shifts(&lambertian(), &p, false)
                 .expect("propagated");
             assert!(relative[0].1.abs() < 1e-9, "{relative:?}");
         }
@@ -285,12 +292,42 @@ mod tests {
             signs[0], signs[1],
             "one detector zero moves both values the same way"
         );
-        // Without an applied alignment there is nothing to propagate; this file's holder repeats exactly.
+        // Without an applied alignment the file's priors move the nominal geometry (crate::align::priors): the
+        // detector's zero by alignment_u_deg, the sample's tilt and centring, the beam, each by name. (The ideal
+        // file states none: give it a lab's.)
+        let mut instrument = instrument;
+        instrument.alignment_u_deg = Some(0.05);
+        instrument.source.offset_u_mm = Some(0.07);
+        instrument.sample_holder.centring_u_mm = Some(0.1);
         let none = Pointed::new(None, &instrument);
-        assert!(!none.has_alignment_u());
-        let p = point_at(&Pose::new(-30.0, 60.0, 0.0, 0.0), &instrument);
-        assert_eq!(none.alignment_shifts(&lambertian(), &p, true), None);
+        assert!(none.has_pointing_u());
+        let pose = Pose::new(-30.0, 60.0, 0.0, 0.0);
+        let p = point_at(&pose, &instrument);
+        let shifts = none.pointing_shifts(&lambertian(), &p, true).expect("priors");
+        let names: Vec<&str> = shifts.iter().map(|(n, _)| *n).collect();
+        for name in [
+            "beam_deg",
+            "detector_zero_deg",
+            "sample_tilt_x_deg",
+            "eccentricity_x_mm",
+        ] {
+            assert!(names.contains(&name), "{name} in {names:?}");
+        }
+        let (_, wo) = none.directions(&p).expect("directions");
+        let expected = wo.z().acos().tan() * instrument.alignment_u_deg().to_radians();
+        let (_, zero) = shifts
+            .iter()
+            .find(|(n, _)| *n == "detector_zero_deg")
+            .expect("the zero");
+        assert!(
+            (zero.abs() - expected).abs() < 0.01 * expected,
+            "{zero} vs {expected}"
+        );
+        // This file's holder repeats exactly.
         assert_eq!(none.reseat_shifts(&lambertian(), &p, true), None);
+        // The ideal file's own priors are all 0: nothing to propagate.
+        let ideal = gonio_instrument::InstrumentFile::simulated().instrument;
+        assert!(!Pointed::new(None, &ideal).has_pointing_u());
     }
 
     #[test]
