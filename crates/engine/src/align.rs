@@ -8,7 +8,11 @@
 //!    of the normal and several rotations of the stage, the detector is scanned through the reflection, then,
 //!    holding the detector at that centre, the tilt is scanned through it.
 //! 3. The centres (each the mid-point of its profile's half-height edges: `centre`) are fitted with the
-//!    geometric model (`model`, `fit`); what the observations cannot determine is reported as such.
+//!    geometric model (`model`, `fit`); what the observations cannot determine is reported as such. The beam is
+//!    seen only along its line as the detector meets it, in and across the arms' plane: applying a calibration
+//!    splits each line between the beam's direction and its offset by the instrument file's priors
+//!    (`beam_split`), and the same priors (`priors`) are what the geometry is uncertain by without an
+//!    alignment.
 //!
 //! The tilt's zero is its true angle at nominal 0 (its encoder's cyclic error there included: over the few
 //! tenths of a degree the tilt scans cover, the two are one offset). The arms' zeros and their encoders' cyclic

@@ -18,6 +18,11 @@ pub struct SampleHolder {
     /// [`DEFAULT_CENTRING_U_MM`].
     #[serde(default)]
     pub centring_u_mm: Option<f64>,
+    /// How well the sample's normal is known on the holder without an alignment (degrees, standard uncertainty
+    /// of each tilt component: the holder's squareness to the rotation axis and the sample's own wedge).
+    /// Absent: the instrument's `alignment_u_deg`.
+    #[serde(default)]
+    pub tilt_u_deg: Option<f64>,
 }
 
 /// How well a sample's surface is on the arms' axis when the instrument file does not say (mm per component):
@@ -33,6 +38,12 @@ impl SampleHolder {
     /// Each tilt component's re-seating standard uncertainty (deg): the file's, else [`DEFAULT_RESEAT_U_DEG`].
     pub fn reseat_u_deg(&self) -> f64 {
         self.reseat_u_deg.unwrap_or(DEFAULT_RESEAT_U_DEG)
+    }
+
+    /// Each tilt component's standard uncertainty without an alignment (deg): the file's, else
+    /// `alignment_u_deg` (the instrument's angles as known without an alignment).
+    pub fn tilt_u_or(&self, alignment_u_deg: f64) -> f64 {
+        self.tilt_u_deg.unwrap_or(alignment_u_deg)
     }
 
     /// Each component's centring standard uncertainty (mm): the file's, else [`DEFAULT_CENTRING_U_MM`].

@@ -254,6 +254,13 @@ impl Instrument {
                 "[instrument.sample_holder]: reseat_u_deg is a standard uncertainty in degrees, in [0, 5], got {u}"
             ));
         }
+        if let Some(u) = self.sample_holder.tilt_u_deg
+            && !(u.is_finite() && (0.0..=10.0).contains(&u))
+        {
+            return Err(format!(
+                "[instrument.sample_holder]: tilt_u_deg is a standard uncertainty in degrees, in [0, 10], got {u}"
+            ));
+        }
         if let Some(u) = self.sample_holder.centring_u_mm
             && !(u.is_finite() && (0.0..=10.0).contains(&u))
         {

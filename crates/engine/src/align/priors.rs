@@ -10,7 +10,8 @@
 //!   `alignment_u_deg`, the zeros as set by eye;
 //! - its elevation: `[instrument.source] pointing_u_deg` (else `alignment_u_deg`); its offsets beside and
 //!   above the axis: `offset_u_mm`;
-//! - the detector's and the tilt's zeros, the sample's tilt on its holder: `alignment_u_deg`;
+//! - the detector's and the tilt's zeros: `alignment_u_deg`; the sample's tilt on its holder:
+//!   `[instrument.sample_holder] tilt_u_deg` (else `alignment_u_deg`);
 //! - the sample's surface off the arms' axis (both components): `[instrument.sample_holder] centring_u_mm`;
 //! - the encoders' cyclic errors: none (no file figure states them; an alignment bounds them).
 
@@ -24,11 +25,12 @@ pub fn prior_u(instrument: &Instrument) -> [f64; N_PARAMS] {
     let pointing = instrument.source.pointing_u_or(zero);
     let offset = instrument.source.offset_u_or_default();
     let centring = instrument.sample_holder.centring_u_mm();
+    let tilt = instrument.sample_holder.tilt_u_or(zero);
     let mut u = [0.0; N_PARAMS];
     for (k, (name, _)) in PARAM_NAMES.iter().enumerate() {
         u[k] = match *name {
-            "beam_deg" | "detector_zero_deg" | "tilt_zero_deg" | "sample_tilt_x_deg"
-            | "sample_tilt_y_deg" => zero,
+            "beam_deg" | "detector_zero_deg" | "tilt_zero_deg" => zero,
+            "sample_tilt_x_deg" | "sample_tilt_y_deg" => tilt,
             "beam_elevation_deg" => pointing,
             "beam_lateral_mm" | "beam_vertical_mm" => offset,
             "eccentricity_x_mm" | "eccentricity_y_mm" => centring,
@@ -50,6 +52,7 @@ mod tests {
         inst.source.pointing_u_deg = Some(0.01);
         inst.source.offset_u_mm = Some(0.07);
         inst.sample_holder.centring_u_mm = Some(0.2);
+        inst.sample_holder.tilt_u_deg = Some(0.03);
         let u = prior_u(&inst);
         let of = |name: &str| {
             u[PARAM_NAMES
@@ -59,7 +62,7 @@ mod tests {
         };
         assert_eq!(of("beam_deg"), 0.05);
         assert_eq!(of("detector_zero_deg"), 0.05);
-        assert_eq!(of("sample_tilt_y_deg"), 0.05);
+        assert_eq!(of("sample_tilt_y_deg"), 0.03);
         assert_eq!(of("beam_elevation_deg"), 0.01);
         assert_eq!(of("beam_vertical_mm"), 0.07);
         assert_eq!(of("eccentricity_x_mm"), 0.2);
