@@ -247,26 +247,19 @@ impl Instrument {
                 "[instrument]: alignment_u_deg is a standard uncertainty in degrees, in [0, 10], got {u}"
             ));
         }
-        if let Some(u) = self.sample_holder.reseat_u_deg
-            && !(u.is_finite() && (0.0..=5.0).contains(&u))
-        {
-            return Err(format!(
-                "[instrument.sample_holder]: reseat_u_deg is a standard uncertainty in degrees, in [0, 5], got {u}"
-            ));
-        }
-        if let Some(u) = self.sample_holder.tilt_u_deg
-            && !(u.is_finite() && (0.0..=10.0).contains(&u))
-        {
-            return Err(format!(
-                "[instrument.sample_holder]: tilt_u_deg is a standard uncertainty in degrees, in [0, 10], got {u}"
-            ));
-        }
-        if let Some(u) = self.sample_holder.centring_u_mm
-            && !(u.is_finite() && (0.0..=10.0).contains(&u))
-        {
-            return Err(format!(
-                "[instrument.sample_holder]: centring_u_mm is a standard uncertainty in millimetres, in [0, 10], got {u}"
-            ));
+        let h = &self.sample_holder;
+        for (key, v, unit, limit) in [
+            ("reseat_u_deg", h.reseat_u_deg, "degrees", 5.0),
+            ("tilt_u_deg", h.tilt_u_deg, "degrees", 10.0),
+            ("centring_u_mm", h.centring_u_mm, "millimetres", 10.0),
+        ] {
+            if let Some(u) = v
+                && !(u.is_finite() && (0.0..=limit).contains(&u))
+            {
+                return Err(format!(
+                    "[instrument.sample_holder]: {key} is a standard uncertainty in {unit}, in [0, {limit}], got {u}"
+                ));
+            }
         }
         if let Some(t) = s.colour_temperature_k
             && !(t.is_finite() && (500.0..=20_000.0).contains(&t))
