@@ -56,6 +56,23 @@ pub(super) fn angle_u_deg(record: &CampaignRecord, instrument: &Instrument) -> f
     }
 }
 
+/// Adds `component` to `budget` once per normalisation reading of band `nm`: `value` times each reading's
+/// relative weight (index among the band's readings, weight), shared by the values interpolated from it.
+fn add_per_reading(
+    budget: &mut gonio_results::budget::Budget,
+    component: &str,
+    value: f64,
+    nm: f64,
+    readings_rel: &[(usize, f64)],
+) {
+    for (k, rel) in readings_rel {
+        let u = (value * rel).abs();
+        if u > 0.0 {
+            budget.add(component, u, Some(groups::normalisation_reading(nm, *k)));
+        }
+    }
+}
+
 /// Adds `component` to `budget` once per shared error: `value` times each signed relative shift, in the group
 /// of the parameter or angle it moves (a shift that is not finite or is 0 adds nothing).
 fn add_shifts(
@@ -240,13 +257,13 @@ pub fn completions(
         if readings_known {
             // Each reading's noise is shared by the values interpolated from it, not by the whole band.
             completion.budget.set(components::NORMALISATION, 0.0, None);
-            for (k, rel) in &r.readings_rel {
-                let u = (renormalised * rel).abs();
-                if u > 0.0 {
-                    let group = groups::normalisation_reading(c.band_nm, *k);
-                    completion.budget.add(components::NORMALISATION, u, Some(group));
-                }
-            }
+            add_per_reading(
+                &mut completion.budget,
+                components::NORMALISATION,
+                renormalised,
+                c.band_nm,
+                &r.readings_rel,
+            );
         }
         let curvature_u = (renormalised * r.curvature_rel).abs();
         if curvature_u > 0.0 {
@@ -258,13 +275,13 @@ pub fn completions(
         if own_u > 0.0 {
             completion.budget.add(components::FLICKER, own_u, None);
         }
-        for (k, rel) in &r.flicker.readings_rel {
-            let u = (renormalised * rel).abs();
-            if u > 0.0 {
-                let group = groups::normalisation_reading(c.band_nm, *k);
-                completion.budget.add(components::FLICKER, u, Some(group));
-            }
-        }
+        add_per_reading(
+            &mut completion.budget,
+            components::FLICKER,
+            renormalised,
+            c.band_nm,
+            &r.flicker.readings_rel,
+        );
         completion.brdf_sr = Some(renormalised);
         point.brdf_sr = Some(renormalised);
     }
