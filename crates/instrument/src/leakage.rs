@@ -54,6 +54,38 @@ pub fn out_of_band_fraction(instrument: &Instrument, position: &FilterPosition) 
     (l.is_finite() && l >= 0.0).then_some(l)
 }
 
+/// Where the light a filter leaks falls in the spectrum: `(nm, share)` every [`STEP_NM`] over the detector's
+/// range, the source's spectrum times the photodiode's responsivity (the integrand of [`out_of_band_fraction`])
+/// with its quadrature weight, normalised to a sum of 1. The same for every filter, the blocking being flat:
+/// what the leak adds to a reading is the sample's reflectance averaged with these shares
+/// (gonio_results::band_component estimates that average from the bands measured). `None` when the file's
+/// figures give no finite, positive light.
+pub fn leak_spectrum(instrument: &Instrument) -> Option<Vec<(f64, f64)>> {
+    let responsivity = Responsivity::from_detector(&instrument.detector).ok()?;
+    let t = instrument.source.colour_temperature_k();
+    let [lo, hi] = instrument.detector.sensor_wavelength_nm;
+    if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    let steps = ((hi - lo) / STEP_NM).ceil().max(2.0) as usize;
+    let h = (hi - lo) / steps as f64;
+    let mut samples: Vec<(f64, f64)> = (0..=steps)
+        .map(|i| {
+            let nm = lo + i as f64 * h;
+            let w = if i == 0 || i == steps { 0.5 } else { 1.0 };
+            (nm, w * planck_relative(nm, t) * responsivity.at(nm))
+        })
+        .collect();
+    let total: f64 = samples.iter().map(|s| s.1).sum();
+    if !(total.is_finite() && total > 0.0) {
+        return None;
+    }
+    for s in &mut samples {
+        s.1 /= total;
+    }
+    Some(samples)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -95,5 +127,21 @@ mod tests {
         assert_eq!(at(&positions, 450.0), 0.0);
         let blank = positions.iter().find(|p| p.blank).expect("blank");
         assert_eq!(out_of_band_fraction(&inst, blank), None);
+    }
+
+    #[test]
+    fn the_leak_falls_mostly_red() {
+        let (inst, _) = wheel();
+        let leak = leak_spectrum(&inst).expect("spectrum");
+        assert!((leak.iter().map(|s| s.1).sum::<f64>() - 1.0).abs() < 1e-12);
+        // A 3000 K lamp on silicon: most of the leak lies beyond 650 nm, little below 450.
+        let share = |from: f64, to: f64| -> f64 {
+            leak.iter()
+                .filter(|s| (from..to).contains(&s.0))
+                .map(|s| s.1)
+                .sum()
+        };
+        assert!(share(650.0, 2000.0) > 0.6, "{}", share(650.0, 2000.0));
+        assert!(share(0.0, 450.0) < 0.05, "{}", share(0.0, 450.0));
     }
 }

@@ -444,6 +444,11 @@ pub struct FilterPosition {
     /// spectral slope times this); absent: [`DEFAULT_FILTER_CENTRE_U_NM`].
     #[serde(default)]
     pub centre_u_nm: Option<f64>,
+    /// Standard uncertainty of the full width at half maximum (nm), read like `centre_u_nm`; absent:
+    /// [`DEFAULT_FILTER_BANDWIDTH_U_NM`]. The light a filter leaks is reckoned against its band's width, so this
+    /// is the relative uncertainty of the leakage correction (crate::leakage).
+    #[serde(default)]
+    pub bandwidth_u_nm: Option<f64>,
     /// Transmission of the filter in its band (0..1).
     #[serde(default = "unit")]
     pub transmission: f64,
@@ -465,6 +470,10 @@ fn unit() -> f64 {
 /// +-2 nm tolerance catalogue bandpass filters of 10 nm are sold with, read as two standard deviations.
 pub const DEFAULT_FILTER_CENTRE_U_NM: f64 = 1.0;
 
+/// A filter's width standard uncertainty when the instrument file does not state it (nm): catalogue bandpass
+/// filters of 10 nm are sold with the same +-2 nm tolerance on the width as on the centre.
+pub const DEFAULT_FILTER_BANDWIDTH_U_NM: f64 = 1.0;
+
 /// A filter's blocking when the instrument file does not state it: hard-coated catalogue bandpass filters are
 /// sold with an optical density above 5 outside their band (Thorlabs, "Hard-Coated UV/VIS Bandpass Filters").
 pub const DEFAULT_OUT_OF_BAND_TRANSMISSION: f64 = 1.0e-5;
@@ -473,6 +482,11 @@ impl FilterPosition {
     /// The centre wavelength's standard uncertainty (nm): the file's, else [`DEFAULT_FILTER_CENTRE_U_NM`].
     pub fn centre_u_nm(&self) -> f64 {
         self.centre_u_nm.unwrap_or(DEFAULT_FILTER_CENTRE_U_NM)
+    }
+
+    /// The width's standard uncertainty (nm): the file's, else [`DEFAULT_FILTER_BANDWIDTH_U_NM`].
+    pub fn bandwidth_u_nm(&self) -> f64 {
+        self.bandwidth_u_nm.unwrap_or(DEFAULT_FILTER_BANDWIDTH_U_NM)
     }
 
     /// The absolute transmission outside the band: the file's, else [`DEFAULT_OUT_OF_BAND_TRANSMISSION`].

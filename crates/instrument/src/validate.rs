@@ -333,13 +333,18 @@ impl Instrument {
                         p.position
                     ));
                 }
-                if let Some(u) = p.centre_u_nm
-                    && !(u.is_finite() && u >= 0.0)
-                {
-                    return Err(format!(
-                        "[instrument.filter_wheel]: position {}: centre_u_nm must be >= 0 (nm), got {u}",
-                        p.position
-                    ));
+                for (key, value) in [
+                    ("centre_u_nm", p.centre_u_nm),
+                    ("bandwidth_u_nm", p.bandwidth_u_nm),
+                ] {
+                    if let Some(u) = value
+                        && !(u.is_finite() && u >= 0.0)
+                    {
+                        return Err(format!(
+                            "[instrument.filter_wheel]: position {}: {key} must be >= 0 (nm), got {u}",
+                            p.position
+                        ));
+                    }
                 }
                 if let Some(t) = p.out_of_band_transmission
                     && !(t.is_finite() && (0.0..1.0).contains(&t))

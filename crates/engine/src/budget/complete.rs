@@ -17,9 +17,10 @@
 //!   model fitted to the campaign's data (gonio_results::aperture), the correction's own uncertainty added as
 //!   the `aperture` component, the average kept beside it (`brdf_aperture_sr`); a lobe narrower than the
 //!   aperture is flagged `narrow-lobe` instead and its uncertainty covers the bias;
-//! - the finite band (gonio_results::band_component: the sample's spectral slope from the bands measured at the
-//!   same geometry, times each filter's centre uncertainty from the instrument file, and the light each filter
-//!   leaks outside its band against how different the other bands are), shared by a band's points.
+//! - the finite band (gonio_results::band_component): each value corrected for the light its filter leaks from
+//!   outside its band (the leaked fraction from the instrument file, the sample's spectrum there from the bands
+//!   measured at the same geometry); the sample's spectral slope times each filter's centre uncertainty, and the
+//!   correction's own uncertainty, the `band` component, shared by a band's points.
 //!
 //! It always starts again from the committed rows (Store::committed_points) and replaces the campaign's earlier
 //! completion whole, so completing twice (a resumed campaign that completes again) gives the same result. The
@@ -28,7 +29,7 @@
 
 use gonio_instrument::Instrument;
 use gonio_results::aperture::{Correction, FLAG_NARROW_LOBE, corrections};
-use gonio_results::band_component::{FilterBand, band_components};
+use gonio_results::band_component::{FilterBand, LeakSpectrum, band_estimates};
 use gonio_results::budget::{components, groups};
 use gonio_results::run::{BAND_TOLERANCE_NM, Run};
 
@@ -92,25 +93,36 @@ fn add_shifts(
 /// What the instrument file says of each band's filter, looked up by band (nm): each filter's leakage worked out
 /// once (an integral over the spectra), not once per geometry.
 pub(super) fn filter_bands(instrument: &Instrument) -> impl Fn(f64) -> Option<FilterBand> + use<> {
-    let filters: Vec<(f64, f64, f64)> = instrument
+    let filters: Vec<FilterBand> = instrument
         .filter_wheel
         .iter()
         .flat_map(|w| &w.positions)
         .filter_map(|p| {
             let leakage = gonio_instrument::leakage::out_of_band_fraction(instrument, p).unwrap_or(0.0);
-            Some((p.band_nm?, p.centre_u_nm(), leakage))
+            // The leak is reckoned against the band's width: its relative uncertainty is the width's.
+            let leakage_u_rel = p
+                .bandwidth_nm
+                .filter(|b| *b > 0.0)
+                .map_or(0.0, |b| p.bandwidth_u_nm() / b);
+            Some(FilterBand {
+                band_nm: p.band_nm?,
+                centre_u_nm: p.centre_u_nm(),
+                leakage,
+                leakage_u_rel,
+            })
         })
         .collect();
     move |nm: f64| {
         filters
             .iter()
-            .find(|(b, _, _)| (b - nm).abs() <= BAND_TOLERANCE_NM)
-            .map(|&(_, centre_u_nm, leakage)| FilterBand {
-                band_nm: nm,
-                centre_u_nm,
-                leakage,
-            })
+            .find(|f| (f.band_nm - nm).abs() <= BAND_TOLERANCE_NM)
+            .map(|f| FilterBand { band_nm: nm, ..*f })
     }
+}
+
+/// Where the instrument's filters leak their light (gonio_instrument::leakage::leak_spectrum).
+pub(super) fn leak_spectrum(instrument: &Instrument) -> Option<LeakSpectrum> {
+    gonio_instrument::leakage::leak_spectrum(instrument).and_then(LeakSpectrum::new)
 }
 
 /// A characterised detector's noise floor as the campaign read it: each value re-darkened is flagged
@@ -403,17 +415,27 @@ pub fn completions(
         }
     }
 
-    let filter = filter_bands(instrument);
-    for ((completion, point), u) in done
-        .iter_mut()
-        .zip(&run.points)
-        .zip(band_components(&run.points, filter))
-    {
-        if let Some(u) = u {
-            completion
-                .budget
-                .set(components::BAND, u, Some(groups::band(point.band_nm)));
+    // The finite band last: the leak's correction compares the bands at one geometry, each at its nominal
+    // geometry by now.
+    let leak = leak_spectrum(instrument);
+    let estimates = band_estimates(&run.points, filter_bands(instrument), leak.as_ref());
+    for ((completion, point), estimate) in done.iter_mut().zip(&mut run.points).zip(estimates) {
+        let (Some(e), Some(value)) = (estimate, point.brdf_sr) else {
+            continue;
+        };
+        if e.shift_sr != 0.0 {
+            let corrected = value + e.shift_sr;
+            completion.budget = completion.budget.scaled(e.scale);
+            // The aperture's average beside it is the same reading through the same filter.
+            if value != 0.0 {
+                completion.brdf_aperture_sr = completion.brdf_aperture_sr.map(|a| a * corrected / value);
+            }
+            completion.brdf_sr = Some(corrected);
+            point.brdf_sr = Some(corrected);
         }
+        completion
+            .budget
+            .set(components::BAND, e.u_sr, Some(groups::band(point.band_nm)));
     }
     done.into_iter()
         .zip(committed)

@@ -14,8 +14,9 @@
 //!   uncertainty ([`U_OF_SMEARING_CORRECTION`]);
 //! - timing: where along its arc a reading was is known to the exchange latency ([`TIMING_U_S`]): the sweep's
 //!   speed times that, times the model's slope along the swept angle;
-//! - the finite band (gonio_results::band_component), the spectral slope from the other bands' sweeps of the
-//!   same arc: readings of every band within [`CORRECTION_SPACING_DEG`] of one angle count as one geometry.
+//! - the finite band (gonio_results::band_component): the leak's correction and the band component from the
+//!   other bands' sweeps of the same arc: readings of every band within [`CORRECTION_SPACING_DEG`] of one angle
+//!   count as one geometry.
 //!
 //! Along a sweep the readings are far denser than the aperture is wide (a few hundredths of a degree against
 //! about half a degree), and the correction changes on the aperture's scale: it is worked out at readings
@@ -24,7 +25,7 @@
 
 use gonio_instrument::Instrument;
 use gonio_results::aperture::{Correction, FLAG_NARROW_LOBE, corrections};
-use gonio_results::band_component::band_components;
+use gonio_results::band_component::band_estimates;
 use gonio_results::points::Point;
 use gonio_results::run::Run;
 use gonio_results::sweeps::SweepReading;
@@ -192,7 +193,8 @@ pub fn sweep_completions(
             p
         })
         .collect();
-    let band = band_components(&snapped, super::complete::filter_bands(instrument));
+    let leak = super::complete::leak_spectrum(instrument);
+    let band = band_estimates(&snapped, super::complete::filter_bands(instrument), leak.as_ref());
     readings
         .iter()
         .zip(committed)
@@ -234,10 +236,14 @@ pub fn sweep_completions(
                 var *= ratio * ratio;
                 var += (value * correction * U_OF_SMEARING_CORRECTION).powi(2);
             }
-            if let Some(u_band) = band.get(c).copied().flatten() {
-                // Relative to the carrier's value, applied to this reading's.
+            if let Some(e) = band.get(c).copied().flatten() {
+                // The leak's correction and the component relative to the carrier's value, applied to this
+                // reading's.
                 if let Some(carrier) = readings[carriers[c]].brdf_sr.filter(|v| *v != 0.0) {
-                    var += (value * u_band / carrier).powi(2);
+                    let ratio = 1.0 + e.shift_sr / carrier;
+                    value *= ratio;
+                    var *= ratio * ratio;
+                    var += (value * e.u_sr / carrier).powi(2);
                 }
             }
             if let Some([gi, go, gphi]) = fitted.slopes.get(c).copied().flatten() {
