@@ -30,8 +30,8 @@ from status_page import TOKEN, Browser, Daemon, Fail, Tab, campaign_toml  # noqa
 ROOT = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 DEMO = os.path.join(ROOT, "config", "campaigns", "demo.toml")
 REALISTIC = os.path.join(ROOT, "config", "instruments", "realistic.toml")
-SECTIONS = ["summary", "sample", "instrument", "plan", "calibration", "alignment", "plots", "uncertainty", "fit",
-            "truth", "reproduce"]
+SECTIONS = ["summary", "sample", "instrument", "plan", "calibration", "alignment", "plots", "sweeps", "uncertainty",
+            "fit", "truth", "reproduce"]
 
 
 def gonio_cmd(gonio, *args):

@@ -205,6 +205,9 @@ fn sweep_readings_are_drawn_thinned_and_points_only_leaves_them_out() {
         "{texts:?}"
     );
     assert!(texts.iter().any(|t| t == "theta_i = 30 deg"), "{texts:?}");
+    // One polar panel and one heat map, the sweep's incidence: the readings seen through reciprocity (each its
+    // own incidence at one direction) make no curve and no panel of their own.
+    assert!(stderr.contains("gonio: 2 panels, 1 curves"), "{stderr}");
     // 70 degrees in bins of half a degree: about 140 marks in the polar panel (and as many heat-map cells).
     assert!((100..2000).contains(&circles), "{circles} circles");
     let o = gonio()

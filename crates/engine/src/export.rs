@@ -210,11 +210,12 @@ pub fn run_of(store: &Store, record: &CampaignRecord, origin: &str) -> Result<Ru
 }
 
 /// A run's measurement report (gonio_results::report), the one way `gonio report` and the daemon make it:
-/// `models` fitted as `gonio fit` fits them (averaged over the run's detector aperture), the plan's coverage
-/// planned again from the stored texts, written at Unix time `now_s`. `on_model` hears of each fit as it
-/// starts (a fit takes seconds).
+/// `models` fitted as `gonio fit` fits them (averaged over the run's detector aperture, the sweep readings
+/// with the points), the plan's coverage planned again from the stored texts, written at Unix time `now_s`.
+/// `on_model` hears of each fit as it starts (a fit takes seconds).
 pub fn report(
     run: &Run,
+    sweeps: &[SweepReading],
     models: &[FitModel],
     now_s: f64,
     on_model: impl FnMut(FitModel),
@@ -222,9 +223,12 @@ pub fn report(
     let aperture = run
         .config()
         .and_then(|c| aperture_half_angle_rad(&c.instrument_toml));
-    let (fits, fit_failures) = gonio_results::report::fit_models(run, models, aperture, on_model);
+    let with_sweeps = (!sweeps.is_empty()).then(|| gonio_results::sweeps::with_readings(run.clone(), sweeps));
+    let (fits, fit_failures) =
+        gonio_results::report::fit_models(with_sweeps.as_ref().unwrap_or(run), models, aperture, on_model);
     let input = ReportInput {
         run,
+        sweeps,
         fits,
         fit_failures,
         plan: run.config().and_then(plan_coverage),

@@ -3,7 +3,7 @@
 //! incidence angle, and, with `--model` (a fitted material file, or any material file or preset), the model
 //! against the measurement. The SVG goes to `--out`, by default `plot.svg` in the run directory (the current
 //! directory for a run read from a daemon's store); its path is printed on stdout. A run's sweep readings are
-//! drawn with its points, averaged in bins of [`SWEEP_BIN_DEG`] of arc per sweep (a picture of a hundred
+//! drawn with its points, averaged in bins of `PLOT_BIN_DEG` (gonio_results::sweeps) of arc per sweep (a picture of a hundred
 //! thousand readings would be megabytes; the readings themselves are in sweeps.csv); `--points-only` leaves
 //! them out.
 
@@ -11,6 +11,7 @@ use std::path::PathBuf;
 
 use gonio_brdf::Material;
 use gonio_results::plot::{self, PlotOptions};
+use gonio_results::sweeps::PLOT_BIN_DEG;
 
 use crate::CliError;
 use crate::export::RunSource;
@@ -33,17 +34,14 @@ pub struct PlotArgs {
     pub points_only: bool,
 }
 
-/// Sweep readings are drawn averaged in bins this wide along each sweep's arc (degrees).
-pub const SWEEP_BIN_DEG: f64 = 0.5;
-
 pub fn run(args: PlotArgs) -> Result<(), CliError> {
     let mut run = args.source.load()?;
     if !args.points_only {
         let readings = args.source.sweep_readings()?;
         if !readings.is_empty() {
-            let bins = gonio_results::sweeps::binned(&readings, SWEEP_BIN_DEG);
+            let bins = gonio_results::sweeps::binned(&readings, PLOT_BIN_DEG);
             eprintln!(
-                "gonio: {} sweep readings drawn as {} averages over {SWEEP_BIN_DEG} deg of arc (--points-only leaves \
+                "gonio: {} sweep readings drawn as {} averages over {PLOT_BIN_DEG} deg of arc (--points-only leaves \
                  them out)",
                 readings.len(),
                 bins.len()

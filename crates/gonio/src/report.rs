@@ -1,6 +1,7 @@
 //! `gonio report RUN [--out report.html] [--model M,...]`: the run's measurement report, one self-contained
 //! HTML page (gonio_results::report has the layout): the sample, the instrument, the plan and its coverage,
-//! the calibration and drift, the alignment and characterisation, plots, the uncertainty, the fitted models,
+//! the calibration and drift, the alignment and characterisation, plots, the sweeps (`--points-only` leaves
+//! them out), the uncertainty, the fitted models,
 //! in dry-runs the error against the simulator's truth, and how to reproduce the run. The models are fitted as
 //! `gonio fit` fits them (averaged over the run's detector aperture); the best by its cosine-weighted residual
 //! is plotted against the measurement. The page goes to `--out`, by default `report.html` in the run
@@ -28,10 +29,19 @@ pub struct ReportArgs {
     /// Fit no model (a faster report; the fit section says none was fitted).
     #[arg(long, conflicts_with = "models")]
     pub no_fit: bool,
+    /// Leave the run's sweep readings out (by default the page has a section on them, draws them averaged
+    /// along their arcs and fits them with the points).
+    #[arg(long)]
+    pub points_only: bool,
 }
 
 pub fn run(args: ReportArgs) -> Result<(), CliError> {
     let run = args.source.load()?;
+    let sweeps = if args.points_only {
+        Vec::new()
+    } else {
+        args.source.sweep_readings()?
+    };
     let models: Vec<FitModel> = if args.no_fit {
         Vec::new()
     } else if args.models.is_empty() {
@@ -48,7 +58,7 @@ pub fn run(args: ReportArgs) -> Result<(), CliError> {
     let now_s = SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0.0, |d| d.as_secs_f64());
-    let (page, summary) = gonio_engine::export::report(&run, &models, now_s, |m| {
+    let (page, summary) = gonio_engine::export::report(&run, &sweeps, &models, now_s, |m| {
         eprintln!("gonio: fitting {} ...", m.name());
     })
     .map_err(|e| CliError::input(e.to_string()))?;

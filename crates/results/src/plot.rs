@@ -5,7 +5,8 @@
 //!   signed theta_o (positive on the specular side, delta_phi = 180 degrees; negative towards the source,
 //!   delta_phi = 0), the radius is log10 of the BRDF over [`DECADES`] decades below the panel's largest value;
 //!   the source's direction is marked on the rim by a dot of the curve's colour;
-//! - per incidence angle, a heat map of the BRDF over (delta_phi = phi_o - phi_i, theta_o) for one band
+//! - per incidence angle known at two or more outgoing directions, a heat map of the BRDF over
+//!   (delta_phi = phi_o - phi_i, theta_o) for one band
 //!   (default: the band nearest 550 nm), log colour scale, each measured node a cell reaching halfway to its
 //!   neighbours, and beside it the colour scale: a bar from the panel's smallest to its largest value with
 //!   labelled ticks (BRDF in 1/sr), so that a colour reads as a value;
@@ -34,6 +35,9 @@ use heat::heat_panel;
 
 /// Decades of BRDF shown below a panel's largest value.
 pub const DECADES: f64 = 3.0;
+
+/// The fewest measured cells an incidence's heat map needs.
+const MIN_HEAT_CELLS: usize = 2;
 
 const PANEL_W: u32 = 520;
 const PANEL_H: u32 = 460;
@@ -149,7 +153,19 @@ pub fn render(run: &Run, opts: &PlotOptions) -> Result<(String, PlotSummary), Re
         .iter()
         .find(|d| d.band_nm == heat_band)
         .ok_or_else(|| ResultsError::Invalid(format!("no band {heat_band} nm in {}", list_nm(&bands))))?;
-    let incidences: Vec<usize> = (0..heat.grid.theta_nodes().len()).collect();
+    // A heat map per incidence with something to map: an incidence known at one outgoing direction only (a
+    // sweep's readings seen through reciprocity, each its own incidence) would be a panel of one cell.
+    let grid = &heat.grid;
+    let cells = |i: usize| {
+        (0..grid.theta_nodes().len())
+            .flat_map(|o| (0..grid.dphi_nodes().len()).map(move |k| (o, k)))
+            .filter(|&(o, k)| grid.node(i, o, k).is_some())
+            .take(MIN_HEAT_CELLS)
+            .count()
+    };
+    let incidences: Vec<usize> = (0..grid.theta_nodes().len())
+        .filter(|&i| cells(i) >= MIN_HEAT_CELLS)
+        .collect();
     let panels = data.len() + incidences.len() + usize::from(opts.model.is_some());
     let rows = panels.div_ceil(COLUMNS);
     let mut svg = String::new();
@@ -190,7 +206,8 @@ fn polar_panel(
     let theta = d.grid.theta_nodes();
     let slices: Vec<(f64, Vec<SlicePoint>)> = (0..theta.len())
         .map(|i| (theta[i].to_degrees(), in_plane_slice(&d.grid, i)))
-        .filter(|(_, s)| !s.is_empty())
+        // A curve needs two points: an incidence seen at one direction only (through reciprocity) is not one.
+        .filter(|(_, s)| s.len() >= 2)
         .collect();
     let wl = Wavelength::from_nm(d.band_nm).map_err(|e| ResultsError::Invalid(e.to_string()))?;
     let model_curves: Vec<(f64, Vec<SlicePoint>)> = match &opts.model {

@@ -9,14 +9,18 @@
 //!
 //! Sections, in this order (each a `<section id=...>`, [`SECTIONS`]): the summary; the sample; the instrument;
 //! the plan and its coverage of the hemisphere; the calibration and drift history; the alignment and
-//! characterisation; the plots; the uncertainty; the fit; in dry-runs only, the error against the simulator's
-//! truth (a run on hardware has none and says so in the uncertainty section); how to reproduce the run.
+//! characterisation; the plots; the sweeps (their readings per band, or a line saying the plan had none); the
+//! uncertainty; the fit; in dry-runs only, the error against the simulator's truth (a run on hardware has none
+//! and says so in the uncertainty section); how to reproduce the run. A run's sweep readings are drawn with its
+//! points averaged along their arcs ([`crate::sweeps::binned`]) and fitted whole, as `gonio plot` and
+//! `gonio fit` take them.
 
 use crate::error::ResultsError;
 use crate::fit::{self, FitModel, FitOptions, FitReport};
 use crate::plot::{self, PlotOptions};
 use crate::provenance_summary::{iso8601_utc, sha256_hex};
 use crate::run::{Run, list_nm};
+use crate::sweeps::SweepReading;
 
 mod figures;
 mod html;
@@ -25,7 +29,7 @@ mod sections;
 pub use figures::{CoverageSummary, incidences_deg};
 
 /// The section ids, in page order. `truth` is present in dry-runs only.
-pub const SECTIONS: [&str; 11] = [
+pub const SECTIONS: [&str; 12] = [
     "summary",
     "sample",
     "instrument",
@@ -33,6 +37,7 @@ pub const SECTIONS: [&str; 11] = [
     "calibration",
     "alignment",
     "plots",
+    "sweeps",
     "uncertainty",
     "fit",
     "truth",
@@ -64,6 +69,8 @@ pub struct FitFailure {
 #[derive(Debug, Clone)]
 pub struct ReportInput<'a> {
     pub run: &'a Run,
+    /// The run's sweep readings (sweeps.csv, or the store's); empty for a plan of points only.
+    pub sweeps: &'a [SweepReading],
     /// The fits made (the first is the one plotted and tabulated in full); may be empty.
     pub fits: Vec<FitReport>,
     pub fit_failures: Vec<FitFailure>,
@@ -150,7 +157,14 @@ pub fn render(input: &ReportInput<'_>) -> Result<(String, ReportSummary), Result
             .first()
             .map(|f| (f.material.clone(), format!("fitted {}", f.model.name()))),
     };
-    let plots = match plot::render(run, &plot_opts) {
+    // The sweep readings joined to the points for the picture, thinned along their arcs.
+    let drawn = (!input.sweeps.is_empty()).then(|| {
+        crate::sweeps::with_readings(
+            run.clone(),
+            &crate::sweeps::binned(input.sweeps, crate::sweeps::PLOT_BIN_DEG),
+        )
+    });
+    let plots = match plot::render(drawn.as_ref().unwrap_or(run), &plot_opts) {
         Ok((svg, plot_summary)) => {
             summary.figures.push("brdf".into());
             let caption = format!(
@@ -170,6 +184,12 @@ pub fn render(input: &ReportInput<'_>) -> Result<(String, ReportSummary), Result
         Err(e) => html::note(&format!("No plot: {e}")),
     };
     add("plots", "Plots", plots, &mut summary);
+    add(
+        "sweeps",
+        "Sweeps",
+        sections::sweeps(input.sweeps, run.dry_run),
+        &mut summary,
+    );
     add(
         "uncertainty",
         "Uncertainty",
@@ -284,6 +304,7 @@ mod tests {
         assert!(failures.is_empty(), "{failures:?}");
         let input = ReportInput {
             run: &run,
+            sweeps: &[],
             fits,
             fit_failures: Vec::new(),
             plan: None,

@@ -253,6 +253,10 @@ pub fn with_readings(mut run: Run, readings: &[SweepReading]) -> Run {
     run
 }
 
+/// How wide the bins are that a picture averages sweep readings in (degrees of arc): `gonio plot` and the
+/// report draw about two marks per degree, not the tens of readings a degree holds.
+pub const PLOT_BIN_DEG: f64 = 0.5;
+
 /// The sweep readings thinned for a picture: per segment (one arc in one band), the valid readings (a value, no
 /// flag) in bins of `bin_deg` of arc (by their arc's middle), each bin one reading: the mean value, the
 /// uncertainty of that mean (independent readings), and the geometry and time of the bin's middle reading.

@@ -224,3 +224,50 @@ fn the_report_of_a_calibrated_run_shows_its_alignment_characterisation_and_budge
         "{alignment}"
     );
 }
+
+/// A run of sweeps alone: the page's sweeps section counts sweeps.csv's readings by band with their k = 2
+/// coverage of the truth, the plots draw them averaged along the arc, and the fit takes them (a plastic at
+/// 550 nm); `--points-only` leaves them out and the section says the page has none.
+#[test]
+fn the_report_of_a_sweeps_run_has_a_section_on_them_and_draws_and_fits_them() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let campaign = "[campaign]\nid = \"swept\"\n[sample]\nradius_mm = 12.5\n[plan]\nbands_nm = [550.0]\n\
+                    [[plan.sweeps]]\ntheta_i_deg = [30.0]\ntheta_o_deg = { from = 0.0, to = 70.0 }\n\
+                    speed_deg_s = 10.0\n[calibration]\nsimulate_operator = true\n[material]\n\
+                    preset = \"coloured-plastic\"\n";
+    let run = gonio_testkit::cli::dry_run(dir.path(), "swept", campaign);
+    let csv = std::fs::read_to_string(run.join("sweeps.csv")).expect("sweeps.csv");
+    let readings = csv.lines().count() - 1;
+    assert!(readings > 1000, "{readings} readings");
+    let page = report(&run, &["--models", "lambertian,plastic"]);
+    assert_self_contained(&page);
+    let sweeps = section(&page, "sweeps");
+    assert!(
+        sweeps.contains(&format!("{readings} readings in 1 sweeps")),
+        "{sweeps}"
+    );
+    // One row, 550 nm: every reading, its arc, and in a dry-run the truth's coverage.
+    let row = sweeps.find("<tbody><tr><td>550</td>").expect("the 550 nm row");
+    let cells: Vec<&str> = sweeps[row..]
+        .split("<td>")
+        .skip(1)
+        .map(|c| c.split("</td>").next().unwrap_or(""))
+        .collect();
+    assert_eq!(cells[2], readings.to_string(), "{cells:?}");
+    assert!(cells[5].ends_with(" to 70"), "{cells:?}");
+    assert!(cells[7].ends_with('%'), "{cells:?}");
+    // Drawn thinned: the BRDF figure exists and is far smaller than a mark per reading would make it.
+    assert!(page.contains("<figure id=\"brdf\"><svg"));
+    assert!(
+        page.len() < 200 * readings,
+        "{} bytes for {readings} readings",
+        page.len()
+    );
+    // Fitted: the plastic fits best.
+    let fit = section(&page, "fit");
+    let first_row = fit.find("<tbody><tr><td>").expect("fit table") + "<tbody><tr><td>".len();
+    assert!(fit[first_row..].starts_with("plastic</td>"), "{fit}");
+
+    let page = report(&run, &["--no-fit", "--points-only"]);
+    assert!(section(&page, "sweeps").contains("No sweeps"));
+}

@@ -61,16 +61,20 @@ impl Service {
     /// A campaign's measurement report, as `gonio report --data DIR --campaign ID` writes it (every model fitted):
     /// read from the store under its lock, fitted and drawn after it (that takes seconds).
     pub fn report_html(&self, id: CampaignId) -> Result<String, ServiceError> {
-        let run = {
+        let (run, sweeps) = {
             let store = lock(&self.shared.store);
             let record = store.campaign(id)?;
-            gonio_engine::export::run_of(&store, &record, "the daemon's store")?
+            (
+                gonio_engine::export::run_of(&store, &record, "the daemon's store")?,
+                gonio_engine::export::sweep_readings(&store, id)?,
+            )
         };
         let now_s = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0.0, |d| d.as_secs_f64());
-        let (page, _) = gonio_engine::export::report(&run, &gonio_results::fit::FitModel::ALL, now_s, |_| {})
-            .map_err(|e| ServiceError::Internal(format!("report of campaign {id}: {e}")))?;
+        let (page, _) =
+            gonio_engine::export::report(&run, &sweeps, &gonio_results::fit::FitModel::ALL, now_s, |_| {})
+                .map_err(|e| ServiceError::Internal(format!("report of campaign {id}: {e}")))?;
         Ok(page)
     }
 

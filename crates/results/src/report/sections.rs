@@ -1,13 +1,16 @@
 //! The report's sections as HTML fragments, each from the run record, its stored configuration texts and its
 //! points (module doc of [`super`]): what was measured and how (setup.rs: summary, sample, instrument, plan,
-//! calibration, alignment), what came of it (results.rs: uncertainty, fit, truth, reproduction); here the
+//! calibration, alignment), what came of it (results.rs: uncertainty, fit, truth, reproduction; sweeps.rs: the
+//! sweep readings); here the
 //! helpers both share.
 
 mod results;
 mod setup;
+mod sweeps;
 
 pub use results::{fit, reproduce, truth, uncertainty};
 pub use setup::{alignment, calibration, instrument, plan, sample, summary};
+pub use sweeps::sweeps;
 
 use toml::Value as Toml;
 
