@@ -237,10 +237,12 @@ pub fn markdown(pairs: &Result<Vec<Pair>, String>, ideal: Option<&Variant>) -> S
          - **What the scans cannot observe.** The beam's direction against its line through the arms' axis, its \
            elevation, the encoders' cyclic errors and the rotation's zero stay at nominal (crates/engine/src/align/\
            file.rs, `params`); a few hundredths of a degree of incidence or view remain.\n\
-         - **Every effect on** adds the finite filter bands on a coloured sample (about 1 %, the error budget's \
-           filters row: a calibration through the same filter cannot take out the band's mean of the sample's \
-           spectrum), the sample's non-uniformity and the source's wander between references; none of these is \
-           an instrument error a bring-up can measure (issue 29 puts them in the uncertainty).\n",
+         - **Every effect on** adds the finite filter bands on a coloured sample (the error budget's filters \
+           row: each filter's centre off its nominal one by up to its tolerance, times the sample's spectral \
+           slope, which a calibration through the same filter cannot take out; the light the filters leak from \
+           outside their bands is corrected from the bands measured, gonio_results::band_component), the \
+           sample's non-uniformity and the source's wander between references; none of these is an instrument \
+           error a bring-up can measure (issue 29 puts them in the uncertainty).\n",
     );
     s
 }

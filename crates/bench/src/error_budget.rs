@@ -227,8 +227,9 @@ pub fn markdown(variants: &[Variant], throughput: &[(&str, Throughput)], target_
          How to read the filters' row: the direct-beam calibration passes the same filter, so what remains is \
          the band's mean of the sample's spectrum against its value at the band's centre (its curvature over \
          the band and the drawn centre offsets, times its slope), and the leakage's share of the sample's \
-         spectrum far from the band. Coloured plastic's spectrum is a 50 nm table read as a monotone cubic \
-         (crates/brdf/src/spectrum.rs).\n\n",
+         spectrum far from the band, which the completion corrects from the bands measured \
+         (gonio_results::band_component) up to the spectrum beyond the outermost band. Coloured plastic's \
+         spectrum is a 50 nm table read as a monotone cubic (crates/brdf/src/spectrum.rs).\n\n",
     );
     s.push_str("| imperfections | class | points | median | p95 | max |\n|---|---|---|---|---|---|\n");
     for v in variants {
