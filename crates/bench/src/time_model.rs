@@ -128,21 +128,47 @@ pub fn dry_run(binary: &Path, text: &str, instrument: Option<&Path>) -> Result<R
 }
 
 /// Instrument-file keys added after the `--before` binary was built, which it refuses as unknown; none of them
-/// changes a campaign's timing.
-const KEYS_SINCE_BEFORE: [&str; 4] = [
+/// changes a campaign's timing (uncertainties, priors, and the simulator's hidden flicker).
+const KEYS_SINCE_BEFORE: [&str; 10] = [
     "signature_u_sr",
     "aperture_radius_sd_mm",
     "detector_distance_sd_mm",
     "reseat_u_deg",
+    "centring_u_mm",
+    "tilt_u_deg",
+    "flicker_rel",
+    "offset_u_mm",
+    "pointing_u_deg",
+    "bandwidth_u_nm",
 ];
 
-/// `path` without [`KEYS_SINCE_BEFORE`], written under `dir` for the earlier binary.
+/// Keys added since that may also sit inside an inline table (a filter-wheel position's `{ ... }`; `gonio
+/// selftest --write` writes the positions as tables, one key a line).
+const INLINE_KEYS_SINCE_BEFORE: [&str; 1] = ["bandwidth_u_nm"];
+
+/// `line` without `, key = value` for each of [`INLINE_KEYS_SINCE_BEFORE`] (the value ends at the next `,` or `}`).
+fn without_inline_keys(line: &str) -> String {
+    let mut out = line.to_string();
+    for key in INLINE_KEYS_SINCE_BEFORE {
+        let pattern = format!(", {key} =");
+        while let Some(start) = out.find(&pattern) {
+            let rest = &out[start + pattern.len()..];
+            // The value up to the next `,` or `}`, less the space before that.
+            let len = rest[..rest.find([',', '}']).unwrap_or(rest.len())].trim_end().len();
+            out.replace_range(start..start + pattern.len() + len, "");
+        }
+    }
+    out
+}
+
+/// `path` without [`KEYS_SINCE_BEFORE`] and [`INLINE_KEYS_SINCE_BEFORE`], written under `dir` for the earlier
+/// binary.
 fn for_before(path: &Path, dir: &Path, name: &str) -> Result<PathBuf, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     // A key as `key = ...`, or as a table of its own (`[instrument.detector.key]`, as `gonio selftest --write`
     // writes one) up to the next header.
     let mut in_removed_table = false;
-    let kept: Vec<&str> = text
+    let kept: Vec<String> = text
         .lines()
         .filter(|l| {
             let t = l.trim_start();
@@ -154,6 +180,7 @@ fn for_before(path: &Path, dir: &Path, name: &str) -> Result<PathBuf, String> {
             }
             !in_removed_table && !KEYS_SINCE_BEFORE.iter().any(|k| t.starts_with(k))
         })
+        .map(without_inline_keys)
         .collect();
     let out = dir.join(format!("before-{}.toml", name.replace([' ', ','], "-")));
     std::fs::write(&out, kept.join("\n") + "\n").map_err(|e| format!("{}: {e}", out.display()))?;
@@ -431,6 +458,18 @@ mod tests {
             b,
             "[instrument.detector]\naveraging = 10\n[instrument.source]\npower_w = 1e-3\n"
         );
+    }
+
+    #[test]
+    fn a_key_inside_an_inline_table_is_taken_out_with_its_value() {
+        let line = "    { position = 1, band_nm = 450.0, bandwidth_u_nm = 1.0, transmission = 0.5 },";
+        assert_eq!(
+            without_inline_keys(line),
+            "    { position = 1, band_nm = 450.0, transmission = 0.5 },"
+        );
+        let last = "{ position = 2, bandwidth_u_nm = 2 }";
+        assert_eq!(without_inline_keys(last), "{ position = 2 }");
+        assert_eq!(without_inline_keys("positions = []"), "positions = []");
     }
 
     #[test]
