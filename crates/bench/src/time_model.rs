@@ -154,7 +154,9 @@ fn without_inline_keys(line: &str) -> String {
         while let Some(start) = out.find(&pattern) {
             let rest = &out[start + pattern.len()..];
             // The value up to the next `,` or `}`, less the space before that.
-            let len = rest[..rest.find([',', '}']).unwrap_or(rest.len())].trim_end().len();
+            let len = rest[..rest.find([',', '}']).unwrap_or(rest.len())]
+                .trim_end()
+                .len();
             out.replace_range(start..start + pattern.len() + len, "");
         }
     }
