@@ -142,8 +142,43 @@ impl Pointed {
         p: &PointRecord,
         absolute: bool,
     ) -> Option<Vec<(&'static str, f64)>> {
-        let pose = self.pose(p)?;
-        let wavelength = Wavelength::from_nm(p.band_nm).ok()?;
+        self.shifts_at(moved, model, &self.pose(p)?, p.band_nm, absolute)
+    }
+
+    /// The geometry's uncertainty and the holder's re-seating, every parameter of both, through `model` at
+    /// `pose` in band `band_nm` (as [`Pointed::pointing_shifts`] and [`Pointed::reseat_shifts`] for a point):
+    /// for a sweep reading, whose pose is the one the nominal geometry asks for ([`Pointed::pose_for`]).
+    pub(super) fn all_shifts_at(
+        &self,
+        model: &Material,
+        pose: &Pose,
+        band_nm: f64,
+        absolute: bool,
+    ) -> Option<Vec<(&'static str, f64)>> {
+        let mut out = self.shifts_at(&self.perturbed, model, pose, band_nm, absolute)?;
+        if !self.reseated.is_empty() {
+            out.extend(self.shifts_at(&self.reseated, model, pose, band_nm, absolute)?);
+        }
+        Some(out)
+    }
+
+    /// The pose that measures `(wi, wo)` on the nominal geometry (the first solution within the axes' limits,
+    /// the arms' branch nearest the rest pose); `None` where none does.
+    pub(super) fn pose_for(&self, wi: &Direction, wo: &Direction) -> Option<Pose> {
+        let rest = Pose::new(0.0, 0.0, 0.0, 0.0);
+        self.kinematics.solutions(wi, wo, &rest).ok()?.into_iter().next()
+    }
+
+    fn shifts_at(
+        &self,
+        moved: &[(&'static str, PoseCorrection)],
+        model: &Material,
+        pose: &Pose,
+        band_nm: f64,
+        absolute: bool,
+    ) -> Option<Vec<(&'static str, f64)>> {
+        let pose = *pose;
+        let wavelength = Wavelength::from_nm(band_nm).ok()?;
         let (wi, wo) = self.base.directions(&pose)?;
         let weighted = |wi: &Direction, wo: &Direction| -> Option<f64> {
             let f = model.eval(wi, wo, wavelength).ok()?;

@@ -7,8 +7,10 @@
 //!   of gonio_results::aperture are fitted to the readings and each value is corrected to the BRDF at its
 //!   arc's middle, the correction's own uncertainty added; a lobe narrower than the aperture is flagged
 //!   `narrow-lobe` and its uncertainty covers the bias;
-//! - pointing: the angles' uncertainty (an applied alignment's, else the instrument file's) times the model's
-//!   slopes, as for points;
+//! - pointing: as for points (super::positioning), the geometry's parameters each moved by its uncertainty (an
+//!   applied alignment's, else the instrument file's priors) and the holder's re-seating, through the fitted
+//!   model at the pose the reading's geometry asks for, added in quadrature (a reading's budget is one total);
+//!   where no pose or parameter is known, the angles' uncertainty times the model's slopes;
 //! - the smearing: a reading is the mean along the arc it covered; each value is taken to its arc's middle by
 //!   the fitted model's value there against its mean along the arc, a quarter of that correction added to its
 //!   uncertainty ([`U_OF_SMEARING_CORRECTION`]);
@@ -23,6 +25,7 @@
 //! [`CORRECTION_SPACING_DEG`] apart along each sweep and each reading takes that of the nearest one.
 //! Components add in quadrature to each reading's own uncertainty (its measurement equation's).
 
+use gonio_brdf::Direction;
 use gonio_instrument::Instrument;
 use gonio_results::aperture::{Correction, FLAG_NARROW_LOBE, corrections};
 use gonio_results::band_component::band_estimates;
@@ -53,7 +56,7 @@ const MAX_SMEARING: f64 = 0.2;
 /// `theta_i` (`light`) or `theta_o` away from its middle value, in the sense of the signed arc. `None` when the
 /// model has no value there or the smearing is beyond [`MAX_SMEARING`].
 fn smearing_ratio(model: &gonio_brdf::Material, r: &SweepReading, light: bool) -> Option<f64> {
-    use gonio_brdf::{Brdf as _, Direction, Wavelength};
+    use gonio_brdf::{Brdf as _, Wavelength};
     let (a, b) = (r.arc_from_deg, r.arc_to_deg);
     if a == b || !(a.is_finite() && b.is_finite()) {
         return None;
@@ -178,6 +181,7 @@ pub fn sweep_completions(
             readings = readings.len(), carriers = carriers.len(), "sweep readings' aperture correction");
     }
     let angle_u_rad = super::complete::angle_u_deg(record, instrument).to_radians();
+    let pointed = super::positioning::Pointed::new(record.alignment_toml.as_deref(), instrument);
     // The band component on the carriers, their swept angle snapped to the correction's spacing so that the
     // bands' sweeps of one arc meet at common geometries.
     let snapped: Vec<Point> = carriers
@@ -252,7 +256,21 @@ pub fn sweep_completions(
                 } else {
                     r.theta_o_deg.to_radians().tan()
                 };
-                let pointing = angle_u_rad * gi.hypot(go - tan_o).hypot(gphi);
+                // The geometry's parameters by their uncertainties (an applied alignment's, else the file's
+                // priors) and the holder's re-seating, through the fitted model at the pose the reading's
+                // geometry asks for, as for a point (super::positioning); one angle uncertainty on each
+                // angle times the model's slopes where that cannot be worked out.
+                let wi = Direction::from_spherical_deg(r.theta_i_deg, r.phi_i_deg);
+                let wo = Direction::from_spherical_deg(r.theta_o_deg, r.phi_o_deg);
+                let propagated = pointed
+                    .has_pointing_u()
+                    .then(|| pointed.pose_for(&wi, &wo))
+                    .flatten()
+                    .and_then(|pose| pointed.all_shifts_at(&fitted.material, &pose, r.band_nm, !relative));
+                let pointing = match propagated {
+                    Some(shifts) => shifts.iter().fold(0.0f64, |a, (_, rel)| a.hypot(*rel)),
+                    None => angle_u_rad * gi.hypot(go - tan_o).hypot(gphi),
+                };
                 // The swept angle moves theta_i (a light sweep) or theta_o, where the absolute equation's
                 // cos(theta_o) moves with it; the speed from the reading's arc.
                 let along = if light { gi } else { go - tan_o };
