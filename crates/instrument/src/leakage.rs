@@ -28,6 +28,35 @@ pub fn planck_relative(nm: f64, temperature_k: f64) -> f64 {
     1.0 / (nm.powi(5) * (C2_NM_K / (nm * temperature_k)).exp_m1())
 }
 
+/// The light the detector sees from the source at `nm`, up to a constant: Planck's spectrum at the file's
+/// colour temperature times the photodiode's responsivity; `None` without a usable responsivity.
+fn light(instrument: &Instrument) -> Option<impl Fn(f64) -> f64 + use<>> {
+    let responsivity = Responsivity::from_detector(&instrument.detector).ok()?;
+    let t = instrument.source.colour_temperature_k();
+    Some(move |nm: f64| planck_relative(nm, t) * responsivity.at(nm))
+}
+
+/// `light` over the detector's range every [`STEP_NM`], each sample times its trapezoid weight and step (so
+/// that they sum to the integral: the integrand is smooth and the step a tenth of any feature in it); `None`
+/// for a range that is empty or reversed.
+fn light_samples(instrument: &Instrument, light: impl Fn(f64) -> f64) -> Option<Vec<(f64, f64)>> {
+    let [lo, hi] = instrument.detector.sensor_wavelength_nm;
+    if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    let steps = ((hi - lo) / STEP_NM).ceil().max(2.0) as usize;
+    let h = (hi - lo) / steps as f64;
+    Some(
+        (0..=steps)
+            .map(|i| {
+                let nm = lo + i as f64 * h;
+                let w = if i == 0 || i == steps { 0.5 } else { 1.0 };
+                (nm, w * h * light(nm))
+            })
+            .collect(),
+    )
+}
+
 /// The leaked fraction `L` of `position`'s band on `instrument` (module doc); `None` for a position without a
 /// band and a width, a blank, or figures that give no finite answer.
 pub fn out_of_band_fraction(instrument: &Instrument, position: &FilterPosition) -> Option<f64> {
@@ -35,21 +64,9 @@ pub fn out_of_band_fraction(instrument: &Instrument, position: &FilterPosition) 
     if position.blank || !(position.transmission > 0.0 && b > 0.0) {
         return None;
     }
-    let responsivity = Responsivity::from_detector(&instrument.detector).ok()?;
-    let t = instrument.source.colour_temperature_k();
-    let light = |nm: f64| planck_relative(nm, t) * responsivity.at(nm);
-    let [lo, hi] = instrument.detector.sensor_wavelength_nm;
-    let steps = ((hi - lo) / STEP_NM).ceil().max(2.0) as usize;
-    let h = (hi - lo) / steps as f64;
-    // Trapezoids: the integrand is smooth and the step a tenth of any feature in it.
-    let total: f64 = (0..=steps)
-        .map(|i| {
-            let w = if i == 0 || i == steps { 0.5 } else { 1.0 };
-            w * light(lo + i as f64 * h)
-        })
-        .sum::<f64>()
-        * h;
+    let light = light(instrument)?;
     let band = light(c) * b;
+    let total: f64 = light_samples(instrument, light)?.iter().map(|s| s.1).sum();
     let l = position.out_of_band_transmission() / position.transmission * total / band;
     (l.is_finite() && l >= 0.0).then_some(l)
 }
@@ -61,21 +78,7 @@ pub fn out_of_band_fraction(instrument: &Instrument, position: &FilterPosition) 
 /// (gonio_results::band_component estimates that average from the bands measured). `None` when the file's
 /// figures give no finite, positive light.
 pub fn leak_spectrum(instrument: &Instrument) -> Option<Vec<(f64, f64)>> {
-    let responsivity = Responsivity::from_detector(&instrument.detector).ok()?;
-    let t = instrument.source.colour_temperature_k();
-    let [lo, hi] = instrument.detector.sensor_wavelength_nm;
-    if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
-        return None;
-    }
-    let steps = ((hi - lo) / STEP_NM).ceil().max(2.0) as usize;
-    let h = (hi - lo) / steps as f64;
-    let mut samples: Vec<(f64, f64)> = (0..=steps)
-        .map(|i| {
-            let nm = lo + i as f64 * h;
-            let w = if i == 0 || i == steps { 0.5 } else { 1.0 };
-            (nm, w * planck_relative(nm, t) * responsivity.at(nm))
-        })
-        .collect();
+    let mut samples = light_samples(instrument, light(instrument)?)?;
     let total: f64 = samples.iter().map(|s| s.1).sum();
     if !(total.is_finite() && total > 0.0) {
         return None;
