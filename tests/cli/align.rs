@@ -149,7 +149,12 @@ fn realistic_variant(steady_seating: bool, every_effect: bool, seed: u64) -> Str
             out.push('\n');
         }
     }
-    out
+    if every_effect {
+        out
+    } else {
+        // Its filters then leak nothing, and the file must say so (keep_only_groups).
+        gonio_instrument::imperfections::keep_only_groups(&out, &["geometry"]).expect("valid TOML")
+    }
 }
 
 /// Median and 95th percentile of |value / truth - 1| over a run's points.csv.

@@ -99,7 +99,9 @@ pub enum ImperfectionsError {
 
 /// The instrument file `text` with only the groups of `[simulator.imperfections]` named in `keep` (none: the
 /// same instrument, ideal): how one group's effect is isolated (the benchmark's error budget, tests). Comments
-/// are not kept.
+/// are not kept. Without `filters` the simulated filters leak nothing, and the file's filter positions say so
+/// (`out_of_band_transmission = 0`): the completion corrects every value for the leak the file states, which
+/// on filters that do not leak would be an error of its own.
 pub fn keep_only_groups(text: &str, keep: &[&str]) -> Result<String, ImperfectionsError> {
     let mut doc: toml::Table = text
         .parse()
@@ -110,6 +112,19 @@ pub fn keep_only_groups(text: &str, keep: &[&str]) -> Result<String, Imperfectio
         .and_then(|i| i.as_table_mut())
     {
         groups.retain(|group, _| keep.contains(&group));
+    }
+    if !keep.contains(&"filters")
+        && let Some(positions) = doc
+            .get_mut("instrument")
+            .and_then(|i| i.get_mut("filter_wheel"))
+            .and_then(|w| w.get_mut("positions"))
+            .and_then(|p| p.as_array_mut())
+    {
+        for p in positions.iter_mut().filter_map(|p| p.as_table_mut()) {
+            if p.contains_key("out_of_band_transmission") || p.contains_key("band_nm") {
+                p.insert("out_of_band_transmission".into(), toml::Value::Float(0.0));
+            }
+        }
     }
     toml::to_string(&doc).map_err(|e| ImperfectionsError::Text(e.to_string()))
 }
