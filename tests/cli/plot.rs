@@ -174,17 +174,20 @@ fn a_run_without_valid_points_is_refused() {
     assert!(!run.join("plot.svg").exists());
 }
 
+/// A campaign of one sweep alone: coloured plastic at 30 deg incidence, the detector from 0 to 70 deg at
+/// 10 deg/s, 550 nm (the plot's and the report's tests).
+const SWEPT: &str = "[campaign]\nid = \"swept\"\n[sample]\nradius_mm = 12.5\n[plan]\nbands_nm = [550.0]\n\
+                     [[plan.sweeps]]\ntheta_i_deg = [30.0]\ntheta_o_deg = { from = 0.0, to = 70.0 }\n\
+                     speed_deg_s = 10.0\n[calibration]\nsimulate_operator = true\n[material]\n\
+                     preset = \"coloured-plastic\"\n";
+
 /// A run of sweeps alone: its readings are drawn, averaged along each arc (a few hundred marks, not tens of
 /// thousands), as the in-plane curve of their incidence; `--points-only` leaves them out, and with them
 /// everything there was to draw.
 #[test]
 fn sweep_readings_are_drawn_thinned_and_points_only_leaves_them_out() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let campaign = "[campaign]\nid = \"swept\"\n[sample]\nradius_mm = 12.5\n[plan]\nbands_nm = [550.0]\n\
-                    [[plan.sweeps]]\ntheta_i_deg = [30.0]\ntheta_o_deg = { from = 0.0, to = 70.0 }\n\
-                    speed_deg_s = 10.0\n[calibration]\nsimulate_operator = true\n[material]\n\
-                    preset = \"coloured-plastic\"\n";
-    let run = cli::dry_run(dir.path(), "swept", campaign);
+    let run = cli::dry_run(dir.path(), "swept", SWEPT);
     let readings = std::fs::read_to_string(run.join("sweeps.csv"))
         .expect("sweeps.csv")
         .lines()

@@ -231,11 +231,7 @@ fn the_report_of_a_calibrated_run_shows_its_alignment_characterisation_and_budge
 #[test]
 fn the_report_of_a_sweeps_run_has_a_section_on_them_and_draws_and_fits_them() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let campaign = "[campaign]\nid = \"swept\"\n[sample]\nradius_mm = 12.5\n[plan]\nbands_nm = [550.0]\n\
-                    [[plan.sweeps]]\ntheta_i_deg = [30.0]\ntheta_o_deg = { from = 0.0, to = 70.0 }\n\
-                    speed_deg_s = 10.0\n[calibration]\nsimulate_operator = true\n[material]\n\
-                    preset = \"coloured-plastic\"\n";
-    let run = gonio_testkit::cli::dry_run(dir.path(), "swept", campaign);
+    let run = gonio_testkit::cli::dry_run(dir.path(), "swept", super::SWEPT);
     let csv = std::fs::read_to_string(run.join("sweeps.csv")).expect("sweeps.csv");
     let readings = csv.lines().count() - 1;
     assert!(readings > 1000, "{readings} readings");
