@@ -310,7 +310,7 @@ pub struct SweepTruthSummary {
 }
 
 /// [`SweepTruthSummary`] over the readings with a value, an uncertainty and a truth; `None` without any.
-pub fn truth_summary(readings: &[SweepReading]) -> Option<SweepTruthSummary> {
+pub fn truth_summary<'a>(readings: impl IntoIterator<Item = &'a SweepReading>) -> Option<SweepTruthSummary> {
     let (mut n, mut covered, mut num, mut den) = (0u64, 0u64, 0.0, 0.0);
     for r in readings {
         let (Some(f), Some(u), Some(t)) = (r.brdf_sr, r.brdf_u_sr, r.truth_point_sr) else {

@@ -177,9 +177,8 @@ impl Pointed {
         band_nm: f64,
         absolute: bool,
     ) -> Option<Vec<(&'static str, f64)>> {
-        let pose = *pose;
         let wavelength = Wavelength::from_nm(band_nm).ok()?;
-        let (wi, wo) = self.base.directions(&pose)?;
+        let (wi, wo) = self.base.directions(pose)?;
         let weighted = |wi: &Direction, wo: &Direction| -> Option<f64> {
             let f = model.eval(wi, wo, wavelength).ok()?;
             let v = if absolute { f * wo.z() } else { f };
@@ -189,7 +188,7 @@ impl Pointed {
         moved
             .iter()
             .map(|(name, c)| {
-                let (wi_k, wo_k) = c.directions(&pose)?;
+                let (wi_k, wo_k) = c.directions(pose)?;
                 Some((*name, weighted(&wi_k, &wo_k)? / at - 1.0))
             })
             .collect()

@@ -89,8 +89,7 @@ pub fn sweeps(readings: &[SweepReading], dry_run: bool) -> String {
                 pct(median(rel_u).map(|u| 2.0 * u), 2),
             ];
             if dry_run {
-                let owned: Vec<SweepReading> = rs.iter().map(|r| (*r).clone()).collect();
-                let t = truth_summary(&owned);
+                let t = truth_summary(rs.iter().copied());
                 row.push(pct(t.map(|t| t.coverage_k2), 3));
                 row.push(num(t.and_then(|t| t.cos_weighted_relative_rms), 3));
             }
