@@ -237,6 +237,12 @@ pub fn markdown(pairs: &Result<Vec<Pair>, String>, ideal: Option<&Variant>) -> S
          - **What the scans cannot observe.** The beam's direction against its line through the arms' axis, its \
            elevation, the encoders' cyclic errors and the rotation's zero stay at nominal (crates/engine/src/align/\
            file.rs, `params`); a few hundredths of a degree of incidence or view remain.\n\
+         - **The solid angle.** The aperture's radius and its distance from the arms' axis are the lab's measured \
+           figures (realistic.toml: to 1 um and 0.1 mm), which no scan observes, and the absolute method divides \
+           every value by the solid angle they give: each seed's draw shifts every value alike. Seed 101 draws the \
+           aperture 0.21 mm farther than the file says (-0.22 % on every value: its calibrated median), seed 7 a \
+           radius 1.7 um smaller (-0.16 %), seeds 16, 3 and 2027 under 0.06 %. The budget carries it as shared \
+           by every value (`solid_angle_u`, 0.11 %); the relative method's reference sample takes it out.\n\
          - **Every effect on** adds the finite filter bands on a coloured sample (the error budget's filters \
            row: each filter's centre off its nominal one by up to its tolerance, times the sample's spectral \
            slope, which a calibration through the same filter cannot take out; the light the filters leak from \
