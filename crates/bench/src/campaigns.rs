@@ -59,6 +59,8 @@ pub enum Strategy {
     FullGrid,
     IsotropicGrid,
     Adaptive,
+    /// Adaptive after a first pass of sweeps (`first_pass_sweeps` at [`FIRST_PASS_SWEEP_DEG_S`]).
+    AdaptiveSwept,
 }
 
 impl Strategy {
@@ -67,9 +69,14 @@ impl Strategy {
             Strategy::FullGrid => "uniform full grid",
             Strategy::IsotropicGrid => "isotropic + reciprocity grid",
             Strategy::Adaptive => "adaptive",
+            Strategy::AdaptiveSwept => "adaptive, first pass swept",
         }
     }
 }
+
+/// The detector's speed in the swept first pass (deg/s): a reading every 0.013 deg at the meter's one sample a
+/// reading.
+pub const FIRST_PASS_SWEEP_DEG_S: f64 = 4.0;
 
 /// What the runs share.
 pub struct Setup<'a> {
@@ -219,13 +226,17 @@ pub fn grid_plan(setup: &Setup, full: bool, step: f64) -> Result<(usize, f64, Ve
 }
 
 /// The campaign file of an adaptive campaign on `material` to `budget` points (one band, no calibration steps
-/// beyond the engine's own at start).
-pub fn adaptive_campaign_text(material: &str, budget: u32) -> String {
+/// beyond the engine's own at start); `swept`: its first pass swept.
+pub fn adaptive_campaign_text(material: &str, budget: u32, swept: bool) -> String {
     let adaptive = AdaptiveSpec {
         batch_points: 40,
         target_error: 0.0,
         first_pass_step_deg: 10.0,
         resolution_deg: 2.5,
+        first_pass_sweeps: swept.then_some(gonio_scheduler::plan::FirstPassSweeps {
+            speed_deg_s: FIRST_PASS_SWEEP_DEG_S,
+            averaging: 1,
+        }),
         ..AdaptiveSpec::with_budget(budget)
     };
     let plan = PlanSpec {
@@ -252,25 +263,53 @@ pub fn adaptive_campaign_text(material: &str, budget: u32) -> String {
 /// planner places each pass from the simulator's readings). Returns the measured geometries with their ground
 /// truth (the reconstruction compares strategies on noise-free values, module doc), the instrument time the run
 /// took (simulated, the engine's own start-up calibration included), and the budget points not measured.
+///
+/// `swept`: the first pass is swept; the sweep readings join the points as the planner takes them (one value a
+/// bin along every arc, `gonio_campaign::passes::swept_values`), valued at the ground truth like the points.
 pub fn adaptive_run(
     budget: u32,
     material: &str,
+    swept: bool,
     truth: &dyn Fn(&Geometry) -> f64,
 ) -> Result<(Vec<Measured>, f64, usize), String> {
-    let points = crate::throughput::in_process_points(&adaptive_campaign_text(material, budget))?;
+    let text = adaptive_campaign_text(material, budget, swept);
+    let points = crate::throughput::in_process_points(&text)?;
+    // The points follow the sweeps: the last point ends the run.
     let instrument_s = points.iter().map(|p| p.t_s).fold(0.0f64, f64::max);
-    let measured: Vec<Measured> = points
+    let mut values: Vec<(Geometry, Option<f64>)> = points
         .iter()
         .map(|p| {
             let g = Geometry::new(p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg);
-            Measured {
-                geometry: g,
-                value: truth(&g),
-            }
+            (g, Some(truth(&g)))
         })
         .collect();
-    let short = (budget as usize).saturating_sub(measured.len());
-    Ok((measured, instrument_s, short))
+    let short = (budget as usize).saturating_sub(values.len());
+    if swept {
+        values.extend(swept_bins(&text)?.into_iter().map(|g| (g, Some(truth(&g)))));
+    }
+    Ok((gonio_campaign::measured_geometries(values), instrument_s, short))
+}
+
+/// The bins a first pass of sweeps fills (every bin along every arc the path check kept).
+fn swept_bins(text: &str) -> Result<Vec<Geometry>, String> {
+    let file = gonio_instrument::InstrumentFile::simulated();
+    let sources = gonio_campaign::Sources::Local(std::env::temp_dir());
+    let p =
+        gonio_campaign::load_and_prepare(text, "bench.toml", &sources, &file).map_err(|e| e.to_string())?;
+    let (Some(adaptive), Some(sweeps)) = (&p.adaptive, &p.sweeps) else {
+        return Err("the first pass is not swept".into());
+    };
+    let step = adaptive.planner().sweep_bin_deg();
+    let mut out = Vec::new();
+    for arc in &sweeps.plan.arcs {
+        let n = (arc.length_deg() / step).floor() as usize;
+        out.extend((0..=n).map(|k| {
+            adaptive
+                .planner()
+                .sweep_bin(&arc.request.geometry_at(arc.piece.from_deg + k as f64 * step))
+        }));
+    }
+    Ok(out)
 }
 
 /// Every strategy at every size for one material.
@@ -318,26 +357,58 @@ pub fn run_material(
             }
         }
     }
-    for &budget in &sizes.budgets {
-        match adaptive_run(budget, material, &truth) {
+    for strategy in [Strategy::Adaptive, Strategy::AdaptiveSwept] {
+        for &budget in &sizes.budgets {
+            let run = AdaptiveRow {
+                setup,
+                material,
+                reconstructor,
+                truth: &truth,
+                reference: &reference,
+            };
+            out.extend(run.row(budget, strategy));
+        }
+    }
+    out
+}
+
+/// What an adaptive run's row is measured with.
+struct AdaptiveRow<'a> {
+    setup: &'a Setup<'a>,
+    material: &'static str,
+    reconstructor: &'a Adaptive,
+    truth: &'a dyn Fn(&Geometry) -> f64,
+    reference: &'a [f64],
+}
+
+impl AdaptiveRow<'_> {
+    /// One run's row; a run that fails is reported, not fatal (the other rows still count). Points: the points
+    /// measured (a swept first pass's readings besides them).
+    fn row(&self, budget: u32, strategy: Strategy) -> Option<CampaignPoint> {
+        let swept = strategy == Strategy::AdaptiveSwept;
+        match adaptive_run(budget, self.material, swept, self.truth) {
             Ok((measured, predicted_s, dropped)) => {
-                let rec = reconstructor.reconstruct_all(&measured, &setup.validation);
-                let (rel, log) = errors(&setup.validation, &rec, &reference);
-                out.push(CampaignPoint {
-                    material,
-                    strategy: Strategy::Adaptive,
+                let rec = self
+                    .reconstructor
+                    .reconstruct_all(&measured, &self.setup.validation);
+                let (rel, log) = errors(&self.setup.validation, &rec, self.reference);
+                Some(CampaignPoint {
+                    material: self.material,
+                    strategy,
                     label: format!("budget {budget}"),
-                    points: measured.len(),
+                    points: budget as usize - dropped,
                     predicted_s,
                     rel_rms: rel,
                     log_rms: log,
                     dropped,
-                });
+                })
             }
-            Err(e) => eprintln!("{material}: adaptive budget {budget}: {e}"),
+            Err(e) => {
+                eprintln!("{}: {} budget {budget}: {e}", self.material, strategy.name());
+                None
+            }
         }
     }
-    out
 }
 
 /// A reconstructor (any Adaptive: reconstruction does not depend on its spec).
@@ -350,6 +421,7 @@ pub fn reconstructor(instrument: &Instrument) -> Adaptive {
         first_pass_step_deg: 10.0,
         first_pass_theta_i_deg: None,
         resolution_deg: 45.0,
+        first_pass_sweeps: None,
     };
     Adaptive::new(&spec, &ctx(instrument, true)).expect("reconstructor")
 }
@@ -416,8 +488,11 @@ pub fn markdown(points: &[CampaignPoint], sizes: &Sizes, validation: usize, elap
     let _ = writeln!(
         s,
         "Validation set: {validation} reachable geometries. Budgets {:?} (adaptive: batches of 40, candidate grid \
-         2.5 deg, first pass 10 deg); isotropic grids theta step {:?} deg (delta phi twice that, theta 0-85); full \
-         grids step {:?} deg (phi twice that). Section run time {elapsed_s:.0} s.\n",
+         2.5 deg, first pass 10 deg; first pass swept: the same incidences swept by the detector from grazing to \
+         grazing at {FIRST_PASS_SWEEP_DEG_S} deg/s before any point, its readings binned at 0.3125 deg and valued \
+         like the points, the budget in points after them, the sweeps' time in the run's); isotropic grids theta \
+         step {:?} deg (delta phi twice that, theta 0-85); full grids step {:?} deg (phi twice that). Section run \
+         time {elapsed_s:.0} s.\n",
         sizes.budgets, sizes.iso_steps_deg, sizes.full_steps_deg
     );
     let mut materials: Vec<&str> = Vec::new();

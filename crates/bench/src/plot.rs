@@ -120,7 +120,12 @@ pub fn campaign(path: &Path, material: &str, points: &[CampaignPoint]) -> PlotRe
         ("sans-serif", 22),
     )?;
     let panels = root.split_evenly((2, 2));
-    let strategies = [Strategy::FullGrid, Strategy::IsotropicGrid, Strategy::Adaptive];
+    let strategies = [
+        Strategy::FullGrid,
+        Strategy::IsotropicGrid,
+        Strategy::Adaptive,
+        Strategy::AdaptiveSwept,
+    ];
     for (k, panel) in panels.iter().enumerate() {
         let by_time = k % 2 == 1;
         let log_metric = k >= 2;

@@ -14,13 +14,52 @@
 //!
 //! Time budget: `budget_s` is compared with the predicted instrument time of the passes placed so far (the
 //! schedules' own predictions), not with a clock, so that the decision does not depend on when a resume happened.
+//!
+//! A first pass of sweeps (`first_pass_sweeps`): the campaign's sweeps are the planner's first pass and run
+//! before any point; the first pass of points is empty. Every later pass is placed from the sweep readings
+//! (binned: `gonio_scheduler::adaptive::Adaptive::sweep_bin`) and the points measured so far, and only the
+//! points count against `budget_points` ([`planner_input`]). The sweeps' predicted time counts against
+//! `budget_s`.
 
 use gonio_scheduler::adaptive::{Adaptive, Measured, StopReason};
-use gonio_scheduler::kinematics::Geometry;
+use gonio_scheduler::kinematics::{Geometry, Pose};
 use gonio_scheduler::plan::AdaptiveSpec;
 use gonio_scheduler::plan::{self, BuildContext, Plan, PlanError, PlanSpec};
-use gonio_scheduler::schedule::{self, Schedule};
+use gonio_scheduler::schedule::{self, Cadence, Schedule};
+use gonio_scheduler::sweep::{SweepPlan, SweepSchedule, sweep_reading_period_s};
 use gonio_scheduler::timing::TimeModel;
+
+/// Where the work before a pass left the instrument: its pose (None: unknown) and the calibration cadence.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct After {
+    pub pose: Option<Pose>,
+    pub cadence: Cadence,
+}
+
+impl After {
+    /// After a pass of points.
+    pub fn schedule(s: &Schedule) -> After {
+        After {
+            pose: s.steps.last().map(|s| s.pose),
+            cadence: s.end,
+        }
+    }
+
+    /// After a first pass of sweeps: where they end, the calibration they close with just taken.
+    pub fn sweeps(s: &SweepSchedule) -> After {
+        let (pose, wheel) = match s.end {
+            Some((pose, wheel)) => (Some(pose), wheel),
+            None => (None, None),
+        };
+        After {
+            pose,
+            cadence: Cadence {
+                wheel,
+                ..Cadence::default()
+            },
+        }
+    }
+}
 
 /// The adaptive planner of one campaign, with what it needs to place and order a pass.
 #[derive(Debug, Clone)]
@@ -95,15 +134,26 @@ impl AdaptivePlan {
         &self.adaptive
     }
 
-    /// The first pass as a plan.
-    pub(crate) fn first_plan(&self, ctx: &BuildContext) -> Result<Plan, PlanError> {
-        plan::build_from_geometries(&self.batch_spec, ctx, &self.adaptive.first_pass(), true)
+    /// True when the first pass sweeps (`first_pass_sweeps`): the campaign's sweeps run before any point.
+    pub fn sweeps_first(&self) -> bool {
+        self.adaptive.first_pass_sweeps().is_some()
     }
 
-    /// The pass after `previous` (the schedule just measured), from every geometry measured so far and the
-    /// predicted instrument time of all passes so far (`elapsed_s`). Deterministic (module doc).
-    pub fn next_pass(&self, measured: &[Measured], elapsed_s: f64, previous: &Schedule) -> NextPass {
-        let batch = self.adaptive.next_batch(measured, elapsed_s);
+    /// The first pass as a plan: of no point when the first pass sweeps.
+    pub(crate) fn first_plan(&self, ctx: &BuildContext) -> Result<Plan, PlanError> {
+        let first = if self.sweeps_first() {
+            Vec::new()
+        } else {
+            self.adaptive.first_pass()
+        };
+        plan::build_from_geometries(&self.batch_spec, ctx, &first, true)
+    }
+
+    /// The pass after the work `after` left the instrument in, from every geometry measured so far (of which
+    /// `points` count against the budget: [`planner_input`]) and the predicted instrument time of all the work
+    /// so far (`elapsed_s`). Deterministic (module doc).
+    pub fn next_pass(&self, measured: &[Measured], points: usize, elapsed_s: f64, after: After) -> NextPass {
+        let batch = self.adaptive.next_batch_counting(measured, points, elapsed_s);
         let error_estimate = batch.error_estimate;
         if let Some(reason) = batch.done {
             return NextPass::Done {
@@ -111,7 +161,7 @@ impl AdaptivePlan {
                 error_estimate,
             };
         }
-        let start = previous.steps.last().map(|s| s.pose);
+        let start = after.pose;
         let ctx = BuildContext {
             instrument: &self.instrument,
             traits: self.traits,
@@ -120,7 +170,7 @@ impl AdaptivePlan {
         };
         let schedule = plan::build_from_geometries(&self.batch_spec, &ctx, &batch.geometries, true)
             .ok()
-            .map(|p| schedule::schedule_continuing(&p, &self.time, start.as_ref(), Some(previous.end)));
+            .map(|p| schedule::schedule_continuing(&p, &self.time, start.as_ref(), Some(after.cadence)));
         match schedule {
             // Nothing of the batch can be measured: the planner would only propose it again.
             Some(s) if s.measure_steps().next().is_some() => NextPass::Pass {
@@ -145,47 +195,111 @@ const STAND_IN_PRESET: &str = "coloured-plastic";
 /// sample, what the lab declared) or, without one, a glossy plastic. Returns the predicted instrument time of
 /// every pass, the first included, and the points they measure. How far the real passes differ depends on how
 /// far the sample differs from its stand-in: the planner refines where the sample's BRDF varies.
+///
+/// `swept`: a first pass of sweeps (`first_pass_sweeps`), whose readings the stand-in gives along every arc
+/// at the planner's binning; their time is in the total.
 pub fn rehearse(
     adaptive: &AdaptivePlan,
     first: &Schedule,
+    swept: Option<(&SweepPlan, &SweepSchedule)>,
     material: Option<&gonio_brdf::material::Material>,
 ) -> (f64, u64) {
     use gonio_brdf::{Brdf, Wavelength};
+    let swept_s = swept.map_or(0.0, |(_, s)| s.breakdown.total_s());
     let fallback = gonio_brdf::material::Material::preset(STAND_IN_PRESET).ok();
     let Some(sample) = material.or(fallback.as_ref()) else {
-        return (first.breakdown.total_s(), first.measure_steps().count() as u64);
+        return (
+            first.breakdown.total_s() + swept_s,
+            first.measure_steps().count() as u64,
+        );
+    };
+    let eval = |g: Geometry, band_nm: Option<f64>| -> Option<f64> {
+        let (wi, wo) = g.directions();
+        band_nm
+            .and_then(|nm| Wavelength::from_nm(nm).ok())
+            .or_else(|| Wavelength::from_nm(550.0).ok())
+            .and_then(|wl| sample.eval(&wi, &wo, wl).ok())
     };
     let value = |step: &gonio_scheduler::schedule::Step| -> (Geometry, Option<f64>) {
         let g = step.geometry.unwrap_or_else(|| Geometry::new(0.0, 0.0, 0.0, 0.0));
-        let (wi, wo) = g.directions();
-        let v = step
-            .band_nm
-            .and_then(|nm| Wavelength::from_nm(nm).ok())
-            .or_else(|| Wavelength::from_nm(550.0).ok())
-            .and_then(|wl| sample.eval(&wi, &wo, wl).ok());
-        (g, v)
+        (g, eval(g, step.band_nm))
     };
+    // The sweeps' readings, one every reading period at cruise along every arc in every band, binned as the
+    // planner takes them: a bin's mean over a lobe is not its value at the bin's centre, and the passes the
+    // planner places from it are what is timed.
+    let mut readings: Vec<(Geometry, Option<f64>)> = Vec::new();
+    if let Some((plan, _)) = swept {
+        let bands: Vec<Option<f64>> = if plan.bands_nm.is_empty() {
+            vec![None]
+        } else {
+            plan.bands_nm.iter().map(|b| Some(*b)).collect()
+        };
+        for arc in &plan.arcs {
+            let step_deg = arc.request.speed_deg_s * sweep_reading_period_s(arc.request.averaging);
+            if !(step_deg.is_finite() && step_deg > 0.0) {
+                continue;
+            }
+            let n = (arc.length_deg() / step_deg).floor() as usize;
+            for k in 0..=n {
+                let g = arc.request.geometry_at(arc.piece.from_deg + k as f64 * step_deg);
+                readings.extend(bands.iter().map(|b| (g, eval(g, *b))));
+            }
+        }
+    }
+    let swept_values = swept_values(adaptive, readings);
     let mut points: Vec<(Geometry, Option<f64>)> = first.measure_steps().map(value).collect();
-    let mut elapsed_s = first.breakdown.total_s();
-    let mut previous = first.clone();
+    let mut elapsed_s = first.breakdown.total_s() + swept_s;
+    let mut after = match swept {
+        Some((_, s)) => After::sweeps(s),
+        None => After::schedule(first),
+    };
     // Every pass measures at least one point and the budget is finite; the bound is a guard, not a limit.
     for _ in 0..adaptive.budget_points() {
-        let measured = measured_geometries(points.iter().copied());
-        match adaptive.next_pass(&measured, elapsed_s, &previous) {
+        let (measured, counted) = planner_input(&swept_values, &points);
+        match adaptive.next_pass(&measured, counted, elapsed_s, after) {
             NextPass::Pass { schedule, .. } => {
                 elapsed_s += schedule.breakdown.total_s();
                 points.extend(schedule.measure_steps().map(value));
-                previous = schedule;
+                after = After::schedule(&schedule);
             }
             NextPass::Done { .. } => break,
         }
     }
     // The daemon closes the beam when the run ends: a last turn of the wheel to its blank.
     let blank = adaptive.time.wheel.as_ref().and_then(|w| w.blank);
-    if previous.end.wheel.is_some() {
-        elapsed_s += adaptive.time.wheel_time_s(previous.end.wheel, blank);
+    if after.cadence.wheel.is_some() {
+        elapsed_s += adaptive.time.wheel_time_s(after.cadence.wheel, blank);
     }
     (elapsed_s, points.len() as u64)
+}
+
+/// A first pass of sweeps as the planner takes it: each reading `(geometry at its arc's centre, BRDF in 1/sr or
+/// None)` at its bin's geometry (`Adaptive::sweep_bin`); [`planner_input`] averages each bin.
+pub fn swept_values(
+    adaptive: &AdaptivePlan,
+    readings: impl IntoIterator<Item = (Geometry, Option<f64>)>,
+) -> Vec<(Geometry, Option<f64>)> {
+    readings
+        .into_iter()
+        .map(|(g, v)| (adaptive.adaptive.sweep_bin(&g), v))
+        .collect()
+}
+
+/// What the planner places a pass from: one value per geometry over the binned sweep readings (`swept`, from
+/// [`swept_values`]; empty without a first pass of sweeps) and the points measured so far, and how many of
+/// those geometries are points (what the budget counts).
+pub fn planner_input(
+    swept: &[(Geometry, Option<f64>)],
+    points: &[(Geometry, Option<f64>)],
+) -> (Vec<Measured>, usize) {
+    if swept.is_empty() {
+        let measured = measured_geometries(points.iter().copied());
+        let n = measured.len();
+        return (measured, n);
+    }
+    let counted = measured_geometries(points.iter().copied()).len();
+    let measured = measured_geometries(swept.iter().chain(points).copied());
+    (measured, counted)
 }
 
 /// One value per geometry for the planner, from points in measurement order: `(geometry, BRDF in 1/sr or None

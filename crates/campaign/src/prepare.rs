@@ -32,7 +32,7 @@ pub struct Prepared {
     /// An adaptive plan rehearsed on a stand-in sample ([`crate::passes::rehearse`]): the predicted instrument
     /// time of all its passes (s) and the points they measure.
     pub rehearsal: Option<(f64, u64)>,
-    /// The plan's `[[plan.sweeps]]`, after its points.
+    /// The plan's `[[plan.sweeps]]`, after its points; or an adaptive plan's first pass of sweeps, before them.
     pub sweeps: Option<Sweeps>,
 }
 
@@ -42,6 +42,9 @@ pub struct Prepared {
 pub struct Sweeps {
     pub plan: SweepPlan,
     pub schedule: SweepSchedule,
+    /// An adaptive plan's first pass (`first_pass_sweeps`): swept before any point, and the planner places
+    /// every pass of points from their readings (`crate::passes`).
+    pub first: bool,
 }
 
 impl Prepared {
@@ -61,11 +64,18 @@ impl Prepared {
             Some((s, _)) => s,
             None => self.schedule.breakdown.total_s(),
         };
+        // A first pass of sweeps is in the rehearsal already.
         points
             + self
                 .sweeps
                 .as_ref()
+                .filter(|s| !s.first)
                 .map_or(0.0, |s| s.schedule.breakdown.total_s())
+    }
+
+    /// True when sweeps run before the points: an adaptive plan's first pass of sweeps.
+    pub fn sweeps_first(&self) -> bool {
+        self.sweeps.as_ref().is_some_and(|s| s.first)
     }
 
     /// The bands measured (nm).
@@ -146,7 +156,18 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
             (plan, schedule, None)
         }
     };
-    let sweeps = if spec.sweeps.is_empty() {
+    // An adaptive plan's first pass of sweeps takes the place of `[[plan.sweeps]]`.
+    let first_pass_sweeps = adaptive.as_ref().and_then(|a| a.planner().first_pass_sweeps());
+    if first_pass_sweeps.is_some() && !spec.sweeps.is_empty() {
+        return Err(CampaignError(format!(
+            "{}: [[plan.sweeps]] beside [plan.adaptive] first_pass_sweeps: an adaptive plan whose first pass \
+             sweeps takes no other sweeps for now; remove one of them",
+            at.at("plan", None)
+        )));
+    }
+    let sweep_specs = first_pass_sweeps.as_deref().unwrap_or(&spec.sweeps);
+    let first = first_pass_sweeps.is_some();
+    let sweeps = if sweep_specs.is_empty() {
         None
     } else {
         // The arms stay on the side the points chose, so that the instrument goes from one to the other.
@@ -160,7 +181,7 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
             })
             .map(|p| p.light_deg < p.detector_deg);
         let sweep_plan = build_sweeps(
-            &spec.sweeps,
+            sweep_specs,
             instrument,
             &time,
             Some(campaign.sample_radius_mm),
@@ -168,10 +189,15 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
             side,
             &campaign.sweep_profiles,
         )
-        .map_err(|e| at.plan(&e))?;
+        .map_err(|e| at.plan(&first_pass_error(e, first)))?;
         if sweep_plan.arcs.is_empty() {
+            let table = if first {
+                "[plan.adaptive] first_pass_sweeps"
+            } else {
+                "[[plan.sweeps]]"
+            };
             return Err(CampaignError(format!(
-                "{}: [[plan.sweeps]]: no arc can be swept on instrument {:?} (degrees cut by rule: {:?})",
+                "{}: {table}: no arc can be swept on instrument {:?} (degrees cut by rule: {:?})",
                 at.at("plan", None),
                 instrument.name,
                 sweep_plan.skipped_deg
@@ -182,11 +208,13 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
         let calibration = SweepCalibration {
             plan: &plan,
             opening: schedule.measure_steps().next().is_none(),
+            last: !first,
         };
         let sweep_schedule = schedule_sweeps(&sweep_plan, &time, start, Some(calibration));
         Some(Sweeps {
             plan: sweep_plan,
             schedule: sweep_schedule,
+            first,
         })
     };
     if schedule.measure_steps().next().is_none() && sweeps.is_none() {
@@ -205,9 +233,13 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
         check_reference(r, &bands, instrument, campaign.sample_radius_mm)
             .map_err(|(key, e)| at.err("calibration", key, e))?;
     }
+    let swept = sweeps
+        .as_ref()
+        .filter(|s| s.first)
+        .map(|s| (&s.plan, &s.schedule));
     let rehearsal = adaptive
         .as_ref()
-        .map(|a| crate::passes::rehearse(a, &schedule, campaign.material.as_ref()));
+        .map(|a| crate::passes::rehearse(a, &schedule, swept, campaign.material.as_ref()));
     Ok(Prepared {
         campaign,
         plan,
@@ -217,6 +249,19 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
         rehearsal,
         sweeps,
     })
+}
+
+/// A first pass of sweeps is built from `[[plan.sweeps]]` entries the planner wrote: what is wrong with one is
+/// named where the campaign file asked for it.
+fn first_pass_error(e: plan::PlanError, first: bool) -> plan::PlanError {
+    match e {
+        plan::PlanError::Invalid { key, message, .. } if first => plan::PlanError::Invalid {
+            table: ".adaptive".into(),
+            key: "first_pass_sweeps".into(),
+            message: format!("{key}: {message}"),
+        },
+        e => e,
+    }
 }
 
 /// [`load`] then [`prepare`]: a campaign's text to a prepared campaign.

@@ -135,3 +135,54 @@ fn the_relative_method_schedules_its_references_at_the_reference_geometry() {
         );
     }
 }
+
+/// An adaptive campaign on gold whose first pass sweeps (`extra` appended to its text).
+fn swept_first(extra: &str) -> String {
+    format!(
+        "[campaign]\nid = \"s\"\n[sample]\nradius_mm = 12.5\n[material]\npreset = \"gold\"\n[plan]\n\
+         bands_nm = [550.0]\n[plan.adaptive]\nbudget_points = 100\nfirst_pass_theta_i_deg = [20.0, 50.0]\n\
+         first_pass_sweeps = {{ speed_deg_s = 5.0 }}\n{extra}"
+    )
+}
+
+#[test]
+fn a_first_pass_of_sweeps_prepares_as_sweeps_before_a_plan_of_no_point() {
+    let file = InstrumentFile::simulated();
+    let sources = Sources::Local(campaigns_dir());
+    let p = load_and_prepare(&swept_first(""), "s.toml", &sources, &file).expect("prepares");
+    assert!(p.sweeps_first());
+    assert_eq!(
+        p.schedule.measure_steps().count(),
+        0,
+        "no point before the sweeps"
+    );
+    assert_eq!(p.total_points(), 100, "the budget counts points");
+    let sweeps = p.sweeps.as_ref().expect("sweeps");
+    // Two incidences, each arc cut where the source blocks the view into at most two pieces.
+    assert_eq!(sweeps.plan.requested, 2);
+    assert!(
+        (2..=4).contains(&sweeps.plan.arcs.len()),
+        "{} arcs",
+        sweeps.plan.arcs.len()
+    );
+    // The run goes on after the sweeps: their schedule does not close the beam, and the prediction counts
+    // their time once (in the rehearsal), with the points after them.
+    assert_eq!(sweeps.schedule.breakdown.closing_s, 0.0);
+    let (rehearsed_s, points) = p.rehearsal.expect("rehearsed");
+    assert_eq!(points, 100);
+    assert_eq!(p.predicted_s(), rehearsed_s);
+    assert!(rehearsed_s > sweeps.schedule.breakdown.total_s() + 50.0);
+
+    // No other sweeps beside it; a speed the arm cannot reach is named where the campaign asked for it.
+    let beside = swept_first(
+        "[[plan.sweeps]]\ntheta_i_deg = [30.0]\ntheta_o_deg = { from = -60.0, to = 60.0 }\nspeed_deg_s = 2.0\n",
+    );
+    let e = load_and_prepare(&beside, "s.toml", &sources, &file).expect_err("refused");
+    assert!(e.to_string().contains("first_pass_sweeps"), "{e}");
+    let fast = swept_first("").replace("speed_deg_s = 5.0", "speed_deg_s = 99.0");
+    let e = load_and_prepare(&fast, "s.toml", &sources, &file).expect_err("refused");
+    assert!(
+        e.to_string().contains("first_pass_sweeps") && e.to_string().contains("speed_deg_s"),
+        "{e}"
+    );
+}

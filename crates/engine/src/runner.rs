@@ -156,6 +156,8 @@ struct Run<'a> {
     /// An adaptive plan's committed points read back so far (geometry, BRDF), and the index they reach.
     measured: Vec<(gonio_scheduler::kinematics::Geometry, Option<f64>)>,
     measured_to: u64,
+    /// An adaptive plan's first pass of sweeps as its planner takes it (binned readings), once read.
+    swept: Option<Vec<(gonio_scheduler::kinematics::Geometry, Option<f64>)>>,
     /// The lag of each swept axis (by name) behind its commanded profile (s), from the last sweep that measured
     /// it: a sweep too short to measure its own uses it (runner::sweep).
     sweep_lags: std::collections::BTreeMap<String, f64>,
@@ -326,6 +328,7 @@ pub(crate) async fn run(
         eta_anchor: None,
         measured: Vec::new(),
         measured_to: 0,
+        swept: None,
         sweep_lags: std::collections::BTreeMap::new(),
     };
     let outcome = {
@@ -433,6 +436,16 @@ impl<'a> Run<'a> {
         // Reference every axis (the arms in a collision-safe order) and learn where it is.
         self.motion.reference_all().await?;
 
+        // An adaptive plan's first pass of sweeps, before any point (their closing calibration is the points'
+        // preamble when they ran in this session).
+        let mut swept_now = false;
+        if self.c.sweeps_first() && self.done == 0 {
+            let left = self.c.sweeps.as_ref().map_or(0, |s| s.schedule.steps.len());
+            if (self.st(|s| s.sweep_segments_done(self.id))? as usize) < left {
+                self.run_sweeps(false).await?;
+                swept_now = true;
+            }
+        }
         if self.done >= self.total {
             // The points are all in (or there are none): what is left is the sweeps.
             return self.run_sweeps(false).await;
@@ -456,7 +469,7 @@ impl<'a> Run<'a> {
         }
 
         let bands = self.c.plan.bands_nm.clone();
-        let fresh = self.done == 0 && self.t_base == 0.0;
+        let fresh = self.done == 0 && self.t_base == 0.0 && !swept_now;
         if fresh {
             let steps = pass.schedule.steps.clone();
             self.start_up(&steps).await?;
@@ -469,7 +482,7 @@ impl<'a> Run<'a> {
         let scheduled_preamble = fresh
             && leading.iter().any(|s| s.kind == StepKind::Dark)
             && leading.iter().any(|s| s.kind == StepKind::Reference);
-        let mut i = if scheduled_preamble {
+        let mut i = if scheduled_preamble || swept_now {
             0
         } else {
             self.darks_all(&bands).await?;

@@ -80,27 +80,45 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
         }
     );
     if let Some(a) = &p.adaptive {
+        let first = if p.sweeps_first() {
+            "first pass: the sweeps below; every pass of points is placed at run time from their readings and \
+             the points measured"
+        } else {
+            "first pass below, each later pass is placed at run time from the points measured"
+        };
         let _ = writeln!(
             out,
-            "adaptive plan: budget {} points ({} per geometry); {} reachable candidates; first pass below, each \
-             later pass is placed at run time from the points measured",
+            "adaptive plan: budget {} points ({} per geometry); {} reachable candidates; {first}",
             a.budget_points(),
             a.points_per_geometry(),
             a.planner().candidate_count()
         );
     }
     if plan.requested == 0 && p.sweeps.is_some() {
-        // Sweeps alone: no point block.
+        // Sweeps alone, or an adaptive plan's first pass of sweeps: no point block.
         if let Some(sweeps) = &p.sweeps {
             sweep_lines(&mut out, sweeps);
             follow_lines(&mut out, &p.campaign.sweep_profiles);
         }
-        let _ = writeln!(
-            out,
-            "predicted duration: {:.1} s ({})",
-            p.predicted_s(),
-            hms(p.predicted_s())
-        );
+        match p.rehearsal {
+            Some((_, points)) => {
+                let _ = writeln!(
+                    out,
+                    "predicted duration: {:.1} s ({}), the sweeps and {points} points, every pass rehearsed on {}",
+                    p.predicted_s(),
+                    hms(p.predicted_s()),
+                    stand_in(p)
+                );
+            }
+            None => {
+                let _ = writeln!(
+                    out,
+                    "predicted duration: {:.1} s ({})",
+                    p.predicted_s(),
+                    hms(p.predicted_s())
+                );
+            }
+        }
         let _ = writeln!(out, "{}", band_line(p));
         return out;
     }
@@ -142,15 +160,12 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
         );
     }
     if let Some((_, points)) = p.rehearsal {
-        let stand_in = match &p.campaign.material {
-            Some(_) => "the campaign's [material]",
-            None => "a glossy plastic (the campaign names no [material])",
-        };
         let _ = writeln!(
             out,
-            "predicted duration: {:.1} s ({}) for {points} points, every pass rehearsed on {stand_in}",
+            "predicted duration: {:.1} s ({}) for {points} points, every pass rehearsed on {}",
             p.predicted_s(),
-            hms(p.predicted_s())
+            hms(p.predicted_s()),
+            stand_in(p)
         );
     }
     let label = match (&p.adaptive, &p.sweeps) {
@@ -171,6 +186,14 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
     }
     let _ = writeln!(out, "{}", band_line(p));
     out
+}
+
+/// What an adaptive plan's passes are rehearsed on (`gonio_campaign::passes::rehearse`).
+fn stand_in(p: &Prepared) -> &'static str {
+    match &p.campaign.material {
+        Some(_) => "the campaign's [material]",
+        None => "a glossy plastic (the campaign names no [material])",
+    }
 }
 
 /// The sweeps' part of the summary: what the path check kept and cut, the readings, the time.

@@ -11,7 +11,11 @@
 //!   where the BRDF changes fast (a specular lobe near grazing is narrower than any practical grid), down to an
 //!   eighth of the grid step. Midpoints are checked for reachability only when picked.
 //! - First pass: in-plane sweeps (both sides of the normal) at `first_pass_theta_i_deg` incidences, theta_o in
-//!   steps of `first_pass_step_deg`: the specular lobe and the grazing behaviour show up there.
+//!   steps of `first_pass_step_deg`: the specular lobe and the grazing behaviour show up there. With
+//!   `first_pass_sweeps`, the same arcs are swept instead (the detector through the plane of incidence, from
+//!   grazing to grazing: [`Adaptive::first_pass_sweeps`]) and every sweep reading counts, binned to the finest
+//!   spacing refinement goes to ([`Adaptive::sweep_bin`]); the budget then counts the later passes' points only
+//!   ([`Adaptive::next_batch_counting`]), and the first of them is placed from the sweeps alone.
 //! - Refinement: values are compared as `u = ln(1 + f)` (f in 1/sr), so that a lobe of 100/sr and a diffuse base of
 //!   0.1/sr both count. For each unmeasured candidate, take its `K` nearest measured points (distance: the
 //!   Euclidean distance between the stacked unit vectors (wi, wo) in the canonical phi_i = 0 frame, about the
@@ -40,7 +44,7 @@ use gonio_brdf::geometry::Direction;
 
 use crate::constraints::Constraints;
 use crate::kinematics::{Geometry, Kinematics, Pose};
-use crate::plan::{AdaptiveSpec, BuildContext, PlanError, angle_list};
+use crate::plan::{AdaptiveSpec, BuildContext, PlanError, SweepSpec, SweptArm, angle_list};
 use crate::timing::TimeModel;
 
 /// Neighbours used by the estimate and the interpolation.
@@ -182,6 +186,10 @@ pub struct Adaptive {
     spec: AdaptiveSpec,
     candidates: Vec<(Geometry, [f64; 6])>,
     first: Vec<Geometry>,
+    /// The first pass's incidences (degrees).
+    incidences: Vec<f64>,
+    /// The grazing limit: the candidates' and the first pass's largest theta (degrees).
+    theta_max_deg: f64,
     d0: f64,
     reach: Reach,
 }
@@ -256,6 +264,18 @@ impl Adaptive {
         {
             return Err(bad("budget_s", format!("expected seconds > 0, got {s}")));
         }
+        if let Some(f) = &spec.first_pass_sweeps {
+            // The sweep's own checks (the axis's top speed among them) follow when the campaign builds them.
+            if !(f.speed_deg_s.is_finite() && f.speed_deg_s > 0.0) {
+                return Err(bad(
+                    "first_pass_sweeps",
+                    format!("speed_deg_s: expected deg/s > 0, got {}", f.speed_deg_s),
+                ));
+            }
+            if f.averaging == 0 {
+                return Err(bad("first_pass_sweeps", "averaging: expected at least 1".into()));
+            }
+        }
         let incidences = match &spec.first_pass_theta_i_deg {
             Some(v) => first_pass_incidences(v)?,
             None => vec![0.0, 30.0, 60.0],
@@ -313,14 +333,56 @@ impl Adaptive {
             spec: spec.clone(),
             candidates,
             first,
+            incidences,
+            theta_max_deg: theta_max,
             d0,
             reach,
         })
     }
 
-    /// The first pass (isotropic geometries, phi_i = 0).
+    /// The first pass of points (isotropic geometries, phi_i = 0); with `first_pass_sweeps`, what the planner
+    /// falls back to when the sweeps gave no valid value.
     pub fn first_pass(&self) -> Vec<Geometry> {
         self.first.clone()
+    }
+
+    /// With `first_pass_sweeps`: the first pass as `[[plan.sweeps]]` entries, one detector sweep through the
+    /// plane of incidence (phi = 0) per first-pass incidence, from grazing on the source's side to grazing on
+    /// the specular side (the sweeps' path check cuts what the instrument cannot sweep, the source's own
+    /// direction among it). None for a first pass of points.
+    pub fn first_pass_sweeps(&self) -> Option<Vec<SweepSpec>> {
+        let f = self.spec.first_pass_sweeps?;
+        // An arc is open at +-90 degrees (crate::sweep::spec).
+        let edge = self.theta_max_deg.min(89.9);
+        let arc = toml::Value::Table(toml::Table::from_iter([
+            ("from".to_string(), toml::Value::Float(-edge)),
+            ("to".to_string(), toml::Value::Float(edge)),
+        ]));
+        Some(vec![SweepSpec {
+            arm: SweptArm::Detector,
+            theta_i_deg: toml::Value::Array(self.incidences.iter().map(|t| toml::Value::Float(*t)).collect()),
+            theta_o_deg: arc,
+            plane_phi_deg: None,
+            speed_deg_s: f.speed_deg_s,
+            averaging: f.averaging,
+            follow: None,
+        }])
+    }
+
+    /// The width of [`Adaptive::sweep_bin`]'s bins in theta (degrees): an eighth of `resolution_deg`.
+    pub fn sweep_bin_deg(&self) -> f64 {
+        self.spec.resolution_deg / 8.0
+    }
+
+    /// The geometry a sweep reading at `g` counts at: theta_i and theta_o rounded to the finest spacing
+    /// refinement goes to (an eighth of `resolution_deg`), delta_phi to a millidegree, in the canonical frame
+    /// (phi_i = 0, theta_i <= theta_o). Readings in one bin (bands, directions, neighbouring readings) become
+    /// one value: thousands of readings a sweep would otherwise outweigh every point near them.
+    pub fn sweep_bin(&self, g: &Geometry) -> Geometry {
+        let w = self.sweep_bin_deg();
+        let [ti, to, dp] = canonical(g);
+        let round = |x: f64, step: f64| (x / step).round() * step;
+        Geometry::new(round(ti, w), 0.0, round(to, w), round(dp, 1e-3))
     }
 
     /// Number of reachable candidates.
@@ -353,8 +415,15 @@ impl Adaptive {
             .collect()
     }
 
-    /// The next batch given everything measured so far (`elapsed_s` of instrument time).
+    /// The next batch given everything measured so far (`elapsed_s` of instrument time), every entry of
+    /// `measured` a point of the budget.
     pub fn next_batch(&self, measured: &[Measured], elapsed_s: f64) -> Batch {
+        self.next_batch_counting(measured, measured.len(), elapsed_s)
+    }
+
+    /// [`Adaptive::next_batch`] when only `points` of `measured` count against the budget (the others: a
+    /// first pass of sweeps, binned by [`Adaptive::sweep_bin`]).
+    pub fn next_batch_counting(&self, measured: &[Measured], points: usize, elapsed_s: f64) -> Batch {
         if measured.is_empty() {
             return Batch {
                 geometries: self.first_pass(),
@@ -435,7 +504,7 @@ impl Adaptive {
             true
         });
         let error_estimate = pool.iter().map(|c| c.estimate).fold(0.0, f64::max);
-        if measured.len() >= budget {
+        if points >= budget {
             return stop(StopReason::PointBudget, error_estimate);
         }
         if self.spec.budget_s.is_some_and(|b| elapsed_s >= b) {
@@ -447,7 +516,7 @@ impl Adaptive {
         if error_estimate < self.spec.target_error {
             return stop(StopReason::TargetReached, error_estimate);
         }
-        let want = (self.spec.batch_points as usize).min(budget - measured.len());
+        let want = (self.spec.batch_points as usize).min(budget - points);
         // Highest estimate first; an estimate is discounted near the points already picked in this batch, and a
         // discount only lowers it, so the scan for the best stops at the first raw estimate below the best found.
         pool.sort_by(|x, y| y.estimate.total_cmp(&x.estimate));

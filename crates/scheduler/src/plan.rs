@@ -45,8 +45,9 @@ mod spec;
 pub use build::{BuildContext, build, build_from_geometries, calibration, geometry_kind_name, plan_bands};
 pub use grid::angle_list;
 pub use spec::{
-    AdaptiveSpec, Calibration, CalibrationSpec, DEFAULT_DIRECT_BEAM_POSE, FollowSpec, GridKind, GridSpec,
-    Plan, PlanSpec, PlannedGeometry, ReferenceAt, SampleTraits, Served, SweepSpec, SweptArm,
+    AdaptiveSpec, Calibration, CalibrationSpec, DEFAULT_DIRECT_BEAM_POSE, FirstPassSweeps, FollowSpec,
+    GridKind, GridSpec, Plan, PlanSpec, PlannedGeometry, ReferenceAt, SampleTraits, Served, SweepSpec,
+    SweptArm,
 };
 
 /// A plan that cannot be built; the message names the key.

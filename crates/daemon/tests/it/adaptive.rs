@@ -122,3 +122,118 @@ async fn an_adaptive_campaign_stops_at_its_target_error_and_says_how_many_points
     let again = c.spawn_run(&control).await.expect("join").expect("run");
     assert_eq!(again, CampaignState::Completed);
 }
+
+/// An adaptive campaign on gold whose first pass sweeps the detector through the plane of incidence at 30 deg.
+const SWEPT_FIRST: &str = r#"[campaign]
+id = "adaptive-swept"
+[sample]
+radius_mm = 12.5
+[material]
+preset = "gold"
+[plan]
+bands_nm = [550.0]
+[plan.adaptive]
+budget_points = 60
+batch_points = 20
+target_error = 0.0
+first_pass_theta_i_deg = [30.0]
+first_pass_sweeps = { speed_deg_s = 10.0 }
+[plan.calibration]
+dark_every_points = 50
+[acquisition]
+averaging = 2
+"#;
+
+/// True when the isotropic geometry lies on the swept plane at 30 deg incidence (theta_i or theta_o 30 deg, in
+/// the plane of incidence), within a bin of the planner's (an eighth of its 2.5 deg candidate grid).
+fn on_the_swept_arc(p: &gonio_engine::store::PointRecord) -> bool {
+    let dphi = (p.phi_o_deg - p.phi_i_deg).rem_euclid(360.0);
+    let in_plane = [0.0, 180.0, 360.0].iter().any(|d| (dphi - d).abs() < 1e-6);
+    in_plane
+        && [p.theta_i_deg, p.theta_o_deg]
+            .iter()
+            .any(|t| (t - 30.0).abs() < 0.16)
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_first_pass_of_sweeps_runs_before_the_points_and_the_planner_places_them_off_its_arcs() {
+    let c = common::stored_campaign(SWEPT_FIRST, "adaptive.toml").await;
+    assert_eq!(c.total_points, 60, "the budget counts points only");
+    let (state, _) = run(&c).await;
+    assert_eq!(state, CampaignState::Completed);
+    let store = c.store.lock().expect("store");
+    let points = store.points(c.id).expect("points");
+    let readings = store.committed_sweep_readings(c.id).expect("readings");
+    assert_eq!(points.len(), 60, "the whole budget in points, beside the sweeps");
+    assert!(readings.len() > 1000, "{} sweep readings", readings.len());
+    assert!(
+        readings.iter().all(|r| r.brdf_sr.is_some()),
+        "every reading valid"
+    );
+    // The sweeps first, then every point.
+    let last_reading = readings.iter().map(|r| r.t_s).fold(0.0f64, f64::max);
+    let first_point = points.iter().map(|p| p.t_s).fold(f64::INFINITY, f64::min);
+    assert!(last_reading < first_point, "{last_reading} s, {first_point} s");
+    // The readings cover the arc: no point of the budget is spent where the sweeps measured.
+    let on_arc: Vec<_> = points.iter().filter(|p| on_the_swept_arc(p)).collect();
+    assert!(on_arc.is_empty(), "points on the swept arc: {on_arc:?}");
+    let geometries: HashSet<[u64; 4]> = points
+        .iter()
+        .map(|p| [p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg].map(f64::to_bits))
+        .collect();
+    assert_eq!(geometries.len(), 60, "every point a new geometry");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_campaign_paused_after_its_first_pass_of_sweeps_resumes_without_sweeping_again() {
+    let c = common::stored_campaign(SWEPT_FIRST, "adaptive.toml").await;
+    let control = Control::new();
+    let mut rx = control.subscribe();
+    let task = c.spawn_run(&control);
+    // Pause once the points have begun: the sweeps are all committed by then.
+    assert_eq!(common::next_point(&mut rx).await, 0);
+    control.pause();
+    assert_eq!(task.await.expect("join").expect("run"), CampaignState::Paused);
+    let (segments, readings, before) = {
+        let store = c.store.lock().expect("store");
+        (
+            store.sweep_segments_done(c.id).expect("segments"),
+            store.committed_sweep_readings(c.id).expect("readings"),
+            store.points(c.id).expect("points"),
+        )
+    };
+    assert!(segments > 0 && !before.is_empty() && before.len() < 60);
+    let control = Control::new();
+    let state = c.spawn_run(&control).await.expect("join").expect("run");
+    assert_eq!(state, CampaignState::Completed);
+    let store = c.store.lock().expect("store");
+    assert_eq!(store.sweep_segments_done(c.id).expect("segments"), segments);
+    let after = store.committed_sweep_readings(c.id).expect("readings");
+    assert_eq!(after.len(), readings.len(), "no sweep swept again");
+    let points = store.points(c.id).expect("points");
+    let indices: Vec<u64> = points.iter().map(|p| p.index).collect();
+    assert_eq!(indices, (0..60).collect::<Vec<_>>(), "none lost, none twice");
+    // (Their values are the completion's now: the aperture and the drift corrected when the campaign ended.)
+    for (a, b) in before.iter().zip(&points) {
+        assert_eq!(
+            (
+                a.index,
+                a.theta_i_deg,
+                a.phi_i_deg,
+                a.theta_o_deg,
+                a.phi_o_deg,
+                a.signal_w
+            ),
+            (
+                b.index,
+                b.theta_i_deg,
+                b.phi_i_deg,
+                b.theta_o_deg,
+                b.phi_o_deg,
+                b.signal_w
+            ),
+            "a committed point changed"
+        );
+    }
+    assert!(points.iter().all(|p| !on_the_swept_arc(p)));
+}

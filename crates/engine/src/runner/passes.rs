@@ -1,6 +1,7 @@
 //! Adaptive plans at run time: which pass holds the next point (replayed from the committed points on a
 //! resume), the next pass from the planner, and the ETA that follows the pass being measured.
 
+use gonio_campaign::passes::After;
 use gonio_scheduler::kinematics::Geometry;
 
 use super::*;
@@ -29,7 +30,7 @@ impl<'a> Run<'a> {
         let mut pass = Pass {
             schedule: self.c.schedule.clone(),
             first_index: 0,
-            elapsed_s: self.c.schedule.breakdown.total_s(),
+            elapsed_s: self.c.schedule.breakdown.total_s() + self.first_sweeps_s(),
             number: 0,
         };
         while self.c.adaptive.is_some() && self.done >= pass.end_index() {
@@ -59,11 +60,33 @@ impl<'a> Run<'a> {
             )
         }));
         self.measured_to = self.measured_to.max(end);
-        let measured = gonio_campaign::measured_geometries(self.measured.iter().copied());
+        // A first pass of sweeps: its readings, binned as the planner takes them, read once (they are all
+        // committed before the first point: `go`).
+        if self.swept.is_none()
+            && let Some(adaptive) = self.c.adaptive.as_ref().filter(|_| self.c.sweeps_first())
+        {
+            let readings = self.st(|s| s.committed_sweep_readings(self.id))?;
+            self.swept = Some(gonio_campaign::passes::swept_values(
+                adaptive,
+                readings.iter().map(|r| {
+                    (
+                        Geometry::new(r.theta_i_deg, r.phi_i_deg, r.theta_o_deg, r.phi_o_deg),
+                        r.brdf_sr,
+                    )
+                }),
+            ));
+        }
+        let swept = self.swept.as_deref().unwrap_or_default();
+        let (measured, counted) = gonio_campaign::passes::planner_input(swept, &self.measured);
         let Some(adaptive) = &self.c.adaptive else {
             return Ok(None);
         };
-        match adaptive.next_pass(&measured, pass.elapsed_s, &pass.schedule) {
+        // The first pass of points is empty after a first pass of sweeps: the next pass starts where they ended.
+        let after = match &self.c.sweeps {
+            Some(sweeps) if sweeps.first && pass.number == 0 => After::sweeps(&sweeps.schedule),
+            _ => After::schedule(&pass.schedule),
+        };
+        match adaptive.next_pass(&measured, counted, pass.elapsed_s, after) {
             NextPass::Pass {
                 schedule,
                 error_estimate,
@@ -106,6 +129,14 @@ impl<'a> Run<'a> {
         self.pass_total_s = pass.schedule.breakdown.total_s();
         self.pass_start_s = pass.elapsed_s - self.pass_total_s;
         self.pass_end = pass.end_index();
-        self.s_per_point = pass.elapsed_s / pass.end_index().max(1) as f64;
+        self.s_per_point = (pass.elapsed_s - self.first_sweeps_s()) / pass.end_index().max(1) as f64;
+    }
+
+    /// The predicted time of an adaptive plan's first pass of sweeps (s; 0 without one).
+    pub(super) fn first_sweeps_s(&self) -> f64 {
+        match &self.c.sweeps {
+            Some(s) if s.first => s.schedule.breakdown.total_s(),
+            _ => 0.0,
+        }
     }
 }

@@ -191,6 +191,24 @@ async fn an_adaptive_campaign_is_predicted_from_its_passes_rehearsed_within_2_pe
 }
 
 #[tokio::test(start_paused = true)]
+async fn an_adaptive_campaign_whose_first_pass_sweeps_is_predicted_within_2_percent() {
+    // The sweeps first (their readings rehearsed along every arc on the campaign's material), then the passes of
+    // points placed from them.
+    let swept = ADAPTIVE.replace(
+        "resolution_deg = 2.5",
+        "first_pass_sweeps = { speed_deg_s = 4.0 }\nresolution_deg = 2.5",
+    );
+    assert!(swept.contains("first_pass_sweeps"));
+    for (what, instrument) in [
+        ("adaptive, first pass swept", SIMULATED_INSTRUMENT_TOML),
+        ("adaptive, first pass swept, realistic", REALISTIC_TOML),
+    ] {
+        let (predicted_s, actual_s) = dry_run_on(&swept, instrument).await;
+        assert_within_2_percent(what, predicted_s, actual_s);
+    }
+}
+
+#[tokio::test(start_paused = true)]
 async fn the_eta_follows_an_instrument_slower_than_its_file() {
     // The simulated hardware turns its wheel at 2 s a position and moves the arms at half speed, while the file
     // says 1 s and 20 deg/s: the model's prediction is short, and the ETA learns the pace from the steps measured.

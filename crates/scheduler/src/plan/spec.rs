@@ -323,6 +323,21 @@ pub struct AdaptiveSpec {
     /// Candidate grid step in theta (delta_phi uses twice this).
     #[serde(default = "default_resolution")]
     pub resolution_deg: f64,
+    /// A first pass of sweeps instead of points: the detector sweeps the plane of incidence at each first-pass
+    /// incidence (`crate::adaptive`'s module doc).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub first_pass_sweeps: Option<FirstPassSweeps>,
+}
+
+/// `first_pass_sweeps = { speed_deg_s, averaging }` in `[plan.adaptive]`: how the first pass sweeps.
+#[derive(Debug, Clone, Copy, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FirstPassSweeps {
+    /// The detector arm's speed at cruise (deg/s).
+    pub speed_deg_s: f64,
+    /// Meter samples per sweep reading; default 1.
+    #[serde(default = "one")]
+    pub averaging: u32,
 }
 
 impl AdaptiveSpec {
@@ -336,6 +351,7 @@ impl AdaptiveSpec {
             first_pass_step_deg: default_first_step(),
             first_pass_theta_i_deg: None,
             resolution_deg: default_resolution(),
+            first_pass_sweeps: None,
         }
     }
 }

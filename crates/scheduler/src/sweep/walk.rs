@@ -74,6 +74,9 @@ pub struct SweepSchedule {
     /// Where the instrument starts: the pose and the wheel position of the calibration that opens the sweeps,
     /// or of the first sweep.
     pub start: Option<(Pose, Option<u8>)>,
+    /// Where the sweeps leave the instrument: the pose and the wheel position after the last sweep, or after
+    /// the calibration that closes them.
+    pub end: Option<(Pose, Option<u8>)>,
 }
 
 /// How the sweeps are calibrated: the point plan whose `[plan.calibration]` they follow, and whether the
@@ -82,6 +85,9 @@ pub struct SweepSchedule {
 pub struct SweepCalibration<'a> {
     pub plan: &'a Plan,
     pub opening: bool,
+    /// The run ends with the sweeps: the wheel's last turn to its blank is theirs (`closing_s`). False when
+    /// points follow them (an adaptive plan's first pass of sweeps).
+    pub last: bool,
 }
 
 /// The time of one sweep on axis `m` whose motion takes `motion_s`, with a reading every `period_s`: the speed
@@ -242,6 +248,9 @@ pub fn schedule_sweeps(
     if calibration.is_some_and(|c| c.plan.calibration.references()) {
         calibrate(&mut pose, &mut wheel, &mut out);
     }
-    out.breakdown.closing_s = time.wheel_time_s(wheel, time.wheel.as_ref().and_then(|w| w.blank));
+    out.end = Some((pose, wheel));
+    if calibration.is_none_or(|c| c.last) {
+        out.breakdown.closing_s = time.wheel_time_s(wheel, time.wheel.as_ref().and_then(|w| w.blank));
+    }
     out
 }

@@ -36,6 +36,7 @@ fn spec(budget: u32) -> AdaptiveSpec {
         first_pass_step_deg: 10.0,
         first_pass_theta_i_deg: None,
         resolution_deg: 5.0,
+        first_pass_sweeps: None,
     }
 }
 

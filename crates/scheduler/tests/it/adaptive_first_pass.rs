@@ -5,7 +5,7 @@ use crate::common;
 
 use common::simulated;
 use gonio_instrument::Instrument;
-use gonio_scheduler::adaptive::{Adaptive, MAX_FIRST_PASS_INCIDENCES};
+use gonio_scheduler::adaptive::{Adaptive, MAX_FIRST_PASS_INCIDENCES, Measured};
 use gonio_scheduler::kinematics::Geometry;
 use gonio_scheduler::plan::AdaptiveSpec;
 use gonio_scheduler::plan::{BuildContext, PlanError, SampleTraits};
@@ -32,6 +32,7 @@ fn spec(incidences: Option<toml::Value>) -> AdaptiveSpec {
         first_pass_step_deg: 10.0,
         first_pass_theta_i_deg: incidences,
         resolution_deg: 10.0,
+        first_pass_sweeps: None,
     }
 }
 
@@ -123,4 +124,96 @@ fn repeated_incidences_and_reciprocal_geometries_give_no_repeated_point() {
     let reordered = build(Some(list(&[0.0, 30.0, 60.0]))).expect("valid").first_pass();
     assert_eq!(first_ti(&reordered), Some(0.0));
     assert_eq!(reordered.len(), plain.len());
+}
+
+#[test]
+fn a_first_pass_of_sweeps_is_one_detector_sweep_per_incidence_from_grazing_to_grazing() {
+    use gonio_scheduler::plan::{FirstPassSweeps, SweptArm};
+    let inst = simulated();
+    let points = Adaptive::new(&spec(Some(list(&[0.0, 45.0]))), &ctx(&inst)).expect("planner");
+    assert!(
+        points.first_pass_sweeps().is_none(),
+        "a first pass of points by default"
+    );
+    let swept = AdaptiveSpec {
+        first_pass_sweeps: Some(FirstPassSweeps {
+            speed_deg_s: 5.0,
+            averaging: 3,
+        }),
+        ..spec(Some(list(&[0.0, 45.0])))
+    };
+    let planner = Adaptive::new(&swept, &ctx(&inst)).expect("planner");
+    let sweeps = planner.first_pass_sweeps().expect("sweeps");
+    assert_eq!(sweeps.len(), 1);
+    let s = &sweeps[0];
+    assert_eq!(s.arm, SweptArm::Detector);
+    assert_eq!(s.theta_i_deg, list(&[0.0, 45.0]));
+    let grazing = inst.safety.grazing_limit_deg;
+    let arc = s.theta_o_deg.as_table().expect("an arc");
+    assert_eq!(arc["from"].as_float(), Some(-grazing));
+    assert_eq!(arc["to"].as_float(), Some(grazing));
+    assert_eq!((s.speed_deg_s, s.averaging), (5.0, 3));
+    // A bad speed or averaging is named where the campaign asked for it.
+    for (speed, averaging) in [(0.0, 1), (f64::NAN, 1), (5.0, 0)] {
+        let bad = AdaptiveSpec {
+            first_pass_sweeps: Some(FirstPassSweeps {
+                speed_deg_s: speed,
+                averaging,
+            }),
+            ..spec(None)
+        };
+        match Adaptive::new(&bad, &ctx(&inst)) {
+            Err(PlanError::Invalid { key, .. }) => assert_eq!(key, "first_pass_sweeps"),
+            other => panic!("{speed} deg/s, averaging {averaging}: {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn sweep_readings_count_in_bins_and_not_against_the_budget() {
+    let inst = simulated();
+    let s = AdaptiveSpec {
+        budget_points: 30,
+        ..spec(Some(list(&[30.0])))
+    };
+    let planner = Adaptive::new(&s, &ctx(&inst)).expect("planner");
+    // Bins an eighth of the candidate grid wide (10 deg here), in the canonical frame (theta_i <= theta_o).
+    assert_eq!(planner.sweep_bin_deg(), 1.25);
+    let b = planner.sweep_bin(&Geometry::new(30.0, 90.0, 12.3, 270.0));
+    assert_eq!(
+        (b.theta_i_deg, b.phi_i_deg, b.theta_o_deg, b.phi_o_deg),
+        (12.5, 0.0, 30.0, 180.0)
+    );
+    // Hundreds of swept values along the arc: with no point measured, the batch is full, and none of it lies on
+    // the swept arc.
+    let swept: Vec<Measured> = (-64..=64)
+        .map(|k| {
+            let g = planner.sweep_bin(&Geometry::new(
+                30.0,
+                0.0,
+                f64::from(k).abs() * 1.25,
+                if k < 0 { 0.0 } else { 180.0 },
+            ));
+            Measured {
+                geometry: g,
+                value: 0.1 + (-(f64::from(k) * 1.25 - 30.0).powi(2) / 50.0).exp(),
+            }
+        })
+        .collect();
+    let batch = planner.next_batch_counting(&swept, 0, 0.0);
+    assert_eq!(batch.done, None);
+    assert_eq!(batch.geometries.len(), 20);
+    let on_arc = |g: &Geometry| {
+        let dphi = g.delta_phi_deg().rem_euclid(360.0);
+        (dphi < 1e-6 || (dphi - 180.0).abs() < 1e-6) && (g.theta_i_deg == 30.0 || g.theta_o_deg == 30.0)
+    };
+    assert!(!batch.geometries.iter().any(on_arc), "{:?}", batch.geometries);
+    // Counted as points, the same values exhaust the budget.
+    assert_eq!(
+        planner.next_batch(&swept, 0.0).done,
+        Some(gonio_scheduler::adaptive::StopReason::PointBudget)
+    );
+    // Ten points measured: the batch takes what is left of the budget up to its size.
+    assert_eq!(planner.next_batch_counting(&swept, 10, 0.0).geometries.len(), 20);
+    assert_eq!(planner.next_batch_counting(&swept, 25, 0.0).geometries.len(), 5);
 }
