@@ -237,3 +237,58 @@ async fn a_campaign_paused_after_its_first_pass_of_sweeps_resumes_without_sweepi
     }
     assert!(points.iter().all(|p| !on_the_swept_arc(p)));
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_campaign_paused_among_its_first_pass_sweeps_sweeps_the_rest_then_places_its_points() {
+    // Three incidences: six sweeps, so that a pause lands between two of them.
+    let text = SWEPT_FIRST.replace("[30.0]", "[30.0, 50.0, 65.0]");
+    let c = common::stored_campaign(&text, "adaptive.toml").await;
+    let control = Control::new();
+    let mut rx = control.subscribe();
+    let task = c.spawn_run(&control);
+    // Pause as the first sweep is committed: the campaign stops at the next safe point, between sweeps.
+    loop {
+        if let Event::Sweep { segment: 0, .. } = rx.recv().await.expect("event") {
+            break;
+        }
+    }
+    control.pause();
+    assert_eq!(task.await.expect("join").expect("run"), CampaignState::Paused);
+    let (segments, points) = {
+        let store = c.store.lock().expect("store");
+        (
+            store.sweep_segments_done(c.id).expect("segments"),
+            store.points(c.id).expect("points").len(),
+        )
+    };
+    assert_eq!(points, 0, "no point before the sweeps are all in");
+    let whole = common::stored_campaign(&text, "adaptive.toml").await;
+    let (state, _) = run(&whole).await;
+    assert_eq!(state, CampaignState::Completed);
+    let all = whole
+        .store
+        .lock()
+        .expect("store")
+        .sweep_segments_done(whole.id)
+        .expect("segments");
+    assert!(
+        segments >= 1 && segments < all,
+        "{segments} of {all} sweeps before the pause"
+    );
+
+    let state = c.spawn_run(&Control::new()).await.expect("join").expect("run");
+    assert_eq!(state, CampaignState::Completed);
+    let store = c.store.lock().expect("store");
+    assert_eq!(store.sweep_segments_done(c.id).expect("segments"), all);
+    let readings = store.committed_sweep_readings(c.id).expect("readings");
+    let mut keys: Vec<(u32, u32)> = readings.iter().map(|r| (r.segment, r.k)).collect();
+    let n = keys.len();
+    keys.sort_unstable();
+    keys.dedup();
+    assert_eq!(keys.len(), n, "no reading stored twice");
+    let points = store.points(c.id).expect("points");
+    assert_eq!(points.len(), 60);
+    let first_point = points.iter().map(|p| p.t_s).fold(f64::INFINITY, f64::min);
+    assert!(readings.iter().all(|r| r.t_s < first_point));
+    assert!(points.iter().all(|p| !on_the_swept_arc(p)));
+}
