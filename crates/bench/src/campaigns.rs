@@ -76,7 +76,7 @@ impl Strategy {
 
 /// The detector's speed in the swept first pass (deg/s): a reading every 0.013 deg at the meter's one sample a
 /// reading.
-pub const FIRST_PASS_SWEEP_DEG_S: f64 = 4.0;
+pub const FIRST_PASS_SWEEP_DEG_S: f64 = 20.0;
 
 /// What the runs share.
 pub struct Setup<'a> {
@@ -489,7 +489,7 @@ pub fn markdown(points: &[CampaignPoint], sizes: &Sizes, validation: usize, elap
         s,
         "Validation set: {validation} reachable geometries. Budgets {:?} (adaptive: batches of 40, candidate grid \
          2.5 deg, first pass 10 deg; first pass swept: the same incidences swept by the detector from grazing to \
-         grazing at {FIRST_PASS_SWEEP_DEG_S} deg/s before any point, its readings binned at 0.3125 deg and valued \
+         grazing at {FIRST_PASS_SWEEP_DEG_S} deg/s before any point, its readings binned at 1.25 deg and valued \
          like the points, the budget in points after them, the sweeps' time in the run's); isotropic grids theta \
          step {:?} deg (delta phi twice that, theta 0-85); full grids step {:?} deg (phi twice that). Section run \
          time {elapsed_s:.0} s.\n",

@@ -13,9 +13,12 @@
 //! - First pass: in-plane sweeps (both sides of the normal) at `first_pass_theta_i_deg` incidences, theta_o in
 //!   steps of `first_pass_step_deg`: the specular lobe and the grazing behaviour show up there. With
 //!   `first_pass_sweeps`, the same arcs are swept instead (the detector through the plane of incidence, from
-//!   grazing to grazing: [`Adaptive::first_pass_sweeps`]) and every sweep reading counts, binned to the finest
-//!   spacing refinement goes to ([`Adaptive::sweep_bin`]); the budget then counts the later passes' points only
-//!   ([`Adaptive::next_batch_counting`]), and the first of them is placed from the sweeps alone.
+//!   grazing to grazing: [`Adaptive::first_pass_sweeps`]) and every sweep reading counts, binned at half the
+//!   candidate grid's step ([`Adaptive::sweep_bin`]); the budget then counts the later passes' points only
+//!   ([`Adaptive::next_batch_counting`]), and the first of them is placed from the sweeps alone. Bins an eighth
+//!   of the step wide (the finest refinement) were tried first (BENCHMARKS.md section 2's swept rows, gold at
+//!   3,200 points: relative RMS 0.19 against 0.12 for a first pass of points): so dense a line of values fills
+//!   every candidate's K nearest near the plane, and the interpolation and the estimate there see only the arc.
 //! - Refinement: values are compared as `u = ln(1 + f)` (f in 1/sr), so that a lobe of 100/sr and a diffuse base of
 //!   0.1/sr both count. For each unmeasured candidate, take its `K` nearest measured points (distance: the
 //!   Euclidean distance between the stacked unit vectors (wi, wo) in the canonical phi_i = 0 frame, about the
@@ -369,13 +372,13 @@ impl Adaptive {
         }])
     }
 
-    /// The width of [`Adaptive::sweep_bin`]'s bins in theta (degrees): an eighth of `resolution_deg`.
+    /// The width of [`Adaptive::sweep_bin`]'s bins in theta (degrees): half of `resolution_deg` (module doc).
     pub fn sweep_bin_deg(&self) -> f64 {
-        self.spec.resolution_deg / 8.0
+        self.spec.resolution_deg / 2.0
     }
 
-    /// The geometry a sweep reading at `g` counts at: theta_i and theta_o rounded to the finest spacing
-    /// refinement goes to (an eighth of `resolution_deg`), delta_phi to a millidegree, in the canonical frame
+    /// The geometry a sweep reading at `g` counts at: theta_i and theta_o rounded to [`Adaptive::sweep_bin_deg`],
+    /// delta_phi to a millidegree, in the canonical frame
     /// (phi_i = 0, theta_i <= theta_o). Readings in one bin (bands, directions, neighbouring readings) become
     /// one value: thousands of readings a sweep would otherwise outweigh every point near them.
     pub fn sweep_bin(&self, g: &Geometry) -> Geometry {

@@ -145,7 +145,7 @@ averaging = 2
 "#;
 
 /// True when the isotropic geometry lies on the swept plane at 30 deg incidence (theta_i or theta_o 30 deg, in
-/// the plane of incidence), within a bin of the planner's (an eighth of its 2.5 deg candidate grid).
+/// the plane of incidence), within the finest spacing the planner refines to (an eighth of its 2.5 deg grid).
 fn on_the_swept_arc(p: &gonio_engine::store::PointRecord) -> bool {
     let dphi = (p.phi_o_deg - p.phi_i_deg).rem_euclid(360.0);
     let in_plane = [0.0, 180.0, 360.0].iter().any(|d| (dphi - d).abs() < 1e-6);

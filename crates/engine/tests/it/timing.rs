@@ -194,17 +194,25 @@ async fn an_adaptive_campaign_is_predicted_from_its_passes_rehearsed_within_2_pe
 async fn an_adaptive_campaign_whose_first_pass_sweeps_is_predicted_within_2_percent() {
     // The sweeps first (their readings rehearsed along every arc on the campaign's material), then the passes of
     // points placed from them.
-    let swept = ADAPTIVE.replace(
-        "resolution_deg = 2.5",
-        "first_pass_sweeps = { speed_deg_s = 4.0 }\nresolution_deg = 2.5",
-    );
-    assert!(swept.contains("first_pass_sweeps"));
-    for (what, instrument) in [
-        ("adaptive, first pass swept", SIMULATED_INSTRUMENT_TOML),
-        ("adaptive, first pass swept, realistic", REALISTIC_TOML),
-    ] {
-        let (predicted_s, actual_s) = dry_run_on(&swept, instrument).await;
-        assert_within_2_percent(what, predicted_s, actual_s);
+    for speed in [4.0, 20.0] {
+        let swept = ADAPTIVE.replace(
+            "resolution_deg = 2.5",
+            &format!("first_pass_sweeps = {{ speed_deg_s = {speed} }}\nresolution_deg = 2.5"),
+        );
+        assert!(swept.contains("first_pass_sweeps"));
+        for (what, instrument) in [
+            (
+                format!("adaptive, first pass swept at {speed} deg/s"),
+                SIMULATED_INSTRUMENT_TOML,
+            ),
+            (
+                format!("adaptive, first pass swept at {speed} deg/s, realistic"),
+                REALISTIC_TOML,
+            ),
+        ] {
+            let (predicted_s, actual_s) = dry_run_on(&swept, instrument).await;
+            assert_within_2_percent(&what, predicted_s, actual_s);
+        }
     }
 }
 

@@ -177,26 +177,26 @@ fn sweep_readings_count_in_bins_and_not_against_the_budget() {
         ..spec(Some(list(&[30.0])))
     };
     let planner = Adaptive::new(&s, &ctx(&inst)).expect("planner");
-    // Bins an eighth of the candidate grid wide (10 deg here), in the canonical frame (theta_i <= theta_o).
-    assert_eq!(planner.sweep_bin_deg(), 1.25);
+    // Bins half the candidate grid's step wide (10 deg here), in the canonical frame (theta_i <= theta_o).
+    assert_eq!(planner.sweep_bin_deg(), 5.0);
     let b = planner.sweep_bin(&Geometry::new(30.0, 90.0, 12.3, 270.0));
     assert_eq!(
         (b.theta_i_deg, b.phi_i_deg, b.theta_o_deg, b.phi_o_deg),
-        (12.5, 0.0, 30.0, 180.0)
+        (10.0, 0.0, 30.0, 180.0)
     );
-    // Hundreds of swept values along the arc: with no point measured, the batch is full, and none of it lies on
-    // the swept arc.
-    let swept: Vec<Measured> = (-64..=64)
+    // A line of swept values along the arc, one a bin: with no point measured, the batch is full, and none of it
+    // lies on the swept arc.
+    let swept: Vec<Measured> = (-16..=16)
         .map(|k| {
             let g = planner.sweep_bin(&Geometry::new(
                 30.0,
                 0.0,
-                f64::from(k).abs() * 1.25,
+                f64::from(k).abs() * 5.0,
                 if k < 0 { 0.0 } else { 180.0 },
             ));
             Measured {
                 geometry: g,
-                value: 0.1 + (-(f64::from(k) * 1.25 - 30.0).powi(2) / 50.0).exp(),
+                value: 0.1 + (-(f64::from(k) * 5.0 - 30.0).powi(2) / 50.0).exp(),
             }
         })
         .collect();
