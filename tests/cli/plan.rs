@@ -388,3 +388,49 @@ fn plan_times_the_sweeps_and_run_sweeps_them() {
         String::from_utf8_lossy(&zemax.stderr)
     );
 }
+
+#[test]
+fn plan_and_run_an_adaptive_campaign_whose_first_pass_sweeps() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let campaign = dir.path().join("swept.toml");
+    std::fs::write(
+        &campaign,
+        "[campaign]\nid = \"swept\"\n[sample]\nradius_mm = 12.5\n[material]\npreset = \"gold\"\n[plan]\n\
+         bands_nm = [550.0]\n[plan.adaptive]\nbudget_points = 60\nbatch_points = 20\ntarget_error = 0.0\n\
+         first_pass_theta_i_deg = [30.0]\nfirst_pass_sweeps = { speed_deg_s = 20.0 }\n",
+    )
+    .expect("write");
+    let out = gonio()
+        .arg("plan")
+        .arg(&campaign)
+        .output()
+        .expect("run gonio plan");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for needle in [
+        "adaptive plan: budget 60 points",
+        "first pass: the sweeps below",
+        "sweeps: 1 arcs requested, 2 swept",
+        "the sweeps and 60 points, every pass rehearsed on the campaign's [material]",
+    ] {
+        assert!(stdout.contains(needle), "{needle:?} not in\n{stdout}");
+    }
+    let run_dir = dir.path().join("out");
+    let run = gonio()
+        .arg("run")
+        .arg(&campaign)
+        .arg("--out")
+        .arg(&run_dir)
+        .arg("--quiet")
+        .output()
+        .expect("run gonio run");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let points = std::fs::read_to_string(run_dir.join("points.csv")).expect("points.csv");
+    assert_eq!(points.lines().count() - 1, 60, "the budget in points");
+    let sweeps = std::fs::read_to_string(run_dir.join("sweeps.csv")).expect("sweeps.csv");
+    assert!(
+        sweeps.lines().count() > 1000,
+        "{} sweep readings",
+        sweeps.lines().count() - 1
+    );
+}
