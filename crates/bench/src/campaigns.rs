@@ -302,12 +302,10 @@ fn swept_bins(text: &str) -> Result<Vec<Geometry>, String> {
     let step = adaptive.planner().sweep_bin_deg();
     let mut out = Vec::new();
     for arc in &sweeps.plan.arcs {
-        let n = (arc.length_deg() / step).floor() as usize;
-        out.extend((0..=n).map(|k| {
-            adaptive
-                .planner()
-                .sweep_bin(&arc.request.geometry_at(arc.piece.from_deg + k as f64 * step))
-        }));
+        out.extend(
+            arc.geometries_every(step)
+                .map(|g| adaptive.planner().sweep_bin(&g)),
+        );
     }
     Ok(out)
 }

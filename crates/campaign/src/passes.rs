@@ -236,12 +236,7 @@ pub fn rehearse(
         };
         for arc in &plan.arcs {
             let step_deg = arc.request.speed_deg_s * sweep_reading_period_s(arc.request.averaging);
-            if !(step_deg.is_finite() && step_deg > 0.0) {
-                continue;
-            }
-            let n = (arc.length_deg() / step_deg).floor() as usize;
-            for k in 0..=n {
-                let g = arc.request.geometry_at(arc.piece.from_deg + k as f64 * step_deg);
+            for g in arc.geometries_every(step_deg) {
                 readings.extend(bands.iter().map(|b| (g, eval(g, *b))));
             }
         }

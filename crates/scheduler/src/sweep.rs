@@ -68,7 +68,7 @@ pub use spec::{MAX_SWEEP_SPEED_DEG_S, MAX_SWEEPS, MIN_PIECE_DEG, SweepRequest, r
 pub use walk::{SweepBreakdown, SweepCalibration, SweepSchedule, SweepStep, schedule_sweeps};
 
 use crate::constraints::{Constraints, Reason};
-use crate::kinematics::Kinematics;
+use crate::kinematics::{Geometry, Kinematics};
 use crate::plan::PlanError;
 use crate::timing::{DETECTOR_SAMPLE_S, EXCHANGE_S, TimeModel};
 
@@ -87,6 +87,20 @@ pub struct SweepArc {
 impl SweepArc {
     pub fn length_deg(&self) -> f64 {
         self.piece.to_deg - self.piece.from_deg
+    }
+
+    /// The geometries every `step_deg` along the arc from its start (none for a step that is not a positive
+    /// number): where a sweep's readings fall, or a bin's worth of them.
+    pub fn geometries_every(&self, step_deg: f64) -> impl Iterator<Item = Geometry> + '_ {
+        let n = if step_deg.is_finite() && step_deg > 0.0 {
+            (self.length_deg() / step_deg).floor() as usize + 1
+        } else {
+            0
+        };
+        (0..n).map(move |k| {
+            self.request
+                .geometry_at(self.piece.from_deg + k as f64 * step_deg)
+        })
     }
 }
 
