@@ -11,7 +11,7 @@ use crate::error::DriverError;
 use crate::motion::{
     approach_waypoints, check_speed, move_deadline, trapezoid_time_s, via_point_tolerance_deg,
 };
-use crate::traits::{Axis, AxisLimits, AxisStatus};
+use crate::traits::{Axis, AxisLimits, AxisStatus, PositionReport};
 use crate::transport::{BoxFuture, LinePort};
 
 /// How long a move is expected to take and may take.
@@ -134,6 +134,8 @@ pub trait AxisDriver: Send + Sync + std::fmt::Debug {
     ) -> impl Future<Output = Result<f64, DriverError>> + Send;
     /// The position (controller units), trustworthy enough to decide on (see each driver).
     fn controller_position(&self) -> impl Future<Output = Result<f64, DriverError>> + Send;
+    /// One position read (controller units) in a single exchange, and the bytes of its request and reply.
+    fn position_exchange(&self) -> impl Future<Output = Result<(f64, usize, usize), DriverError>> + Send;
     fn axis_status(&self) -> impl Future<Output = Result<AxisStatus, DriverError>> + Send;
     /// Stop now on the priority path.
     fn stop_axis(&self) -> impl Future<Output = Result<(), DriverError>> + Send;
@@ -218,6 +220,16 @@ impl<D: AxisDriver> Axis for D {
         Box::pin(async move {
             let c = self.controller_position().await?;
             Ok(self.core().cfg().physical_from_controller_deg(c))
+        })
+    }
+    fn position_report(&self) -> BoxFuture<'_, Result<PositionReport, DriverError>> {
+        Box::pin(async move {
+            let (c, request_bytes, reply_bytes) = self.position_exchange().await?;
+            Ok(PositionReport {
+                position_deg: self.core().cfg().physical_from_controller_deg(c),
+                request_bytes,
+                reply_bytes,
+            })
         })
     }
     fn status(&self) -> BoxFuture<'_, Result<AxisStatus, DriverError>> {

@@ -31,5 +31,6 @@ pub mod zaber;
 
 pub use error::{DriverError, ErrorKind};
 pub use traits::{
-    Axis, AxisLimits, AxisStatus, Detector, DetectorConfig, FilterWheel, PowerRange, PowerReading,
+    Axis, AxisLimits, AxisStatus, Detector, DetectorConfig, FilterWheel, PositionReport, PowerRange,
+    PowerReading,
 };

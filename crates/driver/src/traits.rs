@@ -30,6 +30,19 @@ pub struct AxisLimits {
     pub accel_deg_s2: f64,
 }
 
+/// One read of an axis's position while it moves, with the size of its exchange on the line, so that the caller
+/// can date it: the controller took the position after the request had crossed the line and before its reply
+/// started back (a reply of `reply_bytes` at the line's baud rate ends the exchange).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PositionReport {
+    /// Physical degrees.
+    pub position_deg: f64,
+    /// Bytes of the request, terminator included.
+    pub request_bytes: usize,
+    /// Bytes of the reply, terminator included.
+    pub reply_bytes: usize,
+}
+
 /// A motorised rotation axis.
 pub trait Axis: Send + Sync + std::fmt::Debug {
     /// Name used in messages ("light", "tilt").
@@ -50,6 +63,9 @@ pub trait Axis: Send + Sync + std::fmt::Debug {
     fn wait_passed_via(&self, via_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>>;
     /// Read-back position.
     fn position_deg(&self) -> BoxFuture<'_, Result<f64, DriverError>>;
+    /// One unverified position read in a single exchange, for placing readings in time while the axis moves
+    /// (a garbled read is the caller's to outvote; [`Axis::position_deg`] is the verified read).
+    fn position_report(&self) -> BoxFuture<'_, Result<PositionReport, DriverError>>;
     /// Full status.
     fn status(&self) -> BoxFuture<'_, Result<AxisStatus, DriverError>>;
     /// Stop now, even while other requests on the same port are in flight.

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use super::chain::Smc100Chain;
 use super::controller::Controller;
-use super::protocol::{State, is_moving, number_at, parse_ts, ts_reason, wire_number};
+use super::protocol::{State, is_moving, number_at, parse_number, parse_ts, ts_reason, wire_number};
 use super::wait::{Wait, wait_state};
 use super::{ATTEMPTS, MOVING_READ_WINDOW_S, POLL_MIN};
 use crate::axis_driver::{AxisCore, AxisDriver};
@@ -367,6 +367,19 @@ impl AxisDriver for Smc100Axis {
 
     fn controller_position(&self) -> impl Future<Output = Result<f64, DriverError>> + Send {
         self.verified_position()
+    }
+
+    /// One `TP`: `1TP\r\n` out, `1TP12.3456\r\n` back.
+    async fn position_exchange(&self) -> Result<(f64, usize, usize), DriverError> {
+        let ctl = &self.ctl;
+        let value = ctl.chain.query(ctl.addr, "TP", "").await?;
+        let position = parse_number(&value).ok_or_else(|| DriverError::Protocol {
+            device: ctl.device.clone(),
+            request: format!("{}TP", ctl.addr),
+            detail: format!("not a position: {value:?}"),
+        })?;
+        let head = format!("{}TP", ctl.addr).len();
+        Ok((position, head + 2, head + value.len() + 2))
     }
 
     fn axis_status(&self) -> impl Future<Output = Result<AxisStatus, DriverError>> + Send {

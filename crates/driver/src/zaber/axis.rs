@@ -327,6 +327,18 @@ impl AxisDriver for ZaberAxis {
         Ok(self.get_pos().await?.0 as f64 * self.microstep_deg)
     }
 
+    /// One `get pos`, as the chain sends it (with a message id and a checksum).
+    async fn position_exchange(&self) -> Result<(f64, usize, usize), DriverError> {
+        let r = self.ok("get pos", true).await?;
+        let steps = parse_int(&r.data).ok_or_else(|| DriverError::Protocol {
+            device: self.dev(),
+            request: "get pos".into(),
+            detail: format!("not a position: {:?}", r.data),
+        })?;
+        let request = encode_command(self.device, self.axis, Some(0), "get pos").len();
+        Ok((steps as f64 * self.microstep_deg, request, r.line_len()))
+    }
+
     fn axis_status(&self) -> impl Future<Output = Result<AxisStatus, DriverError>> + Send {
         self.read_status()
     }

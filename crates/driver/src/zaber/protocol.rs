@@ -40,6 +40,23 @@ pub struct Reply {
     pub checksummed: bool,
 }
 
+impl Reply {
+    /// Bytes the reply took on the line: rebuilt from its fields in the manual's layout
+    /// (`@DD A [ID] FL STATUS WW DATA[:CC]\r\n`), for dating what it reports.
+    pub fn line_len(&self) -> usize {
+        let id = self.id.map_or(0, |id| format!(" {id}").len());
+        let warning = self.warning.as_deref().map_or(2, str::len);
+        let data = if self.data.is_empty() {
+            0
+        } else {
+            1 + self.data.len()
+        };
+        let checksum = if self.checksummed { 3 } else { 0 };
+        // "@DD" + " A" + id + " FL" + " BUSY" + " WW" + data + checksum + "\r\n"
+        3 + format!(" {}", self.axis).len() + id + 3 + 5 + 1 + warning + data + checksum + 2
+    }
+}
+
 /// A decoded alert (`!DD A STATUS WW [data]`).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Alert {
@@ -296,6 +313,24 @@ mod tests {
         };
         assert_eq!((r.device, r.axis, r.flag), (1, 0, Flag::Rejected));
         assert_eq!((r.warning.as_deref(), r.data.as_str()), (Some("WR"), "BADDATA"));
+    }
+
+    #[test]
+    fn a_replys_length_on_the_line_is_rebuilt_from_its_fields() {
+        let body = "01 1 12 OK BUSY -- 123456";
+        let with_checksum = format!("@{body}:{:02X}", checksum(body.as_bytes()));
+        for line in [
+            "@01 0 OK IDLE -- 0",
+            "@01 1 OK BUSY -- -60281",
+            "@02 1 7 OK IDLE FZ 5",
+            "@01 0 RJ IDLE WR BADDATA",
+            with_checksum.as_str(),
+        ] {
+            let Ok(Message::Reply(r)) = parse_message(line.as_bytes()) else {
+                panic!("not a reply: {line}");
+            };
+            assert_eq!(r.line_len(), line.len() + 2, "{line}");
+        }
     }
 
     #[test]

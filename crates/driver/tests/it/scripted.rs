@@ -424,3 +424,49 @@ async fn smc100_pa_retry_after_a_lost_te_is_recognised_as_in_progress() {
         ErrorKind::Rejected
     );
 }
+
+/// A position report is one query, and says how many bytes its request and its reply took on the line (what
+/// the engine dates a report by while an arm sweeps): counted here on the wire itself.
+#[tokio::test(start_paused = true)]
+async fn a_position_report_is_one_query_with_the_sizes_of_its_exchange() {
+    trace();
+    let (stream, log) = peer(b'\n', |line| match line {
+        "1TP" => vec![(0, "1TP12.34567\r\n".into())],
+        _ => vec![],
+    });
+    let axis = smc_axis(stream, "light");
+    let r = axis.position_report().await.expect("report");
+    assert_eq!(r.position_deg, 12.34567);
+    assert_eq!(*log.lock().unwrap(), vec!["1TP".to_string()], "a single TP");
+    assert_eq!(
+        (r.request_bytes, r.reply_bytes),
+        ("1TP\r\n".len(), "1TP12.34567\r\n".len())
+    );
+
+    let sent: Arc<Mutex<Vec<String>>> = Arc::default();
+    let replied = Arc::clone(&sent);
+    let (stream, log) = peer(b'\n', move |line| {
+        let (d, a, id, cmd) = zparse(line);
+        match cmd.as_str() {
+            "get pos" => {
+                let reply = zreply(&format!("{d:02} {a} {id} OK BUSY -- -42667"));
+                replied.lock().unwrap().push(reply.clone());
+                vec![(0, reply)]
+            }
+            _ => vec![(0, zreply(&format!("{d:02} {a} {id} OK IDLE -- 0")))],
+        }
+    });
+    let port = Arc::new(LinePort::from_stream("stage", Box::new(stream)));
+    let axis = ZaberAxis::new(ZaberChain::new("stage", port), sim_axis("tilt")).expect("axis");
+    let r = axis.position_report().await.expect("report");
+    assert!(
+        (r.position_deg + 42667.0 * 0.000234375).abs() < 1e-12,
+        "{}",
+        r.position_deg
+    );
+    let log = log.lock().unwrap();
+    let request = log.iter().rfind(|l| l.contains("get pos")).expect("get pos sent");
+    assert_eq!(r.request_bytes, request.len() + 1, "{request} and its newline");
+    let reply = sent.lock().unwrap().last().cloned().expect("replied");
+    assert_eq!(r.reply_bytes, reply.len(), "{reply:?}");
+}

@@ -11,12 +11,14 @@
 //! Where a reading was: the commanded trapezoidal profile (start at the move command's reply, the set speed,
 //! the axis's acceleration), shifted in time by the median lag of the controller's position reports taken while
 //! the arm cruises (one after every [`POSITION_EVERY`] readings, more often in a short sweep, concurrently with
-//! the next: the controller's line and the meter's are separate; each stamped with the middle of its own
-//! exchange); a sweep with no report on its cruise takes the axis's lag from its last sweep that had one. A
+//! the next: the controller's line and the meter's are separate; a single position query each, dated between
+//! its request's arrival and its reply's start on the line: `timing::position_sampled_at`); a sweep with no
+//! report on its cruise takes the axis's lag from its last sweep that had one. A
 //! reading integrates from its request for `averaging x 3 ms`; the time it is stamped with is the middle of that
 //! window, the angle it is attributed to the profile's mean position over it (`Profile::mean_over`: in the
-//! ramps the arm spends longer at the slower end of the arc). What remains uncertain is the exchange latency (about a
-//! millisecond: `speed x 1 ms` of arc) and the spread of the reports' lags, both recorded in the log.
+//! ramps the arm spends longer at the slower end of the arc). What remains uncertain is when within its exchange
+//! the controller took a report (the window between the request's arrival and the reply's start, at most a few
+//! milliseconds: `speed x window` of arc) and the spread of the reports' lags, both recorded in the log.
 //!
 //! What a segment (one sweep of one arc in one band) stores is committed in one transaction with all its
 //! readings (crate::store::sweeps): a sweep interrupted (pause, crash) is swept again whole on resume, and no
@@ -37,6 +39,9 @@ use crate::acquisition::{self, brdf_of_reading, flag_for};
 use crate::budget;
 use crate::store::SweepSegmentRecord;
 use gonio_results::sweeps::SweepReading;
+
+mod timing;
+use timing::{Profile, position_sampled_at};
 
 /// A position report every this many readings during a sweep (more often in short sweeps: [`report_every`]).
 pub const POSITION_EVERY: usize = 8;
@@ -59,86 +64,11 @@ fn report_every(cruise_s: f64, period_s: f64) -> usize {
 /// The sweep's motion may take this much longer than its profile (and 5 s) before the run gives up on it.
 const OVERRUN: f64 = 1.5;
 
-/// Intervals of the midpoint rule for a reading's mean position ([`Profile::mean_over`]): a trapezoid's
-/// position is piecewise quadratic, so the rule is within a ramp's arc / (12 x 64^2) of exact.
-const MEAN_SAMPLES: usize = 64;
-
 /// One reading as taken, before attribution.
 struct Taken {
     /// Clock times (s) of the request and of the reply.
     requested_s: f64,
     reading: Result<acquisition::MeterReading, String>,
-}
-
-/// The commanded trapezoid of the swept axis (physical degrees against clock seconds).
-#[derive(Debug, Clone, Copy)]
-struct Profile {
-    t0_s: f64,
-    from_deg: f64,
-    to_deg: f64,
-    v: f64,
-    a: f64,
-}
-
-impl Profile {
-    fn duration_s(&self) -> f64 {
-        gonio_scheduler::timing::trapezoid_time_s(self.to_deg - self.from_deg, self.v, self.a)
-    }
-
-    fn ramp_s(&self) -> f64 {
-        let d = (self.to_deg - self.from_deg).abs();
-        if d >= self.v * self.v / self.a {
-            self.v / self.a
-        } else {
-            (d / self.a).sqrt()
-        }
-    }
-
-    /// Position at clock time `t`.
-    fn at(&self, t: f64) -> f64 {
-        let d = (self.to_deg - self.from_deg).abs();
-        let sign = (self.to_deg - self.from_deg).signum();
-        let (total, ramp) = (self.duration_s(), self.ramp_s());
-        let t = (t - self.t0_s).clamp(0.0, total);
-        let s = if t <= ramp {
-            0.5 * self.a * t * t
-        } else if t <= total - ramp {
-            0.5 * self.a * ramp * ramp + self.a * ramp * (t - ramp)
-        } else {
-            let r = total - t;
-            d - 0.5 * self.a * r * r
-        };
-        self.from_deg + sign * s.min(d)
-    }
-
-    /// The time-average of the position over clock times `[ta, tb]` (by the midpoint rule on
-    /// [`MEAN_SAMPLES`] intervals): where a reading integrated over that window belongs. At cruise it is the
-    /// middle of the arc covered; in a ramp it lies towards the slower end (a third of the arc from rest for a
-    /// window that starts at rest), which the middle of the arc would miss by a sixth of the arc.
-    fn mean_over(&self, ta: f64, tb: f64) -> f64 {
-        if tb <= ta {
-            return self.at(ta);
-        }
-        let h = (tb - ta) / MEAN_SAMPLES as f64;
-        (0..MEAN_SAMPLES)
-            .map(|k| self.at(ta + (k as f64 + 0.5) * h))
-            .sum::<f64>()
-            / MEAN_SAMPLES as f64
-    }
-
-    /// The clock time at which the cruise passes `x` (None outside the cruise).
-    fn cruise_time_of(&self, x: f64) -> Option<f64> {
-        let (total, ramp) = (self.duration_s(), self.ramp_s());
-        if total - 2.0 * ramp <= 0.0 {
-            return None;
-        }
-        let (xa, xb) = (self.at(self.t0_s + ramp), self.at(self.t0_s + total - ramp));
-        let (lo, hi) = (xa.min(xb), xa.max(xb));
-        if !(lo..=hi).contains(&x) || (xb - xa).abs() <= 0.0 {
-            return None;
-        }
-        Some(self.t0_s + ramp + (x - xa) / (xb - xa) * (total - 2.0 * ramp))
-    }
 }
 
 /// Where the swept arm's load is against its motor (physical degrees) during a sweep of `span_deg`: points are
@@ -155,6 +85,19 @@ fn load_offset_deg(axis: &gonio_instrument::Axis, span_deg: f64) -> f64 {
 }
 
 impl Run<'_> {
+    /// Bytes a second on the line of `axis`'s controller (8N1: ten bits a byte), from the instrument file's baud
+    /// rate or its protocol's default; 0 when the axis names no device the file has.
+    fn line_bytes_per_s(&self, axis: &gonio_instrument::Axis) -> f64 {
+        self.file
+            .instrument
+            .devices
+            .iter()
+            .find(|d| d.name == axis.device)
+            .map_or(0.0, |d| {
+                f64::from(d.baud.unwrap_or_else(|| d.protocol.default_baud())) / 10.0
+            })
+    }
+
     /// The sweeps from the first segment not committed. `calibrated`: darks and normalisation readings were
     /// taken in this session (the points ran before); else they are taken first.
     pub(super) async fn run_sweeps(&mut self, calibrated: bool) -> Result<(), Interrupt> {
@@ -290,6 +233,8 @@ impl Run<'_> {
         );
         let mut taken: Vec<Taken> = Vec::new();
         let mut reports: Vec<(f64, f64)> = Vec::new();
+        let line_bytes_per_s = self.line_bytes_per_s(&axis.config);
+        let mut widest_window_s = 0.0_f64;
         loop {
             if self.control.estop_requested() {
                 return Err(Interrupt::Estop);
@@ -298,13 +243,17 @@ impl Run<'_> {
             let ask_position = taken.len() % every == every - 1;
             let read = acquisition::read(&self.motion, band_nm, &acquisition, &mut self.configured_nm);
             let (reading, position) = if ask_position {
-                // Each report is stamped with the middle of its own exchange, not when the reading beside it
-                // ends: stamped late, it would put every reading behind the arm (a bias that changes sign with
+                // Each report is dated by its own exchange (`position_sampled_at`), not when the reading beside
+                // it ends: dated late, it would put every reading behind the arm (a bias that changes sign with
                 // the sweep's direction).
                 let report = async {
                     let t0 = clock.now_s();
-                    let p = axis.driver.position_deg().await;
-                    p.ok().map(|x| (0.5 * (t0 + clock.now_s()), x))
+                    let p = axis.driver.position_report().await;
+                    p.ok().map(|r| {
+                        let (t, window) = position_sampled_at(t0, clock.now_s(), &r, line_bytes_per_s);
+                        widest_window_s = widest_window_s.max(window);
+                        (t, r.position_deg)
+                    })
                 };
                 tokio::join!(read, report)
             } else {
@@ -368,7 +317,7 @@ impl Run<'_> {
             _ => 0.0,
         };
         tracing::info!(campaign = %self.id, segment, readings = taken.len(), reports = reports.len(), lag_s = lag,
-            lag_spread_s = spread, "sweep ended");
+            lag_spread_s = spread, report_window_s = widest_window_s, "sweep ended");
 
         let integration_s = f64::from(arc.request.averaging) * DETECTOR_SAMPLE_S;
         let span = to_deg - from_deg;
@@ -518,8 +467,6 @@ impl Run<'_> {
 
 #[cfg(test)]
 mod tests {
-    use super::Profile;
-
     #[test]
     fn short_sweeps_ask_for_their_position_more_often() {
         use super::{POSITION_EVERY, report_every};
@@ -531,37 +478,5 @@ mod tests {
         assert_eq!(report_every(16.0 * 0.091, 0.091), 4);
         assert_eq!(report_every(0.0, 0.091), 1);
         assert_eq!(report_every(-1.0, 0.0), 1);
-    }
-
-    #[test]
-    fn the_profile_reaches_its_end_at_its_duration_and_cruise_times_invert_it() {
-        let p = Profile {
-            t0_s: 2.0,
-            from_deg: 10.0,
-            to_deg: -20.0,
-            v: 4.0,
-            a: 80.0,
-        };
-        // 30 degrees at 4 deg/s with 80 deg/s^2: 7.5 s plus v/a.
-        assert!((p.duration_s() - (7.5 + 0.05)).abs() < 1e-12);
-        assert_eq!(p.at(0.0), 10.0);
-        assert!((p.at(2.0 + p.duration_s()) + 20.0).abs() < 1e-12);
-        for x in [5.0, 0.0, -12.5] {
-            let t = p.cruise_time_of(x).expect("on the cruise");
-            assert!((p.at(t) - x).abs() < 1e-9, "{x}: {}", p.at(t));
-        }
-        assert!(p.cruise_time_of(9.99).is_none(), "in the ramp");
-        // The mean position over a window: the arc's middle at cruise; a third of the way from rest.
-        let (ta, tb) = (2.5, 3.5);
-        assert!((p.mean_over(ta, tb) - 0.5 * (p.at(ta) + p.at(tb))).abs() < 1e-9);
-        let ramp = 4.0 / 80.0;
-        let third = 10.0 - (10.0 - p.at(2.0 + ramp)) / 3.0;
-        assert!(
-            // The midpoint rule's error on a ramp: its arc (0.1 deg) / (12 x 64^2), 2e-6 deg.
-            (p.mean_over(2.0, 2.0 + ramp) - third).abs() < 3e-6,
-            "{}",
-            p.mean_over(2.0, 2.0 + ramp)
-        );
-        assert_eq!(p.mean_over(3.0, 3.0), p.at(3.0));
     }
 }

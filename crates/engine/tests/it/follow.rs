@@ -113,10 +113,17 @@ async fn a_sweep_that_follows_the_brdf_keeps_every_reading_within_its_smearing_t
         .iter()
         .map(|a| a.request.speed_deg_s)
         .collect();
-    // The lobe's side slower, the rest at the top speed (pieces merged where a piece of its own costs more in
-    // ramps and exchanges than it saves).
-    assert!(speeds.len() >= 2 && speeds.contains(&16.0), "{speeds:?}");
-    assert!(speeds.iter().any(|v| *v < 12.0), "{speeds:?}");
+    // The lobe's side slower than the rest, none faster than the request (pieces merged, at the slower speed,
+    // where a piece of its own costs more in ramps and exchanges than it saves: whether the tail beyond the lobe
+    // keeps a piece at the top speed is that margin's call).
+    let (slowest, fastest) = speeds
+        .iter()
+        .fold((f64::INFINITY, 0.0_f64), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
+    assert!(
+        speeds.len() >= 2 && fastest <= 16.0 && fastest > 1.2 * slowest,
+        "{speeds:?}"
+    );
+    assert!(slowest < 12.0, "{speeds:?}");
 
     let (followed, took, predicted) = run(&dir.path().join("follow"), dir.path(), &following).await;
     let (constant, _, _) = run(&dir.path().join("constant"), dir.path(), &fast).await;
