@@ -36,7 +36,7 @@ mod sweeps;
 
 pub use complete::{NoiseFloor, RunContext, completions};
 pub use dark::{DarkSensitivity, Darkened};
-pub use sweeps::sweep_completions;
+pub use sweeps::{TIMING_U_S, sweep_completions};
 
 use gonio_brdf::measurement::BrdfValue;
 use gonio_results::budget::{Budget, components, groups};

@@ -67,7 +67,7 @@ pub const STORE_FILE: &str = "gonio.sqlite";
 /// version 9: `point_budgets` also keeps the value corrected to the nominal geometry, the aperture average it came
 /// from and the flags (crate::budget::complete). Version 10: `campaigns.ended_instrument_s`. Version 11:
 /// `sweep_segments` and `sweep_readings` (a campaign's sweeps, a segment per transaction: `sweeps`).
-const SCHEMA_VERSION: i64 = 11;
+const SCHEMA_VERSION: i64 = 12;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

@@ -14,8 +14,10 @@
 //! - the smearing: a reading is the mean along the arc it covered; each value is taken to its arc's middle by
 //!   the fitted model's value there against its mean along the arc, a quarter of that correction added to its
 //!   uncertainty ([`U_OF_SMEARING_CORRECTION`]);
-//! - timing: where along its arc a reading was is known to the exchange latency ([`TIMING_U_S`]): the sweep's
-//!   speed times that, times the model's slope along the swept angle;
+//! - timing: where along its arc a reading was is known to its segment's timing uncertainty (the meter's
+//!   exchange, [`TIMING_U_S`], and the windows in which the controller took its position reports, as the run
+//!   recorded it; [`TIMING_U_S`] alone for segments stored before it was kept): the sweep's speed times that,
+//!   times the model's slope along the swept angle;
 //! - the finite band (gonio_results::band_component): the leak's correction and the band component from the
 //!   other bands' sweeps of the same arc: readings of every band within [`CORRECTION_SPACING_DEG`] of one angle
 //!   count as one geometry.
@@ -36,7 +38,7 @@ use gonio_results::sweeps::SweepReading;
 use super::complete::RunContext;
 use super::dark::{Darkened, redark};
 use super::drift::{Normalised, renormalise_values};
-use crate::store::{CalibrationRecord, CampaignRecord, SweepCompletion};
+use crate::store::{CalibrationRecord, CampaignRecord, SweepCompletion, SweepSegmentRecord};
 
 /// Readings at least this far apart along a sweep (deg, swept angle) carry the correction's work.
 pub const CORRECTION_SPACING_DEG: f64 = 0.1;
@@ -88,6 +90,7 @@ fn smearing_ratio(model: &gonio_brdf::Material, r: &SweepReading, light: bool) -
 pub fn sweep_completions(
     record: &CampaignRecord,
     readings: &[SweepReading],
+    segments: &[SweepSegmentRecord],
     calibrations: &[CalibrationRecord],
     instrument: &Instrument,
     context: &RunContext<'_>,
@@ -197,6 +200,11 @@ pub fn sweep_completions(
             p
         })
         .collect();
+    // Each segment's timing uncertainty as the run recorded it.
+    let timing_of: std::collections::HashMap<u32, f64> = segments
+        .iter()
+        .filter_map(|g| Some((g.segment, g.timing_u_s.filter(|u| u.is_finite() && *u >= 0.0)?)))
+        .collect();
     let leak = super::complete::leak_spectrum(instrument);
     let band = band_estimates(&snapped, super::complete::filter_bands(instrument), leak.as_ref());
     readings
@@ -281,7 +289,8 @@ pub fn sweep_completions(
                 } else {
                     0.0
                 };
-                let timing = along.abs() * speed_rad_s * TIMING_U_S;
+                let timing_u_s = timing_of.get(&r.segment).copied().unwrap_or(TIMING_U_S);
+                let timing = along.abs() * speed_rad_s * timing_u_s;
                 for rel in [pointing, timing] {
                     if rel.is_finite() {
                         var += (value * rel).powi(2);

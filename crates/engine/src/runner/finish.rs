@@ -37,9 +37,11 @@ impl Run<'_> {
         // The sweep readings likewise (crate::budget::sweeps), when there are any.
         let readings = lock(&self.store).committed_sweep_readings(self.id)?;
         if !readings.is_empty() {
+            let segments = lock(&self.store).sweep_segments(self.id)?;
             let sweeps = crate::budget::sweep_completions(
                 &record,
                 &readings,
+                &segments,
                 &calibrations,
                 &self.file.instrument,
                 &context,

@@ -61,6 +61,19 @@ fn report_every(cruise_s: f64, period_s: f64) -> usize {
     (readings / REPORTS_PER_CRUISE).clamp(1, POSITION_EVERY)
 }
 
+/// How well the time of a sweep's readings is known for placing them along the arc (s, standard uncertainty):
+/// the meter's exchange ([`budget::TIMING_U_S`]) and where the controller took its position reports
+/// within their widest dating window (`timing::position_sampled_at`), anywhere alike: `window / sqrt(12)`. The
+/// lag taken from the reports carries that uncertainty to every reading of the sweep.
+fn timing_u_s(widest_window_s: f64) -> f64 {
+    let window = if widest_window_s.is_finite() {
+        widest_window_s.max(0.0)
+    } else {
+        0.0
+    };
+    budget::TIMING_U_S.hypot(window / 12f64.sqrt())
+}
+
 /// The sweep's motion may take this much longer than its profile (and 5 s) before the run gives up on it.
 const OVERRUN: f64 = 1.5;
 
@@ -359,6 +372,7 @@ impl Run<'_> {
             started_s: started,
             ended_s: ended,
             readings: u32::try_from(readings.len()).unwrap_or(u32::MAX),
+            timing_u_s: Some(timing_u_s(widest_window_s)),
         };
         self.st(|s| s.commit_sweep_segment(self.id, &record, &readings))?;
         self.control.emit(Event::Sweep {
@@ -467,6 +481,18 @@ impl Run<'_> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_wider_report_window_makes_the_readings_times_less_certain() {
+        use super::timing_u_s;
+        // A simulator answers at once: the meter's exchange alone.
+        assert_eq!(timing_u_s(0.0), crate::budget::TIMING_U_S);
+        assert_eq!(timing_u_s(f64::NAN), crate::budget::TIMING_U_S);
+        // A controller taking 10 ms to answer (the SMC100 manual's execution time for TP): 2.9 ms more.
+        let u = timing_u_s(0.010);
+        assert!((u - 0.001f64.hypot(0.010 / 12f64.sqrt())).abs() < 1e-15, "{u}");
+        assert!(u > 0.003 && u < 0.0031, "{u}");
+    }
+
     #[test]
     fn short_sweeps_ask_for_their_position_more_often() {
         use super::{POSITION_EVERY, report_every};

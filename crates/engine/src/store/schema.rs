@@ -327,8 +327,13 @@ impl Store {
             version = 10;
         }
         if version == 10 {
-            // Version 11 stores the readings of sweeps.
-            self.step(SWEEP_TABLES, 11)?;
+            // Version 11 stores the readings of sweeps (with version 12's column).
+            self.step(SWEEP_TABLES, 12)?;
+            return Ok(());
+        }
+        if version == 11 {
+            // Version 12 keeps how well each sweep's readings are placed in time.
+            self.step("ALTER TABLE sweep_segments ADD COLUMN timing_u_s REAL;", 12)?;
             return Ok(());
         }
         if version != 0 {

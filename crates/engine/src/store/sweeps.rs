@@ -14,7 +14,8 @@ use gonio_results::sweeps::SweepReading;
 
 use super::{CampaignId, Store, StoreError};
 
-/// The tables, created with a new store and added by the migration to version 11.
+/// The tables, created with a new store and added by the migration to version 11 (`timing_u_s` by the one to
+/// version 12).
 pub(super) const SWEEP_TABLES: &str = "CREATE TABLE sweep_segments (
                 campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
                 segment INTEGER NOT NULL,
@@ -22,6 +23,7 @@ pub(super) const SWEEP_TABLES: &str = "CREATE TABLE sweep_segments (
                 started_s REAL NOT NULL,
                 ended_s REAL NOT NULL,
                 readings INTEGER NOT NULL,
+                timing_u_s REAL,
                 PRIMARY KEY (campaign_id, segment)
             );
             CREATE TABLE sweep_readings (
@@ -59,6 +61,11 @@ pub struct SweepSegmentRecord {
     pub started_s: f64,
     pub ended_s: f64,
     pub readings: u32,
+    /// How well the time of each reading is known for placing it along its arc (s, standard uncertainty): the
+    /// meter's exchange and the windows in which the controller took its position reports; None for segments
+    /// stored before it was kept (the completion then takes the meter's exchange alone).
+    #[serde(default)]
+    pub timing_u_s: Option<f64>,
 }
 
 impl Store {
@@ -77,15 +84,16 @@ impl Store {
         };
         let tx = self.conn.transaction().map_err(write)?;
         let inserted = tx.execute(
-            "INSERT INTO sweep_segments (campaign_id, segment, band_nm, started_s, ended_s, readings)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+            "INSERT INTO sweep_segments (campaign_id, segment, band_nm, started_s, ended_s, readings, timing_u_s)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
             params![
                 id.0,
                 segment.segment,
                 segment.band_nm,
                 segment.started_s,
                 segment.ended_s,
-                segment.readings
+                segment.readings,
+                segment.timing_u_s
             ],
         );
         if let Err(rusqlite::Error::SqliteFailure(e, _)) = &inserted
@@ -155,7 +163,7 @@ impl Store {
         let mut st = self
             .conn
             .prepare_cached(
-                "SELECT segment, band_nm, started_s, ended_s, readings FROM sweep_segments
+                "SELECT segment, band_nm, started_s, ended_s, readings, timing_u_s FROM sweep_segments
                  WHERE campaign_id = ?1 ORDER BY segment",
             )
             .map_err(self.read_err())?;
@@ -167,6 +175,7 @@ impl Store {
                     started_s: r.get(2)?,
                     ended_s: r.get(3)?,
                     readings: r.get(4)?,
+                    timing_u_s: r.get(5)?,
                 })
             })
             .map_err(self.read_err())?;

@@ -49,7 +49,10 @@ async fn setup(dir: &std::path::Path) -> Setup {
 }
 
 async fn setup_with(dir: &std::path::Path, campaign: &str) -> Setup {
-    let file = InstrumentFile::simulated();
+    setup_on(dir, campaign, InstrumentFile::simulated()).await
+}
+
+async fn setup_on(dir: &std::path::Path, campaign: &str, file: InstrumentFile) -> Setup {
     let prepared = prepare_campaign(campaign, "sweep-test.toml", dir, &file).expect("valid campaign");
     let text = toml::to_string(&file).expect("toml");
     let mut store = Store::open(dir).expect("store");
@@ -338,9 +341,8 @@ async fn an_emergency_stop_during_a_sweep_halts_it_at_once_and_keeps_nothing_of_
 /// completion takes it to its arc's middle (the aperture's and the smearing's corrections with the fitted
 /// model), and the stated uncertainties hold the truth. (With the simulated meter seeing its whole window at
 /// the window's end, as it did, the readings were 0.46 deg off and 3 % of them covered.)
-#[tokio::test(start_paused = true)]
-async fn fast_sweeps_are_taken_to_their_arcs_middles() {
-    const FAST: &str = r#"
+/// Fast sweeps across the coloured plastic's specular lobe, with calibrations between them.
+const FAST: &str = r#"
 [campaign]
 id = "fast-sweep"
 [sample]
@@ -361,6 +363,9 @@ simulate_operator = true
 [material]
 preset = "coloured-plastic"
 "#;
+
+#[tokio::test(start_paused = true)]
+async fn fast_sweeps_are_taken_to_their_arcs_middles() {
     let dir = tempfile::tempdir().expect("tempdir");
     let s = setup_with(dir.path(), FAST).await;
     let state = run_campaign(Arc::clone(&s.store), s.id, &s.rig, Control::new())
@@ -401,4 +406,57 @@ preset = "coloured-plastic"
         "rms {after:.2e} completed, {before:.2e} as read"
     );
     assert!(summary.coverage_k2 >= 0.90, "{summary:?}");
+}
+
+/// A controller that takes its time to answer (12 ms here; the SMC100 manual gives about 10 ms to execute a
+/// position query) leaves open when, within each exchange, it took the position it reports: the run records that
+/// window in each segment's timing uncertainty, the completion puts it in the readings' budgets, and their k=2
+/// intervals still cover the truth. Without the delay the segments carry the meter's exchange alone.
+#[tokio::test(start_paused = true)]
+async fn a_slow_controllers_report_window_is_in_the_readings_uncertainty() {
+    let mut runs = Vec::new();
+    for delay_ms in [0.0, 12.0] {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut file = InstrumentFile::simulated();
+        file.simulator.faults.delay_ms = delay_ms;
+        let s = setup_on(dir.path(), FAST, file).await;
+        let state = run_campaign(Arc::clone(&s.store), s.id, &s.rig, Control::new())
+            .await
+            .expect("run");
+        assert_eq!(state, CampaignState::Completed);
+        let store = s.store.lock().expect("lock");
+        let segments = store.sweep_segments(s.id).expect("segments");
+        let readings = store.sweep_readings(s.id).expect("readings");
+        let summary = gonio_results::sweeps::truth_summary(&readings).expect("summary");
+        let mut u_rel: Vec<f64> = readings
+            .iter()
+            .filter_map(|r| Some(r.brdf_u_sr? / r.brdf_sr?))
+            .filter(|u| u.is_finite())
+            .collect();
+        u_rel.sort_by(f64::total_cmp);
+        let p90 = u_rel[u_rel.len() * 9 / 10];
+        eprintln!(
+            "reply delay {delay_ms} ms: timing u {:?} s, k=2 coverage {:.3}, p90 relative u {p90:.2e}",
+            segments.iter().map(|g| g.timing_u_s).collect::<Vec<_>>(),
+            summary.coverage_k2
+        );
+        assert!(!segments.is_empty());
+        assert!(summary.coverage_k2 >= 0.90, "{delay_ms} ms: {summary:?}");
+        runs.push((segments, p90));
+    }
+    let (quick, slow) = (&runs[0], &runs[1]);
+    for g in &quick.0 {
+        assert_eq!(g.timing_u_s, Some(gonio_engine::budget::TIMING_U_S), "{g:?}");
+    }
+    // 12 ms less the request's 0.9 ms on the line, uniform: 3.2 ms, with the meter's 1 ms.
+    for g in &slow.0 {
+        let u = g.timing_u_s.expect("recorded");
+        assert!(u > 0.003 && u < 0.0036, "{g:?}");
+    }
+    assert!(
+        slow.1 > quick.1,
+        "p90 relative u {:.2e} slow, {:.2e} quick",
+        slow.1,
+        quick.1
+    );
 }

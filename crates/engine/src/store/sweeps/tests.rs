@@ -49,6 +49,7 @@ fn sweep_segments_commit_whole_round_trip_and_are_never_stored_twice() {
             started_s: 10.0,
             ended_s: 14.0,
             readings: 1000,
+            timing_u_s: Some(0.002),
         };
         store
             .commit_sweep_segment(id, &record, &readings)
@@ -62,6 +63,7 @@ fn sweep_segments_commit_whole_round_trip_and_are_never_stored_twice() {
         started_s: 0.0,
         ended_s: 1.0,
         readings: 1,
+        timing_u_s: None,
     };
     store
         .commit_sweep_segment(id, &again, &[sweep_reading(1, 5000)])
@@ -119,9 +121,47 @@ fn a_version_10_store_gains_the_sweep_tables() {
         started_s: 0.0,
         ended_s: 1.0,
         readings: 1,
+        timing_u_s: None,
     };
     store
         .commit_sweep_segment(id, &record, &[sweep_reading(0, 0)])
         .expect("commit");
     assert_eq!(store.sweep_readings(id).expect("readings").len(), 1);
+}
+
+#[test]
+fn a_version_11_store_keeps_its_segments_and_gains_their_timing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let id = store_with_one_point(dir.path());
+    let mut store = Store::open(dir.path()).expect("open");
+    let record = |segment, timing_u_s| SweepSegmentRecord {
+        segment,
+        band_nm: Some(550.0),
+        started_s: 0.0,
+        ended_s: 1.0,
+        readings: 1,
+        timing_u_s,
+    };
+    store
+        .commit_sweep_segment(id, &record(0, Some(0.003)), &[sweep_reading(0, 0)])
+        .expect("commit");
+    assert_eq!(
+        store.sweep_segments(id).expect("segments"),
+        vec![record(0, Some(0.003))]
+    );
+    drop(store);
+    let conn = Connection::open(dir.path().join(STORE_FILE)).expect("raw open");
+    conn.execute_batch("ALTER TABLE sweep_segments DROP COLUMN timing_u_s; PRAGMA user_version = 11;")
+        .expect("back to version 11");
+    drop(conn);
+    let mut store = Store::open(dir.path()).expect("migrates");
+    // The segment stored before is kept, without the timing it did not record; a new one records it.
+    assert_eq!(store.sweep_segments(id).expect("segments"), vec![record(0, None)]);
+    store
+        .commit_sweep_segment(id, &record(1, Some(0.001)), &[sweep_reading(1, 0)])
+        .expect("commit");
+    assert_eq!(
+        store.sweep_segments(id).expect("segments"),
+        vec![record(0, None), record(1, Some(0.001))]
+    );
 }
