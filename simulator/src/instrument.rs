@@ -228,13 +228,21 @@ impl SimInstrument {
             .device(device)
             .and_then(|d| d.baud)
             .unwrap_or_else(|| protocol.default_baud());
+        // The hardware's own time to answer: the file's, or `[simulator.actual.devices]`'s.
+        let latency_ms = self
+            .inner
+            .file
+            .actual_instrument()
+            .device(device)
+            .and_then(|d| d.reply_latency_ms)
+            .unwrap_or(0.0);
         handle.spawn(session::serve(
             dev,
             emu,
             self.inner.faults.for_device(device),
             self.inner.world.clock,
             device.to_string(),
-            session::LineRate::from_baud(baud),
+            session::LineRate::from_baud(baud).with_latency_s(latency_ms / 1000.0),
         ));
         Ok(host)
     }

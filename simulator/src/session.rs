@@ -64,10 +64,13 @@ fn lock(emu: &SharedEmulator) -> std::sync::MutexGuard<'_, dyn SerialEmulator + 
 }
 
 /// The serial line's speed: a reply is complete only once its last byte has crossed the wire (8N1: ten bits a
-/// byte), so a 57600-baud SMC100 status reply takes about 2 ms, as on the real link.
+/// byte), so a 57600-baud SMC100 status reply takes about 2 ms, as on the real link. And the device's own time
+/// to answer before its reply starts (the hardware's `reply_latency_ms`: the SMC100 manual gives about 10 ms to
+/// execute a position query); what a query reports is taken when it arrives.
 #[derive(Debug, Clone, Copy)]
 pub struct LineRate {
     bytes_per_s: f64,
+    latency_s: f64,
 }
 
 impl LineRate {
@@ -75,6 +78,19 @@ impl LineRate {
     pub fn from_baud(baud: u32) -> LineRate {
         LineRate {
             bytes_per_s: f64::from(baud) / 10.0,
+            latency_s: 0.0,
+        }
+    }
+
+    /// The device answering each query `latency_s` after it arrives (negative or not a number: at once).
+    pub fn with_latency_s(self, latency_s: f64) -> LineRate {
+        LineRate {
+            latency_s: if latency_s.is_finite() {
+                latency_s.max(0.0)
+            } else {
+                0.0
+            },
+            ..self
         }
     }
 
@@ -261,7 +277,7 @@ async fn send(
 ) -> bool {
     for out in outputs {
         let delay = faults.reply_delay_s();
-        let done_s = out.at_s + delay + line.wire_s(out.bytes.len());
+        let done_s = out.at_s + line.latency_s + delay + line.wire_s(out.bytes.len());
         if clock.real_duration(done_s - clock.now_s()) >= SHORTEST_REAL_WAIT {
             clock.sleep_until_s(done_s).await;
         }

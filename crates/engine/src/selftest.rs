@@ -11,7 +11,8 @@
 //!   than the file shows, hardware faster does not (the file's value is then what it runs at, and passes).
 //! - The wheel's time per position: one step against half a turn, timed from command to verified arrival (the
 //!   fixed cost of each turn cancels), after a full turn through every position.
-//! - Reply latency: ten position queries of each device, timed.
+//! - Reply latency: ten position queries of each device, timed; a motion controller's time beyond its reply's
+//!   time on the line is its `reply_latency_ms`, which the time model adds to each exchange (`measure_latency`).
 //! - Dark and noise: the blank in the beam, the meter fixed on each of its ranges in turn, readings' mean and
 //!   spread; the head's dark current (`detector.dark_current_a`) from the smallest range's, and the source's
 //!   white relative noise (`source.relative_noise`) from readings of the direct beam at averaging 1 while the
@@ -34,6 +35,7 @@ pub use settle::{SETTLE_REPEATS, STEP_DEG};
 
 use gonio_instrument::AxisRole;
 use gonio_scheduler::kinematics::Pose;
+use gonio_scheduler::timing::exchange_s;
 
 use crate::align::Placement;
 use crate::motion::{Device, Motion, MotionError};
@@ -44,6 +46,9 @@ use fit::{Sample, cruise_speed, mean_std, ramp_acceleration};
 pub const DEFAULT_TOLERANCE: f64 = 0.10;
 /// Position queries per device for its latency.
 const LATENCY_QUERIES: usize = 10;
+/// A motion controller's reply latency passes within this of the file's (ms): the host sees replies at whole
+/// milliseconds (a USB-serial adapter's latency timer).
+pub const LATENCY_ALLOWED_MS: f64 = 1.0;
 /// The measured moves stay this far (deg) inside each axis's travel and beyond the arms' safety separation.
 const MARGIN_DEG: f64 = 5.0;
 
@@ -105,7 +110,7 @@ pub async fn run_selftest(
             ));
         }
     }
-    checks.extend(measure_latency(motion).await?);
+    checks.extend(measure_latency(motion, tolerance).await?);
     let (meter, missing) = noise::measure_meter(motion, tolerance).await?;
     checks.extend(meter);
     not_measured.extend(missing);
@@ -331,8 +336,13 @@ async fn measure_wheel(motion: &Motion<'_>) -> Result<Option<f64>, MotionError> 
     Ok(Some((far - step) / f64::from(half - 1)))
 }
 
-/// Each device's reply latency (ms), for the record.
-async fn measure_latency(motion: &Motion<'_>) -> Result<Vec<Check>, MotionError> {
+/// Each device's reply latency (ms). A motion controller's is held against the file's `reply_latency_ms` (none
+/// when absent), which the time model adds to every exchange with it: the median time of one position query
+/// beyond what the model gives an exchange with that reply ([`exchange_s`]: its bytes on the line, seen at the
+/// next whole millisecond), so that the file written with it makes the model's exchanges take what they took
+/// here. It passes within [`LATENCY_ALLOWED_MS`] or the tolerance of the file's value. The wheel's and the
+/// meter's are for the record.
+async fn measure_latency(motion: &Motion<'_>, tolerance: f64) -> Result<Vec<Check>, MotionError> {
     let rig = motion.rig();
     let clock = motion.clock();
     let mut out = Vec::new();
@@ -341,20 +351,29 @@ async fn measure_latency(motion: &Motion<'_>) -> Result<Vec<Check>, MotionError>
         if !seen.insert(a.config.device.clone()) {
             continue;
         }
-        let mut times = Vec::new();
+        let Some(device) = rig.file().instrument.device(&a.config.device) else {
+            continue;
+        };
+        let baud = device.baud.unwrap_or_else(|| device.protocol.default_baud());
+        let mut beyond_ms = Vec::new();
         for _ in 0..LATENCY_QUERIES {
             let t = clock.now_s();
-            motion
-                .device(Device::Axis(a), "position query", || a.driver.position_deg())
+            let report = motion
+                .device(Device::Axis(a), "position query", || a.driver.position_report())
                 .await?;
-            times.push(1e3 * (clock.now_s() - t));
+            let took_s = clock.now_s() - t;
+            beyond_ms.push(1e3 * (took_s - exchange_s(report.reply_bytes, baud)).max(0.0));
         }
-        if let Some((mean, _)) = mean_std(&times) {
-            out.push(info(
-                format!("latency.{}", a.config.device),
-                "reply to a position query",
+        beyond_ms.sort_by(f64::total_cmp);
+        if let Some(median) = beyond_ms.get(beyond_ms.len() / 2) {
+            let configured = device.reply_latency_ms.unwrap_or(0.0);
+            out.push(within(
+                format!("devices.{}.reply_latency_ms", a.config.device),
+                "reply latency beyond the line (position query)",
                 "ms",
-                mean,
+                configured,
+                *median,
+                (tolerance * configured).max(LATENCY_ALLOWED_MS),
             ));
         }
     }

@@ -168,7 +168,8 @@ fn measured_file(text: &str, r: &SelftestReport) -> Result<String, String> {
     ))
 }
 
-/// Set `axes.<name>.<key>` (in `[[instrument.axes]]`) or `<table>.<key>` under `[instrument]`.
+/// Set `axes.<name>.<key>` (in `[[instrument.axes]]`), `devices.<name>.<key>` (in `[[instrument.devices]]`) or
+/// `<table>.<key>` under `[instrument]`.
 fn set_key(doc: &mut toml::Table, key: &str, value: f64) -> bool {
     let Some(instrument) = doc.get_mut("instrument").and_then(toml::Value::as_table_mut) else {
         return false;
@@ -184,6 +185,17 @@ fn set_key(doc: &mut toml::Table, key: &str, value: f64) -> bool {
                     .find(|a| a.get("name").and_then(toml::Value::as_str) == Some(name))
             })
             .map(|a| a.insert((*field).to_string(), toml::Value::Float(value)))
+            .is_some(),
+        ["devices", name, field] => instrument
+            .get_mut("devices")
+            .and_then(toml::Value::as_array_mut)
+            .and_then(|devices| {
+                devices
+                    .iter_mut()
+                    .filter_map(toml::Value::as_table_mut)
+                    .find(|d| d.get("name").and_then(toml::Value::as_str) == Some(name))
+            })
+            .map(|d| d.insert((*field).to_string(), toml::Value::Float(value)))
             .is_some(),
         [table, field] => instrument
             .get_mut(*table)
@@ -205,6 +217,8 @@ mod tests {
         assert!(set_key(&mut doc, "axes.detector.max_speed_deg_s", 9.5));
         assert!(set_key(&mut doc, "filter_wheel.seconds_per_position", 1.25));
         assert!(!set_key(&mut doc, "axes.elbow.max_speed_deg_s", 1.0));
+        assert!(set_key(&mut doc, "devices.arms.reply_latency_ms", 10.0));
+        assert!(!set_key(&mut doc, "devices.elbow.reply_latency_ms", 1.0));
         let text = toml::to_string(&doc).expect("toml");
         let file = InstrumentFile::parse(&text, "written").expect("still a valid instrument file");
         let det = file
@@ -215,8 +229,15 @@ mod tests {
             .expect("detector");
         assert_eq!(det.max_speed_deg_s, 9.5);
         assert_eq!(
-            file.instrument.filter_wheel.map(|w| w.seconds_per_position),
+            file.instrument
+                .filter_wheel
+                .as_ref()
+                .map(|w| w.seconds_per_position),
             Some(1.25)
+        );
+        assert_eq!(
+            file.instrument.device("arms").and_then(|d| d.reply_latency_ms),
+            Some(10.0)
         );
     }
 }

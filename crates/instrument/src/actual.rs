@@ -16,6 +16,8 @@
 //! dark_current_a = 1.0e-10
 //! [simulator.actual.source]
 //! relative_noise = 3.0e-4
+//! [simulator.actual.devices.arms]       # the device's name
+//! reply_latency_ms = 10.0
 //! ```
 //!
 //! The simulated devices run the actual values ([`InstrumentFile::actual_instrument`]); the engine plans with
@@ -41,6 +43,17 @@ pub struct Actual {
     pub detector: Option<ActualDetector>,
     #[serde(default)]
     pub source: Option<ActualSource>,
+    /// By device name.
+    #[serde(default)]
+    pub devices: BTreeMap<String, ActualDevice>,
+}
+
+/// `[simulator.actual.devices.<name>]`.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ActualDevice {
+    /// What the device really takes to answer a query beyond its reply's time on the line (ms).
+    pub reply_latency_ms: Option<f64>,
 }
 
 /// `[simulator.actual.detector]`.
@@ -90,6 +103,7 @@ impl Actual {
             && self.axes.values().all(|a| a == &ActualAxis::default())
             && self.detector.as_ref().is_none_or(|d| d.dark_current_a.is_none())
             && self.source.as_ref().is_none_or(|s| s.relative_noise.is_none())
+            && self.devices.values().all(|d| d.reply_latency_ms.is_none())
     }
 
     /// Every value names an axis the file has and is a positive (zero for settle and backlash), finite
@@ -131,6 +145,20 @@ impl Actual {
             positive(key("accel_deg_s2"), a.accel_deg_s2, false)?;
             positive(key("settle_s"), a.settle_s, true)?;
             positive(key("backlash_deg"), a.backlash_deg, true)?;
+        }
+        for (name, d) in &self.devices {
+            if instrument.device(name).is_none() {
+                let names: Vec<&str> = instrument.devices.iter().map(|x| x.name.as_str()).collect();
+                return Err(format!(
+                    "[simulator.actual.devices.{name}]: no device named {name:?}; the devices are {}",
+                    names.join(", ")
+                ));
+            }
+            positive(
+                format!("simulator.actual.devices.{name}.reply_latency_ms"),
+                d.reply_latency_ms,
+                true,
+            )?;
         }
         if let Some(d) = &self.detector {
             positive(
@@ -193,6 +221,11 @@ impl Actual {
         if let Some(v) = actual.source.as_ref().and_then(|s| s.relative_noise) {
             inst.source.relative_noise = v;
         }
+        for device in &mut inst.devices {
+            if let Some(v) = actual.devices.get(&device.name).and_then(|d| d.reply_latency_ms) {
+                device.reply_latency_ms = Some(v);
+            }
+        }
     }
 }
 
@@ -211,7 +244,8 @@ mod tests {
             "[simulator.actual.filter_wheel]\nseconds_per_position = 2.0\n\
              [simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\nsettle_s = 0.4\n\
              [simulator.actual.detector]\ndark_current_a = 1.0e-10\n\
-             [simulator.actual.source]\nrelative_noise = 3.0e-4\n",
+             [simulator.actual.source]\nrelative_noise = 3.0e-4\n\
+             [simulator.actual.devices.arms]\nreply_latency_ms = 10.0\n",
         )
         .expect("valid");
         let actual = file.actual_instrument();
@@ -227,6 +261,11 @@ mod tests {
         assert_eq!((det.max_speed_deg_s, det.settle_s), (10.0, 0.4));
         assert_eq!(actual.detector.dark_current_a, 1.0e-10);
         assert_eq!(actual.source.relative_noise, 3.0e-4);
+        assert_eq!(actual.device("arms").and_then(|d| d.reply_latency_ms), Some(10.0));
+        assert_eq!(
+            file.instrument.device("arms").and_then(|d| d.reply_latency_ms),
+            None
+        );
         let claimed = file
             .instrument
             .axes
@@ -272,9 +311,31 @@ mod tests {
                 "[simulator.actual.source]\nrelative_noise = inf\n",
                 "simulator.actual.source.relative_noise",
             ),
+            (
+                "[simulator.actual.devices.elbow]\nreply_latency_ms = 1.0\n",
+                "no device named \"elbow\"",
+            ),
+            (
+                "[simulator.actual.devices.arms]\nreply_latency_ms = -1.0\n",
+                "simulator.actual.devices.arms.reply_latency_ms",
+            ),
         ] {
             let e = simulated_with(extra).expect_err(extra).to_string();
             assert!(e.contains(says), "{extra}: {e}");
+        }
+        // The file's own claim is checked as the devices' other keys are.
+        for bad in ["-1.0", "nan", "1000.0"] {
+            let text = crate::SIMULATED_INSTRUMENT_TOML.replace(
+                "name = \"arms\"\n",
+                &format!("name = \"arms\"\nreply_latency_ms = {bad}\n"),
+            );
+            let e = InstrumentFile::parse(&text, "test.toml")
+                .expect_err(bad)
+                .to_string();
+            assert!(
+                e.contains("reply_latency_ms") && e.contains("\"arms\""),
+                "{bad}: {e}"
+            );
         }
     }
 }

@@ -149,6 +149,13 @@ pub struct Device {
     /// USB serial number, to pick one of several identical meters.
     #[serde(default)]
     pub usb_serial: Option<String>,
+    /// What a motion controller takes to answer a query beyond its reply's time on the line (ms): the
+    /// controller's own execution (the SMC100 manual gives about 10 ms for a position query) and the request's
+    /// time on the line. `gonio selftest` measures it and `--write` records it; the time model adds it to every
+    /// exchange with the device. Absent: none (predictions are then short by that much per exchange on hardware
+    /// that takes it).
+    #[serde(default)]
+    pub reply_latency_ms: Option<f64>,
 }
 
 /// The `port` value for a simulated device served on a pseudo-terminal (see [`Device::port`]).

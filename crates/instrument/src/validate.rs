@@ -6,6 +6,9 @@ use std::collections::BTreeSet;
 
 use crate::{AxisRole, GeometryKind, Instrument, InvalidInstrument, Protocol};
 
+/// The longest reply latency a device may claim (ms): the drivers' reply timeouts are a few hundred ms.
+pub const MAX_REPLY_LATENCY_MS: f64 = 250.0;
+
 impl Instrument {
     /// Consistency checks that serde cannot express. The message names the table and key.
     pub fn validate(&self) -> Result<(), InvalidInstrument> {
@@ -18,6 +21,14 @@ impl Instrument {
             if !names.insert(d.name.as_str()) {
                 return Err(format!(
                     "[[instrument.devices]]: device name {:?} is used twice",
+                    d.name
+                ));
+            }
+            if let Some(ms) = d.reply_latency_ms
+                && !(ms.is_finite() && (0.0..=MAX_REPLY_LATENCY_MS).contains(&ms))
+            {
+                return Err(format!(
+                    "[[instrument.devices]] {:?}: reply_latency_ms = {ms} is not between 0 and {MAX_REPLY_LATENCY_MS} ms",
                     d.name
                 ));
             }

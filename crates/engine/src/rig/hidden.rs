@@ -67,15 +67,29 @@ fn actual_record(claimed: &Instrument, real: &Instrument) -> Option<ActualHardwa
         .collect();
     let detector_dark_current_a = differs(claimed.detector.dark_current_a, real.detector.dark_current_a);
     let source_relative_noise = differs(claimed.source.relative_noise, real.source.relative_noise);
+    let reply_latency_ms: std::collections::BTreeMap<String, f64> = claimed
+        .devices
+        .iter()
+        .zip(&real.devices)
+        .filter_map(|(c, r)| {
+            let (said, is) = (
+                c.reply_latency_ms.unwrap_or(0.0),
+                r.reply_latency_ms.unwrap_or(0.0),
+            );
+            differs(said, is).map(|ms| (c.name.clone(), ms))
+        })
+        .collect();
     (wheel_seconds_per_position.is_some()
         || !axes.is_empty()
         || detector_dark_current_a.is_some()
-        || source_relative_noise.is_some())
+        || source_relative_noise.is_some()
+        || !reply_latency_ms.is_empty())
     .then_some(ActualHardwareRecord {
         wheel_seconds_per_position,
         axes,
         detector_dark_current_a,
         source_relative_noise,
+        reply_latency_ms,
     })
 }
 

@@ -41,6 +41,20 @@ fn with_actual(extra: &str) -> InstrumentFile {
     InstrumentFile::parse(&format!("{SIMULATED_INSTRUMENT_TOML}\n{extra}"), "actual.toml").expect("valid")
 }
 
+/// The simulated instrument's file saying that its motion controllers take `ms` to answer (so they do).
+fn with_reply_latency(ms: f64) -> InstrumentFile {
+    let text = SIMULATED_INSTRUMENT_TOML
+        .replace(
+            "name = \"arms\"\n",
+            &format!("name = \"arms\"\nreply_latency_ms = {ms}\n"),
+        )
+        .replace(
+            "name = \"stage\"\n",
+            &format!("name = \"stage\"\nreply_latency_ms = {ms}\n"),
+        );
+    InstrumentFile::parse(&text, "latency.toml").expect("valid")
+}
+
 fn measured(r: &SelftestReport, key: &str) -> f64 {
     r.checks
         .iter()
@@ -81,6 +95,11 @@ async fn the_ideal_instrument_measures_as_its_file_says() {
         "{:#?}",
         r.checks
     );
+    // The simulated controllers answer as soon as their replies cross the line: no latency beyond it.
+    for device in ["arms", "stage"] {
+        let latency = measured(&r, &format!("devices.{device}.reply_latency_ms"));
+        assert!(latency <= 1.0, "{device}: {latency} ms");
+    }
     // The ideal instrument's noise figures are its file's: no ambient light, no hidden difference.
     let noise = measured(&r, "source.relative_noise");
     assert!(
@@ -134,12 +153,27 @@ async fn hardware_slower_than_its_file_fails_naming_the_key() {
             "[simulator.actual.axes.tilt]\naccel_deg_s2 = 20.0\n",
             "axes.tilt.accel_deg_s2",
         ),
+        (
+            "[simulator.actual.devices.arms]\nreply_latency_ms = 10.0\n",
+            "devices.arms.reply_latency_ms",
+        ),
     ] {
         let r = selftest_of(&with_actual(extra)).await;
         assert_eq!(r.failed_keys(), vec![key], "{extra}: {:#?}", r.checks);
         let c = r.checks.iter().find(|c| c.key == key).expect("the line");
         assert_eq!(c.verdict, Verdict::Fail);
     }
+    // A controller taking 10 ms to answer measures as such (the host sees replies at whole milliseconds), and
+    // the file that says so passes.
+    let r = selftest_of(&with_actual(
+        "[simulator.actual.devices.arms]\nreply_latency_ms = 10.0\n",
+    ))
+    .await;
+    let latency = measured(&r, "devices.arms.reply_latency_ms");
+    eprintln!("arms answering 10 ms after each query: reply latency measured {latency:.3} ms");
+    assert!((latency - 10.0).abs() <= 1.0, "{latency} ms");
+    let r = selftest_of(&with_reply_latency(10.0)).await;
+    assert!(r.failed_keys().is_empty(), "{:#?}", r.checks);
     // The detector arm at half its speed measures as such.
     let r = selftest_of(&with_actual(
         "[simulator.actual.axes.detector]\nmax_speed_deg_s = 10.0\n",
@@ -173,6 +207,14 @@ fn the_actual_hardware_is_hidden_truth_in_run_json() {
         ("detector", Some(10.0))
     );
     assert_eq!(actual.wheel_seconds_per_position, None);
+    assert!(actual.reply_latency_ms.is_empty());
+    // A controller slower to answer than its file says is listed by name.
+    let text =
+        format!("{SIMULATED_INSTRUMENT_TOML}\n[simulator.actual.devices.arms]\nreply_latency_ms = 10.0\n");
+    let truth = gonio_engine::rig::simulator_truth(&text, true, 0).expect("a truth");
+    let actual = truth.actual.expect("the actual hardware listed");
+    assert_eq!(actual.reply_latency_ms, [("arms".to_string(), 10.0)].into());
+    assert!(actual.axes.is_empty());
     assert!(
         gonio_engine::rig::simulator_truth(&text, false, 0).is_none(),
         "never for a run on hardware"

@@ -49,6 +49,9 @@ pub struct ActualHardwareRecord {
     /// The source's real white relative noise; absent when as claimed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub source_relative_noise: Option<f64>,
+    /// The devices whose real time to answer a query differs from the file's `reply_latency_ms` (ms), by name.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub reply_latency_ms: std::collections::BTreeMap<String, f64>,
 }
 
 /// One axis's real limits where they differ from the file (deg/s, deg/s^2, s, deg).

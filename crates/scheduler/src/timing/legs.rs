@@ -17,9 +17,10 @@
 //!
 //! One exchange is a short request and its reply on the wire: the reply's bytes at the line's speed (8N1: ten
 //! bits a byte), rounded up to the whole millisecond at which the host sees it (the 1 ms latency timer of a
-//! USB-serial adapter; the dry-run's clock ticks in milliseconds too). What a real controller adds to answer (the
-//! SMC100 manual's "command execution time") is not known here: a run on real hardware shows it, and the model
-//! is then short by that much per exchange.
+//! USB-serial adapter; the dry-run's clock ticks in milliseconds too), plus what the controller takes to answer
+//! (the SMC100 manual's "command execution time", about 10 ms for a position query): the device's
+//! `reply_latency_ms`, which `gonio selftest` measures and writes; absent, none, and the model is then short by
+//! that much per exchange on hardware that takes it.
 
 use gonio_instrument::{Instrument, Protocol};
 
@@ -39,11 +40,23 @@ const ZABER_REPLY_BYTES: usize = 31;
 
 /// Time of one exchange whose reply is `reply_bytes` long at `baud` (8N1), seen at the next whole millisecond.
 pub fn exchange_s(reply_bytes: usize, baud: u32) -> f64 {
+    exchange_after_s(reply_bytes, baud, 0.0)
+}
+
+/// As [`exchange_s`] with a device that takes `latency_s` to answer besides its reply's time on the line
+/// (`reply_latency_ms` of the instrument file).
+pub fn exchange_after_s(reply_bytes: usize, baud: u32, latency_s: f64) -> f64 {
+    let latency_s = if latency_s.is_finite() {
+        latency_s.max(0.0)
+    } else {
+        0.0
+    };
     if baud == 0 {
-        return 0.001;
+        return 0.001 + latency_s;
     }
     let wire_s = reply_bytes as f64 * 10.0 / f64::from(baud);
-    (wire_s * 1000.0).ceil() / 1000.0
+    // The sum rounded, less a hair that keeps a whole millisecond from rounding up once more.
+    ((wire_s + latency_s) * 1000.0 - 1e-9).ceil() / 1000.0
 }
 
 /// The driver's time around each leg of one axis (module doc).
@@ -95,11 +108,11 @@ impl LegTiming {
         }
     }
 
-    /// The leg timing of an axis driven over `protocol` at `baud`.
-    pub fn for_protocol(protocol: Protocol, baud: u32) -> LegTiming {
+    /// The leg timing of an axis driven over `protocol` at `baud`, its controller taking `latency_s` to answer.
+    pub fn for_protocol(protocol: Protocol, baud: u32, latency_s: f64) -> LegTiming {
         match protocol {
             Protocol::Smc100 => {
-                let e = exchange_s(SMC100_REPLY_BYTES, baud);
+                let e = exchange_after_s(SMC100_REPLY_BYTES, baud, latency_s);
                 LegTiming {
                     command_s: 2.0 * e,
                     seen_after_s: ARRIVAL_MARGIN_S + 3.0 * e,
@@ -115,7 +128,7 @@ impl LegTiming {
                 }
             }
             Protocol::ZaberAscii => {
-                let e = exchange_s(ZABER_REPLY_BYTES, baud);
+                let e = exchange_after_s(ZABER_REPLY_BYTES, baud, latency_s);
                 LegTiming {
                     command_s: e,
                     seen_after_s: ARRIVAL_MARGIN_S + 2.0 * e,
@@ -141,9 +154,11 @@ impl LegTiming {
             .get(axis_index)
             .and_then(|a| instrument.devices.iter().find(|d| d.name == a.device));
         match device {
-            Some(d) => {
-                LegTiming::for_protocol(d.protocol, d.baud.unwrap_or_else(|| d.protocol.default_baud()))
-            }
+            Some(d) => LegTiming::for_protocol(
+                d.protocol,
+                d.baud.unwrap_or_else(|| d.protocol.default_baud()),
+                d.reply_latency_ms.unwrap_or(0.0) / 1000.0,
+            ),
             None => LegTiming::generic(),
         }
     }
@@ -160,16 +175,31 @@ mod tests {
         assert!((exchange_s(31, 115_200) - 0.003).abs() < 1e-12);
         // A slower line costs more: 11 bytes at 9600 baud, 11.5 ms.
         assert!((exchange_s(11, 9_600) - 0.012).abs() < 1e-12);
+        // A controller taking 10 ms to answer: 11.91 ms, seen at 12 ms; a whole 10 ms on a 2 ms reply, 12 ms.
+        assert!((exchange_after_s(11, 57_600, 0.010) - 0.012).abs() < 1e-12);
+        assert!((exchange_after_s(20, 10_000, 0.010) - 0.030).abs() < 1e-12);
+        assert_eq!(exchange_after_s(11, 57_600, f64::NAN), exchange_s(11, 57_600));
+    }
+
+    #[test]
+    fn a_controller_that_takes_its_time_to_answer_makes_every_exchange_of_a_leg_longer() {
+        let quick = LegTiming::for_protocol(Protocol::Smc100, 57_600, 0.0);
+        let slow = LegTiming::for_protocol(Protocol::Smc100, 57_600, 0.010);
+        // A 1 s move: two reads before, three exchanges after, each 10 ms longer.
+        assert!((slow.leg_s(1.0) - quick.leg_s(1.0) - 0.050).abs() < 1e-12);
+        let quick = LegTiming::for_protocol(Protocol::ZaberAscii, 115_200, 0.0);
+        let slow = LegTiming::for_protocol(Protocol::ZaberAscii, 115_200, 0.010);
+        assert!((slow.leg_s(1.0) - quick.leg_s(1.0) - 0.030).abs() < 1e-12);
     }
 
     #[test]
     fn a_short_smc100_leg_costs_the_pause_after_its_move_command_a_long_one_its_motion() {
-        let smc = LegTiming::for_protocol(Protocol::Smc100, 57_600);
+        let smc = LegTiming::for_protocol(Protocol::Smc100, 57_600, 0.0);
         // A 32 ms backlash overshoot: two reads, then the pause and five exchanges after the PA.
         assert!((smc.leg_s(0.032) - (0.004 + 0.065 + 0.010)).abs() < 1e-12);
         // A 1 s move: two reads, the motion, then TS TP TP just after its end.
         assert!((smc.leg_s(1.0) - (0.004 + 1.0 + 0.001 + 0.006)).abs() < 1e-12);
-        let zaber = LegTiming::for_protocol(Protocol::ZaberAscii, 115_200);
+        let zaber = LegTiming::for_protocol(Protocol::ZaberAscii, 115_200, 0.0);
         assert!((zaber.leg_s(1.0) - (0.003 + 1.0 + 0.001 + 0.006)).abs() < 1e-12);
         // A 2 ms move is over by the first get pos, 3 ms in: seen at its reply.
         assert!((zaber.leg_s(0.002) - 0.009).abs() < 1e-12);
