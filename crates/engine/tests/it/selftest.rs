@@ -116,11 +116,13 @@ async fn the_ideal_instrument_measures_as_its_file_says() {
         r.checks.iter().filter(|c| c.key.ends_with(".noise_w")).count(),
         ranges
     );
-    // No vibration on the ideal instrument: settled by the first fast reading after the stop, well within the
-    // claim; its backlash is the file's.
+    // No vibration on the ideal instrument: settled by the first fast readings after the stop, well within the
+    // claim (the stop is seen by a position query some milliseconds late, as polled, and the readings come every
+    // few milliseconds: where those fall moves the figure by about 10 ms as the test's earlier steps change);
+    // its backlash is the file's.
     for a in file.instrument.axes.iter().filter(|a| a.name != "rotation") {
         let settle = measured(&r, &format!("axes.{}.settle_s", a.name));
-        assert!(settle < 0.2 * a.settle_s, "{}: {settle} s", a.name);
+        assert!(settle < 0.3 * a.settle_s, "{}: {settle} s", a.name);
         let backlash = measured(&r, &format!("axes.{}.backlash_deg", a.name));
         assert!(
             (backlash - a.backlash_deg).abs() < 0.000_25,
