@@ -434,3 +434,40 @@ fn plan_and_run_an_adaptive_campaign_whose_first_pass_sweeps() {
         sweeps.lines().count() - 1
     );
 }
+
+/// On real hardware whose file does not say how long its motion controllers take to answer, `gonio plan` says
+/// that the prediction counts none; on the simulator, or once the file says it, nothing.
+#[test]
+fn plan_says_when_the_file_does_not_give_the_controllers_reply_latency() {
+    let root = repo_root();
+    let demo = root.join("config/campaigns/demo.toml");
+    let simulated = std::fs::read_to_string(root.join("config/instruments/simulated.toml")).expect("read");
+    let dir = tempfile::tempdir().expect("temp dir");
+    let plan_on = |text: &str| {
+        let path = dir.path().join("lab.toml");
+        std::fs::write(&path, text).expect("write");
+        let out = gonio()
+            .arg("plan")
+            .arg(&demo)
+            .arg("--instrument")
+            .arg(&path)
+            .output()
+            .expect("run gonio");
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    assert!(!plan_on(&simulated).contains("reply_latency_ms"));
+    // The arms on a real port (gonio plan opens no port).
+    let real = simulated.replace(
+        "name = \"arms\"\nprotocol = \"smc100\"\nport = \"sim\"\n",
+        "name = \"arms\"\nprotocol = \"smc100\"\nport = \"/dev/ttyUSB0\"\n",
+    );
+    assert_ne!(real, simulated);
+    let printed = plan_on(&real);
+    assert!(
+        printed.contains("does not say how long arms take to answer a query (reply_latency_ms)"),
+        "{printed}"
+    );
+    let said = real.replace("name = \"arms\"\n", "name = \"arms\"\nreply_latency_ms = 10.0\n");
+    assert!(!plan_on(&said).contains("does not say"));
+}

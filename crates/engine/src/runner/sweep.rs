@@ -17,8 +17,10 @@
 //! reading integrates from its request for `averaging x 3 ms`; the time it is stamped with is the middle of that
 //! window, the angle it is attributed to the profile's mean position over it (`Profile::mean_over`: in the
 //! ramps the arm spends longer at the slower end of the arc). What remains uncertain is when within its exchange
-//! the controller took a report (the window between the request's arrival and the reply's start, at most a few
-//! milliseconds: `speed x window` of arc) and the spread of the reports' lags, both recorded in the log.
+//! the controller took a report (the window between the request's arrival and the reply's start: the
+//! controller's execution, about 10 ms for an SMC100 position query, none for the simulator's; `speed x window`
+//! of arc), which each segment records as its timing uncertainty ([`timing_u_s`]), and the spread of the
+//! reports' lags, in the log.
 //!
 //! What a segment (one sweep of one arc in one band) stores is committed in one transaction with all its
 //! readings (crate::store::sweeps): a sweep interrupted (pause, crash) is swept again whole on resume, and no
