@@ -31,10 +31,11 @@
 
 mod legs;
 mod profile;
+mod trapezoid;
 
 pub use legs::{ARRIVAL_MARGIN_S, LegTiming, SMC100_SET_GAP_S, exchange_s};
-use profile::Segment;
 pub use profile::{AxisModel, WheelModel, trapezoid_time_s};
+pub use trapezoid::Trapezoid;
 
 use gonio_instrument::{AxisRole, Instrument};
 
@@ -249,7 +250,7 @@ impl TimeModel {
     /// The motions of one phase moving `roles` from `from` to `to`, starting at time 0 of the phase. Each axis's
     /// duration is as the daemon drives it ([`AxisModel::driven_time_s`]), after the opening exchanges of the axes
     /// before it on the same controller chain (the engine starts a phase's axes in [`ROLES`] order).
-    fn phase(&self, from: &Pose, to: &Pose, roles: &[AxisRole]) -> Vec<(AxisMotion, Vec<Segment>)> {
+    fn phase(&self, from: &Pose, to: &Pose, roles: &[AxisRole]) -> Vec<(AxisMotion, Vec<Trapezoid>)> {
         let mut moving = Vec::new();
         for m in self.axes.iter().flatten() {
             if !roles.contains(&m.role) {
@@ -286,8 +287,8 @@ impl TimeModel {
     }
 
     /// True when the arms keep `min_arm_separation_deg` throughout a phase.
-    fn phase_is_safe(&self, from: &Pose, motions: &[(AxisMotion, Vec<Segment>)]) -> bool {
-        let path = |role: AxisRole| -> (f64, Vec<Segment>) {
+    fn phase_is_safe(&self, from: &Pose, motions: &[(AxisMotion, Vec<Trapezoid>)]) -> bool {
+        let path = |role: AxisRole| -> (f64, Vec<Trapezoid>) {
             let start = from.get(role);
             let segs = motions
                 .iter()
@@ -306,7 +307,7 @@ impl TimeModel {
                 0.0
             };
         // Fast sufficient test: the whole ranges swept by the two arms stay apart.
-        let range = |p0: f64, segs: &[Segment]| {
+        let range = |p0: f64, segs: &[Trapezoid]| {
             segs.iter().fold((p0, p0), |(lo, hi), s| {
                 (lo.min(s.to_deg).min(s.from_deg), hi.max(s.to_deg).max(s.from_deg))
             })
@@ -325,7 +326,7 @@ impl TimeModel {
         }
         breaks.sort_by(f64::total_cmp);
         breaks.dedup();
-        let pos = |p0: f64, segs: &[Segment], t: f64| -> f64 {
+        let pos = |p0: f64, segs: &[Trapezoid], t: f64| -> f64 {
             let mut p = p0;
             for s in segs {
                 if t >= s.t0_s {
@@ -364,7 +365,7 @@ impl TimeModel {
         true
     }
 
-    fn assemble(&self, from: &Pose, phases: Vec<Vec<(AxisMotion, Vec<Segment>)>>) -> Move {
+    fn assemble(&self, from: &Pose, phases: Vec<Vec<(AxisMotion, Vec<Trapezoid>)>>) -> Move {
         let mut start = 0.0;
         let mut settled: f64 = 0.0;
         let mut out = Vec::new();

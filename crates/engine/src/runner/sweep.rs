@@ -15,7 +15,7 @@
 //! its request's arrival and its reply's start on the line: `timing::position_sampled_at`); a sweep with no
 //! report on its cruise takes the axis's lag from its last sweep that had one. A
 //! reading integrates from its request for `averaging x 3 ms`; the time it is stamped with is the middle of that
-//! window, the angle it is attributed to the profile's mean position over it (`Profile::mean_over`: in the
+//! window, the angle it is attributed to the profile's mean position over it (`Trapezoid::mean_over`: in the
 //! ramps the arm spends longer at the slower end of the arc). What remains uncertain is when within its exchange
 //! the controller took a report (the window between the request's arrival and the reply's start: the
 //! controller's execution, about 10 ms for an SMC100 position query, none for the simulator's; `speed x window`
@@ -43,7 +43,8 @@ use crate::store::SweepSegmentRecord;
 use gonio_results::sweeps::SweepReading;
 
 mod timing;
-use timing::{Profile, position_sampled_at};
+use gonio_scheduler::timing::Trapezoid;
+use timing::position_sampled_at;
 
 /// A position report every this many readings during a sweep (more often in short sweeps: [`report_every`]).
 pub const POSITION_EVERY: usize = 8;
@@ -203,7 +204,7 @@ impl Run<'_> {
             }));
         };
         let (from_deg, to_deg) = (start.get(role), end.get(role));
-        let profile_of = |t0_s| Profile {
+        let profile_of = |t0_s| Trapezoid {
             t0_s,
             from_deg,
             to_deg,
@@ -351,8 +352,8 @@ impl Run<'_> {
             .map(|(k, r)| {
                 let (ta, tb) = (r.requested_s, r.requested_s + integration_s);
                 let (a, b) = (
-                    signed(profile.at(ta - lag) + load_offset),
-                    signed(profile.at(tb - lag) + load_offset),
+                    signed(profile.position(ta - lag) + load_offset),
+                    signed(profile.position(tb - lag) + load_offset),
                 );
                 let mid = signed(profile.mean_over(ta - lag, tb - lag) + load_offset);
                 self.sweep_reading(

@@ -4,6 +4,7 @@
 use gonio_instrument::AxisRole;
 
 use super::legs::LegTiming;
+use super::trapezoid::Trapezoid;
 use super::{BACKLASH_OVERSHOOT, EXCHANGE_S, STILL_DEG, WHEEL_EXCHANGES};
 
 /// Duration of a trapezoidal profile over `distance` (any sign; its magnitude is used).
@@ -17,50 +18,6 @@ pub fn trapezoid_time_s(distance_deg: f64, max_speed_deg_s: f64, accel_deg_s2: f
         d / v + v / a
     } else {
         2.0 * (d / a).sqrt()
-    }
-}
-
-/// One straight segment of an axis's motion, in physical degrees (sign of the axis direction applied).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct Segment {
-    pub(super) t0_s: f64,
-    pub(super) from_deg: f64,
-    pub(super) to_deg: f64,
-    pub(super) v: f64,
-    pub(super) a: f64,
-}
-
-impl Segment {
-    pub(super) fn duration_s(&self) -> f64 {
-        trapezoid_time_s(self.to_deg - self.from_deg, self.v, self.a)
-    }
-
-    /// Time spent accelerating (and, by symmetry, decelerating).
-    pub(super) fn ramp_s(&self) -> f64 {
-        let d = (self.to_deg - self.from_deg).abs();
-        if d >= self.v * self.v / self.a {
-            self.v / self.a
-        } else {
-            (d / self.a).sqrt()
-        }
-    }
-
-    pub(super) fn position(&self, t_s: f64) -> f64 {
-        let d = (self.to_deg - self.from_deg).abs();
-        let sign = (self.to_deg - self.from_deg).signum();
-        let total = self.duration_s();
-        let ramp = self.ramp_s();
-        let t = (t_s - self.t0_s).clamp(0.0, total);
-        let top = self.a * ramp;
-        let s = if t <= ramp {
-            0.5 * self.a * t * t
-        } else if t <= total - ramp {
-            0.5 * self.a * ramp * ramp + top * (t - ramp)
-        } else {
-            let r = total - t;
-            d - 0.5 * self.a * r * r
-        };
-        self.from_deg + sign * s.min(d)
     }
 }
 
@@ -104,11 +61,11 @@ impl AxisModel {
     }
 
     /// Physical-angle segments for a move starting at `t0_s`.
-    pub(super) fn segments(&self, from_ctrl_deg: f64, waypoints: &[f64], t0_s: f64) -> Vec<Segment> {
+    pub(super) fn segments(&self, from_ctrl_deg: f64, waypoints: &[f64], t0_s: f64) -> Vec<Trapezoid> {
         let mut out = Vec::with_capacity(waypoints.len());
         let (mut t, mut at) = (t0_s, from_ctrl_deg);
         for w in waypoints {
-            let seg = Segment {
+            let seg = Trapezoid {
                 t0_s: t,
                 from_deg: self.physical_deg(at),
                 to_deg: self.physical_deg(*w),
