@@ -34,8 +34,8 @@ mod profile;
 mod trapezoid;
 
 pub use legs::{ARRIVAL_MARGIN_S, LegTiming, SMC100_SET_GAP_S, exchange_s};
-pub use profile::{AxisModel, WheelModel, trapezoid_time_s};
-pub use trapezoid::Trapezoid;
+pub use profile::{AxisModel, WheelModel};
+pub use trapezoid::{Trapezoid, trapezoid_time_s};
 
 use gonio_instrument::{AxisRole, Instrument};
 

@@ -1,25 +1,11 @@
-//! The single-device models: the trapezoidal profile of one axis (duration, and position over time for the arm
-//! separation check), an axis's dynamics and backlash approach, and the filter wheel.
+//! The single-device models: an axis's dynamics and backlash approach (its legs as trapezoids, `trapezoid`), and
+//! the filter wheel.
 
 use gonio_instrument::AxisRole;
 
 use super::legs::LegTiming;
-use super::trapezoid::Trapezoid;
+use super::trapezoid::{Trapezoid, trapezoid_time_s};
 use super::{BACKLASH_OVERSHOOT, EXCHANGE_S, STILL_DEG, WHEEL_EXCHANGES};
-
-/// Duration of a trapezoidal profile over `distance` (any sign; its magnitude is used).
-pub fn trapezoid_time_s(distance_deg: f64, max_speed_deg_s: f64, accel_deg_s2: f64) -> f64 {
-    let d = distance_deg.abs();
-    if d <= 0.0 {
-        return 0.0;
-    }
-    let (v, a) = (max_speed_deg_s, accel_deg_s2);
-    if d >= v * v / a {
-        d / v + v / a
-    } else {
-        2.0 * (d / a).sqrt()
-    }
-}
 
 /// The dynamics of one axis.
 #[derive(Debug, Clone, PartialEq)]

@@ -1,7 +1,19 @@
 //! The trapezoidal profile of one axis over one straight leg: where it is at any time, for the arm separation
 //! check of a move and for placing a sweep's readings along the arc the arm covered.
 
-use super::profile::trapezoid_time_s;
+/// Duration of a trapezoidal profile over `distance` (any sign; its magnitude is used).
+pub fn trapezoid_time_s(distance_deg: f64, max_speed_deg_s: f64, accel_deg_s2: f64) -> f64 {
+    let d = distance_deg.abs();
+    if d <= 0.0 {
+        return 0.0;
+    }
+    let (v, a) = (max_speed_deg_s, accel_deg_s2);
+    if d >= v * v / a {
+        d / v + v / a
+    } else {
+        2.0 * (d / a).sqrt()
+    }
+}
 
 /// Intervals of the midpoint rule for a mean position ([`Trapezoid::mean_over`]): a trapezoid's position is
 /// piecewise quadratic, so the rule is within a ramp's arc / (12 x 64^2) of exact.
