@@ -226,8 +226,7 @@ impl SimInstrument {
             .file
             .instrument
             .device(device)
-            .and_then(|d| d.baud)
-            .unwrap_or_else(|| protocol.default_baud());
+            .map_or_else(|| protocol.default_baud(), gonio_instrument::Device::line_baud);
         // The hardware's own time to answer: the file's, or `[simulator.actual.devices]`'s.
         let latency_ms = self
             .inner

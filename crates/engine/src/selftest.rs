@@ -354,7 +354,7 @@ async fn measure_latency(motion: &Motion<'_>, tolerance: f64) -> Result<Vec<Chec
         let Some(device) = rig.file().instrument.device(&a.config.device) else {
             continue;
         };
-        let baud = device.baud.unwrap_or_else(|| device.protocol.default_baud());
+        let baud = device.line_baud();
         let mut beyond_ms = Vec::new();
         for _ in 0..LATENCY_QUERIES {
             let t = clock.now_s();

@@ -162,6 +162,11 @@ pub struct Device {
 pub const SIM_PTY_PORT: &str = "sim-pty";
 
 impl Device {
+    /// The line's baud rate: the file's, else the protocol's factory setting (0 for a USB device).
+    pub fn line_baud(&self) -> u32 {
+        self.baud.unwrap_or_else(|| self.protocol.default_baud())
+    }
+
     /// True when this device is the embedded simulator rather than a real port or USB device.
     pub fn is_simulated(&self) -> bool {
         match &self.port {

@@ -67,7 +67,7 @@ impl SerialSettings {
         }
         Some(SerialSettings {
             path: path.to_string(),
-            baud: device.baud.unwrap_or_else(|| device.protocol.default_baud()),
+            baud: device.line_baud(),
             xon_xoff: device.protocol == gonio_instrument::Protocol::Smc100,
         })
     }

@@ -109,9 +109,7 @@ impl Run<'_> {
             .devices
             .iter()
             .find(|d| d.name == axis.device)
-            .map_or(0.0, |d| {
-                f64::from(d.baud.unwrap_or_else(|| d.protocol.default_baud())) / 10.0
-            })
+            .map_or(0.0, |d| f64::from(d.line_baud()) / 10.0)
     }
 
     /// The sweeps from the first segment not committed. `calibrated`: darks and normalisation readings were

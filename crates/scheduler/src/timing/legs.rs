@@ -156,7 +156,7 @@ impl LegTiming {
         match device {
             Some(d) => LegTiming::for_protocol(
                 d.protocol,
-                d.baud.unwrap_or_else(|| d.protocol.default_baud()),
+                d.line_baud(),
                 d.reply_latency_ms.unwrap_or(0.0) / 1000.0,
             ),
             None => LegTiming::generic(),
