@@ -13,6 +13,8 @@
 //!   (`plan_move`, [`gonio_scheduler::separation`]) executed phase by phase, legs commanded one by one, the
 //!   phase stopped as a whole when one of its axes fails, the emergency stop winning over everything;
 //! - `homing`: homing an arm without sweeping it through the other, at start-up and after a fault.
+//! - `sweep`: one axis swept at a set speed while the meter reads back to back, its position reports dated
+//!   (a campaign's sweeps and the self-test's timing of them).
 //!
 //! Errors are [`MotionError`]: what a caller decides on (stop, a device's reason, something a person must do,
 //! a move no plan allows). Faults that were retried are reported to the fault sink given at construction (the
@@ -21,6 +23,7 @@
 mod homing;
 mod moves;
 mod supervise;
+pub(crate) mod sweep;
 
 use std::sync::Arc;
 

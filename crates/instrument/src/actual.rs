@@ -324,18 +324,15 @@ mod tests {
             assert!(e.contains(says), "{extra}: {e}");
         }
         // The file's own claim is checked as the devices' other keys are.
-        for bad in ["-1.0", "nan", "1000.0"] {
-            let text = crate::SIMULATED_INSTRUMENT_TOML.replace(
-                "name = \"arms\"\n",
-                &format!("name = \"arms\"\nreply_latency_ms = {bad}\n"),
-            );
-            let e = InstrumentFile::parse(&text, "test.toml")
-                .expect_err(bad)
-                .to_string();
-            assert!(
-                e.contains("reply_latency_ms") && e.contains("\"arms\""),
-                "{bad}: {e}"
-            );
+        for key in ["reply_latency_ms", "position_sampled_ms"] {
+            for bad in ["-1.0", "nan", "1000.0"] {
+                let text = crate::SIMULATED_INSTRUMENT_TOML
+                    .replace("name = \"arms\"\n", &format!("name = \"arms\"\n{key} = {bad}\n"));
+                let e = InstrumentFile::parse(&text, "test.toml")
+                    .expect_err(bad)
+                    .to_string();
+                assert!(e.contains(key) && e.contains("\"arms\""), "{bad}: {e}");
+            }
         }
     }
 }

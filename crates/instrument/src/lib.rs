@@ -156,6 +156,13 @@ pub struct Device {
     /// that takes it).
     #[serde(default)]
     pub reply_latency_ms: Option<f64>,
+    /// When a motion controller takes the position it reports, after the query has crossed the line (ms; 0:
+    /// as the query arrives, up to its reply latency: as it answers). A sweep dates its position reports by it
+    /// to place its readings where the arm was; absent, it dates them in the middle of that window and counts
+    /// the window in their timing uncertainty. `gonio selftest` measures it (the direct beam's edge swept both
+    /// ways at two speeds) and `--write` records it.
+    #[serde(default)]
+    pub position_sampled_ms: Option<f64>,
 }
 
 /// The `port` value for a simulated device served on a pseudo-terminal (see [`Device::port`]).

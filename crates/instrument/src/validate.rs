@@ -32,6 +32,14 @@ impl Instrument {
                     d.name
                 ));
             }
+            if let Some(ms) = d.position_sampled_ms
+                && !(ms.is_finite() && (0.0..=MAX_REPLY_LATENCY_MS).contains(&ms))
+            {
+                return Err(format!(
+                    "[[instrument.devices]] {:?}: position_sampled_ms = {ms} is not between 0 and {MAX_REPLY_LATENCY_MS} ms",
+                    d.name
+                ));
+            }
         }
         let mut roles = BTreeSet::new();
         let mut axis_names = BTreeSet::new();

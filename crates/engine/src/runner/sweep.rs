@@ -4,23 +4,25 @@
 //! measurement equation as a point.
 //!
 //! Per sweep: move to the arc's start (a planned, collision-safe move, as for a point), turn the wheel to the
-//! band, set the swept axis's speed (`set_speed`, the instrument file's acceleration), command the move to the
-//! arc's end and read until the axis has arrived; then the axis's speed is set back to its `max_speed_deg_s`.
+//! band, then the pass (crate::motion::sweep): the swept axis's speed set (`set_speed`, the instrument file's
+//! acceleration), the move to the arc's end commanded and the meter read until the axis has arrived, the axis's
+//! speed set back to its `max_speed_deg_s`.
 //! The meter is configured for the sweep's averaging for the sweep and for the campaign's again after it.
 //!
 //! Where a reading was: the commanded trapezoidal profile (start at the move command's reply, the set speed,
 //! the axis's acceleration), shifted in time by the median lag of the controller's position reports taken while
 //! the arm cruises (one after every [`POSITION_EVERY`] readings, more often in a short sweep, concurrently with
 //! the next: the controller's line and the meter's are separate; a single position query each, dated between
-//! its request's arrival and its reply's start on the line: `timing::position_sampled_at`); a sweep with no
+//! its request's arrival and its reply's start on the line, where the instrument file's `position_sampled_ms`
+//! says or else in the window's middle: `crate::motion::sweep::ReportDating`); a sweep with no
 //! report on its cruise takes the axis's lag from its last sweep that had one. A
 //! reading integrates from its request for `averaging x 3 ms`; the time it is stamped with is the middle of that
 //! window, the angle it is attributed to the profile's mean position over it (`Trapezoid::mean_over`: in the
 //! ramps the arm spends longer at the slower end of the arc). What remains uncertain is when within its exchange
-//! the controller took a report (the window between the request's arrival and the reply's start: the
-//! controller's execution, about 10 ms for an SMC100 position query, none for the simulator's; `speed x window`
-//! of arc), which each segment records as its timing uncertainty ([`timing_u_s`]), and the spread of the
-//! reports' lags, in the log.
+//! the controller took a report when the file does not say (the window between the request's arrival and the
+//! reply's start: the controller's execution, about 10 ms for an SMC100 position query, none for the
+//! simulator's; `speed x window` of arc), which each segment records as its timing uncertainty
+//! ([`timing_u_s`]), and the spread of the reports' lags, in the log.
 //!
 //! What a segment (one sweep of one arc in one band) stores is committed in one transaction with all its
 //! readings (crate::store::sweeps): a sweep interrupted (pause, crash) is swept again whole on resume, and no
@@ -42,9 +44,8 @@ use crate::budget;
 use crate::store::SweepSegmentRecord;
 use gonio_results::sweeps::SweepReading;
 
-mod timing;
+use crate::motion::sweep::sweep_axis;
 use gonio_scheduler::timing::Trapezoid;
-use timing::position_sampled_at;
 
 /// A position report every this many readings during a sweep (more often in short sweeps: [`report_every`]).
 pub const POSITION_EVERY: usize = 8;
@@ -66,7 +67,7 @@ fn report_every(cruise_s: f64, period_s: f64) -> usize {
 
 /// How well the time of a sweep's readings is known for placing them along the arc (s, standard uncertainty):
 /// the meter's exchange ([`budget::TIMING_U_S`]) and where the controller took its position reports
-/// within their widest dating window (`timing::position_sampled_at`), anywhere alike: `window / sqrt(12)`. The
+/// within their widest dating window (`crate::motion::sweep::ReportDating`; none when the file says), anywhere alike: `window / sqrt(12)`. The
 /// lag taken from the reports carries that uncertainty to every reading of the sweep.
 fn timing_u_s(widest_window_s: f64) -> f64 {
     let window = if widest_window_s.is_finite() {
@@ -77,14 +78,21 @@ fn timing_u_s(widest_window_s: f64) -> f64 {
     budget::TIMING_U_S.hypot(window / 12f64.sqrt())
 }
 
-/// The sweep's motion may take this much longer than its profile (and 5 s) before the run gives up on it.
-const OVERRUN: f64 = 1.5;
+/// The meter as a campaign's sweep reads it: the readings of the measurement equation (failures as messages).
+struct SweepMeter<'m, 'r> {
+    motion: &'m crate::motion::Motion<'r>,
+    band_nm: f64,
+    acquisition: &'m gonio_campaign::Acquisition,
+    configured_nm: &'m mut Option<f64>,
+}
 
-/// One reading as taken, before attribution.
-struct Taken {
-    /// Clock times (s) of the request and of the reply.
-    requested_s: f64,
-    reading: Result<acquisition::MeterReading, String>,
+impl crate::motion::sweep::Reader for SweepMeter<'_, '_> {
+    type Reading = Result<acquisition::MeterReading, String>;
+    async fn read(&mut self) -> Self::Reading {
+        acquisition::read(self.motion, self.band_nm, self.acquisition, self.configured_nm)
+            .await
+            .map_err(|e| e.to_string())
+    }
 }
 
 /// Where the swept arm's load is against its motor (physical degrees) during a sweep of `span_deg`: points are
@@ -101,17 +109,6 @@ fn load_offset_deg(axis: &gonio_instrument::Axis, span_deg: f64) -> f64 {
 }
 
 impl Run<'_> {
-    /// Bytes a second on the line of `axis`'s controller (8N1: ten bits a byte), from the instrument file's baud
-    /// rate or its protocol's default; 0 when the axis names no device the file has.
-    fn line_bytes_per_s(&self, axis: &gonio_instrument::Axis) -> f64 {
-        self.file
-            .instrument
-            .devices
-            .iter()
-            .find(|d| d.name == axis.device)
-            .map_or(0.0, |d| f64::from(d.line_baud()) / 10.0)
-    }
-
     /// The sweeps from the first segment not committed. `calibrated`: darks and normalisation readings were
     /// taken in this session (the points ran before); else they are taken first.
     pub(super) async fn run_sweeps(&mut self, calibrated: bool) -> Result<(), Interrupt> {
@@ -202,136 +199,54 @@ impl Run<'_> {
             }));
         };
         let (from_deg, to_deg) = (start.get(role), end.get(role));
-        let profile_of = |t0_s| Trapezoid {
-            t0_s,
-            from_deg,
-            to_deg,
-            v: arc.request.speed_deg_s,
-            a: axis.config.accel_deg_s2,
-        };
         let mut acquisition = self.c.campaign.acquisition;
         acquisition.averaging = arc.request.averaging;
         self.configured_nm = None;
         // The meter set up for the sweep's readings before the arm starts: none of the arc passes meanwhile.
         acquisition::configure(&self.motion, band_nm, &acquisition, &mut self.configured_nm).await?;
-        let what = format!(
-            "set {} to {} deg/s for a sweep",
-            axis.config.name, arc.request.speed_deg_s
-        );
-        self.motion
-            .device(Device::Axis(axis), &what, || {
-                axis.driver
-                    .set_speed(arc.request.speed_deg_s, axis.config.accel_deg_s2)
-            })
-            .await?;
         let started = self.t();
-        let what = format!("start the sweep of {} to {to_deg:.4} deg", axis.config.name);
-        // The arm starts when the controller has the command, which is sent at once; the driver may hold its
-        // reply back (the SMC100's pause after a command that sets something). The profile starts when the
-        // command goes out, so that the loop below ends with the motion, not that pause later. The readings
-        // start after the reply: a reading whose window spans the command would be placed by the profile while
-        // the simulated meter (simulator/src/pm100/physics.rs) fixes a window's poses when it is asked, before
-        // the motion it does not know of yet.
-        let clock = self.motion.clock();
-        let profile = profile_of(clock.now_s());
-        self.motion
-            .device(Device::Axis(axis), &what, || axis.driver.start_move(to_deg))
-            .await?;
-        let deadline = profile.t0_s + OVERRUN * profile.duration_s() + 5.0;
-        tracing::info!(campaign = %self.id, segment, axis = %axis.config.name, from_deg, to_deg,
-            speed_deg_s = arc.request.speed_deg_s, "sweep started");
-
+        let (speed, accel) = (arc.request.speed_deg_s, axis.config.accel_deg_s2);
+        let planned = Trapezoid {
+            t0_s: 0.0,
+            from_deg,
+            to_deg,
+            v: speed,
+            a: accel,
+        };
         let every = report_every(
-            profile.duration_s() - 2.0 * profile.ramp_s(),
+            planned.duration_s() - 2.0 * planned.ramp_s(),
             gonio_scheduler::sweep::sweep_reading_period_s(arc.request.averaging),
         );
-        let mut taken: Vec<Taken> = Vec::new();
-        let mut reports: Vec<(f64, f64)> = Vec::new();
-        let line_bytes_per_s = self.line_bytes_per_s(&axis.config);
-        let mut widest_window_s = 0.0_f64;
-        loop {
-            if self.control.estop_requested() {
-                return Err(Interrupt::Estop);
-            }
-            let requested_s = clock.now_s();
-            let ask_position = taken.len() % every == every - 1;
-            let read = acquisition::read(&self.motion, band_nm, &acquisition, &mut self.configured_nm);
-            let (reading, position) = if ask_position {
-                // Each report is dated by its own exchange (`position_sampled_at`), not when the reading beside
-                // it ends: dated late, it would put every reading behind the arm (a bias that changes sign with
-                // the sweep's direction).
-                let report = async {
-                    let t0 = clock.now_s();
-                    let p = axis.driver.position_report().await;
-                    p.ok().map(|r| {
-                        let (t, window) = position_sampled_at(t0, clock.now_s(), &r, line_bytes_per_s);
-                        widest_window_s = widest_window_s.max(window);
-                        (t, r.position_deg)
-                    })
-                };
-                tokio::join!(read, report)
-            } else {
-                (read.await, None)
-            };
-            if let Some(report) = position {
-                reports.push(report);
-            }
-            taken.push(Taken {
-                requested_s,
-                reading: reading.map_err(|e| e.to_string()),
-            });
-            let now = clock.now_s();
-            if now >= profile.t0_s + profile.duration_s() {
-                let status = axis.driver.status().await;
-                if status.as_ref().is_ok_and(|s| !s.moving) {
-                    break;
-                }
-            }
-            if now > deadline {
-                let _ = axis.driver.stop().await;
-                return Err(Interrupt::Pause(format!(
-                    "the sweep of {} did not end within {:.1} s of its predicted {:.1} s",
-                    axis.config.name,
-                    now - profile.t0_s,
-                    profile.duration_s()
-                )));
-            }
-        }
-        let what = format!("end the sweep of {} at {to_deg:.4} deg", axis.config.name);
-        self.motion
-            .device(Device::Axis(axis), &what, || axis.driver.wait_arrived(to_deg))
-            .await?;
-        let what = format!("restore the speed of {}", axis.config.name);
-        self.motion
-            .device(Device::Axis(axis), &what, || {
-                axis.driver
-                    .set_speed(axis.config.max_speed_deg_s, axis.config.accel_deg_s2)
-            })
-            .await?;
+        tracing::info!(campaign = %self.id, segment, axis = %axis.config.name, from_deg, to_deg,
+            speed_deg_s = speed, "sweep started");
+        let mut meter = SweepMeter {
+            motion: &self.motion,
+            band_nm,
+            acquisition: &acquisition,
+            configured_nm: &mut self.configured_nm,
+        };
+        let pass = sweep_axis(&self.motion, axis, (from_deg, to_deg), speed, every, &mut meter).await?;
         self.configured_nm = None;
         self.motion.read_positions().await?;
         let ended = self.t();
+        let clock = self.motion.clock();
+        let profile = pass.profile;
 
-        // The lag of the arm behind its commanded profile, from the reports taken while it cruised.
-        let mut lags: Vec<f64> = reports
-            .iter()
-            .filter_map(|(t, x)| profile.cruise_time_of(*x).map(|tp| t - tp))
-            .collect();
-        lags.sort_by(f64::total_cmp);
-        // None measured (a sweep too short to cruise past a report): the axis's lag from its last sweep.
-        let lag = match lags.get(lags.len() / 2) {
-            Some(lag) => {
-                self.sweep_lags.insert(axis.config.name.clone(), *lag);
-                *lag
+        // The lag of the arm behind its commanded profile, from the reports taken while it cruised; none
+        // measured (a sweep too short to cruise past a report): the axis's lag from its last sweep.
+        let (lag, spread) = match pass.lag_s() {
+            Some((lag, spread)) => {
+                self.sweep_lags.insert(axis.config.name.clone(), lag);
+                (lag, spread)
             }
-            None => self.sweep_lags.get(&axis.config.name).copied().unwrap_or(0.0),
+            None => (
+                self.sweep_lags.get(&axis.config.name).copied().unwrap_or(0.0),
+                0.0,
+            ),
         };
-        let spread = match (lags.first(), lags.last()) {
-            (Some(a), Some(b)) => b - a,
-            _ => 0.0,
-        };
-        tracing::info!(campaign = %self.id, segment, readings = taken.len(), reports = reports.len(), lag_s = lag,
-            lag_spread_s = spread, report_window_s = widest_window_s, "sweep ended");
+        let widest_window_s = pass.widest_window_s;
+        tracing::info!(campaign = %self.id, segment, readings = pass.taken.len(), reports = pass.reports.len(),
+            lag_s = lag, lag_spread_s = spread, report_window_s = widest_window_s, "sweep ended");
 
         let integration_s = f64::from(arc.request.averaging) * DETECTOR_SAMPLE_S;
         let span = to_deg - from_deg;
@@ -344,11 +259,12 @@ impl Run<'_> {
             }
         };
         let t_offset = self.t() - clock.now_s();
-        let readings: Vec<SweepReading> = taken
+        let readings: Vec<SweepReading> = pass
+            .taken
             .iter()
             .enumerate()
-            .map(|(k, r)| {
-                let (ta, tb) = (r.requested_s, r.requested_s + integration_s);
+            .map(|(k, (requested_s, reading))| {
+                let (ta, tb) = (*requested_s, *requested_s + integration_s);
                 let (a, b) = (
                     signed(profile.position(ta - lag) + load_offset),
                     signed(profile.position(tb - lag) + load_offset),
@@ -361,7 +277,7 @@ impl Run<'_> {
                     arc,
                     mid,
                     (a, b),
-                    &r.reading,
+                    reading,
                     0.5 * (ta + tb) + t_offset,
                     integration_s,
                 )

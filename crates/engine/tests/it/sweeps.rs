@@ -415,10 +415,14 @@ async fn fast_sweeps_are_taken_to_their_arcs_middles() {
 #[tokio::test(start_paused = true)]
 async fn a_slow_controllers_report_window_is_in_the_readings_uncertainty() {
     let mut runs = Vec::new();
-    for delay_ms in [0.0, 12.0] {
+    // The simulated controllers take the position as a query arrives; the third run's file says so.
+    for (delay_ms, sampled_ms) in [(0.0, None), (12.0, None), (12.0, Some(0.0))] {
         let dir = tempfile::tempdir().expect("tempdir");
         let mut file = InstrumentFile::simulated();
         file.simulator.faults.delay_ms = delay_ms;
+        for d in &mut file.instrument.devices {
+            d.position_sampled_ms = sampled_ms;
+        }
         let s = setup_on(dir.path(), FAST, file).await;
         let state = run_campaign(Arc::clone(&s.store), s.id, &s.rig, Control::new())
             .await
@@ -435,16 +439,29 @@ async fn a_slow_controllers_report_window_is_in_the_readings_uncertainty() {
             .collect();
         u_rel.sort_by(f64::total_cmp);
         let p90 = u_rel[u_rel.len() * 9 / 10];
+        let rms = summary.cos_weighted_relative_rms.expect("rms");
         eprintln!(
-            "reply delay {delay_ms} ms: timing u {:?} s, k=2 coverage {:.3}, p90 relative u {p90:.2e}",
+            "reply delay {delay_ms} ms, sampled {sampled_ms:?} ms: timing u {:?} s, k=2 coverage {:.3}, \
+             p90 relative u {p90:.2e}, rms {rms:.2e}",
             segments.iter().map(|g| g.timing_u_s).collect::<Vec<_>>(),
             summary.coverage_k2
         );
         assert!(!segments.is_empty());
         assert!(summary.coverage_k2 >= 0.90, "{delay_ms} ms: {summary:?}");
-        runs.push((segments, p90));
+        runs.push((segments, p90, rms));
     }
-    let (quick, slow) = (&runs[0], &runs[1]);
+    let (quick, slow, told) = (&runs[0], &runs[1], &runs[2]);
+    // Told when the position is taken, the run dates the reports there: no window, and the readings are placed
+    // where the arm was (dated in the window's middle they were 5.5 ms late: 0.055 deg behind at 10 deg/s).
+    for g in &told.0 {
+        assert_eq!(g.timing_u_s, Some(gonio_engine::budget::TIMING_U_S), "{g:?}");
+    }
+    assert!(
+        told.2 < 0.8 * slow.2,
+        "rms {:.2e} told, {:.2e} window",
+        told.2,
+        slow.2
+    );
     for g in &quick.0 {
         assert_eq!(g.timing_u_s, Some(gonio_engine::budget::TIMING_U_S), "{g:?}");
     }
