@@ -227,21 +227,21 @@ impl SimInstrument {
             .instrument
             .device(device)
             .map_or_else(|| protocol.default_baud(), gonio_instrument::Device::line_baud);
-        // The hardware's own time to answer: the file's, or `[simulator.actual.devices]`'s.
-        let latency_ms = self
-            .inner
-            .file
-            .actual_instrument()
-            .device(device)
-            .and_then(|d| d.reply_latency_ms)
-            .unwrap_or(0.0);
+        // The hardware's own time to answer, and when it takes what it reports: the file's, or
+        // `[simulator.actual.devices]`'s.
+        let actual = self.inner.file.actual_instrument();
+        let actual_device = actual.device(device);
+        let latency_ms = actual_device.and_then(|d| d.reply_latency_ms).unwrap_or(0.0);
+        let act_after_ms = actual_device.and_then(|d| d.position_sampled_ms).unwrap_or(0.0);
         handle.spawn(session::serve(
             dev,
             emu,
             self.inner.faults.for_device(device),
             self.inner.world.clock,
             device.to_string(),
-            session::LineRate::from_baud(baud).with_latency_s(latency_ms / 1000.0),
+            session::LineRate::from_baud(baud)
+                .with_latency_s(latency_ms / 1000.0)
+                .with_act_after_s(act_after_ms / 1000.0),
         ));
         Ok(host)
     }

@@ -67,10 +67,15 @@ fn lock(emu: &SharedEmulator) -> std::sync::MutexGuard<'_, dyn SerialEmulator + 
 /// byte), so a 57600-baud SMC100 status reply takes about 2 ms, as on the real link. And the device's own time
 /// to answer before its reply starts (the hardware's `reply_latency_ms`: the SMC100 manual gives about 10 ms to
 /// execute a position query); what a query reports is taken when it arrives.
+///
+/// A device may also act on what it is sent some time after it was sent (`with_act_after_s`: the hardware's
+/// `position_sampled_ms`, when a controller takes the position it reports): it then answers that much sooner
+/// after acting, the same time after the query.
 #[derive(Debug, Clone, Copy)]
 pub struct LineRate {
     bytes_per_s: f64,
     latency_s: f64,
+    act_after_s: f64,
 }
 
 impl LineRate {
@@ -79,6 +84,20 @@ impl LineRate {
         LineRate {
             bytes_per_s: f64::from(baud) / 10.0,
             latency_s: 0.0,
+            act_after_s: 0.0,
+        }
+    }
+
+    /// The device acting on each command `act_after_s` after it was sent, within its latency (negative or not a
+    /// number: at once).
+    pub fn with_act_after_s(self, act_after_s: f64) -> LineRate {
+        LineRate {
+            act_after_s: if act_after_s.is_finite() {
+                act_after_s.clamp(0.0, self.latency_s)
+            } else {
+                0.0
+            },
+            ..self
         }
     }
 
@@ -247,7 +266,9 @@ pub(crate) async fn serve(
                         let (run, rest) = data.split_at(len.min(data.len()));
                         data = rest;
                         tracing::trace!(device, rx = %String::from_utf8_lossy(run).escape_debug(), sent_s, "device received");
-                        outputs.extend(lock(&emu).receive_sent(run, sent_s, now));
+                        // Acted on when the device gets to it: a look ahead of at most its latency.
+                        let at_s = (sent_s + line.act_after_s).max(now);
+                        outputs.extend(lock(&emu).receive_sent(run, sent_s, at_s));
                     }
                     outputs
                 }
@@ -277,7 +298,7 @@ async fn send(
 ) -> bool {
     for out in outputs {
         let delay = faults.reply_delay_s();
-        let done_s = out.at_s + line.latency_s + delay + line.wire_s(out.bytes.len());
+        let done_s = out.at_s + (line.latency_s - line.act_after_s) + delay + line.wire_s(out.bytes.len());
         if clock.real_duration(done_s - clock.now_s()) >= SHORTEST_REAL_WAIT {
             clock.sleep_until_s(done_s).await;
         }

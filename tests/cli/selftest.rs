@@ -62,6 +62,7 @@ fn selftest_passes_on_the_ideal_instrument_and_names_what_the_hardware_contradic
     let sps = file
         .instrument
         .filter_wheel
+        .as_ref()
         .map(|w| w.seconds_per_position)
         .expect("wheel");
     assert!((sps - measured).abs() < 1e-9, "{sps}");
@@ -92,6 +93,14 @@ fn selftest_passes_on_the_ideal_instrument_and_names_what_the_hardware_contradic
         file.instrument.source.relative_noise,
         report_line("source.relative_noise")
     );
+    // When the arms' controller takes its reported positions (the simulator's: as the query is sent), none
+    // below zero.
+    let arms = file.instrument.device("arms").expect("arms");
+    assert_eq!(
+        arms.position_sampled_ms,
+        Some(report_line("devices.arms.position_sampled_ms").max(0.0))
+    );
+    assert!(arms.position_sampled_ms.is_some_and(|ms| ms < 0.3), "{arms:?}");
     assert!(
         std::fs::read_to_string(&written)
             .expect("text")

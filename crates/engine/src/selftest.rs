@@ -28,6 +28,7 @@ mod noise;
 mod report;
 mod ringdown;
 mod settle;
+mod sweep_timing;
 
 pub use noise::{AMBIENT_ALLOWANCE, FLICKER_ALLOWANCE, FLICKER_WINDOW_S, MAX_FILL, NOISE_READINGS};
 pub use report::{Check, SelftestReport, Verdict, against, at_most, info, within};
@@ -117,6 +118,7 @@ pub async fn run_selftest(
     let settling = settle::measure_settling(motion, operator, tolerance, &accelerations).await?;
     checks.extend(settling.checks);
     not_measured.extend(settling.not_measured);
+    checks.extend(sampling_checks(&file, &settling.sampling));
     Ok(SelftestReport {
         instrument: file.instrument.name.clone(),
         dry_run: rig.is_dry_run(),
@@ -126,6 +128,34 @@ pub async fn run_selftest(
         not_measured,
         instrument_s: clock.now_s() - t0,
     })
+}
+
+/// Each swept controller's sampling instant (`sweep_timing`, its arms' findings together) against the file's
+/// `position_sampled_ms`; a file silent on it is held to what a sweep then assumes, the middle of the window
+/// between a query's arrival and its reply. Passes within [`LATENCY_ALLOWED_MS`] or three standard
+/// uncertainties.
+fn sampling_checks(file: &gonio_instrument::InstrumentFile, found: &[sweep_timing::Sampling]) -> Vec<Check> {
+    let devices: std::collections::BTreeSet<&str> = found.iter().map(|s| s.device.as_str()).collect();
+    devices
+        .into_iter()
+        .filter_map(|name| {
+            let mine: Vec<_> = found.iter().filter(|s| s.device == name).cloned().collect();
+            let s = sweep_timing::combined(&mine)?;
+            let configured = file
+                .instrument
+                .device(name)
+                .and_then(|d| d.position_sampled_ms)
+                .unwrap_or(s.assumed_ms);
+            Some(within(
+                format!("devices.{name}.position_sampled_ms"),
+                "position taken after the query is sent (direct beam swept both ways)",
+                "ms",
+                configured,
+                s.after_ms,
+                LATENCY_ALLOWED_MS.max(3.0 * s.u_ms),
+            ))
+        })
+        .collect()
 }
 
 /// The span (deg) an axis's measured move covers, with every other axis parked where the move is safe:

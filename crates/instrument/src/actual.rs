@@ -18,6 +18,7 @@
 //! relative_noise = 3.0e-4
 //! [simulator.actual.devices.arms]       # the device's name
 //! reply_latency_ms = 10.0
+//! position_sampled_ms = 6.0              # when it takes what it reports, after the query was sent
 //! ```
 //!
 //! The simulated devices run the actual values ([`InstrumentFile::actual_instrument`]); the engine plans with
@@ -54,6 +55,9 @@ pub struct Actual {
 pub struct ActualDevice {
     /// What the device really takes to answer a query beyond its reply's time on the line (ms).
     pub reply_latency_ms: Option<f64>,
+    /// When the device really takes the position it reports (and acts on any command), after the host sent it
+    /// (ms): at most its reply latency.
+    pub position_sampled_ms: Option<f64>,
 }
 
 /// `[simulator.actual.detector]`.
@@ -103,7 +107,7 @@ impl Actual {
             && self.axes.values().all(|a| a == &ActualAxis::default())
             && self.detector.as_ref().is_none_or(|d| d.dark_current_a.is_none())
             && self.source.as_ref().is_none_or(|s| s.relative_noise.is_none())
-            && self.devices.values().all(|d| d.reply_latency_ms.is_none())
+            && self.devices.values().all(|d| d == &ActualDevice::default())
     }
 
     /// Every value names an axis the file has and is a positive (zero for settle and backlash), finite
@@ -159,6 +163,20 @@ impl Actual {
                 d.reply_latency_ms,
                 true,
             )?;
+            let key = format!("simulator.actual.devices.{name}.position_sampled_ms");
+            positive(key.clone(), d.position_sampled_ms, true)?;
+            let latency_ms = d
+                .reply_latency_ms
+                .or(instrument.device(name).and_then(|x| x.reply_latency_ms))
+                .unwrap_or(0.0);
+            if let Some(ms) = d.position_sampled_ms
+                && ms > latency_ms
+            {
+                return Err(format!(
+                    "{key} = {ms}: a device cannot take what it reports after it answers (its reply latency is \
+                     {latency_ms} ms)"
+                ));
+            }
         }
         if let Some(d) = &self.detector {
             positive(
@@ -224,6 +242,13 @@ impl Actual {
         for device in &mut inst.devices {
             if let Some(v) = actual.devices.get(&device.name).and_then(|d| d.reply_latency_ms) {
                 device.reply_latency_ms = Some(v);
+            }
+            if let Some(v) = actual
+                .devices
+                .get(&device.name)
+                .and_then(|d| d.position_sampled_ms)
+            {
+                device.position_sampled_ms = Some(v);
             }
         }
     }

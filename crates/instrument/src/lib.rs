@@ -156,11 +156,13 @@ pub struct Device {
     /// that takes it).
     #[serde(default)]
     pub reply_latency_ms: Option<f64>,
-    /// When a motion controller takes the position it reports, after the query has crossed the line (ms; 0:
-    /// as the query arrives, up to its reply latency: as it answers). A sweep dates its position reports by it
-    /// to place its readings where the arm was; absent, it dates them in the middle of that window and counts
-    /// the window in their timing uncertainty. `gonio selftest` measures it (the direct beam's edge swept both
-    /// ways at two speeds) and `--write` records it.
+    /// When a motion controller takes the position it reports, counted from the host's sending of the query
+    /// (ms): at least the query's time on the line (about 0.9 ms for an SMC100 `1TP` at 57,600 baud) and at
+    /// most that and its reply latency; the simulator's devices take it as the query is sent (0: its request's
+    /// time on the line is inside its reply latency). A sweep dates its position reports by it to place its
+    /// readings where the arm was; absent, it dates them in the middle of the window between the query's
+    /// arrival and the reply's start and counts the window in their timing uncertainty. `gonio selftest`
+    /// measures it (the direct beam swept both ways at two speeds) and `--write` records it.
     #[serde(default)]
     pub position_sampled_ms: Option<f64>,
 }

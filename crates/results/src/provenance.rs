@@ -511,6 +511,7 @@ pub(crate) mod tests {
                 detector_dark_current_a: Some(1.0e-10),
                 source_relative_noise: None,
                 reply_latency_ms: [("arms".to_string(), 10.0)].into(),
+                position_sampled_ms: [("arms".to_string(), 6.0)].into(),
             }),
         });
         let text = r.to_json_text();

@@ -9,10 +9,10 @@
 //! was at any instant is then the trapezoid shifted by the arm's lag behind it, which [`Pass::lag_s`] takes from
 //! the reports made while it cruised.
 //!
-//! A report's dating (`sampled_at`): the controller takes the position somewhere between the query's arrival
-//! and its reply's start on the line. Where, the instrument file's `position_sampled_ms` says when it is known
-//! (measured by the self-test); otherwise the report is dated in the middle of that window and the window's
-//! width is what remains unknown.
+//! A report's dating (`sampled_at`): a controller takes the position somewhere between the query's arrival
+//! and its reply's start on the line. When, the instrument file's `position_sampled_ms` says when it is known
+//! (counted from the query's sending, measured by the self-test); otherwise the report is dated in the middle
+//! of that window and the window's width is what remains unknown.
 
 use gonio_driver::PositionReport;
 use gonio_scheduler::timing::Trapezoid;
@@ -28,7 +28,7 @@ const OVERRUN: f64 = 1.5;
 pub(crate) struct ReportDating {
     /// Bytes a second on the controller's line (8N1: ten bits a byte); 0: not a timed line.
     pub bytes_per_s: f64,
-    /// When the controller takes the position after the query's arrival (s), when known.
+    /// When the controller takes the position after the host sent the query (s), when known.
     pub sampled_after_s: Option<f64>,
 }
 
@@ -45,8 +45,8 @@ impl ReportDating {
 
     /// When the controller took the position it reported in an exchange sent at `sent_s` and answered at
     /// `received_s` (clock seconds), and the width of the window it may have taken it in (s). The window runs
-    /// from the request's arrival to the reply's start on the line. Known sampling: that long after the
-    /// arrival, kept inside the window, no width. Unknown: the window's middle, its width. A reply that came
+    /// from the request's arrival to the reply's start on the line. Known sampling: that long after the query
+    /// was sent, no later than the reply's start. Unknown: the window's middle. A reply that came
     /// sooner than its bytes take on the line (a faster link than the file says) is dated when its bytes would
     /// have started back, with no window. Dated at the middle of the whole exchange instead, a report is late by
     /// half its reply's time on the line (about a millisecond at 57,600 baud): every reading would be placed
@@ -61,13 +61,16 @@ impl ReportDating {
         };
         let earliest = sent_s + wire(report.request_bytes);
         let latest = received_s - wire(report.reply_bytes);
+        if let Some(s) = self.sampled_after_s.filter(|s| s.is_finite()) {
+            return (
+                (sent_s + s.max(0.0)).min(latest.max(sent_s)),
+                (latest - earliest).max(0.0),
+            );
+        }
         if latest < earliest {
             return (latest.max(sent_s), 0.0);
         }
-        match self.sampled_after_s {
-            Some(s) if s.is_finite() => ((earliest + s.max(0.0)).min(latest), 0.0),
-            _ => (0.5 * (earliest + latest), latest - earliest),
-        }
+        (0.5 * (earliest + latest), latest - earliest)
     }
 }
 
@@ -88,11 +91,26 @@ pub(crate) struct Pass<R> {
     pub taken: Vec<(f64, R)>,
     /// The position reports: when the controller took each position (clock seconds) and the position (deg).
     pub reports: Vec<(f64, f64)>,
-    /// The widest window a report was dated in (s): 0 when the sampling instant is known.
+    /// The widest window a report could have been taken in (s).
     pub widest_window_s: f64,
+    /// The latest a report would have been dated after its query was sent without a known sampling instant
+    /// (s): the window's middle, what a file silent on it makes a sweep assume.
+    pub assumed_after_s: f64,
+    /// How the reports were dated.
+    pub dating: ReportDating,
 }
 
 impl<R> Pass<R> {
+    /// The widest window a report was dated in without knowing where in it the controller took the position
+    /// (s): 0 when the sampling instant is known.
+    pub(crate) fn unknown_window_s(&self) -> f64 {
+        if self.dating.sampled_after_s.is_some() {
+            0.0
+        } else {
+            self.widest_window_s
+        }
+    }
+
     /// The arm's lag behind the commanded profile (s): the median over the reports made while it cruised, with
     /// the spread of those (s); None without such a report.
     pub(crate) fn lag_s(&self) -> Option<(f64, f64)> {
@@ -107,8 +125,22 @@ impl<R> Pass<R> {
     }
 }
 
+/// Where the swept arm's load is against its motor (physical degrees) during a sweep of `span_deg`: points are
+/// approached from below in controller coordinates (gonio_driver::motion::approach_waypoints), the contact the
+/// axis's zero refers to; a sweep down the controller's scale pushes the load from the other side of the
+/// backlash, a whole `backlash_deg` further up the controller's scale.
+pub(crate) fn load_offset_deg(axis: &gonio_instrument::Axis, span_deg: f64) -> f64 {
+    let direction = f64::from(axis.direction.signum());
+    if direction * span_deg < 0.0 {
+        direction * axis.backlash_deg
+    } else {
+        0.0
+    }
+}
+
 /// One pass of `axis` from where it stands (`from_deg`, physical) to `to_deg` at `speed_deg_s` (module doc).
-/// `report_every`: a position report beside every this many readings (at least 1). Fails on the emergency
+/// `report_every`: a position report beside every this many readings (at least 1), dated by `dating`
+/// ([`ReportDating::of`] the instrument file, or the self-test's own). Fails on the emergency
 /// stop, on a device that fails, and when the motion outlasts its profile by half and 5 s (the axis is then
 /// stopped and a person must look).
 pub(crate) async fn sweep_axis<R: Reader>(
@@ -117,11 +149,11 @@ pub(crate) async fn sweep_axis<R: Reader>(
     (from_deg, to_deg): (f64, f64),
     speed_deg_s: f64,
     report_every: usize,
+    dating: ReportDating,
     reader: &mut R,
 ) -> Result<Pass<R::Reading>, MotionError> {
     let cfg = &axis.config;
     let clock = motion.clock();
-    let dating = ReportDating::of(motion.rig().file(), cfg);
     let what = format!("set {} to {speed_deg_s} deg/s for a sweep", cfg.name);
     motion
         .device(Device::Axis(axis), &what, || {
@@ -147,11 +179,17 @@ pub(crate) async fn sweep_axis<R: Reader>(
         .await?;
     let deadline = profile.t0_s + OVERRUN * profile.duration_s() + 5.0;
     let every = report_every.max(1);
+    let unknown = ReportDating {
+        sampled_after_s: None,
+        ..dating
+    };
     let mut pass = Pass {
         profile,
         taken: Vec::new(),
         reports: Vec::new(),
         widest_window_s: 0.0,
+        assumed_after_s: 0.0,
+        dating,
     };
     loop {
         if motion.control.estop_requested() {
@@ -166,13 +204,16 @@ pub(crate) async fn sweep_axis<R: Reader>(
                 let t0 = clock.now_s();
                 let r = axis.driver.position_report().await;
                 r.ok().map(|r| {
-                    let (t, window) = dating.sampled_at(t0, clock.now_s(), &r);
-                    (t, window, r.position_deg)
+                    let t1 = clock.now_s();
+                    let (t, window) = dating.sampled_at(t0, t1, &r);
+                    let (assumed, _) = unknown.sampled_at(t0, t1, &r);
+                    (t, window, assumed - t0, r.position_deg)
                 })
             };
             let (reading, report) = tokio::join!(reader.read(), report);
-            if let Some((t, window, deg)) = report {
+            if let Some((t, window, assumed, deg)) = report {
                 pass.widest_window_s = pass.widest_window_s.max(window);
+                pass.assumed_after_s = pass.assumed_after_s.max(assumed);
                 pass.reports.push((t, deg));
             }
             reading
@@ -254,19 +295,25 @@ mod tests {
     }
 
     #[test]
-    fn a_known_sampling_instant_dates_a_report_without_a_window() {
+    fn a_known_sampling_instant_dates_a_report_inside_its_window() {
         let report = report();
         let arrival = 1.0 + 5.0 / 5760.0;
         let reply_starts = 1.012 - 13.0 / 5760.0;
-        // Taken as the query arrives (0 ms), 4 ms later, and later than the reply could start (kept inside).
-        for (after_s, expected) in [(0.0, arrival), (0.004, arrival + 0.004), (0.050, reply_starts)] {
+        // Taken as the query was sent (0 ms: the simulator's devices), as it arrived, 4 ms after it was sent,
+        // and later than the reply could start (kept before it).
+        for (after_s, expected) in [
+            (0.0, 1.0),
+            (5.0 / 5760.0, arrival),
+            (0.004, 1.004),
+            (0.050, reply_starts),
+        ] {
             let known = ReportDating {
                 bytes_per_s: 5760.0,
                 sampled_after_s: Some(after_s),
             };
             let (t, window) = known.sampled_at(1.0, 1.012, &report);
             assert!((t - expected).abs() < 1e-12, "{after_s}: {t} against {expected}");
-            assert_eq!(window, 0.0);
+            assert!((window - (reply_starts - arrival)).abs() < 1e-12, "{window}");
         }
     }
 
@@ -289,17 +336,30 @@ mod tests {
             profile,
             taken: Vec::new(),
             reports,
-            widest_window_s: 0.0,
+            widest_window_s: 0.004,
+            assumed_after_s: 0.003,
+            dating: ReportDating {
+                bytes_per_s: 0.0,
+                sampled_after_s: None,
+            },
         };
         let (median, spread) = pass.lag_s().expect("reports on the cruise");
         assert!((median - lag).abs() < 1e-9, "{median}");
         assert!(spread < 1e-9, "{spread}");
+        assert_eq!(pass.unknown_window_s(), 0.004);
         let none: Pass<()> = Pass {
             profile,
             taken: Vec::new(),
             reports: vec![(10.01, profile.position(10.01))],
-            widest_window_s: 0.0,
+            widest_window_s: 0.004,
+            assumed_after_s: 0.003,
+            dating: ReportDating {
+                bytes_per_s: 0.0,
+                sampled_after_s: Some(0.0),
+            },
         };
         assert_eq!(none.lag_s(), None);
+        // Told when the controller takes its positions: no window is left unknown.
+        assert_eq!(none.unknown_window_s(), 0.0);
     }
 }

@@ -79,17 +79,33 @@ fn actual_record(claimed: &Instrument, real: &Instrument) -> Option<ActualHardwa
             differs(said, is).map(|ms| (c.name.clone(), ms))
         })
         .collect();
+    let position_sampled_ms: std::collections::BTreeMap<String, f64> = claimed
+        .devices
+        .iter()
+        .zip(&real.devices)
+        .filter_map(|(c, r)| {
+            let is = r.position_sampled_ms.unwrap_or(0.0);
+            // A file silent on it claims nothing: the real instant is the truth to hold a measurement against.
+            match c.position_sampled_ms {
+                Some(said) => differs(said, is),
+                None => (is != 0.0).then_some(is),
+            }
+            .map(|ms| (c.name.clone(), ms))
+        })
+        .collect();
     (wheel_seconds_per_position.is_some()
         || !axes.is_empty()
         || detector_dark_current_a.is_some()
         || source_relative_noise.is_some()
-        || !reply_latency_ms.is_empty())
+        || !reply_latency_ms.is_empty()
+        || !position_sampled_ms.is_empty())
     .then_some(ActualHardwareRecord {
         wheel_seconds_per_position,
         axes,
         detector_dark_current_a,
         source_relative_noise,
         reply_latency_ms,
+        position_sampled_ms,
     })
 }
 

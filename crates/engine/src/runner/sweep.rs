@@ -44,7 +44,7 @@ use crate::budget;
 use crate::store::SweepSegmentRecord;
 use gonio_results::sweeps::SweepReading;
 
-use crate::motion::sweep::sweep_axis;
+use crate::motion::sweep::{ReportDating, load_offset_deg, sweep_axis};
 use gonio_scheduler::timing::Trapezoid;
 
 /// A position report every this many readings during a sweep (more often in short sweeps: [`report_every`]).
@@ -92,19 +92,6 @@ impl crate::motion::sweep::Reader for SweepMeter<'_, '_> {
         acquisition::read(self.motion, self.band_nm, self.acquisition, self.configured_nm)
             .await
             .map_err(|e| e.to_string())
-    }
-}
-
-/// Where the swept arm's load is against its motor (physical degrees) during a sweep of `span_deg`: points are
-/// approached from below in controller coordinates (gonio_driver::motion::approach_waypoints), the contact the
-/// axis's zero refers to; a sweep down the controller's scale pushes the load from the other side of the
-/// backlash, a whole `backlash_deg` further up the controller's scale.
-fn load_offset_deg(axis: &gonio_instrument::Axis, span_deg: f64) -> f64 {
-    let direction = f64::from(axis.direction.signum());
-    if direction * span_deg < 0.0 {
-        direction * axis.backlash_deg
-    } else {
-        0.0
     }
 }
 
@@ -225,7 +212,17 @@ impl Run<'_> {
             acquisition: &acquisition,
             configured_nm: &mut self.configured_nm,
         };
-        let pass = sweep_axis(&self.motion, axis, (from_deg, to_deg), speed, every, &mut meter).await?;
+        let dating = ReportDating::of(&self.file, &axis.config);
+        let pass = sweep_axis(
+            &self.motion,
+            axis,
+            (from_deg, to_deg),
+            speed,
+            every,
+            dating,
+            &mut meter,
+        )
+        .await?;
         self.configured_nm = None;
         self.motion.read_positions().await?;
         let ended = self.t();
@@ -244,7 +241,7 @@ impl Run<'_> {
                 0.0,
             ),
         };
-        let widest_window_s = pass.widest_window_s;
+        let widest_window_s = pass.unknown_window_s();
         tracing::info!(campaign = %self.id, segment, readings = pass.taken.len(), reports = pass.reports.len(),
             lag_s = lag, lag_spread_s = spread, report_window_s = widest_window_s, "sweep ended");
 

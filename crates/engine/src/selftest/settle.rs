@@ -27,6 +27,7 @@ use gonio_scheduler::kinematics::Pose;
 use super::fit::{line, mean_std};
 use super::report::{Check, at_most, within};
 use super::ringdown::settle_time_s;
+use super::sweep_timing::{Sampling, measure_sampling};
 use super::{arrive, start, start_and_sample};
 use crate::align::centre::edge;
 use crate::align::scan::{DETECTOR_HALF_WIDTH_DEG, Profile, meter_ranges_w, scan, tilt_half_width_deg};
@@ -52,6 +53,8 @@ const PLAY_MARGIN_DEG: f64 = 0.05;
 pub(super) struct Findings {
     pub checks: Vec<Check>,
     pub not_measured: Vec<String>,
+    /// When each swept arm's controller takes its reported positions (`sweep_timing`).
+    pub sampling: Vec<Sampling>,
 }
 
 /// What one axis's edge gave.
@@ -180,6 +183,7 @@ pub(super) async fn measure_settling(
     };
 
     // The detector arm across the direct beam, then the light arm with the detector on the beam.
+    let (mut detector_profile, mut light_profile) = (None, None);
     let facing = model::wrap_deg(light_deg + 180.0);
     let at_detector = |x: f64| Pose::new(light_deg, x, 0.0, 0.0);
     let detector_centre = match scan(
@@ -195,6 +199,7 @@ pub(super) async fn measure_settling(
         Ok(p) => {
             let got = edge_figures(motion, detector, &p, &meter, accel(detector)).await?;
             record(&mut out, detector, got);
+            detector_profile = Some(p);
             p.centre.value
         }
         Err(e) => {
@@ -214,7 +219,11 @@ pub(super) async fn measure_settling(
     )
     .await
     {
-        Ok(p) => edge_figures(motion, light, &p, &meter, accel(light)).await?,
+        Ok(p) => {
+            let got = edge_figures(motion, light, &p, &meter, accel(light)).await?;
+            light_profile = Some(p);
+            got
+        }
         Err(e) => Err(reason(e)?),
     };
     record(&mut out, light, got);
@@ -234,6 +243,14 @@ pub(super) async fn measure_settling(
         )),
     }
     meter.auto(motion).await?;
+    // When the arms' controllers take their reported positions, the same beam swept: last in the direct beam,
+    // so that the figures above are read as they were before this step existed.
+    if let Some(p) = detector_profile {
+        sampling(motion, &mut out, detector, &p, &at_detector, &meter).await?;
+    }
+    if let Some(p) = light_profile {
+        sampling(motion, &mut out, light, &p, &at_light, &meter).await?;
+    }
 
     // The tilt across the mirror's reflection, the detector where the reflection is.
     if let Some(tilt) = tilt {
@@ -277,6 +294,29 @@ pub(super) async fn measure_settling(
     }
     motion.read_positions().await?;
     Ok(out)
+}
+
+/// When `a`'s controller takes its reported positions, swept across the beam `profile` (`sweep_timing`): into
+/// `out`'s findings, or why not into its gaps. The meter is left auto-ranging.
+async fn sampling(
+    motion: &mut Motion<'_>,
+    out: &mut Findings,
+    a: &RigAxis,
+    profile: &Profile,
+    at: &(dyn Fn(f64) -> Pose + Sync),
+    meter: &Meter,
+) -> Result<(), MotionError> {
+    let full_scale_w = fixed_range_w(motion, profile.plateau_w);
+    let got = measure_sampling(motion, a, profile, at, meter.band_nm, full_scale_w).await;
+    meter.auto(motion).await?;
+    match got? {
+        Ok(s) => out.sampling.push(s),
+        Err(why) => out.not_measured.push(format!(
+            "devices.{}.position_sampled_ms from {}: not measured ({why})",
+            a.config.device, a.config.name
+        )),
+    }
+    Ok(())
 }
 
 /// The meter's settings for the edges.
@@ -326,6 +366,22 @@ async fn read_w(motion: &Motion<'_>) -> Result<Result<(f64, f64), String>, Motio
     } else {
         Ok((mid, r.power_w))
     })
+}
+
+/// The meter's smallest range that holds `plateau_w` with a fifth to spare (else its largest): the fixed range
+/// of the fast readings on an edge.
+fn fixed_range_w(motion: &Motion<'_>, plateau_w: f64) -> f64 {
+    let ranges = meter_ranges_w(motion);
+    let fitting = ranges
+        .iter()
+        .copied()
+        .filter(|r| *r >= 1.2 * plateau_w)
+        .fold(f64::INFINITY, f64::min);
+    if fitting.is_finite() {
+        fitting
+    } else {
+        ranges.iter().copied().fold(0.0, f64::max)
+    }
 }
 
 /// A plain move of `a` alone to `to_deg` (no backlash approach: the approach's direction is the caller's).
@@ -402,17 +458,7 @@ async fn edge_figures(
     };
 
     tracing::info!(axis = %cfg.name, "self-test: settle time on the edge");
-    let ranges = meter_ranges_w(motion);
-    let full_scale_w = ranges
-        .iter()
-        .copied()
-        .filter(|r| *r >= 1.2 * plateau)
-        .fold(f64::INFINITY, f64::min);
-    let full_scale_w = if full_scale_w.is_finite() {
-        full_scale_w
-    } else {
-        ranges.iter().copied().fold(0.0, f64::max)
-    };
+    let full_scale_w = fixed_range_w(motion, plateau);
     let from = if inside(x_edge - STEP_DEG) {
         x_edge - STEP_DEG
     } else {

@@ -52,6 +52,10 @@ pub struct ActualHardwareRecord {
     /// The devices whose real time to answer a query differs from the file's `reply_latency_ms` (ms), by name.
     #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub reply_latency_ms: std::collections::BTreeMap<String, f64>,
+    /// The devices whose real instant of taking a reported position (after the query was sent) differs from the
+    /// file's `position_sampled_ms` (ms), by name.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub position_sampled_ms: std::collections::BTreeMap<String, f64>,
 }
 
 /// One axis's real limits where they differ from the file (deg/s, deg/s^2, s, deg).
