@@ -471,3 +471,42 @@ fn plan_says_when_the_file_does_not_give_the_controllers_reply_latency() {
     let said = real.replace("name = \"arms\"\n", "name = \"arms\"\nreply_latency_ms = 10.0\n");
     assert!(!plan_on(&said).contains("does not say"));
 }
+
+/// On real controllers whose file does not say when they take the position they report, `gonio plan` of a
+/// campaign with sweeps says so; on the simulator, or once the file says it, nothing.
+#[test]
+fn plan_says_when_the_file_does_not_give_when_the_swept_arms_controller_takes_its_positions() {
+    let root = repo_root();
+    let sweeps = root.join("config/campaigns/sweeps.toml");
+    let simulated = std::fs::read_to_string(root.join("config/instruments/simulated.toml")).expect("read");
+    let dir = tempfile::tempdir().expect("temp dir");
+    let plan_on = |text: &str| {
+        let path = dir.path().join("lab.toml");
+        std::fs::write(&path, text).expect("write");
+        let out = gonio()
+            .arg("plan")
+            .arg(&sweeps)
+            .arg("--instrument")
+            .arg(&path)
+            .output()
+            .expect("run gonio");
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    assert!(!plan_on(&simulated).contains("position_sampled_ms"));
+    let real = simulated.replace(
+        "name = \"arms\"\nprotocol = \"smc100\"\nport = \"sim\"\n",
+        "name = \"arms\"\nprotocol = \"smc100\"\nport = \"/dev/ttyUSB0\"\n",
+    );
+    assert_ne!(real, simulated);
+    let printed = plan_on(&real);
+    assert!(
+        printed.contains("does not say when arms take the position they report (position_sampled_ms)"),
+        "{printed}"
+    );
+    let said = real.replace(
+        "name = \"arms\"\n",
+        "name = \"arms\"\nposition_sampled_ms = 1.0\n",
+    );
+    assert!(!plan_on(&said).contains("position_sampled_ms"));
+}

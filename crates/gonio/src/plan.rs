@@ -121,6 +121,9 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
         }
         let _ = writeln!(out, "{}", band_line(p));
         out.push_str(&latency_note(file));
+        if let Some(sweeps) = &p.sweeps {
+            out.push_str(&sampling_note(file, sweeps));
+        }
         return out;
     }
     let geometries = plan.geometries.len();
@@ -187,6 +190,9 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
     }
     let _ = writeln!(out, "{}", band_line(p));
     out.push_str(&latency_note(file));
+    if let Some(sweeps) = &p.sweeps {
+        out.push_str(&sampling_note(file, sweeps));
+    }
     out
 }
 
@@ -208,6 +214,34 @@ fn latency_note(file: &InstrumentFile) -> String {
     format!(
         "note: the instrument file does not say how long {} take to answer a query (reply_latency_ms): the \
          prediction counts none, a real SMC100 takes about 10 ms a query; `gonio selftest --write` measures it\n",
+        silent.join(" and ")
+    )
+}
+
+/// A line naming the real controllers of the swept arms whose file does not say when they take the position they
+/// report (`position_sampled_ms`): the sweeps then date each report in the middle of the controller's time to
+/// answer, up to half of it off, and carry that in every reading's uncertainty. Empty for the simulator and for a
+/// file that says it.
+fn sampling_note(file: &InstrumentFile, sweeps: &gonio_campaign::Sweeps) -> String {
+    let inst = &file.instrument;
+    let mut silent: Vec<&str> = sweeps
+        .plan
+        .arcs
+        .iter()
+        .filter_map(|arc| inst.axis(gonio_scheduler::sweep::swept_role(arc.request.arm)))
+        .filter_map(|a| inst.device(&a.device))
+        .filter(|d| !d.is_simulated() && d.position_sampled_ms.is_none())
+        .map(|d| d.name.as_str())
+        .collect();
+    silent.sort_unstable();
+    silent.dedup();
+    if silent.is_empty() {
+        return String::new();
+    }
+    format!(
+        "note: the instrument file does not say when {} take the position they report (position_sampled_ms): the \
+         sweeps date each report in the middle of the controller's answer and widen their readings' uncertainty \
+         by it; `gonio selftest --write` measures it\n",
         silent.join(" and ")
     )
 }
