@@ -248,7 +248,8 @@ pub(super) async fn measure_settling(
     if let Some(p) = detector_profile {
         sampling(motion, &mut out, detector, &p, &at_detector, &meter).await?;
     }
-    if let Some(p) = light_profile {
+    // One axis per controller: the light arm only when the detector arm's controller is another.
+    if let Some(p) = light_profile.filter(|_| !out.sampling.iter().any(|s| s.device == light.config.device)) {
         sampling(motion, &mut out, light, &p, &at_light, &meter).await?;
     }
 
