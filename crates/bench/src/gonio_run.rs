@@ -74,10 +74,19 @@ pub fn gonio_run(binary: &Path, text: &str, instrument: Option<&Path>) -> Result
         .output()
         .map_err(|e| format!("cannot run {}: {e}", binary.display()))?;
     if !o.status.success() {
-        return Err(format!(
-            "gonio run failed: {}",
-            String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or("")
-        ));
+        // The last line that says something (a message may end with a blank line), without the table's bars,
+        // short enough for a table's cell.
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        let why = stderr
+            .lines()
+            .rev()
+            .map(str::trim)
+            .find(|l| !l.is_empty())
+            .unwrap_or("no message")
+            .replace('|', "/");
+        let short: String = why.chars().take(100).collect();
+        let more = if short.len() < why.len() { "..." } else { "" };
+        return Err(format!("gonio run failed: {short}{more}"));
     }
     run.wall_s = start.elapsed().as_secs_f64();
     Ok(run)
