@@ -141,19 +141,17 @@ fn sampling_checks(file: &gonio_instrument::InstrumentFile, found: &[sweep_timin
         .filter_map(|name| {
             let mine: Vec<_> = found.iter().filter(|s| s.device == name).cloned().collect();
             let s = sweep_timing::combined(&mine)?;
-            let configured = file
-                .instrument
-                .device(name)
-                .and_then(|d| d.position_sampled_ms)
-                .unwrap_or(s.assumed_ms);
-            Some(within(
+            let said = file.instrument.device(name).and_then(|d| d.position_sampled_ms);
+            let mut check = within(
                 format!("devices.{name}.position_sampled_ms"),
                 "position taken after the query is sent (direct beam swept both ways)",
                 "ms",
-                configured,
+                said.unwrap_or(s.assumed_ms),
                 s.after_ms,
                 LATENCY_ALLOWED_MS.max(3.0 * s.u_ms),
-            ))
+            );
+            check.assumed = said.is_none();
+            Some(check)
         })
         .collect()
 }

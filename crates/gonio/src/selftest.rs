@@ -107,7 +107,12 @@ pub fn report_text(r: &SelftestReport) -> String {
         "key", "configured", "measured"
     ));
     for c in &r.checks {
-        let configured = c.configured.map(format_value).unwrap_or_else(|| "-".into());
+        // A key the file does not hold: what the engine assumes without it, marked so.
+        let configured = match (c.configured, c.assumed) {
+            (Some(v), true) => format!("({})", format_value(v)),
+            (Some(v), false) => format_value(v),
+            (None, _) => "-".into(),
+        };
         let verdict = match c.verdict {
             Verdict::Pass => "ok",
             Verdict::Fail => "FAIL",
@@ -119,6 +124,9 @@ pub fn report_text(r: &SelftestReport) -> String {
             format_value(c.measured),
             c.unit
         ));
+    }
+    if r.checks.iter().any(|c| c.assumed) {
+        s.push_str("  (in brackets: a key the file does not hold, and what gonio assumes without it)\n");
     }
     for m in &r.not_measured {
         s.push_str(&format!("  not measured: {m}\n"));

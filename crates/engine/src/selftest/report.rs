@@ -25,6 +25,9 @@ pub struct Check {
     pub unit: String,
     /// The file's value (None for an `Info` line).
     pub configured: Option<f64>,
+    /// The file does not hold the key: `configured` is what the engine assumes without it.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub assumed: bool,
     pub measured: f64,
     pub verdict: Verdict,
 }
@@ -102,6 +105,7 @@ pub(super) fn line(key: String, what: &str, unit: &str, configured: f64, measure
         what: what.to_string(),
         unit: unit.to_string(),
         configured: Some(configured),
+        assumed: false,
         measured,
         verdict: if pass { Verdict::Pass } else { Verdict::Fail },
     }
@@ -114,6 +118,7 @@ pub fn info(key: String, what: &str, unit: &str, measured: f64) -> Check {
         what: what.to_string(),
         unit: unit.to_string(),
         configured: None,
+        assumed: false,
         measured,
         verdict: Verdict::Info,
     }

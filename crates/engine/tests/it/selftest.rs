@@ -571,7 +571,11 @@ async fn when_a_controller_takes_its_reported_positions_is_measured() {
     assert_eq!(r.failed_keys(), vec![key], "{:#?}", r.checks);
     assert!(silent.abs() <= 0.3, "{silent} ms");
     assert!(line.configured.is_some_and(|c| c > 5.0 && c < 6.5), "{line:?}");
+    // The file holds no such key: the line says that its value is what a sweep assumes.
+    assert!(line.assumed, "{line:?}");
     assert!(r2.failed_keys().is_empty(), "{:#?}", r2.checks);
+    let told = r2.checks.iter().find(|c| c.key == key).expect("line");
+    assert!(!told.assumed && told.configured == Some(0.0), "{told:?}");
     for truth_ms in [2.5, 9.0] {
         let text = format!(
             "{}\n[simulator.actual.devices.arms]\nposition_sampled_ms = {truth_ms}\n",
