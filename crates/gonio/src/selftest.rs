@@ -147,12 +147,9 @@ fn measured_file(text: &str, r: &SelftestReport) -> Result<String, String> {
     let mut doc: toml::Table = toml::from_str(text).map_err(|e| format!("the instrument file: {e}"))?;
     let mut written = Vec::new();
     for c in r.checks.iter().filter(|c| c.configured.is_some()) {
-        // A backlash, a settle time or a sampling instant measured a hair below zero is none within the
-        // measurement's noise; the file takes no negative value.
-        let value = if c.key.ends_with(".backlash_deg")
-            || c.key.ends_with(".settle_s")
-            || c.key.ends_with(".position_sampled_ms")
-        {
+        // A backlash or a settle time measured a hair below zero is none within the measurement's noise; the
+        // file takes no negative value. (A sampling instant may be below zero: it is written as measured.)
+        let value = if c.key.ends_with(".backlash_deg") || c.key.ends_with(".settle_s") {
             c.measured.max(0.0)
         } else {
             c.measured

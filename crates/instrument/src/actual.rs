@@ -349,8 +349,11 @@ mod tests {
             assert!(e.contains(says), "{extra}: {e}");
         }
         // The file's own claim is checked as the devices' other keys are.
-        for key in ["reply_latency_ms", "position_sampled_ms"] {
-            for bad in ["-1.0", "nan", "1000.0"] {
+        for (key, bads) in [
+            ("reply_latency_ms", ["-1.0", "nan", "1000.0"]),
+            ("position_sampled_ms", ["-1000.0", "nan", "1000.0"]),
+        ] {
+            for bad in bads {
                 let text = crate::SIMULATED_INSTRUMENT_TOML
                     .replace("name = \"arms\"\n", &format!("name = \"arms\"\n{key} = {bad}\n"));
                 let e = InstrumentFile::parse(&text, "test.toml")

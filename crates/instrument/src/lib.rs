@@ -162,7 +162,9 @@ pub struct Device {
     /// time on the line is inside its reply latency). A sweep dates its position reports by it to place its
     /// readings where the arm was; absent, it dates them in the middle of the window between the query's
     /// arrival and the reply's start and counts the window in their timing uncertainty. `gonio selftest`
-    /// measures it (the direct beam swept both ways at two speeds) and `--write` records it.
+    /// measures it (the direct beam swept both ways at two speeds) and `--write` records it. What it measures
+    /// is the controller's instant less the meter's own delay in starting a reading after its request, which is
+    /// what placing the readings needs: below zero (down to -250 ms) when the meter's delay is the longer.
     #[serde(default)]
     pub position_sampled_ms: Option<f64>,
 }

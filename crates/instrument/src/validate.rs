@@ -32,11 +32,13 @@ impl Instrument {
                     d.name
                 ));
             }
+            // Below zero when the meter starts integrating later after its request than the controller takes
+            // its position after its query: what dating the sweeps' readings needs is the difference.
             if let Some(ms) = d.position_sampled_ms
-                && !(ms.is_finite() && (0.0..=MAX_REPLY_LATENCY_MS).contains(&ms))
+                && !(ms.is_finite() && (-MAX_REPLY_LATENCY_MS..=MAX_REPLY_LATENCY_MS).contains(&ms))
             {
                 return Err(format!(
-                    "[[instrument.devices]] {:?}: position_sampled_ms = {ms} is not between 0 and {MAX_REPLY_LATENCY_MS} ms",
+                    "[[instrument.devices]] {:?}: position_sampled_ms = {ms} is not between -{MAX_REPLY_LATENCY_MS} and {MAX_REPLY_LATENCY_MS} ms",
                     d.name
                 ));
             }

@@ -62,10 +62,7 @@ impl ReportDating {
         let earliest = sent_s + wire(report.request_bytes);
         let latest = received_s - wire(report.reply_bytes);
         if let Some(s) = self.sampled_after_s.filter(|s| s.is_finite()) {
-            return (
-                (sent_s + s.max(0.0)).min(latest.max(sent_s)),
-                (latest - earliest).max(0.0),
-            );
+            return ((sent_s + s).min(latest.max(sent_s)), (latest - earliest).max(0.0));
         }
         if latest < earliest {
             return (latest.max(sent_s), 0.0);
@@ -300,8 +297,10 @@ mod tests {
         let arrival = 1.0 + 5.0 / 5760.0;
         let reply_starts = 1.012 - 13.0 / 5760.0;
         // Taken as the query was sent (0 ms: the simulator's devices), as it arrived, 4 ms after it was sent,
-        // and later than the reply could start (kept before it).
+        // later than the reply could start (kept before it), and 1 ms before it was sent (a meter that starts
+        // its readings 1 ms after their requests, its controller taking positions at once).
         for (after_s, expected) in [
+            (-0.001, 0.999),
             (0.0, 1.0),
             (5.0 / 5760.0, arrival),
             (0.004, 1.004),
