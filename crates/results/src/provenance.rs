@@ -465,6 +465,7 @@ pub(crate) mod tests {
                 ambient_variation: 0.2,
                 ambient_period_s: 1800.0,
                 ambient_phase_deg: 40.0,
+                reading_delay_s: 0.0,
             }),
             source: Some(SourceTruthRecord {
                 warmup_fraction: 0.01,

@@ -74,6 +74,8 @@ pub struct DetectorTruth {
     pub ambient_variation: f64,
     pub ambient_period_s: f64,
     pub ambient_phase_deg: f64,
+    /// How long after a request a reading starts integrating (s).
+    pub reading_delay_s: f64,
 }
 
 impl DetectorTruth {
@@ -108,6 +110,7 @@ impl DetectorTruth {
             } else {
                 0.0
             },
+            reading_delay_s: settings.reading_delay_ms / 1000.0,
         }
     }
 
@@ -149,6 +152,7 @@ impl DetectorTruth {
             && self.amplifier_noise_a_per_rthz == 0.0
             && self.signature.is_zero()
             && self.ambient_a == 0.0
+            && self.reading_delay_s == 0.0
     }
 }
 

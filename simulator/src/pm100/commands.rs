@@ -274,12 +274,18 @@ impl Pm100 {
         stb
     }
 
-    /// Take one reading of the configured function; the reply is ready after the averaging time.
+    /// Take one reading of the configured function; the reply is ready after the averaging time (which starts
+    /// the imperfect meter's reading delay after the request).
     fn measure(&self, st: &mut MeterState, now: f64) -> Reply {
         let n = st.settings.averaging.max(1);
-        let done = now + f64::from(n) * SAMPLE_S;
+        let start = now
+            + self
+                .imperfections
+                .as_ref()
+                .map_or(0.0, |t| t.reading_delay_s.max(0.0));
+        let done = start + f64::from(n) * SAMPLE_S;
         let r_set = self.responsivity.at(st.settings.wavelength_nm);
-        let Some(current_a) = self.reading_a(st, now, n, r_set) else {
+        let Some(current_a) = self.reading_a(st, start, n, r_set) else {
             // Questionable condition bit 3 (POWer over range); its positive transition latches the event.
             if st.ques_cond & QUES_POWER_OVERRANGE == 0 {
                 st.ques_event |= QUES_POWER_OVERRANGE;

@@ -165,6 +165,7 @@ fn record(hidden: &HiddenTruth, mountings: usize) -> SimulatorTruth {
             ambient_variation: d.ambient_variation,
             ambient_period_s: d.ambient_period_s,
             ambient_phase_deg: d.ambient_phase_deg,
+            reading_delay_s: d.reading_delay_s,
         }),
         source: hidden.source.as_ref().map(|s| SourceTruthRecord {
             warmup_fraction: s.warmup_fraction,

@@ -548,7 +548,8 @@ fn with_sampling(latency_ms: f64, sampled_ms: f64) -> InstrumentFile {
 /// (the ideal file, and a controller answering 10 ms later, whose file is silent on it: it fails naming
 /// `position_sampled_ms`, since a sweep would date the reports in the middle of the window, about 5 ms late;
 /// the file that says 0 passes), and on hidden hardware that takes it 2.5 ms or 9 ms after the query was sent
-/// (`[simulator.actual.devices.arms]`), found within 0.3 ms.
+/// (`[simulator.actual.devices.arms]`), found within 0.3 ms; a meter starting its readings 1.5 ms after their
+/// requests gives -1.5 ms.
 #[tokio::test(start_paused = true)]
 async fn when_a_controller_takes_its_reported_positions_is_measured() {
     let key = "devices.arms.position_sampled_ms";
@@ -592,4 +593,14 @@ async fn when_a_controller_takes_its_reported_positions_is_measured() {
         assert!((found - truth_ms).abs() <= 0.3, "{truth_ms}: {found} ms");
         assert_eq!(r.failed_keys(), vec![key], "{:#?}", r.checks);
     }
+    // A meter that starts each reading 1.5 ms after its request, its controllers taking their positions as a
+    // query is sent: the readings are that much later than a sweep places them, which the instant measured
+    // takes in (below zero).
+    let text =
+        format!("{SIMULATED_INSTRUMENT_TOML}\n[simulator.imperfections.detector]\nreading_delay_ms = 1.5\n");
+    let file = InstrumentFile::parse(&text, "slow-meter.toml").expect("valid");
+    let r = selftest_of(&file).await;
+    let found = measured(&r, key);
+    eprintln!("meter starting its readings 1.5 ms late: measured {found:.3} ms");
+    assert!((found + 1.5).abs() <= 0.3, "{found} ms");
 }

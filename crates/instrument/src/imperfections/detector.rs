@@ -48,6 +48,11 @@ pub struct DetectorImperfections {
     /// Period of that variation (s; 0 means 1800).
     #[serde(default)]
     pub ambient_period_s: f64,
+    /// How long after a measurement request the meter starts integrating (ms): the request's USB transfer
+    /// and the meter's own sample clock. A sweep places its readings by when they were requested: the
+    /// self-test's sampling instant (`position_sampled_ms`) takes this in.
+    #[serde(default)]
+    pub reading_delay_ms: f64,
 }
 
 impl DetectorImperfections {
@@ -63,6 +68,7 @@ impl DetectorImperfections {
             && self.stray_peak_sr == 0.0
             && self.stray_floor_sr == 0.0
             && self.ambient_a == 0.0
+            && self.reading_delay_ms == 0.0
     }
 
     /// The ambient light's period in use (s).
@@ -144,6 +150,12 @@ impl DetectorImperfections {
                 86_400.0 * 7.0,
                 "a week-long cycle is a drift",
             ),
+            (
+                "reading_delay_ms",
+                self.reading_delay_ms,
+                50.0,
+                "a meter that slow to start a reading is broken",
+            ),
         ] {
             check(G, key, value, limit, why)?;
         }
@@ -196,5 +208,15 @@ mod tests {
             "{msg}"
         );
         assert_eq!(DetectorImperfections::default().ambient_period(), 1800.0);
+        // A reading delay alone makes the meter imperfect; beyond 50 ms it is refused.
+        let slow = |ms: f64| DetectorImperfections {
+            reading_delay_ms: ms,
+            ..Default::default()
+        };
+        assert!(!slow(1.5).is_ideal() && slow(1.5).validate().is_ok());
+        for bad in [100.0, -1.0] {
+            let msg = slow(bad).validate().expect_err("refused").to_string();
+            assert!(msg.contains("reading_delay_ms"), "{msg}");
+        }
     }
 }

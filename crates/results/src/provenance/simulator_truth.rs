@@ -120,6 +120,11 @@ pub struct SampleTruthRecord {
     pub radial: f64,
 }
 
+/// Zero: the field is left out of run.json.
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
 /// The detector's imperfections (models: simulator/src/imperfections/detector.rs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DetectorTruthRecord {
@@ -138,6 +143,9 @@ pub struct DetectorTruthRecord {
     pub ambient_variation: f64,
     pub ambient_period_s: f64,
     pub ambient_phase_deg: f64,
+    /// How long after a request the meter starts integrating a reading (s).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub reading_delay_s: f64,
 }
 
 /// One range's hidden errors: a true current `I` reads `I (1 + gain) (1 + nonlinearity I / I_fs) + offset_fs
