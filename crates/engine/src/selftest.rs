@@ -1,7 +1,7 @@
 //! The self-test: each device identified and exercised, and what the instrument file claims about the hardware
 //! measured on it (each axis's top speed, acceleration, settle time and backlash, the wheel's time per position,
-//! each device's reply latency, the meter's dark and noise per range), every figure against the file's value
-//! with a verdict.
+//! each device's reply latency, when the arms' controllers take their reported positions, the meter's dark and
+//! noise per range), every figure against the file's value with a verdict.
 //!
 //! How each figure is measured (the fits are pure: `fit`):
 //! - An axis's top speed and acceleration: a long move of that axis alone (the arms parked apart, in the order
@@ -18,6 +18,8 @@
 //!   white relative noise (`source.relative_noise`) from readings of the direct beam at averaging 1 while the
 //!   holder is empty for the settle times (`noise`: how, and what ambient light does to a dark).
 //!
+//! - When each swept arm's controller takes the positions it reports (`position_sampled_ms`): the direct beam
+//!   swept both ways at two speeds, last while the holder is empty (`sweep_timing`).
 //! - Settle time and backlash: the meter on a sharp edge in the beam, the direct beam's for the arms and a
 //!   mirror's reflection for the tilt (`settle`, the fit in `ringdown`); the rotation's are not observable that
 //!   way, and the report says so. The settle time fails only when the hardware needs longer than the file

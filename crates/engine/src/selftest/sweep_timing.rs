@@ -6,13 +6,14 @@
 //!
 //! Each pass is a sweep as a campaign makes one (crate::motion::sweep): the meter read back to back at no
 //! averaging on a fixed range, position reports beside the readings, each reading placed on the commanded
-//! trapezoid shifted by the arm's lag taken from the reports, and the reports dated as if taken when the query was sent.
-//! Taken `s` later than that, every report is dated `s` early, the lag comes out `s` short and every reading is
-//! placed `v s` ahead of the arm at speed `v`: the beam's centre (its centroid, `pass_centre`) appears `v s`
-//! further along the sweep. Swept up and then down, the two
-//! centres differ by `2 v s`, plus whatever the file's backlash leaves (the load's play, which does not scale
-//! with the speed): the difference at two speeds gives `s`. The meter's own timing is in it too (a reading
-//! integrating later than its request would look like a later report): `s` is what placing the readings needs.
+//! trapezoid shifted by the arm's lag taken from the reports, and the reports dated as if taken when the query
+//! was sent. Taken `s` later than that, every report is dated `s` early, the lag comes out `s` short and every
+//! reading is placed `v s` ahead of the arm at speed `v`: the beam's centre (its centroid, `pass_centre`)
+//! appears `v s` further along the sweep. Swept up and then down, the two centres differ by `2 v s`, plus
+//! whatever the file's backlash leaves (the load's play, which does not scale with the speed): the difference
+//! at two speeds gives `s`. The meter's own timing is in it too: a meter that starts integrating `d` after a
+//! reading's request makes every reading `v d` later than placed, which reads as `s - d`. That difference is
+//! what placing the readings needs, and below zero when the meter's delay is the longer.
 
 use gonio_driver::{DetectorConfig, PowerRange};
 use gonio_scheduler::kinematics::Pose;
@@ -33,7 +34,7 @@ const REPORT_EVERY: usize = 4;
 pub(super) type SpeedRuns = (f64, Vec<(f64, f64)>, Vec<(f64, f64)>);
 
 /// Passes per speed and direction.
-pub const SAMPLING_REPEATS: usize = 3;
+const SAMPLING_REPEATS: usize = 3;
 /// Readings across each edge (15 % to 85 % of the way up) at the faster speed, at least.
 const EDGE_READINGS: f64 = 8.0;
 /// The slower speed is this fraction of the faster.
