@@ -435,71 +435,59 @@ fn plan_and_run_an_adaptive_campaign_whose_first_pass_sweeps() {
     );
 }
 
-/// On real hardware whose file does not say how long its motion controllers take to answer, `gonio plan` says
-/// that the prediction counts none; on the simulator, or once the file says it, nothing.
-#[test]
-fn plan_says_when_the_file_does_not_give_the_controllers_reply_latency() {
-    let root = repo_root();
-    let demo = root.join("config/campaigns/demo.toml");
-    let simulated = std::fs::read_to_string(root.join("config/instruments/simulated.toml")).expect("read");
-    let dir = tempfile::tempdir().expect("temp dir");
-    let plan_on = |text: &str| {
-        let path = dir.path().join("lab.toml");
-        std::fs::write(&path, text).expect("write");
-        let out = gonio()
-            .arg("plan")
-            .arg(&demo)
-            .arg("--instrument")
-            .arg(&path)
-            .output()
-            .expect("run gonio");
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        String::from_utf8_lossy(&out.stdout).into_owned()
-    };
-    assert!(!plan_on(&simulated).contains("reply_latency_ms"));
-    // The arms on a real port (gonio plan opens no port).
+/// What `gonio plan CAMPAIGN` prints on the instrument file `text` (written into `dir`); it must succeed.
+fn plan_on(dir: &std::path::Path, campaign: &std::path::Path, text: &str) -> String {
+    let path = dir.join("lab.toml");
+    std::fs::write(&path, text).expect("write");
+    let out = gonio()
+        .arg("plan")
+        .arg(campaign)
+        .arg("--instrument")
+        .arg(&path)
+        .output()
+        .expect("run gonio");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The simulated instrument's file with the arms on a real port (`gonio plan` opens no port), and that file.
+fn simulated_and_real_arms() -> (String, String) {
+    let simulated =
+        std::fs::read_to_string(repo_root().join("config/instruments/simulated.toml")).expect("read");
     let real = simulated.replace(
         "name = \"arms\"\nprotocol = \"smc100\"\nport = \"sim\"\n",
         "name = \"arms\"\nprotocol = \"smc100\"\nport = \"/dev/ttyUSB0\"\n",
     );
     assert_ne!(real, simulated);
-    let printed = plan_on(&real);
+    (simulated, real)
+}
+
+/// On real hardware whose file does not say how long its motion controllers take to answer, `gonio plan` says
+/// that the prediction counts none; on the simulator, or once the file says it, nothing.
+#[test]
+fn plan_says_when_the_file_does_not_give_the_controllers_reply_latency() {
+    let demo = repo_root().join("config/campaigns/demo.toml");
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (simulated, real) = simulated_and_real_arms();
+    assert!(!plan_on(dir.path(), &demo, &simulated).contains("reply_latency_ms"));
+    let printed = plan_on(dir.path(), &demo, &real);
     assert!(
         printed.contains("does not say how long arms take to answer a query (reply_latency_ms)"),
         "{printed}"
     );
     let said = real.replace("name = \"arms\"\n", "name = \"arms\"\nreply_latency_ms = 10.0\n");
-    assert!(!plan_on(&said).contains("does not say"));
+    assert!(!plan_on(dir.path(), &demo, &said).contains("does not say"));
 }
 
 /// On real controllers whose file does not say when they take the position they report, `gonio plan` of a
 /// campaign with sweeps says so; on the simulator, or once the file says it, nothing.
 #[test]
 fn plan_says_when_the_file_does_not_give_when_the_swept_arms_controller_takes_its_positions() {
-    let root = repo_root();
-    let sweeps = root.join("config/campaigns/sweeps.toml");
-    let simulated = std::fs::read_to_string(root.join("config/instruments/simulated.toml")).expect("read");
+    let sweeps = repo_root().join("config/campaigns/sweeps.toml");
     let dir = tempfile::tempdir().expect("temp dir");
-    let plan_on = |text: &str| {
-        let path = dir.path().join("lab.toml");
-        std::fs::write(&path, text).expect("write");
-        let out = gonio()
-            .arg("plan")
-            .arg(&sweeps)
-            .arg("--instrument")
-            .arg(&path)
-            .output()
-            .expect("run gonio");
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        String::from_utf8_lossy(&out.stdout).into_owned()
-    };
-    assert!(!plan_on(&simulated).contains("position_sampled_ms"));
-    let real = simulated.replace(
-        "name = \"arms\"\nprotocol = \"smc100\"\nport = \"sim\"\n",
-        "name = \"arms\"\nprotocol = \"smc100\"\nport = \"/dev/ttyUSB0\"\n",
-    );
-    assert_ne!(real, simulated);
-    let printed = plan_on(&real);
+    let (simulated, real) = simulated_and_real_arms();
+    assert!(!plan_on(dir.path(), &sweeps, &simulated).contains("position_sampled_ms"));
+    let printed = plan_on(dir.path(), &sweeps, &real);
     assert!(
         printed.contains("does not say when arms take the position they report (position_sampled_ms)"),
         "{printed}"
@@ -508,5 +496,5 @@ fn plan_says_when_the_file_does_not_give_when_the_swept_arms_controller_takes_it
         "name = \"arms\"\n",
         "name = \"arms\"\nposition_sampled_ms = 1.0\n",
     );
-    assert!(!plan_on(&said).contains("position_sampled_ms"));
+    assert!(!plan_on(dir.path(), &sweeps, &said).contains("position_sampled_ms"));
 }

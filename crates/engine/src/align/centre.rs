@@ -30,8 +30,8 @@ pub struct Located {
     pub u: f64,
 }
 
-/// Readings at positions, sorted by position.
-fn sorted(samples: &[(f64, f64)]) -> Vec<(f64, f64)> {
+/// Readings at positions, sorted by position (those that are not numbers left out).
+pub(crate) fn sorted(samples: &[(f64, f64)]) -> Vec<(f64, f64)> {
     let mut s: Vec<(f64, f64)> = samples
         .iter()
         .copied()

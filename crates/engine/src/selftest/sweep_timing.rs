@@ -21,6 +21,7 @@ use gonio_scheduler::sweep::sweep_reading_period_s;
 use gonio_scheduler::timing::DETECTOR_SAMPLE_S;
 
 use super::fit::mean_std;
+use crate::align::centre::sorted;
 use crate::align::scan::Profile;
 use crate::motion::sweep::{Reader, ReportDating, load_offset_deg, sweep_axis};
 use crate::motion::{Device, Motion, MotionError};
@@ -94,12 +95,7 @@ fn window_margin_deg(profile: &Profile) -> f64 {
 pub(super) fn pass_centre(readings: &[(f64, f64)], profile: &Profile) -> Result<(f64, f64), String> {
     let margin = window_margin_deg(profile);
     let (lo, hi) = (profile.low.value - margin, profile.high.value + margin);
-    let mut sorted: Vec<(f64, f64)> = readings
-        .iter()
-        .copied()
-        .filter(|(x, w)| x.is_finite() && w.is_finite())
-        .collect();
-    sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let sorted = sorted(readings);
     if !(sorted.first().is_some_and(|p| p.0 < lo) && sorted.last().is_some_and(|p| p.0 > hi)) {
         return Err("the pass did not cross the whole beam".into());
     }
