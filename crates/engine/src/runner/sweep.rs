@@ -66,9 +66,9 @@ fn report_every(cruise_s: f64, period_s: f64) -> usize {
 }
 
 /// How well the time of a sweep's readings is known for placing them along the arc (s, standard uncertainty):
-/// the meter's exchange ([`budget::TIMING_U_S`]) and where the controller took its position reports
-/// within their widest dating window (`crate::motion::sweep::ReportDating`; none when the file says), anywhere alike: `window / sqrt(12)`. The
-/// lag taken from the reports carries that uncertainty to every reading of the sweep.
+/// the meter's exchange ([`budget::TIMING_U_S`]) and where the controller took its position reports within
+/// their widest dating window (`crate::motion::sweep::ReportDating`; none when the file says when), anywhere
+/// alike: `window / sqrt(12)`. The lag taken from the reports carries that uncertainty to every reading.
 fn timing_u_s(widest_window_s: f64) -> f64 {
     let window = if widest_window_s.is_finite() {
         widest_window_s.max(0.0)
@@ -191,7 +191,6 @@ impl Run<'_> {
         self.configured_nm = None;
         // The meter set up for the sweep's readings before the arm starts: none of the arc passes meanwhile.
         acquisition::configure(&self.motion, band_nm, &acquisition, &mut self.configured_nm).await?;
-        let started = self.t();
         let (speed, accel) = (arc.request.speed_deg_s, axis.config.accel_deg_s2);
         let planned = Trapezoid {
             t0_s: 0.0,
@@ -283,7 +282,8 @@ impl Run<'_> {
         let record = SweepSegmentRecord {
             segment,
             band_nm: step.band_nm,
-            started_s: started,
+            // When the move command went out, as before the pass moved to crate::motion::sweep.
+            started_s: profile.t0_s + t_offset,
             ended_s: ended,
             readings: u32::try_from(readings.len()).unwrap_or(u32::MAX),
             timing_u_s: Some(timing_u_s(widest_window_s)),
