@@ -411,7 +411,8 @@ fn plan_and_run_an_adaptive_campaign_whose_first_pass_sweeps() {
         "adaptive plan: budget 60 points",
         "first pass: the sweeps below",
         "sweeps: 1 arcs requested, 2 swept",
-        "the sweeps and 60 points, every pass rehearsed on the campaign's [material]",
+        "the sweeps and 60 points, every pass rehearsed on the campaign's [material], the mean of 8 rehearsals \
+         with a reading's noise (their spread",
     ] {
         assert!(stdout.contains(needle), "{needle:?} not in\n{stdout}");
     }

@@ -11,6 +11,8 @@
 //! - [`prepare`]: the one prepare: plan, schedule and time model ([`Prepared`]), used by `gonio plan`,
 //!   `gonio run`, the daemon, the exports and the benchmarks.
 //! - [`passes`]: adaptive plans at run time: each later pass from the points measured so far ([`AdaptivePlan`]).
+//! - [`rehearsal`]: an adaptive plan's duration before it runs: its passes rehearsed on a stand-in sample
+//!   ([`Rehearsal`]).
 
 pub mod error;
 mod follow;
@@ -19,6 +21,7 @@ mod materials;
 pub mod model;
 pub mod passes;
 pub mod prepare;
+pub mod rehearsal;
 pub mod sources;
 
 pub use error::{CampaignError, line_of};
@@ -30,4 +33,5 @@ pub use model::{
 };
 pub use passes::{AdaptivePlan, NextPass, measured_geometries};
 pub use prepare::{Prepared, Sweeps, campaign_time_model, load_and_prepare, prepare, sample_traits};
+pub use rehearsal::Rehearsal;
 pub use sources::{Resolved, Sources};

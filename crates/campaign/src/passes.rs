@@ -26,7 +26,8 @@ use gonio_scheduler::kinematics::{Geometry, Pose};
 use gonio_scheduler::plan::AdaptiveSpec;
 use gonio_scheduler::plan::{self, BuildContext, Plan, PlanError, PlanSpec};
 use gonio_scheduler::schedule::{self, Cadence, Schedule};
-use gonio_scheduler::sweep::{SweepPlan, SweepSchedule, sweep_reading_period_s};
+use gonio_scheduler::sweep::SweepSchedule;
+
 use gonio_scheduler::timing::TimeModel;
 
 /// Where the work before a pass left the instrument: its pose (None: unknown) and the calibration cadence.
@@ -64,13 +65,13 @@ impl After {
 /// The adaptive planner of one campaign, with what it needs to place and order a pass.
 #[derive(Debug, Clone)]
 pub struct AdaptivePlan {
-    adaptive: Adaptive,
+    pub(crate) adaptive: Adaptive,
     /// `[plan]` without the grid and the adaptive table: bands, repeats, calibration cadence.
     batch_spec: PlanSpec,
     instrument: gonio_instrument::Instrument,
     traits: gonio_scheduler::plan::SampleTraits,
     sample_radius_mm: Option<f64>,
-    time: TimeModel,
+    pub(crate) time: TimeModel,
     /// Points (measure steps) per geometry: bands x repeats.
     points_per_geometry: u64,
     budget_points: u64,
@@ -183,89 +184,6 @@ impl AdaptivePlan {
             },
         }
     }
-}
-
-/// The stand-in sample of a rehearsal when the campaign names none: a glossy dielectric (a lobe the planner
-/// refines and a diffuse floor), the commonest kind of sample.
-const STAND_IN_PRESET: &str = "coloured-plastic";
-
-/// What an adaptive campaign's later passes will take, planned before it runs: its passes placed in turn, each
-/// from the values a stand-in sample gives at the points before it, exactly as the run places them from the
-/// values it measures. The stand-in is the campaign's `[material]` (a dry-run's simulated sample; for a real
-/// sample, what the lab declared) or, without one, a glossy plastic. Returns the predicted instrument time of
-/// every pass, the first included, and the points they measure. How far the real passes differ depends on how
-/// far the sample differs from its stand-in: the planner refines where the sample's BRDF varies.
-///
-/// `swept`: a first pass of sweeps (`first_pass_sweeps`), whose readings the stand-in gives along every arc
-/// at the planner's binning; their time is in the total.
-pub fn rehearse(
-    adaptive: &AdaptivePlan,
-    first: &Schedule,
-    swept: Option<(&SweepPlan, &SweepSchedule)>,
-    material: Option<&gonio_brdf::material::Material>,
-) -> (f64, u64) {
-    use gonio_brdf::{Brdf, Wavelength};
-    let swept_s = swept.map_or(0.0, |(_, s)| s.breakdown.total_s());
-    let fallback = gonio_brdf::material::Material::preset(STAND_IN_PRESET).ok();
-    let Some(sample) = material.or(fallback.as_ref()) else {
-        return (
-            first.breakdown.total_s() + swept_s,
-            first.measure_steps().count() as u64,
-        );
-    };
-    let eval = |g: Geometry, band_nm: Option<f64>| -> Option<f64> {
-        let (wi, wo) = g.directions();
-        band_nm
-            .and_then(|nm| Wavelength::from_nm(nm).ok())
-            .or_else(|| Wavelength::from_nm(550.0).ok())
-            .and_then(|wl| sample.eval(&wi, &wo, wl).ok())
-    };
-    let value = |step: &gonio_scheduler::schedule::Step| -> (Geometry, Option<f64>) {
-        let g = step.geometry.unwrap_or_else(|| Geometry::new(0.0, 0.0, 0.0, 0.0));
-        (g, eval(g, step.band_nm))
-    };
-    // The sweeps' readings, one every reading period at cruise along every arc in every band, binned as the
-    // planner takes them: a bin's mean over a lobe is not its value at the bin's centre, and the passes the
-    // planner places from it are what is timed.
-    let mut readings: Vec<(Geometry, Option<f64>)> = Vec::new();
-    if let Some((plan, _)) = swept {
-        let bands: Vec<Option<f64>> = if plan.bands_nm.is_empty() {
-            vec![None]
-        } else {
-            plan.bands_nm.iter().map(|b| Some(*b)).collect()
-        };
-        for arc in &plan.arcs {
-            let step_deg = arc.request.speed_deg_s * sweep_reading_period_s(arc.request.averaging);
-            for g in arc.geometries_every(step_deg) {
-                readings.extend(bands.iter().map(|b| (g, eval(g, *b))));
-            }
-        }
-    }
-    let swept_values = swept_values(adaptive, readings);
-    let mut points: Vec<(Geometry, Option<f64>)> = first.measure_steps().map(value).collect();
-    let mut elapsed_s = first.breakdown.total_s() + swept_s;
-    let mut after = match swept {
-        Some((_, s)) => After::sweeps(s),
-        None => After::schedule(first),
-    };
-    // Every pass measures at least one point and the budget is finite; the bound is a guard, not a limit.
-    for _ in 0..adaptive.budget_points() {
-        let (measured, counted) = planner_input(&swept_values, &points);
-        match adaptive.next_pass(&measured, counted, elapsed_s, after) {
-            NextPass::Pass { schedule, .. } => {
-                elapsed_s += schedule.breakdown.total_s();
-                points.extend(schedule.measure_steps().map(value));
-                after = After::schedule(&schedule);
-            }
-            NextPass::Done { .. } => break,
-        }
-    }
-    // The daemon closes the beam when the run ends: a last turn of the wheel to its blank.
-    let blank = adaptive.time.wheel.as_ref().and_then(|w| w.blank);
-    if after.cadence.wheel.is_some() {
-        elapsed_s += adaptive.time.wheel_time_s(after.cadence.wheel, blank);
-    }
-    (elapsed_s, points.len() as u64)
 }
 
 /// A first pass of sweeps as the planner takes it: each reading `(geometry at its arc's centre, BRDF in 1/sr or

@@ -15,6 +15,7 @@ use crate::error::CampaignError;
 use crate::load::{Campaign, load};
 use crate::materials::check_reference;
 use crate::passes::AdaptivePlan;
+use crate::rehearsal::{Deferred, Rehearsal};
 use crate::sources::Sources;
 
 /// A campaign ready to run: settings, plan, schedule and time model.
@@ -29,9 +30,8 @@ pub struct Prepared {
     pub time: TimeModel,
     /// An adaptive plan's later passes, placed at run time from the points measured.
     pub adaptive: Option<AdaptivePlan>,
-    /// An adaptive plan rehearsed on a stand-in sample ([`crate::passes::rehearse`]): the predicted instrument
-    /// time of all its passes (s) and the points they measure.
-    pub rehearsal: Option<(f64, u64)>,
+    /// An adaptive plan's rehearsal on a stand-in sample, made when first asked for ([`Prepared::rehearsal`]).
+    rehearsal: Deferred,
     /// The plan's `[[plan.sweeps]]`, after its points; or an adaptive plan's first pass of sweeps, before them.
     pub sweeps: Option<Sweeps>,
 }
@@ -60,8 +60,8 @@ impl Prepared {
     /// Predicted instrument time (s): the schedule's; for an adaptive plan, every pass as rehearsed on a stand-in
     /// sample (the later passes are placed at run time from the values measured); then the sweeps'.
     pub fn predicted_s(&self) -> f64 {
-        let points = match self.rehearsal {
-            Some((s, _)) => s,
+        let points = match self.rehearsal() {
+            Some(r) => r.mean_s,
             None => self.schedule.breakdown.total_s(),
         };
         // A first pass of sweeps is in the rehearsal already.
@@ -71,6 +71,27 @@ impl Prepared {
                 .as_ref()
                 .filter(|s| !s.first)
                 .map_or(0.0, |s| s.schedule.breakdown.total_s())
+    }
+
+    /// An adaptive plan rehearsed on a stand-in sample ([`crate::rehearsal::rehearse`]): the predicted instrument
+    /// time of all its passes, its spread, and the points they measure; made on the first call (a second or two
+    /// of work). None for a fixed plan.
+    pub fn rehearsal(&self) -> Option<Rehearsal> {
+        let adaptive = self.adaptive.as_ref()?;
+        *self.rehearsal.made.get_or_init(|| {
+            let swept = self
+                .sweeps
+                .as_ref()
+                .filter(|s| s.first)
+                .map(|s| (&s.plan, &s.schedule));
+            Some(crate::rehearsal::rehearse(
+                adaptive,
+                &self.schedule,
+                swept,
+                self.campaign.material.as_ref(),
+                self.rehearsal.noise,
+            ))
+        })
     }
 
     /// True when sweeps run before the points: an adaptive plan's first pass of sweeps.
@@ -233,13 +254,10 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
         check_reference(r, &bands, instrument, campaign.sample_radius_mm)
             .map_err(|(key, e)| at.err("calibration", key, e))?;
     }
-    let swept = sweeps
-        .as_ref()
-        .filter(|s| s.first)
-        .map(|s| (&s.plan, &s.schedule));
-    let rehearsal = adaptive
-        .as_ref()
-        .map(|a| crate::passes::rehearse(a, &schedule, swept, campaign.material.as_ref()));
+    let rehearsal = Deferred::new(crate::rehearsal::reading_noise(
+        instrument,
+        campaign.acquisition.averaging,
+    ));
     Ok(Prepared {
         campaign,
         plan,

@@ -100,14 +100,15 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
             sweep_lines(&mut out, sweeps);
             follow_lines(&mut out, &p.campaign.sweep_profiles);
         }
-        match p.rehearsal {
-            Some((_, points)) => {
+        match p.rehearsal() {
+            Some(r) => {
                 let _ = writeln!(
                     out,
-                    "predicted duration: {:.1} s ({}), the sweeps and {points} points, every pass rehearsed on {}",
+                    "predicted duration: {:.1} s ({}), the sweeps and {} points, {}",
                     p.predicted_s(),
                     hms(p.predicted_s()),
-                    stand_in(p)
+                    r.points,
+                    rehearsed(p, &r)
                 );
             }
             None => {
@@ -163,13 +164,14 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
             "arm-separation", sched.dropped
         );
     }
-    if let Some((_, points)) = p.rehearsal {
+    if let Some(r) = p.rehearsal() {
         let _ = writeln!(
             out,
-            "predicted duration: {:.1} s ({}) for {points} points, every pass rehearsed on {}",
+            "predicted duration: {:.1} s ({}) for {} points, {}",
             p.predicted_s(),
             hms(p.predicted_s()),
-            stand_in(p)
+            r.points,
+            rehearsed(p, &r)
         );
     }
     let label = match (&p.adaptive, &p.sweeps) {
@@ -246,11 +248,20 @@ fn sampling_note(file: &InstrumentFile, sweeps: &gonio_campaign::Sweeps) -> Stri
     )
 }
 
-/// What an adaptive plan's passes are rehearsed on (`gonio_campaign::passes::rehearse`).
-fn stand_in(p: &Prepared) -> &'static str {
-    match &p.campaign.material {
+/// How an adaptive plan's passes were rehearsed (gonio_campaign::rehearsal): on what, how many times, and how
+/// far apart the rehearsals came out.
+fn rehearsed(p: &Prepared, r: &gonio_campaign::Rehearsal) -> String {
+    let on = match &p.campaign.material {
         Some(_) => "the campaign's [material]",
         None => "a glossy plastic (the campaign names no [material])",
+    };
+    if r.draws > 1 {
+        format!(
+            "every pass rehearsed on {on}, the mean of {} rehearsals with a reading's noise (their spread {:.1} s)",
+            r.draws, r.spread_s
+        )
+    } else {
+        format!("every pass rehearsed on {on}")
     }
 }
 
@@ -341,7 +352,14 @@ const REHEARSAL_BAND: f64 = 0.03;
 /// operator's own time at each sample change, retries after device faults).
 fn band_line(p: &Prepared) -> String {
     let predicted = p.predicted_s();
-    let rel = MODEL_BAND + if p.adaptive.is_some() { REHEARSAL_BAND } else { 0.0 };
+    // An adaptive plan: the rehearsals' own spread (k = 2) where it is wider than the stand-in's allowance.
+    let placement = match p.rehearsal() {
+        Some(r) if predicted > 0.0 => REHEARSAL_BAND.max(2.0 * r.spread_s / predicted),
+        Some(_) => REHEARSAL_BAND,
+        None if p.adaptive.is_some() => REHEARSAL_BAND,
+        None => 0.0,
+    };
+    let rel = MODEL_BAND + placement;
     // Each run of reference readings is one session: the sample out (or the reference in) and back.
     let sessions = p
         .schedule

@@ -168,10 +168,10 @@ fn a_first_pass_of_sweeps_prepares_as_sweeps_before_a_plan_of_no_point() {
     // The run goes on after the sweeps: their schedule does not close the beam, and the prediction counts
     // their time once (in the rehearsal), with the points after them.
     assert_eq!(sweeps.schedule.breakdown.closing_s, 0.0);
-    let (rehearsed_s, points) = p.rehearsal.expect("rehearsed");
-    assert_eq!(points, 100);
-    assert_eq!(p.predicted_s(), rehearsed_s);
-    assert!(rehearsed_s > sweeps.schedule.breakdown.total_s() + 50.0);
+    let r = p.rehearsal().expect("rehearsed");
+    assert_eq!(r.points, 100);
+    assert_eq!(p.predicted_s(), r.mean_s);
+    assert!(r.mean_s > sweeps.schedule.breakdown.total_s() + 50.0);
 
     // No other sweeps beside it; a speed the arm cannot reach is named where the campaign asked for it.
     let beside = swept_first(
