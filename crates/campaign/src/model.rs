@@ -16,7 +16,8 @@
 //!   `[theta_i, phi_i, theta_o, phi_o]` the reference is read at, default `[0.0, 0.0, 45.0, 180.0]`, the 0/45
 //!   geometry of reflectance standards), `simulate_operator` (dry-runs: the simulated operator swaps samples;
 //!   default true).
-//! - `[acquisition]` `averaging` (samples per reading), `range` ("auto" or a full-scale power in W),
+//! - `[acquisition]` `averaging` (samples per reading), `calibration_averaging` (samples per dark and
+//!   normalisation reading), `range` ("auto" or a full-scale power in W),
 //!   `settle_s` (extra settling after arrival, on top of each axis' own), `retries` (per device operation).
 //! - `[material]` the simulated sample for dry-runs: a material table as in config/materials/ (gonio-brdf's
 //!   schema), or `preset = "<name>"`.
@@ -188,6 +189,10 @@ fn yes() -> bool {
 pub struct AcquisitionSection {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub averaging: Option<u32>,
+    /// Samples a dark or normalisation reading averages (default: the larger of `averaging` and
+    /// [`crate::load::MIN_CALIBRATION_AVERAGING`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_averaging: Option<u32>,
     /// `"auto"` or a full-scale power in W (kept as written for the loader's messages).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub range: Option<toml::Value>,

@@ -138,6 +138,8 @@ pub fn sample_traits(material: Option<&Material>) -> SampleTraits {
 pub fn campaign_time_model(campaign: &Campaign, instrument: &Instrument) -> TimeModel {
     let mut time = TimeModel::new(instrument);
     time.reading_s = gonio_scheduler::timing::reading_time_s(campaign.acquisition.averaging);
+    time.calibration_reading_s =
+        gonio_scheduler::timing::reading_time_s(campaign.acquisition.calibration_averaging);
     for axis in time.axes.iter_mut().flatten() {
         axis.settle_s += campaign.acquisition.extra_settle_s;
     }

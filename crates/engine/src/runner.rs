@@ -125,6 +125,8 @@ struct Run<'a> {
     t_base: f64,
     t_clock0: f64,
     configured_nm: Option<f64>,
+    /// The samples a reading averages that the meter was last configured for by `read_parts` (None: not yet).
+    configured_averaging: Option<u32>,
     wheel_at: Option<u8>,
     darks: Darks,
     /// Normalisation readings per band, net of dark, in time order: direct beam (absolute) or reference sample
@@ -310,6 +312,7 @@ pub(crate) async fn run(
         },
         t_clock0: clock.now_s(),
         configured_nm: None,
+        configured_averaging: None,
         wheel_at: None,
         darks: Darks::default(),
         norm: Normalisations::default(),

@@ -282,12 +282,12 @@ fn schedule_framed(plan: &Plan, time: &TimeModel, start: Option<&Pose>, frame: F
     // Only a complete schedule is forced to open and close with calibration readings.
     let readings = if frame == Frame::Complete { readings } else { 0 };
     if plan.calibration.darks() && readings > 0 {
-        calibration_lb += forced(plan.calibration.dark_every_points) as f64 * time.reading_s;
+        calibration_lb += forced(plan.calibration.dark_every_points) as f64 * time.calibration_reading_s;
     }
     if plan.calibration.references() && readings > 0 {
         calibration_lb += forced(plan.calibration.reference_every_points) as f64
             * plan.bands_nm.len() as f64
-            * time.reading_s;
+            * time.calibration_reading_s;
     }
     let lower_bound_s = if plan.geometries.is_empty() {
         0.0

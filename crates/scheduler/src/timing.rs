@@ -111,8 +111,11 @@ pub struct TimeModel {
     pub axis_count: usize,
     pub min_arm_separation_deg: f64,
     pub wheel: Option<WheelModel>,
-    /// One detector reading.
+    /// One detector reading at a point.
     pub reading_s: f64,
+    /// One dark or normalisation reading: they may average more samples than a point's (the campaign's
+    /// `[acquisition] calibration_averaging`).
+    pub calibration_reading_s: f64,
 }
 
 /// Breakdown of an instrument time.
@@ -182,6 +185,7 @@ impl TimeModel {
             min_arm_separation_deg: instrument.safety.min_arm_separation_deg,
             wheel,
             reading_s: reading_time_s(instrument.detector.averaging),
+            calibration_reading_s: reading_time_s(instrument.detector.averaging),
         }
     }
 

@@ -170,6 +170,7 @@ fn the_reading_noise_is_the_files_figures_averaged_over_the_samples() {
 fn the_meter_is_configured_from_the_acquisition_settings() {
     let acquisition = Acquisition {
         averaging: 300,
+        calibration_averaging: 300,
         range: Range::FixedW(5.0e-6),
         extra_settle_s: 0.0,
         retries: 2,

@@ -253,7 +253,7 @@ pub fn completions(
         .zip(super::drift::renormalise(
             calibrations,
             committed,
-            instrument.source.flicker_rel,
+            super::drift::Lamp::of(&instrument.source),
         ))
         .zip(committed)
     {

@@ -14,8 +14,40 @@
 //! each normalisation reading's, which moves every value interpolated from it together ([`Flicker`]). The
 //! second differences the curvature is estimated from hold the flicker too, and are taken net of it.
 //!
+//! A value after its band's last reading keeps the normalisation it was given while running, carried forward
+//! from that reading, and nothing after it says how far the lamp went since: the instrument file bounds its
+//! drift rate (`source.drift_per_hour`, which the characterisation measures), so the lamp may have moved by up
+//! to that rate times the time since the reading, taken as rectangular (`rate dt / sqrt 3`) and shared, like
+//! the reading's own noise, by every value carried from it. On the ideal instrument a sweep run of 12 minutes
+//! with no closing reading came out up to 1.1e-4 low at its end where its budget said 3e-5 (rms z 2.6).
+//!
 //! The readings are the campaign's stored calibration records (`direct-beam` or `reference`, net of the band's
-//! last dark before them, as the run loop took them). A point after its band's last reading keeps its value.
+//! last dark before them, as the run loop took them).
+
+/// What the lamp does between its readings, as the instrument file states it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Lamp {
+    /// Relative standard uncertainty of the lamp's power at any one moment about its slow course
+    /// (`source.flicker_rel`).
+    pub flicker_rel: f64,
+    /// The most its power drifts, relative, per hour (`source.drift_per_hour`).
+    pub drift_per_hour: f64,
+}
+
+impl Lamp {
+    pub fn of(source: &gonio_instrument::Source) -> Lamp {
+        Lamp {
+            flicker_rel: source.flicker_rel,
+            drift_per_hour: source.drift_per_hour.abs(),
+        }
+    }
+
+    /// The relative standard uncertainty of its power `dt_s` after a reading with nothing after it (module doc).
+    fn carried_rel(&self, dt_s: f64) -> f64 {
+        let d = self.drift_per_hour * dt_s.max(0.0) / 3600.0 / 3f64.sqrt();
+        if d.is_finite() { d } else { 0.0 }
+    }
+}
 
 use std::collections::BTreeMap;
 
@@ -30,8 +62,11 @@ pub struct Renormalised {
     pub curvature_rel: f64,
     /// The noise of the normalisation readings the value was interpolated from (the index of each among its
     /// band's readings, in time order), relative, weighted by the interpolation: shared by every value
-    /// interpolated from that reading, as their flicker is ([`Flicker::readings_rel`]).
+    /// interpolated from that reading, as their flicker is ([`Flicker::readings_rel`]). After the band's last
+    /// reading: that reading's noise and [`Renormalised::carried_rel`] in quadrature.
     pub readings_rel: Vec<(usize, f64)>,
+    /// After the band's last reading: the lamp's drift since it (module doc), relative; 0 between readings.
+    pub carried_rel: f64,
     pub flicker: Flicker,
 }
 
@@ -138,18 +173,19 @@ impl From<&PointRecord> for Normalised {
 pub fn renormalise(
     records: &[CalibrationRecord],
     points: &[PointRecord],
-    flicker_rel: f64,
+    lamp: Lamp,
 ) -> Vec<Option<Renormalised>> {
     let values: Vec<Normalised> = points.iter().map(Normalised::from).collect();
-    renormalise_values(records, &values, flicker_rel)
+    renormalise_values(records, &values, lamp)
 }
 
 /// [`renormalise`] of values of any kind (points, sweep readings).
 pub fn renormalise_values(
     records: &[CalibrationRecord],
     values: &[Normalised],
-    flicker_rel: f64,
+    lamp: Lamp,
 ) -> Vec<Option<Renormalised>> {
+    let flicker_rel = lamp.flicker_rel;
     let series = series(records);
     values
         .iter()
@@ -164,13 +200,16 @@ pub fn renormalise_values(
             // The readings around the point: k at or before it, k + 1 after it.
             let Some(k1) = s.iter().position(|(t, _, _)| *t > p.t_s) else {
                 // After the band's last reading the value keeps the normalisation it was given while running,
-                // carried forward from the last reading (its weight taken as one).
+                // carried forward from the last reading (its weight taken as one), and the lamp's drift since
+                // (module doc).
                 let last = s.len().checked_sub(1)?;
-                let (_, n, u) = s[last];
+                let (t, n, u) = s[last];
+                let carried_rel = lamp.carried_rel(p.t_s - t);
                 return Some(Renormalised {
                     factor: 1.0,
                     curvature_rel: 0.0,
-                    readings_rel: vec![(last, u / n)],
+                    readings_rel: vec![(last, (u / n).hypot(carried_rel))],
+                    carried_rel,
                     flicker: Flicker {
                         own_rel: flicker_rel,
                         readings_rel: vec![(last, flicker_rel)],
@@ -190,6 +229,7 @@ pub fn renormalise_values(
                 factor: p.incident_w / interpolated,
                 curvature_rel: curvature * (p.t_s - t0) * (t1 - p.t_s) / 2.0 / interpolated,
                 readings_rel: vec![(k, u0 * (1.0 - x) / interpolated), (k1, u1 * x / interpolated)],
+                carried_rel: 0.0,
                 flicker: Flicker {
                     own_rel: flicker_rel,
                     readings_rel: vec![
@@ -205,6 +245,14 @@ pub fn renormalise_values(
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
+
+    /// A lamp that flickers by `flicker_rel` and does not drift.
+    fn flicker(flicker_rel: f64) -> Lamp {
+        Lamp {
+            flicker_rel,
+            drift_per_hour: 0.0,
+        }
+    }
 
     fn record(kind: &str, t_s: f64, value_w: f64) -> CalibrationRecord {
         CalibrationRecord {
@@ -258,7 +306,7 @@ pub(super) mod tests {
         };
         let mut p = point_at(900.0, 550.0);
         p.incident_w = extrapolated;
-        let r = renormalise(&records, &[p], 0.0);
+        let r = renormalise(&records, &[p], flicker(0.0));
         let r = r[0].clone().expect("renormalised");
         // The value times `factor` is normalised by the interpolation, which is far closer to the truth.
         let interpolated = extrapolated / r.factor;
@@ -306,7 +354,9 @@ pub(super) mod tests {
         ];
         let mut p = point_at(700.0, 550.0);
         p.incident_w = 1e-3;
-        let r = renormalise(&records, &[p], 2e-4)[0].clone().expect("the flicker");
+        let r = renormalise(&records, &[p], flicker(2e-4))[0]
+            .clone()
+            .expect("the flicker");
         assert_eq!((r.factor, r.curvature_rel), (1.0, 0.0));
         assert_eq!(r.readings_rel, vec![(1, 0.0)], "readings without noise");
         assert_eq!(r.flicker.own_rel, 2e-4);
@@ -320,7 +370,7 @@ pub(super) mod tests {
             .collect();
         let mut p = point_at(750.0, 550.0);
         p.incident_w = 1e-3;
-        let r = renormalise(&records, &[p.clone()], 2e-4)[0]
+        let r = renormalise(&records, &[p.clone()], flicker(2e-4))[0]
             .clone()
             .expect("renormalised");
         assert_eq!(r.flicker.own_rel, 2e-4);
@@ -334,7 +384,9 @@ pub(super) mod tests {
             "{wa} {wb}"
         );
         // Without flicker in the file, none in the budget, and the same factor.
-        let plain = renormalise(&records, &[p], 0.0)[0].clone().expect("renormalised");
+        let plain = renormalise(&records, &[p], flicker(0.0))[0]
+            .clone()
+            .expect("renormalised");
         assert_eq!(plain.factor, r.factor);
         assert_eq!(plain.flicker.own_rel, 0.0);
         assert!(plain.flicker.readings_rel.iter().all(|(_, w)| *w == 0.0));
@@ -350,7 +402,9 @@ pub(super) mod tests {
         }));
         let mut p = point_at(751.0, 550.0);
         p.incident_w = 1e-3;
-        let r = renormalise(&records, &[p], 0.0)[0].clone().expect("renormalised");
+        let r = renormalise(&records, &[p], flicker(0.0))[0]
+            .clone()
+            .expect("renormalised");
         let [(a, wa), (b, wb)] = r.readings_rel[..] else {
             panic!("two readings: {:?}", r.readings_rel)
         };
@@ -359,6 +413,56 @@ pub(super) mod tests {
             (wa - 0.75 * 3e-5).abs() < 1e-12 && (wb - 0.25 * 3e-5).abs() < 1e-12,
             "{wa} {wb}"
         );
+    }
+
+    #[test]
+    fn a_value_after_the_last_reading_carries_the_lamp_s_drift_since() {
+        // One reading of 1e-3 W known to 3e-8 W (3e-5 of it) at 1 s; a lamp whose file bounds its drift at
+        // 0.2 % an hour. A value 1 s after the reading carries little more than the reading's noise; one 30
+        // minutes later up to 1e-3 of drift, 1e-3 / sqrt 3 as a standard uncertainty, shared with the reading.
+        let records = vec![
+            record("dark", 0.0, 0.0),
+            CalibrationRecord {
+                u_w: 3e-8,
+                ..record("direct-beam", 1.0, 1e-3)
+            },
+        ];
+        let lamp = Lamp {
+            flicker_rel: 0.0,
+            drift_per_hour: 2e-3,
+        };
+        let at = |t: f64| {
+            let mut p = point_at(t, 550.0);
+            p.incident_w = 1e-3;
+            renormalise(&records, &[p], lamp)[0].clone().expect("carried")
+        };
+        let soon = at(2.0);
+        assert_eq!(soon.factor, 1.0);
+        let [(k, w)] = soon.readings_rel[..] else {
+            panic!("one reading: {:?}", soon.readings_rel)
+        };
+        assert_eq!(k, 0);
+        assert!((w - 3e-5).abs() < 1e-8, "{w}");
+        let late = at(1801.0);
+        let [(_, w)] = late.readings_rel[..] else {
+            panic!("one reading: {:?}", late.readings_rel)
+        };
+        let drift = 1e-3 / 3f64.sqrt();
+        assert!((w - drift.hypot(3e-5)).abs() < 1e-12, "{w}");
+        assert!((late.carried_rel - drift).abs() < 1e-15);
+        // A lamp the file says does not drift: the reading's noise alone, however late.
+        let steady = renormalise(
+            &records,
+            &[{
+                let mut p = point_at(1801.0, 550.0);
+                p.incident_w = 1e-3;
+                p
+            }],
+            flicker(0.0),
+        )[0]
+        .clone()
+        .expect("carried");
+        assert!((steady.readings_rel[0].1 - 3e-5).abs() < 1e-12);
     }
 
     #[test]
@@ -372,10 +476,10 @@ pub(super) mod tests {
             .collect();
         let mut p = point_at(900.0, 550.0);
         p.incident_w = 1e-3;
-        let blind = renormalise(&records, &[p.clone()], 0.0)[0]
+        let blind = renormalise(&records, &[p.clone()], flicker(0.0))[0]
             .clone()
             .expect("renormalised");
-        let told = renormalise(&records, &[p], 2e-4)[0]
+        let told = renormalise(&records, &[p], flicker(2e-4))[0]
             .clone()
             .expect("renormalised");
         // Blind to it: (3e-4 of 1e-3 W over (600 s)^2) x 300 s x 300 s / 2 = 3.75e-5 of the value.

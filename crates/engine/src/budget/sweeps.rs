@@ -37,7 +37,7 @@ use gonio_results::sweeps::SweepReading;
 
 use super::complete::RunContext;
 use super::dark::{Darkened, redark};
-use super::drift::{Normalised, renormalise_values};
+use super::drift::{Lamp, Normalised, renormalise_values};
 use crate::store::{CalibrationRecord, CampaignRecord, SweepCompletion, SweepSegmentRecord};
 
 /// Readings at least this far apart along a sweep (deg, swept angle) carry the correction's work.
@@ -110,7 +110,7 @@ pub fn sweep_completions(
             t_s: r.t_s,
         })
         .collect();
-    let drift = renormalise_values(calibrations, &timed, instrument.source.flicker_rel);
+    let drift = renormalise_values(calibrations, &timed, Lamp::of(&instrument.source));
     let renormalised: Vec<SweepReading> = readings
         .iter()
         .zip(&drift)
@@ -126,10 +126,13 @@ pub fn sweep_completions(
                     .readings_rel
                     .iter()
                     .fold(d.flicker.own_rel, |a, (_, w)| a.hypot(*w));
+                // The reading's own normalisation noise is in `u` already (the measurement equation's); the
+                // lamp's drift since the last normalisation reading is not.
                 r.brdf_u_sr = Some(
                     (u * d.factor)
                         .hypot(value * d.curvature_rel)
-                        .hypot(value * flicker),
+                        .hypot(value * flicker)
+                        .hypot(value * d.carried_rel),
                 );
             }
             r

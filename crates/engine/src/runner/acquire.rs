@@ -69,21 +69,24 @@ impl<'a> Run<'a> {
             .map(|p| p.position)
     }
 
-    /// One detector reading at wavelength `nm`: (value, standard uncertainty, overload).
-    pub(super) async fn read(&mut self, nm: f64) -> Result<(f64, f64, bool), Interrupt> {
-        let r = self.read_parts(nm).await?;
+    /// One dark or normalisation reading at wavelength `nm`, averaging the campaign's `calibration_averaging`
+    /// samples: (value, standard uncertainty, overload).
+    pub(super) async fn read_calibration(&mut self, nm: f64) -> Result<(f64, f64, bool), Interrupt> {
+        let averaging = self.c.campaign.acquisition.calibration_averaging;
+        let r = self.read_parts(nm, averaging).await?;
         Ok((r.power_w, r.noise_w.hypot(r.range_u_w), r.overload))
     }
 
-    /// One detector reading at wavelength `nm` with its uncertainty in parts.
-    async fn read_parts(&mut self, nm: f64) -> Result<SampleReading, Interrupt> {
-        let mut r = acquisition::read(
-            &self.motion,
-            nm,
-            &self.c.campaign.acquisition,
-            &mut self.configured_nm,
-        )
-        .await?;
+    /// One detector reading at wavelength `nm` averaging `averaging` samples, with its uncertainty in parts. A
+    /// count other than the points' leaves the meter to be configured again for the next point.
+    async fn read_parts(&mut self, nm: f64, averaging: u32) -> Result<SampleReading, Interrupt> {
+        let mut acquisition = self.c.campaign.acquisition;
+        acquisition.averaging = averaging;
+        if self.configured_averaging != Some(averaging) {
+            self.configured_nm = None;
+        }
+        let mut r = acquisition::read(&self.motion, nm, &acquisition, &mut self.configured_nm).await?;
+        self.configured_averaging = Some(averaging);
         // A characterised meter under auto-range: a reading within 1 % of a range's full scale may have been
         // taken on either range, whose corrections differ; it is read again on the upper range, fixed.
         let ranges_w = &self.file.instrument.detector.ranges_w;
@@ -92,14 +95,14 @@ impl<'a> Run<'a> {
             && !r.overload
             && let Some(upper) = near_range_boundary(r.power_w, ranges_w)
         {
-            let mut fixed = self.c.campaign.acquisition;
+            let mut fixed = acquisition;
             fixed.range = Range::FixedW(ranges_w[upper]);
             let mut configured = None;
             r = acquisition::read(&self.motion, nm, &fixed, &mut configured).await?;
             // Back to auto-range at the next reading.
             self.configured_nm = None;
         }
-        Ok(self.characterised(&r, nm, self.c.campaign.acquisition.averaging))
+        Ok(self.characterised(&r, nm, averaging))
     }
 
     /// A meter's reading at wavelength `nm` averaging `averaging` samples, as the characterisation corrects it:
@@ -248,7 +251,8 @@ impl<'a> Run<'a> {
                 if let Some(p) = step.wheel_position {
                     self.wheel_to(p).await?;
                 }
-                self.read_parts(band_nm).await
+                self.read_parts(band_nm, self.c.campaign.acquisition.averaging)
+                    .await
             }
             .await),
         };

@@ -21,7 +21,7 @@ impl<'a> Run<'a> {
         };
         self.wheel_to(blank).await.map_err(calibration_failure)?;
         for b in bands {
-            let (v, u, overload) = self.read(*b).await.map_err(calibration_failure)?;
+            let (v, u, overload) = self.read_calibration(*b).await.map_err(calibration_failure)?;
             if overload {
                 return Err(Interrupt::Pause(format!(
                     "dark reading at {b} nm overloads the detector"
@@ -134,7 +134,7 @@ impl<'a> Run<'a> {
                 if let Some(p) = self.band_position(*b) {
                     self.wheel_to(p).await?;
                 }
-                let (v, u, overload) = self.read(*b).await?;
+                let (v, u, overload) = self.read_calibration(*b).await?;
                 if overload {
                     return Err(Interrupt::Pause(format!(
                         "the reference sample at {b} nm overloads the detector: choose a larger range"
@@ -194,7 +194,7 @@ impl<'a> Run<'a> {
                 if let Some(p) = pos {
                     self.wheel_to(p).await?;
                 }
-                let (v, u, overload) = self.read(*b).await?;
+                let (v, u, overload) = self.read_calibration(*b).await?;
                 if overload {
                     return Err(Interrupt::Pause(format!(
                         "the direct beam at {b} nm overloads the detector: choose a larger range or attenuate"

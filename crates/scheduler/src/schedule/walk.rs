@@ -104,7 +104,7 @@ impl<'a> Walker<'a> {
             // One dark reading at each band's wavelength setting: the meter converts current to watts with the
             // responsivity at the wavelength it is set to, so each band needs its own dark (the daemon reads
             // them all).
-            reading_s: self.time.reading_s * self.plan.bands_nm.len().max(1) as f64,
+            reading_s: self.time.calibration_reading_s * self.plan.bands_nm.len().max(1) as f64,
             pass: 0,
             start_s: 0.0,
         });
@@ -166,7 +166,7 @@ impl<'a> Walker<'a> {
                     },
                 ),
                 wheel_s,
-                reading_s: self.time.reading_s,
+                reading_s: self.time.calibration_reading_s,
                 pass: 0,
                 start_s: 0.0,
             });
