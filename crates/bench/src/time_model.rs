@@ -128,8 +128,10 @@ pub fn dry_run(binary: &Path, text: &str, instrument: Option<&Path>) -> Result<R
 }
 
 /// Instrument-file keys added after the `--before` binary was built, which it refuses as unknown; none of them
-/// changes a campaign's timing (uncertainties, priors, and the simulator's hidden flicker).
-const KEYS_SINCE_BEFORE: [&str; 10] = [
+/// changes a campaign's timing (uncertainties, priors, the simulator's hidden flicker, and when a controller
+/// takes the position it reports, which dates sweep readings).
+const KEYS_SINCE_BEFORE: [&str; 11] = [
+    "position_sampled_ms",
     "signature_u_sr",
     "aperture_radius_sd_mm",
     "detector_distance_sd_mm",
@@ -145,6 +147,23 @@ const KEYS_SINCE_BEFORE: [&str; 10] = [
 /// Keys added since that may also sit inside an inline table (a filter-wheel position's `{ ... }`; `gonio
 /// selftest --write` writes the positions as tables, one key a line).
 const INLINE_KEYS_SINCE_BEFORE: [&str; 1] = ["bandwidth_u_nm"];
+
+/// Campaign keys added after the `--before` binary was built, which it refuses as unknown: without them it runs
+/// the campaign as it did (its darks and normalisation readings at the points' averaging).
+const CAMPAIGN_KEYS_SINCE_BEFORE: [&str; 1] = ["calibration_averaging"];
+
+/// A campaign's text for the `--before` binary: without [`CAMPAIGN_KEYS_SINCE_BEFORE`].
+fn campaign_for_before(text: &str) -> String {
+    let kept: Vec<&str> = text
+        .lines()
+        .filter(|l| {
+            !CAMPAIGN_KEYS_SINCE_BEFORE
+                .iter()
+                .any(|k| l.trim_start().starts_with(k))
+        })
+        .collect();
+    kept.join("\n") + "\n"
+}
 
 /// `line` without `, key = value` for each of [`INLINE_KEYS_SINCE_BEFORE`] (the value ends at the next `,` or `}`).
 fn without_inline_keys(line: &str) -> String {
@@ -330,7 +349,7 @@ pub fn section(root: &Path, binary: &Path, before: Option<&Path>, quick: bool) -
                 campaign: label.clone(),
                 instrument: name,
                 now: dry_run(binary, &text, path.as_deref()),
-                before: before.map(|b| dry_run(b, &text, before_path.as_deref())),
+                before: before.map(|b| dry_run(b, &campaign_for_before(&text), before_path.as_deref())),
             });
         }
     }
@@ -435,6 +454,16 @@ fn markdown(rows: &[Row], with_before: bool) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_earlier_binary_gets_the_campaign_without_the_keys_added_since() {
+        let text =
+            "[acquisition]\naveraging = 10\ncalibration_averaging = 100   # read longer\nrange = \"auto\"\n";
+        assert_eq!(
+            campaign_for_before(text),
+            "[acquisition]\naveraging = 10\nrange = \"auto\"\n"
+        );
+    }
 
     #[test]
     fn the_earlier_binary_gets_the_files_without_the_keys_added_since() {

@@ -157,6 +157,25 @@ async fn repeats_darks_and_references_agree_with_dry_run_within_2_percent() {
 }
 
 #[tokio::test(start_paused = true)]
+async fn calibration_readings_take_their_own_averaging() {
+    // BUSY's darks and references averaging 2,000 samples (6 s a reading, about two dozen of them: some 140 s
+    // more than at the 100 samples they take by default) where its points average 40: predicted and run
+    // alike. Read at the default they would leave the run over 100 s shorter than predicted.
+    let text = BUSY.replace(
+        "averaging = 40\n",
+        "averaging = 40\ncalibration_averaging = 2000\n",
+    );
+    assert!(text.contains("calibration_averaging = 2000"));
+    let (predicted_s, actual_s) = dry_run(&text).await;
+    let (plain_s, _) = dry_run(BUSY).await;
+    assert!(
+        predicted_s > plain_s + 100.0,
+        "the longer calibration readings are predicted: {predicted_s:.1} s against {plain_s:.1} s"
+    );
+    assert_within_2_percent("busy, calibration averaging 2000", predicted_s, actual_s);
+}
+
+#[tokio::test(start_paused = true)]
 async fn the_demo_on_the_realistic_instrument_agrees_within_2_percent() {
     // Its hardware moves a few per cent slower or faster than its file claims, and the wheel turns at its own
     // speed: the prediction uses the file.
