@@ -127,10 +127,12 @@ pub fn dry_run(binary: &Path, text: &str, instrument: Option<&Path>) -> Result<R
     })
 }
 
-/// Instrument-file keys added after the `--before` binary was built, which it refuses as unknown; none of them
-/// changes a campaign's timing (uncertainties, priors, the simulator's hidden flicker, and when a controller
-/// takes the position it reports, which dates sweep readings).
-const KEYS_SINCE_BEFORE: [&str; 11] = [
+/// Instrument-file keys added after the `--before` binary was built, which it refuses as unknown: uncertainties,
+/// priors, the simulator's hidden flicker, when a controller takes the position it reports (which dates sweep
+/// readings), and a controller's reply latency (which the earlier binary's time model did not know: it runs
+/// on the same simulated hardware and predicts as it did).
+const KEYS_SINCE_BEFORE: [&str; 12] = [
+    "reply_latency_ms",
     "position_sampled_ms",
     "signature_u_sr",
     "aperture_radius_sd_mm",
