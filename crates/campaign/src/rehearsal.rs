@@ -9,11 +9,12 @@
 //!
 //! Measured on the 150-point adaptive styrofoam campaign of BENCHMARKS.md section 6, ideal instrument
 //! (crates/engine/tests/it/timing.rs, `an_adaptive_campaign_on_a_diffuser_is_predicted_as_the_mean_of_its_runs`,
-//! prints it): at simulator seeds 1-4 the runs took 186.7, 191.5, 194.2 and 194.2 s; one rehearsal on exact values
-//! gives 189.0 s, eight with a reading's noise 192.1 s (spread 1.7 s) against the runs' mean of 191.7 s. While
-//! this was built, the time model's prediction for the passes each run itself placed was within 0.3 % of that
-//! run (at seeds 1-6): the error is in where the passes fall, not in what they take. The draws' size mattered
-//! little (relative 1e-4 to 1e-2 gave eight-draw means of 189.0 to 190.4 s), only that there are draws.
+//! prints it): at simulator seeds 1-4 the runs took 192.6, 190.2, 195.5 and 195.0 s against 192.9 s predicted
+//! by eight rehearsals with a reading's noise (spread 1.7 s), the runs' mean 193.3 s. When this was built (the
+//! calibration readings then at the points' averaging), one rehearsal on exact values gave 189.0 s where runs
+//! at seeds 1-6 took 186.7 to 194.2 s, and the time model's prediction for the passes each run itself placed
+//! was within 0.3 % of that run: the error is in where the passes fall, not in what they take. The draws' size
+//! mattered little (relative 1e-4 to 1e-2 gave eight-draw means of 189.0 to 190.4 s), only that there are draws.
 //!
 //! The draws are deterministic (seeded by their index): the same campaign and instrument file give the same
 //! prediction every time, which `gonio plan`, `gonio run` and a resumed run rely on to agree.
