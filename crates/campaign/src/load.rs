@@ -282,10 +282,11 @@ fn calibration(
 
 /// The fewest samples a dark or normalisation reading averages unless `[acquisition] calibration_averaging`
 /// says otherwise: 0.3 s on a PM100 (3 ms a sample). A point's noise is its own, but a dark's or a direct-beam
-/// reading's is shared by every value it corrects, so no number of points averages it away. On the ideal
-/// instrument (seeds 1 and 3), sweeps of white styrofoam normalised by one reading of 10 samples came out
-/// 7.5e-5 and 2.5e-5 low on average; with readings of 100 samples, within 2e-5 (the lamp's drift apart), for a
-/// few tenths of a second per band and calibration (the demo: 241 s of instrument time became 246 s).
+/// reading's is shared by every value it corrects, so no number of points averages it away. Measured by hand
+/// while this was built (no test repeats it; BENCHMARKS.md section 7 shows its effect): on the ideal instrument
+/// (seeds 1 and 3), sweeps of white styrofoam normalised by one reading of 10 samples came out 7.5e-5 and
+/// 2.5e-5 low on average; with readings of 100 samples, within 2e-5 (the lamp's drift apart), for a few tenths
+/// of a second per band and calibration (the demo: 241 s of instrument time became 246 s, section 6).
 pub const MIN_CALIBRATION_AVERAGING: u32 = 100;
 
 /// `[acquisition]` validated, defaults applied (`averaging` defaults to the instrument's detector setting,

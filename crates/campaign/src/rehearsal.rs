@@ -102,15 +102,16 @@ pub fn rehearse(
     material: Option<&Material>,
     noise: f64,
 ) -> Rehearsal {
+    // Without a stand-in, or should every draw fail: the first pass (and its sweeps) alone.
+    let first_alone = || Rehearsal {
+        mean_s: first.breakdown.total_s() + swept.map_or(0.0, |(_, s)| s.breakdown.total_s()),
+        spread_s: 0.0,
+        points: first.measure_steps().count() as u64,
+        draws: 0,
+    };
     let fallback = Material::preset(STAND_IN_PRESET).ok();
     let Some(sample) = material.or(fallback.as_ref()) else {
-        let swept_s = swept.map_or(0.0, |(_, s)| s.breakdown.total_s());
-        return Rehearsal {
-            mean_s: first.breakdown.total_s() + swept_s,
-            spread_s: 0.0,
-            points: first.measure_steps().count() as u64,
-            draws: 0,
-        };
+        return first_alone();
     };
     // Without noise every draw would place the same passes: one is enough.
     let draws = if noise > 0.0 { DRAWS } else { 1 };
@@ -125,12 +126,7 @@ pub fn rehearse(
     });
     let n = outcomes.len();
     if n == 0 {
-        return Rehearsal {
-            mean_s: first.breakdown.total_s(),
-            spread_s: 0.0,
-            points: first.measure_steps().count() as u64,
-            draws: 0,
-        };
+        return first_alone();
     }
     let mean_s = outcomes.iter().map(|o| o.0).sum::<f64>() / n as f64;
     let points = outcomes.iter().map(|o| o.1 as f64).sum::<f64>() / n as f64;
