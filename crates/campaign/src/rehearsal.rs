@@ -52,7 +52,7 @@ pub struct Rehearsal {
 /// A prepared campaign's rehearsal, made when first asked for ([`crate::Prepared::rehearsal`]): a second or two
 /// of work that exports and status requests, which prepare a campaign for other reasons, do not need.
 #[derive(Clone, Default)]
-pub struct Deferred {
+pub(crate) struct Deferred {
     /// The relative noise the draws perturb each value by ([`reading_noise`]).
     pub(crate) noise: f64,
     pub(crate) made: std::sync::OnceLock<Option<Rehearsal>>,
