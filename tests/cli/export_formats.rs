@@ -393,7 +393,15 @@ fn astm_table_has_every_measurement_and_the_header_the_conventions_ask_for() {
         same("brdf_sr", "brdf_sr");
         same("u_brdf_sr", "brdf_u_sr");
         assert_eq!(n(r[col(&cols, "U_brdf_sr")]), 2.0 * n(r[col(&cols, "u_brdf_sr")]));
-        assert_eq!(n(r[col(&cols, "bandwidth_nm")]), 10.0);
+        // The filter's width as the instrument file states it: the ideal instrument's pass a single wavelength.
+        let stated = gonio_instrument::InstrumentFile::simulated()
+            .instrument
+            .filter_wheel
+            .iter()
+            .flat_map(|w| &w.positions)
+            .find(|p| p.band_nm == Some(n(point[col(&pcols, "band_nm")])))
+            .and_then(|p| p.bandwidth_nm);
+        assert_eq!(Some(n(r[col(&cols, "bandwidth_nm")])), stated);
         assert_eq!(r[col(&cols, "polarisation")], "unpolarised");
     }
 }

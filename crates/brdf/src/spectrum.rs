@@ -164,6 +164,17 @@ fn interpolate(table: &[(f64, f64)], nm: f64) -> Result<f64, SpectrumError> {
         + (t3 - t2) * h * d1)
 }
 
+/// The slope at entry `k` of the monotone cubic through `table` (nm ascending, module doc): what this module
+/// interpolates with, for anyone who needs a smooth spectrum's slope at the wavelengths it was sampled at
+/// (gonio_results::band_component). `None` for fewer than two entries, `k` beyond the table, or wavelengths not
+/// strictly ascending.
+pub fn monotone_cubic_slope(table: &[(f64, f64)], k: usize) -> Option<f64> {
+    let ascending = table
+        .windows(2)
+        .all(|w| w[1].0.partial_cmp(&w[0].0) == Some(std::cmp::Ordering::Greater));
+    (table.len() >= 2 && k < table.len() && ascending).then(|| slope_at(table, k))
+}
+
 /// The monotone cubic's slope at entry `k` (module doc): 0 where the neighbouring secants change sign, their
 /// weighted harmonic mean elsewhere, and at the ends the shape-preserving three-point estimate.
 fn slope_at(table: &[(f64, f64)], k: usize) -> f64 {
@@ -310,6 +321,25 @@ mod tests {
             + (-2.0 * t.powi(3) + 3.0 * t * t) * 2.0
             + (t.powi(3) - t * t) * h * d2;
         assert!((s.at(nm(x)).expect("in") - want).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_public_slope_is_the_cubic_s_own_and_refuses_what_it_cannot_take() {
+        // The hand-computed cases above: 9/13 inside, 0.5/3 at the end, 2 at the start of the peak, 0 on it.
+        let t = [(400.0, 0.0), (401.0, 1.0), (403.0, 2.0)];
+        assert!((monotone_cubic_slope(&t, 1).expect("inside") - 9.0 / 13.0).abs() < 1e-15);
+        assert!((monotone_cubic_slope(&t, 2).expect("end") - 0.5 / 3.0).abs() < 1e-15);
+        let peak = [(400.0, 0.0), (401.0, 1.0), (402.0, 0.0)];
+        assert_eq!(monotone_cubic_slope(&peak, 0), Some(2.0));
+        assert_eq!(monotone_cubic_slope(&peak, 1), Some(0.0));
+        // Two entries: their secant.
+        assert_eq!(
+            monotone_cubic_slope(&[(450.0, 0.1), (550.0, 0.3)], 0),
+            Some((0.3 - 0.1) / 100.0)
+        );
+        assert_eq!(monotone_cubic_slope(&t, 3), None);
+        assert_eq!(monotone_cubic_slope(&[(450.0, 0.1)], 0), None);
+        assert_eq!(monotone_cubic_slope(&[(550.0, 0.1), (450.0, 0.2)], 0), None);
     }
 
     #[test]

@@ -94,10 +94,14 @@ mod tests {
     use super::*;
     use crate::InstrumentFile;
 
-    /// The simulated instrument: a 3000 K lamp by default and the file's silicon responsivity.
+    /// The simulated instrument: a 3000 K lamp by default and the file's silicon responsivity; its filters
+    /// given catalogue 10 nm bands (the ideal file's pass a single wavelength).
     fn wheel() -> (Instrument, Vec<FilterPosition>) {
         let inst = InstrumentFile::simulated().instrument;
-        let positions = inst.filter_wheel.as_ref().expect("wheel").positions.clone();
+        let mut positions = inst.filter_wheel.as_ref().expect("wheel").positions.clone();
+        for p in positions.iter_mut().filter(|p| !p.blank) {
+            p.bandwidth_nm = Some(10.0);
+        }
         (inst, positions)
     }
 

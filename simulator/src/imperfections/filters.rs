@@ -116,8 +116,20 @@ impl FiltersTruth {
 mod tests {
     use super::*;
 
+    /// The simulated instrument, its filters given catalogue 10 nm bands (the ideal file's pass a single
+    /// wavelength).
     fn file(seed: u64) -> InstrumentFile {
         let mut f = InstrumentFile::simulated();
+        for p in f
+            .instrument
+            .filter_wheel
+            .iter_mut()
+            .flat_map(|w| &mut w.positions)
+        {
+            if !p.blank {
+                p.bandwidth_nm = Some(10.0);
+            }
+        }
         f.simulator.seed = seed;
         f
     }

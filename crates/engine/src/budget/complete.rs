@@ -109,6 +109,7 @@ pub(super) fn filter_bands(instrument: &Instrument) -> impl Fn(f64) -> Option<Fi
                 centre_u_nm: p.centre_u_nm(),
                 leakage,
                 leakage_u_rel,
+                passband_variance_nm2: gonio_results::band_component::passband_variance_nm2(p.bandwidth_nm),
             })
         })
         .collect();
