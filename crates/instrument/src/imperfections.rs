@@ -99,9 +99,10 @@ pub enum ImperfectionsError {
 
 /// The instrument file `text` with only the groups of `[simulator.imperfections]` named in `keep` (none: the
 /// same instrument, ideal): how one group's effect is isolated (the benchmark's error budget, tests). Comments
-/// are not kept. Without `filters` the simulated filters leak nothing, and the file's filter positions say so
-/// (`out_of_band_transmission = 0`): the completion corrects every value for the leak the file states, which
-/// on filters that do not leak would be an error of its own.
+/// are not kept. Without `filters` the simulated filters pass a single wavelength and leak nothing, and the
+/// file's filter positions say so (`bandwidth_nm = 0`, `out_of_band_transmission = 0`): the completion
+/// corrects every value for the leak and the light's centroid the file states, which on filters that have
+/// neither would be an error of its own.
 pub fn keep_only_groups(text: &str, keep: &[&str]) -> Result<String, ImperfectionsError> {
     let mut doc: toml::Table = text
         .parse()
@@ -123,6 +124,9 @@ pub fn keep_only_groups(text: &str, keep: &[&str]) -> Result<String, Imperfectio
         for p in positions.iter_mut().filter_map(|p| p.as_table_mut()) {
             if p.contains_key("out_of_band_transmission") || p.contains_key("band_nm") {
                 p.insert("out_of_band_transmission".into(), toml::Value::Float(0.0));
+            }
+            if p.contains_key("bandwidth_nm") {
+                p.insert("bandwidth_nm".into(), toml::Value::Float(0.0));
             }
         }
     }

@@ -36,6 +36,7 @@ pub use holder::{DEFAULT_CENTRING_U_MM, DEFAULT_RESEAT_U_DEG, SampleHolder};
 pub mod imperfections;
 pub mod leakage;
 pub mod meter_noise;
+pub mod passband;
 pub mod responsivity;
 pub mod signature;
 mod validate;

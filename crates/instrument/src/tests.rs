@@ -154,7 +154,7 @@ fn the_leakage_figures_are_checked_and_default_to_a_catalogue_filter_and_a_halog
 }
 
 #[test]
-fn an_instrument_kept_without_its_filter_imperfections_states_filters_that_do_not_leak() {
+fn an_instrument_kept_without_its_filter_imperfections_states_filters_that_do_not_leak_or_widen() {
     let text = std::fs::read_to_string(
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/instruments/realistic.toml"),
     )
@@ -170,9 +170,22 @@ fn an_instrument_kept_without_its_filter_imperfections_states_filters_that_do_no
             .map(|p| p.out_of_band_transmission)
             .collect()
     };
+    let widths = |kept: &str| -> Vec<Option<f64>> {
+        let file = InstrumentFile::parse(kept, "variant").expect("valid");
+        let wheel = file.instrument.filter_wheel.expect("wheel");
+        wheel
+            .positions
+            .iter()
+            .filter(|p| p.band_nm.is_some())
+            .map(|p| p.bandwidth_nm)
+            .collect()
+    };
     let geometry = crate::imperfections::keep_only_groups(&text, &["geometry"]).expect("kept");
     let b = blocking(&geometry);
     assert!(!b.is_empty() && b.iter().all(|t| *t == Some(0.0)), "{b:?}");
+    let w = widths(&geometry);
+    assert!(!w.is_empty() && w.iter().all(|b| *b == Some(0.0)), "{w:?}");
     let filters = crate::imperfections::keep_only_groups(&text, &["geometry", "filters"]).expect("kept");
     assert!(blocking(&filters).iter().all(|t| *t == Some(1.0e-5)));
+    assert!(widths(&filters).iter().all(|b| *b == Some(10.0)));
 }

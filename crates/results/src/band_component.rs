@@ -13,7 +13,7 @@
 //! three bands says 2e-4. Measured with `gonio-bench --accuracy` (2,000 geometries per material, 16 instruments
 //! of realistic.toml, after bring-up): with the central difference paper, coloured plastic and gold were covered
 //! at 99-100 % (k = 2, rms z 0.4-0.6), the whole set at 98.4 % (rms z 0.69); with the cubic's slope and the
-//! passband below, 96.4 % (rms z 0.84), and each band's shared error (over the 16 instruments) within its k = 2
+//! passband below, 96.6 % (rms z 0.85), and each band's shared error (over the 16 instruments) within its k = 2
 //! interval on 15 of 16 for paper and plastic at 550 nm (rms z 1.2), on all of them at 450 and 650. Bands closer than
 //! [`crate::run::BAND_TOLERANCE_NM`] are one band. A geometry measured in one band has no spectral information:
 //! its points get no band component.
@@ -34,9 +34,15 @@
 //!   width's (`bandwidth_u_nm / bandwidth_nm`); a real passband's shoulders, which the file's top-hat band
 //!   leaves out, are well inside it (about 5 % for a three-cavity filter).
 //!
+//! **The centroid.** The light through a filter is centred a little above its centre (a lamp and a silicon
+//! photodiode both favour the red: 0.07-0.24 nm through 10 nm filters from 650 to 450 nm,
+//! gonio_instrument::passband), and the value is the sample's spectrum there: the completion takes it back to
+//! the centre, `f(c) = m - f'(c) delta`, with the same slope. A tenth to a quarter of the centre's 1 nm
+//! tolerance, so its own uncertainty (the lamp's temperature) is left out.
+//!
 //! **The passband.** A band's value is the spectrum averaged over the filter's passband, not its value at the
-//! centre: about `f'' sigma^2 / 2` apart, `sigma^2` the passband's variance ([`passband_variance_nm2`], from the
-//! file's `bandwidth_nm`) and `f''` the spectrum's curvature at the band, taken from the monotone cubic through
+//! centre: about `f'' sigma^2 / 2` apart, `sigma^2` the passband's variance (gonio_instrument::passband, from
+//! the file's `bandwidth_nm`) and `f''` the spectrum's curvature at the band, taken from the monotone cubic through
 //! the bands (the larger of its two sides: at the foot of an edge the spectrum is flat on one side of the band
 //! and bends on the other). Not corrected, because bands 100 nm apart see an edge's curvature only roughly
 //! (paper at 550 nm: the cubic through the bands bends by 1.3e-4 per nm^2 on its red side, paper's own
@@ -64,20 +70,12 @@ pub struct FilterBand {
     /// The relative standard uncertainty of `leakage` (the band width's).
     pub leakage_u_rel: f64,
     /// The variance of the filter's passband about its centre (nm^2): what the band's value averages the
-    /// sample's spectrum over ([`passband_variance_nm2`]); 0 for a band that is a single wavelength.
+    /// sample's spectrum over (gonio_instrument::passband::variance_nm2); 0 for a band that is a single
+    /// wavelength.
     pub passband_variance_nm2: f64,
-}
-
-/// The variance (nm^2) of a three-cavity bandpass filter's passband of full width at half maximum
-/// `bandwidth_nm`: the catalogue interference filter (Thorlabs' and Edmund's hard-coated bandpass filters are
-/// three- or more-cavity designs). Its transmission is close to a Butterworth response of order six,
-/// `1 / (1 + (2 x / B)^6)`, whose variance is `(B/2)^2 sin(pi/6) / sin(3 pi/6) = B^2 / 8` (the integrals
-/// `∫ x^m / (1 + x^n) dx = pi / (n sin((m + 1) pi / n))` over the half line): 12.5 nm^2 for a 10 nm band, half
-/// again the top hat's `B^2 / 12`. A band of no width (or none stated) has none.
-pub fn passband_variance_nm2(bandwidth_nm: Option<f64>) -> f64 {
-    bandwidth_nm
-        .filter(|b| b.is_finite() && *b > 0.0)
-        .map_or(0.0, |b| b * b / 8.0)
+    /// How far above the filter's centre the light through it is centred (nm; gonio_instrument::passband):
+    /// where the band's value is the sample's spectrum, taken back to the centre with its slope.
+    pub centroid_offset_nm: f64,
 }
 
 /// Where the leaked light falls: `(nm, share)` samples of the source's spectrum times the detector's
@@ -146,11 +144,11 @@ impl LeakSpectrum {
     }
 }
 
-/// A point's band estimate: the leak's correction to its value (`value + shift_sr`) and the band component of
-/// the corrected value.
+/// A point's band estimate: the corrections to its value for the leak and the light's centroid
+/// (`value + shift_sr`) and the band component of the corrected value.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BandEstimate {
-    /// What the leak correction adds to the point's value (1/sr).
+    /// What the corrections for the leak and the light's centroid add to the point's value (1/sr).
     pub shift_sr: f64,
     /// How the correction scales the value's own errors (`1 + L`).
     pub scale: f64,
@@ -287,7 +285,14 @@ pub fn band_estimates(
             let Some(filter) = filters[k] else {
                 continue;
             };
-            let centre = slope(&nm_spectrum, k).abs() * filter.centre_u_nm;
+            let slope_k = slope(&nm_spectrum, k);
+            let centre = slope_k.abs() * filter.centre_u_nm;
+            // The value is the spectrum at the light's centroid: back to the filter's centre along the slope.
+            let to_centre_sr = if filter.centroid_offset_nm != 0.0 {
+                -slope_k * filter.centroid_offset_nm
+            } else {
+                0.0
+            };
             let passband = if filter.passband_variance_nm2 > 0.0 {
                 0.5 * curvature(&nm_spectrum, k) * filter.passband_variance_nm2
             } else {
@@ -315,11 +320,12 @@ pub fn band_estimates(
                 continue;
             }
             for &i in &band.members {
-                let shift_sr = if fbar.is_finite() {
+                let leak_sr = if fbar.is_finite() {
                     l * (points[i].value().unwrap_or(f64::NAN) - fbar)
                 } else {
                     0.0
                 };
+                let shift_sr = leak_sr + to_centre_sr;
                 if shift_sr.is_finite() {
                     out[i] = Some(BandEstimate {
                         shift_sr,
@@ -382,6 +388,7 @@ mod tests {
             leakage: 0.0,
             leakage_u_rel: 0.0,
             passband_variance_nm2: 0.0,
+            centroid_offset_nm: 0.0,
         })
     }
 
@@ -427,6 +434,7 @@ mod tests {
                 leakage: if nm == 450.0 { 0.02 } else { 0.0 },
                 leakage_u_rel: 0.1,
                 passband_variance_nm2: 0.0,
+                centroid_offset_nm: 0.0,
             })
         };
         let u = band_components(&points, leaky);
@@ -495,28 +503,6 @@ mod tests {
     }
 
     #[test]
-    fn a_three_cavity_passband_has_a_variance_of_an_eighth_of_its_width_squared() {
-        // Numerically: the order-six Butterworth response of a 10 nm band, to +-2000 nm in 0.01 nm steps.
-        let b = 10.0;
-        let (mut m0, mut m2) = (0.0, 0.0);
-        for i in -200_000..=200_000 {
-            let x = f64::from(i) * 0.01;
-            let t = 1.0 / (1.0 + (2.0 * x / b).powi(6));
-            m0 += t;
-            m2 += x * x * t;
-        }
-        assert!(
-            (m2 / m0 / passband_variance_nm2(Some(b)) - 1.0).abs() < 1e-3,
-            "{}",
-            m2 / m0
-        );
-        assert_eq!(passband_variance_nm2(Some(b)), 12.5);
-        assert_eq!(passband_variance_nm2(None), 0.0);
-        assert_eq!(passband_variance_nm2(Some(0.0)), 0.0);
-        assert_eq!(passband_variance_nm2(Some(f64::NAN)), 0.0);
-    }
-
-    #[test]
     fn a_curved_spectrum_adds_half_its_curvature_times_the_passband_variance() {
         // f = 1e-5 (nm - 550)^2 + 0.2 at 450, 550, 650 nm: f'' = 2e-5 per nm^2, and the cubic through the
         // three bands bends by exactly that at 550 (slope 0 there, 2e-3 at 650: 6 x 0.1 / 100^2 - 2 x 2e-3 /
@@ -530,7 +516,8 @@ mod tests {
         let wide = |nm: f64| {
             Some(FilterBand {
                 centre_u_nm: 0.0,
-                passband_variance_nm2: passband_variance_nm2(Some(10.0)),
+                // A three-cavity 10 nm filter's (gonio_instrument::passband::variance_nm2).
+                passband_variance_nm2: 12.5,
                 ..filters(nm)?
             })
         };
@@ -545,6 +532,36 @@ mod tests {
         for v in band_components(&line, wide) {
             assert!(v.expect("estimated").abs() < 1e-15);
         }
+    }
+
+    #[test]
+    fn a_value_is_taken_from_the_light_s_centroid_back_to_the_filter_s_centre() {
+        // A straight spectrum, 0.1 + 1e-3 (nm - 450), measured where the light through each filter is centred,
+        // 0.2 nm above its centre: every value 2e-4 high, corrected to the centre exactly.
+        let f = |nm: f64| 0.1 + 1e-3 * (nm - 450.0);
+        let points: Vec<Point> = [450.0, 550.0, 650.0]
+            .into_iter()
+            .enumerate()
+            .map(|(k, nm)| point(k as u64, nm, 20.0, f(nm + 0.2)))
+            .collect();
+        let shifted = |nm: f64| {
+            Some(FilterBand {
+                centroid_offset_nm: 0.2,
+                ..filters(nm)?
+            })
+        };
+        let e = band_estimates(&points, shifted, None);
+        for ((p, nm), e) in points.iter().zip([450.0, 550.0, 650.0]).zip(&e) {
+            let e = e.expect("estimated");
+            let corrected = p.brdf_sr.expect("value") + e.shift_sr;
+            assert!((corrected - f(nm)).abs() < 1e-14, "{nm}: {corrected}");
+        }
+        // With no offset nothing moves.
+        assert!(
+            band_estimates(&points, filters, None)
+                .iter()
+                .all(|e| e.expect("estimated").shift_sr == 0.0)
+        );
     }
 
     /// A leak spread evenly from 400 to 1000 nm, in 1 nm samples.
@@ -599,6 +616,7 @@ mod tests {
                 leakage: l(nm),
                 leakage_u_rel: 0.1,
                 passband_variance_nm2: 0.0,
+                centroid_offset_nm: 0.0,
             })
         };
         let points: Vec<Point> = truth

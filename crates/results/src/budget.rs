@@ -54,9 +54,9 @@ pub mod components {
     pub const RANGE: &str = "range";
     /// The instrument signature (stray light) subtracted, or left in without a characterisation.
     pub const STRAY_LIGHT: &str = "stray-light";
-    /// The finite filter band: the sample's spectral slope across the band times the uncertainty of the band's
-    /// effective wavelength, and the light the filter leaks outside its band against how much the sample's
-    /// other bands differ (crate::band_component); shared by a band's points.
+    /// The finite filter band: the sample's spectral slope at the band times the uncertainty of the filter's
+    /// centre, the passband's averaging of a curved spectrum, and the light the filter leaks outside its band
+    /// against how much the sample's other bands differ (crate::band_component); shared by a band's points.
     pub const BAND: &str = "band";
     /// The sample's non-uniformity over the illuminated spot, and its re-seating between mountings.
     pub const SAMPLE: &str = "sample";

@@ -109,7 +109,9 @@ pub(super) fn filter_bands(instrument: &Instrument) -> impl Fn(f64) -> Option<Fi
                 centre_u_nm: p.centre_u_nm(),
                 leakage,
                 leakage_u_rel,
-                passband_variance_nm2: gonio_results::band_component::passband_variance_nm2(p.bandwidth_nm),
+                passband_variance_nm2: gonio_instrument::passband::variance_nm2(p.bandwidth_nm),
+                centroid_offset_nm: gonio_instrument::passband::centroid_offset_nm(instrument, p)
+                    .unwrap_or(0.0),
             })
         })
         .collect();
