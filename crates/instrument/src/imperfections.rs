@@ -101,8 +101,8 @@ pub enum ImperfectionsError {
 /// same instrument, ideal): how one group's effect is isolated (the benchmark's error budget, tests). Comments
 /// are not kept. Without `filters` the simulated filters pass a single wavelength and leak nothing, and the
 /// file's filter positions say so (`bandwidth_nm = 0`, `out_of_band_transmission = 0`): the completion
-/// corrects every value for the leak and the light's centroid the file states, which on filters that have
-/// neither would be an error of its own.
+/// corrects every value for the leak the file states and counts its passband in each value's uncertainty,
+/// which on filters that have neither would be an error, and a padding, of its own.
 pub fn keep_only_groups(text: &str, keep: &[&str]) -> Result<String, ImperfectionsError> {
     let mut doc: toml::Table = text
         .parse()

@@ -11,8 +11,8 @@
 //!   (gonio_results::band_component counts it);
 //! - its **centroid** is not the filter's centre: `S R` rises across the band (a 3000 K lamp and silicon both
 //!   favour the red), so the light through a 10 nm filter is centred 0.24 nm above a 450 nm centre, 0.13 nm above
-//!   550 and 0.07 nm above 650 (the file's responsivity table). The value is the spectrum there, and the
-//!   completion takes it back to the centre with the spectrum's slope.
+//!   550 and 0.07 nm above 650 (the file's responsivity table). The value is the spectrum there
+//!   (gonio_results::band_component counts it with the centre's tolerance).
 //!
 //! A band of no width (the ideal instrument's filters, `bandwidth_nm = 0`) is a single wavelength: neither.
 
