@@ -13,8 +13,9 @@
 //! three bands says 2e-4. Measured with `gonio-bench --accuracy` (2,000 geometries per material, 16 instruments
 //! of realistic.toml, after bring-up): with the central difference paper, coloured plastic and gold were covered
 //! at 99-100 % (k = 2, rms z 0.4-0.6), the whole set at 98.4 % (rms z 0.69); with the cubic's slope and the
-//! passband below, 96.4 % (rms z 0.83), and each band's shared error (over the 16 instruments) within its k = 2
-//! interval on 15 of 16 for paper and plastic at 550 nm (rms z 1.2), on all of them at 450 and 650. Bands closer than
+//! passband below, 96.4 % (rms z 0.83); `gonio fit`'s albedo at 550 nm (ACCURACY.md's fits) within k = 2 on
+//! 15 of 16 instruments for paper (rms z 1.18) and 12 of 16 for coloured plastic (1.59: its edge between 500 and
+//! 550 nm is finer than three bands resolve), at 450 and 650 nm on all of them. Bands closer than
 //! [`crate::run::BAND_TOLERANCE_NM`] are one band. A geometry measured in one band has no spectral information:
 //! its points get no band component.
 //!
@@ -48,8 +49,9 @@
 //! the file's `bandwidth_nm`) and `f''` the spectrum's curvature at the band, taken from the monotone cubic through
 //! the bands (the larger of its two sides: at the foot of an edge the spectrum is flat on one side of the band
 //! and bends on the other). Not corrected, because bands 100 nm apart see an edge's curvature only roughly
-//! (paper at 550 nm: the cubic through the bands bends by 1.3e-4 per nm^2 on its red side, paper's own
-//! spectrum by about 3.9e-4, a bias of +1.7 % that the estimate puts at 1.1 %): it is the component's size.
+//! (paper at 550 nm, worked out by hand from its material table: the cubic through the bands bends by 1.3e-4
+//! per nm^2 on its red side, paper's own spectrum by about 3.9e-4, a bias of +1.7 % that the estimate puts at
+//! 1.1 %): it is the component's size.
 //! Without it, with the cubic's slope alone, `gonio-bench --accuracy` found the 550 nm band's shared error
 //! outside its k = 2 interval on a third of paper's instruments (rms z 1.6).
 //!
