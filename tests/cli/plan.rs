@@ -499,3 +499,61 @@ fn plan_says_when_the_file_does_not_give_when_the_swept_arms_controller_takes_it
     );
     assert!(!plan_on(dir.path(), &sweeps, &said).contains("position_sampled_ms"));
 }
+
+/// A campaign measured in one band through filters that leak (realistic.toml's) has no spectrum to correct the
+/// leak with: `gonio plan` says so, for points or sweeps in one band, and says nothing once points measure every
+/// band beside the sweeps (`sweep_bands_nm`), for a spectrally flat [material], or on filters that do not leak
+/// (simulated.toml's pass a single wavelength).
+#[test]
+fn plan_says_when_one_band_through_a_leaking_filter_has_no_spectrum_to_correct_the_leak_with() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let realistic =
+        std::fs::read_to_string(repo_root().join("config/instruments/realistic.toml")).expect("read");
+    let simulated =
+        std::fs::read_to_string(repo_root().join("config/instruments/simulated.toml")).expect("read");
+    let sweep = "[[plan.sweeps]]\ntheta_i_deg = [30.0]\ntheta_o_deg = { from = -60.0, to = 60.0 }\nspeed_deg_s = 4.0\n";
+    let grid = "[plan.grid]\nkind = \"in-plane\"\ntheta_i_deg = [30.0]\ntheta_o_deg = [0.0, 45.0]\n";
+    let campaign = |plan: &str, material: &str| {
+        let path = dir.path().join("c.toml");
+        std::fs::write(
+            &path,
+            format!(
+                "[campaign]\nid = \"c\"\n[sample]\nradius_mm = 12.5\n[material]\n{material}\n[plan]\n{plan}"
+            ),
+        )
+        .expect("write");
+        path
+    };
+    let note = "measured in one band (550 nm) through a filter that passes";
+    for (plan, said) in [
+        (format!("bands_nm = [550.0]\n{sweep}"), true),
+        (format!("bands_nm = [550.0]\n{grid}"), true),
+        (format!("bands_nm = [550.0]\n{grid}{sweep}"), true),
+        (
+            format!("bands_nm = [450.0, 550.0, 650.0]\nsweep_bands_nm = [550.0]\n{grid}{sweep}"),
+            false,
+        ),
+        (format!("bands_nm = [450.0, 550.0, 650.0]\n{sweep}"), false),
+    ] {
+        let printed = plan_on(
+            dir.path(),
+            &campaign(&plan, "preset = \"construction-paper\""),
+            &realistic,
+        );
+        assert_eq!(printed.contains(note), said, "{plan}\n{printed}");
+        let ideal = plan_on(
+            dir.path(),
+            &campaign(&plan, "preset = \"construction-paper\""),
+            &simulated,
+        );
+        assert!(!ideal.contains("through a filter that passes"), "{ideal}");
+    }
+    // A grey Lambertian sample (one albedo at every wavelength): the leak cancels.
+    let grey = "model = \"lambertian\"\nalbedo = 0.5";
+    let flat = plan_on(
+        dir.path(),
+        &campaign(&format!("bands_nm = [550.0]\n{grid}"), grey),
+        &realistic,
+    );
+    assert!(!flat.contains("through a filter that passes"), "{flat}");
+}

@@ -189,6 +189,13 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
         )));
     }
     let sweep_specs = first_pass_sweeps.as_deref().unwrap_or(&spec.sweeps);
+    if sweep_specs.is_empty() && spec.sweep_bands_nm.is_some() {
+        return Err(CampaignError(format!(
+            "{}: sweep_bands_nm without a sweep: it says which bands [[plan.sweeps]] are swept in; remove it \
+             or add the sweeps",
+            at.at("plan", Some("sweep_bands_nm"))
+        )));
+    }
     let first = first_pass_sweeps.is_some();
     let sweeps = if sweep_specs.is_empty() {
         None
@@ -203,12 +210,13 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
                     .map(|c| c.0)
             })
             .map(|p| p.light_deg < p.detector_deg);
+        let sweep_bands = plan::sweep_bands(spec, &plan.bands_nm).map_err(|e| at.plan(&e))?;
         let sweep_plan = build_sweeps(
             sweep_specs,
             instrument,
             &time,
             Some(campaign.sample_radius_mm),
-            &plan.bands_nm,
+            &sweep_bands,
             side,
             &campaign.sweep_profiles,
         )

@@ -122,6 +122,7 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
         }
         let _ = writeln!(out, "{}", band_line(p));
         out.push_str(&latency_note(file));
+        out.push_str(&leak_note(p, file));
         if let Some(sweeps) = &p.sweeps {
             out.push_str(&sampling_note(file, sweeps));
         }
@@ -192,6 +193,7 @@ fn summary(p: &Prepared, file: &InstrumentFile) -> String {
     }
     let _ = writeln!(out, "{}", band_line(p));
     out.push_str(&latency_note(file));
+    out.push_str(&leak_note(p, file));
     if let Some(sweeps) = &p.sweeps {
         out.push_str(&sampling_note(file, sweeps));
     }
@@ -217,6 +219,51 @@ fn latency_note(file: &InstrumentFile) -> String {
         "note: the instrument file does not say how long {} take to answer a query (reply_latency_ms): the \
          prediction counts none, a real SMC100 takes about 10 ms a query; `gonio selftest --write` measures it\n",
         silent.join(" and ")
+    )
+}
+
+/// A line for a campaign measured in one band through a filter that leaks light from outside it, with no
+/// geometry measured in several bands: the completion corrects the leak with the sample's spectrum, which such a
+/// campaign does not measure, so its values keep the leak, outside their uncertainty (a few per cent on a
+/// coloured sample: construction paper's 550 nm band on realistic.toml reads 3-5 % high). Points in every band
+/// beside sweeps in one (`sweep_bands_nm`) lend the sweeps their spectrum. Empty otherwise, and for a sample the
+/// campaign's [material] says is spectrally flat (the leak cancels on a grey sample).
+fn leak_note(p: &Prepared, file: &InstrumentFile) -> String {
+    let points_bands = if p.plan.kept() > 0 || p.adaptive.is_some() {
+        p.plan.bands_nm.as_slice()
+    } else {
+        &[]
+    };
+    let sweep_bands = p.sweeps.as_ref().map_or(&[][..], |s| s.plan.bands_nm.as_slice());
+    let flat = p
+        .campaign
+        .material
+        .as_ref()
+        .is_some_and(|m| m.is_spectrally_flat());
+    if flat || points_bands.len() >= 2 || sweep_bands.len() >= 2 {
+        return String::new();
+    }
+    let Some(&band) = points_bands.first().or(sweep_bands.first()) else {
+        return String::new();
+    };
+    let inst = &file.instrument;
+    let leak = inst
+        .filter_wheel
+        .iter()
+        .flat_map(|w| &w.positions)
+        .filter(|f| f.band_nm.is_some_and(|b| (b - band).abs() <= 1e-6))
+        .find_map(|f| gonio_instrument::leakage::out_of_band_fraction(inst, f))
+        .unwrap_or(0.0);
+    if leak <= 0.0 {
+        return String::new();
+    }
+    format!(
+        "note: measured in one band ({band} nm) through a filter that passes {:.2} % of its light from outside \
+         its band (the file's blocking): with no geometry measured in other bands the sample's spectrum is \
+         unknown, so the leak is neither corrected nor in the values' uncertainty (a few per cent on a coloured \
+         sample); measure a few points in every band (beside sweeps: sweep_bands_nm) and the completion corrects \
+         it\n",
+        100.0 * leak
     )
 }
 
@@ -270,12 +317,23 @@ fn sweep_lines(out: &mut String, sweeps: &gonio_campaign::Sweeps) {
     let (plan, sched) = (&sweeps.plan, &sweeps.schedule);
     let _ = writeln!(
         out,
-        "sweeps: {} arcs requested, {} swept ({:.1} of {:.1} degrees per band, {} bands)",
+        "sweeps: {} arcs requested, {} swept ({:.1} of {:.1} degrees per band, in {})",
         plan.requested,
         plan.arcs.len(),
         plan.swept_deg(),
         plan.requested_deg,
-        plan.bands_nm.len().max(1)
+        match plan.bands_nm.len() {
+            0 => "the source's band".to_string(),
+            1 => format!("1 band: {} nm", plan.bands_nm[0]),
+            n => format!(
+                "{n} bands: {}",
+                plan.bands_nm
+                    .iter()
+                    .map(|b| format!("{b} nm"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        }
     );
     for (reason, deg) in &plan.skipped_deg {
         let _ = writeln!(out, "  cut {:<20} {deg:>10.2} deg", reason.name());

@@ -16,8 +16,10 @@
 //! passband below, 96.4 % (rms z 0.83); `gonio fit`'s albedo at 550 nm (ACCURACY.md's fits) within k = 2 on
 //! 15 of 16 instruments for paper (rms z 1.18) and 12 of 16 for coloured plastic (1.59: its edge between 500 and
 //! 550 nm is finer than three bands resolve), at 450 and 650 nm on all of them. Bands closer than
-//! [`crate::run::BAND_TOLERANCE_NM`] are one band. A geometry measured in one band has no spectral information:
-//! its points get no band component.
+//! [`crate::run::BAND_TOLERANCE_NM`] are one band. A geometry measured in one band has no spectral information
+//! of its own: it borrows its spectrum's shape from the nearest geometries measured in several bands, the
+//! probes ([`borrow`]: the campaign's own, or its points for its sweep readings), the borrowed shape's
+//! uncertainty added; without a probe its points get no band component.
 //!
 //! **The leak, corrected.** A filter passes a fraction `L` of light from outside its band (the file's blocking,
 //! the source's colour temperature and the detector's responsivity: gonio_instrument::leakage), spread over the
@@ -212,84 +214,103 @@ struct Band {
     members: Vec<usize>,
 }
 
-/// The band estimate of each point (module doc), `None` where it cannot be made (no valid value, one band at
-/// the geometry, or a band the filters do not describe). `filter` looks a band up in the instrument file;
-/// `leak` is where the filters' leaked light falls (`None`: no correction, the leak only bounded by the
-/// measured bands' spread).
-pub fn band_estimates(
-    points: &[Point],
-    filter: impl Fn(f64) -> Option<FilterBand>,
-    leak: Option<&LeakSpectrum>,
-) -> Vec<Option<BandEstimate>> {
-    let mut out = vec![None; points.len()];
-    // The leak's weights depend only on the bands measured, the same at most geometries.
-    let mut weights_for: Vec<(Vec<f64>, Option<LeakWeights>)> = Vec::new();
-    for g in geometry_groups(points) {
-        // One value per band (repeats averaged), ascending in wavelength.
-        let mut bands: Vec<Band> = Vec::new();
-        for &i in &g {
-            let p = &points[i];
-            let f = p.value().unwrap_or(f64::NAN);
-            match bands
-                .iter_mut()
-                .find(|b| (b.nm - p.band_nm).abs() <= BAND_TOLERANCE_NM)
-            {
-                Some(b) => {
-                    b.mean += f;
-                    b.members.push(i);
-                }
-                None => bands.push(Band {
-                    nm: p.band_nm,
-                    mean: f,
-                    members: vec![i],
-                }),
-            }
-        }
-        if bands.len() < 2 {
-            continue;
-        }
-        for b in &mut bands {
-            b.mean /= b.members.len() as f64;
-        }
-        bands.sort_by(|a, b| a.nm.total_cmp(&b.nm));
-        let filters: Vec<Option<FilterBand>> = bands.iter().map(|b| filter(b.nm)).collect();
-        let nodes: Vec<f64> = bands.iter().map(|b| b.nm).collect();
-        let weights = match weights_for.iter().find(|(n, _)| *n == nodes) {
-            Some((_, w)) => w.clone(),
-            None => {
-                let w = leak.and_then(|l| l.weights(&nodes));
-                weights_for.push((nodes.clone(), w.clone()));
-                w
-            }
-        };
-        let leaked = |k: usize| filters[k].map_or(0.0, |f| f.leakage);
-        let measured: Vec<f64> = bands.iter().map(|b| b.mean).collect();
-        // The spectrum net of the leak and the leak's mean of it, solved by iteration (module doc).
-        let (spectrum, fbar) = match &weights {
-            Some(w) => {
-                let mut f = measured.clone();
-                let mut fbar = 0.0;
-                for _ in 0..LEAK_ITERATIONS {
-                    fbar = w.nodes.iter().zip(&f).map(|(w, f)| w * f).sum::<f64>();
-                    for (k, fk) in f.iter_mut().enumerate() {
-                        *fk = measured[k] + leaked(k) * (measured[k] - fbar);
+/// The bands of each geometry of `points` (valid values only), each geometry's ascending in wavelength, repeats
+/// averaged; with the geometry's first point.
+fn spectra(points: &[Point]) -> Vec<(usize, Vec<Band>)> {
+    geometry_groups(points)
+        .into_iter()
+        .map(|g| {
+            let mut bands: Vec<Band> = Vec::new();
+            for &i in &g {
+                let p = &points[i];
+                let f = p.value().unwrap_or(f64::NAN);
+                match bands
+                    .iter_mut()
+                    .find(|b| (b.nm - p.band_nm).abs() <= BAND_TOLERANCE_NM)
+                {
+                    Some(b) => {
+                        b.mean += f;
+                        b.members.push(i);
                     }
+                    None => bands.push(Band {
+                        nm: p.band_nm,
+                        mean: f,
+                        members: vec![i],
+                    }),
                 }
-                (f, Some(fbar))
             }
-            None => (measured.clone(), None),
-        };
-        let nm_spectrum: Vec<(f64, f64)> = nodes.iter().copied().zip(spectrum.iter().copied()).collect();
-        // The leak's mean beyond the measured bands: within one band step of the outermost value.
-        let n = spectrum.len();
-        let fbar_u = weights.as_ref().map(|w| {
-            let step = |a: usize, b: usize| (spectrum[a] - spectrum[b]).abs() / 3f64.sqrt();
-            (w.above * step(n - 1, n - 2)).hypot(w.below * step(0, 1))
-        });
-        for (k, band) in bands.iter().enumerate() {
-            let Some(filter) = filters[k] else {
-                continue;
-            };
+            for b in &mut bands {
+                b.mean /= b.members.len() as f64;
+            }
+            bands.sort_by(|a, b| a.nm.total_cmp(&b.nm));
+            (g[0], bands)
+        })
+        .collect()
+}
+
+/// One band's solution at one geometry: the band component (1/sr, k = 1), the leak's mean of the spectrum
+/// (1/sr; NaN when there is no leak spectrum, and then nothing is corrected) and the band's leaked fraction.
+#[derive(Debug, Clone, Copy)]
+struct Solved {
+    u_sr: f64,
+    fbar: f64,
+    leakage: f64,
+}
+
+/// The leak's weights for a set of bands, worked out once per set (the same at most geometries).
+struct WeightsCache<'a> {
+    leak: Option<&'a LeakSpectrum>,
+    known: Vec<(Vec<f64>, Option<LeakWeights>)>,
+}
+
+impl WeightsCache<'_> {
+    fn get(&mut self, nodes: &[f64]) -> Option<LeakWeights> {
+        if let Some((_, w)) = self.known.iter().find(|(n, _)| n == nodes) {
+            return w.clone();
+        }
+        let w = self.leak.and_then(|l| l.weights(nodes));
+        self.known.push((nodes.to_vec(), w.clone()));
+        w
+    }
+}
+
+/// The band component and the leak's mean of each of `measured` (`(nm, value)` ascending, at least two) at one
+/// geometry (module doc); `None` for a band the filters do not describe or whose component is not finite.
+fn solve(
+    measured: &[(f64, f64)],
+    filter: &impl Fn(f64) -> Option<FilterBand>,
+    weights: &mut WeightsCache<'_>,
+) -> Vec<Option<Solved>> {
+    let filters: Vec<Option<FilterBand>> = measured.iter().map(|b| filter(b.0)).collect();
+    let nodes: Vec<f64> = measured.iter().map(|b| b.0).collect();
+    let weights = weights.get(&nodes);
+    let leaked = |k: usize| filters[k].map_or(0.0, |f| f.leakage);
+    let values: Vec<f64> = measured.iter().map(|b| b.1).collect();
+    // The spectrum net of the leak and the leak's mean of it, solved by iteration (module doc).
+    let (spectrum, fbar) = match &weights {
+        Some(w) => {
+            let mut f = values.clone();
+            let mut fbar = 0.0;
+            for _ in 0..LEAK_ITERATIONS {
+                fbar = w.nodes.iter().zip(&f).map(|(w, f)| w * f).sum::<f64>();
+                for (k, fk) in f.iter_mut().enumerate() {
+                    *fk = values[k] + leaked(k) * (values[k] - fbar);
+                }
+            }
+            (f, Some(fbar))
+        }
+        None => (values.clone(), None),
+    };
+    let nm_spectrum: Vec<(f64, f64)> = nodes.iter().copied().zip(spectrum.iter().copied()).collect();
+    // The leak's mean beyond the measured bands: within one band step of the outermost value.
+    let n = spectrum.len();
+    let fbar_u = weights.as_ref().map(|w| {
+        let step = |a: usize, b: usize| (spectrum[a] - spectrum[b]).abs() / 3f64.sqrt();
+        (w.above * step(n - 1, n - 2)).hypot(w.below * step(0, 1))
+    });
+    (0..n)
+        .map(|k| {
+            let filter = filters[k]?;
             // Where the value's wavelength may be: the filter's centre within its tolerance, and the light's
             // centroid off it (module doc).
             let centre = slope(&nm_spectrum, k).abs() * filter.centre_u_nm.hypot(filter.centroid_offset_nm);
@@ -300,38 +321,80 @@ pub fn band_estimates(
             };
             let filter_u = centre.hypot(passband);
             let l = filter.leakage;
-            let (u, fbar) = match (fbar, fbar_u) {
+            let (u_sr, fbar) = match (fbar, fbar_u) {
                 (Some(fbar), Some(fbar_u)) => {
-                    let of_l = l * filter.leakage_u_rel * (measured[k] - fbar).abs();
+                    let of_l = l * filter.leakage_u_rel * (values[k] - fbar).abs();
                     (filter_u.hypot(of_l).hypot(l * fbar_u), fbar)
                 }
                 _ => {
                     // No spectrum for the leak: bounded by the largest relative difference from this band's
                     // value among the bands measured.
-                    let value = measured[k];
-                    let far = measured
+                    let value = values[k];
+                    let far = values
                         .iter()
                         .map(|f| (f / value - 1.0).abs())
                         .fold(0.0f64, f64::max);
                     (filter_u.hypot(value.abs() * l * far), f64::NAN)
                 }
             };
-            if !u.is_finite() {
-                continue;
+            u_sr.is_finite().then_some(Solved {
+                u_sr,
+                fbar,
+                leakage: l,
+            })
+        })
+        .collect()
+}
+
+/// The band estimates of a band's `members` from its solution: each value corrected for the leak by its own
+/// value against the leak's mean.
+fn estimate_members(points: &[Point], members: &[usize], s: Solved, out: &mut [Option<BandEstimate>]) {
+    for &i in members {
+        let shift_sr = if s.fbar.is_finite() {
+            s.leakage * (points[i].value().unwrap_or(f64::NAN) - s.fbar)
+        } else {
+            0.0
+        };
+        if shift_sr.is_finite() {
+            out[i] = Some(BandEstimate {
+                shift_sr,
+                scale: if s.fbar.is_finite() { 1.0 + s.leakage } else { 1.0 },
+                u_sr: s.u_sr,
+            });
+        }
+    }
+}
+
+/// The band estimate of each point (module doc), `None` where it cannot be made (no valid value, a band the
+/// filters do not describe, or one band at the geometry and no probe to borrow a spectrum from). `probes`:
+/// points measured in several bands that a geometry measured in one band borrows its spectrum's shape from
+/// ([`borrow`]; the campaign's own points, or a campaign's points for its sweep readings); `filter` looks a
+/// band up in the instrument file; `leak` is where the filters' leaked light falls (`None`: no correction, the
+/// leak only bounded by the measured bands' spread).
+pub fn band_estimates(
+    points: &[Point],
+    probes: &[Point],
+    filter: impl Fn(f64) -> Option<FilterBand>,
+    leak: Option<&LeakSpectrum>,
+) -> Vec<Option<BandEstimate>> {
+    let mut out = vec![None; points.len()];
+    let mut weights = WeightsCache {
+        leak,
+        known: Vec::new(),
+    };
+    let mut lender: Option<borrow::Lender> = None;
+    for (first, bands) in spectra(points) {
+        if let [band] = &bands[..] {
+            let lender = lender.get_or_insert_with(|| borrow::Lender::new(probes));
+            if let Some(s) = lender.solve(&points[first], band.nm, band.mean, &filter, &mut weights) {
+                estimate_members(points, &band.members, s, &mut out);
             }
-            for &i in &band.members {
-                let shift_sr = if fbar.is_finite() {
-                    l * (points[i].value().unwrap_or(f64::NAN) - fbar)
-                } else {
-                    0.0
-                };
-                if shift_sr.is_finite() {
-                    out[i] = Some(BandEstimate {
-                        shift_sr,
-                        scale: if fbar.is_finite() { 1.0 + l } else { 1.0 },
-                        u_sr: u,
-                    });
-                }
+            continue;
+        }
+        let measured: Vec<(f64, f64)> = bands.iter().map(|b| (b.nm, b.mean)).collect();
+        for (band, solved) in bands.iter().zip(solve(&measured, &filter, &mut weights)) {
+            if let Some(s) = solved {
+                estimate_members(points, &band.members, s, &mut out);
             }
         }
     }
@@ -368,6 +431,8 @@ fn curvature(spectrum: &[(f64, f64)], k: usize) -> f64 {
 fn slope(spectrum: &[(f64, f64)], k: usize) -> f64 {
     gonio_brdf::spectrum::monotone_cubic_slope(spectrum, k).unwrap_or(f64::NAN)
 }
+
+mod borrow;
 
 #[cfg(test)]
 mod tests;

@@ -8,6 +8,7 @@
 //! repeats = 1                      # passes over the whole plan (each pass runs the previous one backwards)
 //! reciprocity = true               # measure (i, o) OR (o, i), never both; default true
 //! rotation_deg = 0.0               # sample rotation held for isotropic samples; default 0
+//! sweep_bands_nm = [550.0]         # the bands [[plan.sweeps]] are swept in, among bands_nm; default all
 //!
 //! [plan.grid]                      # exactly one of [plan.grid] and [plan.adaptive]
 //! kind = "isotropic"               # "full" | "isotropic" | "in-plane" | "points"
@@ -42,7 +43,9 @@ mod build;
 mod grid;
 mod spec;
 
-pub use build::{BuildContext, build, build_from_geometries, calibration, geometry_kind_name, plan_bands};
+pub use build::{
+    BuildContext, build, build_from_geometries, calibration, geometry_kind_name, plan_bands, sweep_bands,
+};
 pub use grid::angle_list;
 pub use spec::{
     AdaptiveSpec, Calibration, CalibrationSpec, DEFAULT_DIRECT_BEAM_POSE, FirstPassSweeps, FollowSpec,

@@ -186,3 +186,61 @@ fn a_first_pass_of_sweeps_prepares_as_sweeps_before_a_plan_of_no_point() {
         "{e}"
     );
 }
+
+/// Points in three bands and a sweep; `extra` in `[plan]`.
+fn probed(extra: &str, sweep: bool) -> String {
+    let sweep = if sweep {
+        "[[plan.sweeps]]\ntheta_i_deg = [30.0]\ntheta_o_deg = { from = -60.0, to = 60.0 }\nspeed_deg_s = 2.0\n"
+    } else {
+        ""
+    };
+    format!(
+        "[campaign]\nid = \"p\"\n[sample]\nradius_mm = 12.5\n[plan]\nbands_nm = [450.0, 550.0, 650.0]\n{extra}\n\
+         [plan.grid]\nkind = \"in-plane\"\ntheta_i_deg = [30.0]\ntheta_o_deg = [0.0, 45.0]\n{sweep}"
+    )
+}
+
+#[test]
+fn sweeps_in_fewer_bands_than_the_points_sweep_those_and_a_wrong_list_is_named() {
+    let file = InstrumentFile::simulated();
+    let sources = Sources::Local(campaigns_dir());
+    let prepare = |text: &str| load_and_prepare(text, "p.toml", &sources, &file);
+    // Without the key the sweeps take every band of the plan.
+    let all = prepare(&probed("", true)).expect("prepares");
+    assert_eq!(
+        all.sweeps.as_ref().expect("sweeps").plan.bands_nm,
+        vec![450.0, 550.0, 650.0]
+    );
+    let one = prepare(&probed("sweep_bands_nm = [550.0]", true)).expect("prepares");
+    assert_eq!(
+        one.bands_nm(),
+        &[450.0, 550.0, 650.0],
+        "the points keep their bands"
+    );
+    let sweeps = one.sweeps.as_ref().expect("sweeps");
+    assert_eq!(sweeps.plan.bands_nm, vec![550.0]);
+    // A third of the sweeping, in time as in readings.
+    let all_sweeps = all.sweeps.as_ref().expect("sweeps");
+    let ratio = sweeps.schedule.breakdown.total_s() / all_sweeps.schedule.breakdown.total_s();
+    assert!(ratio < 0.5, "{ratio}");
+    for (extra, sweep, says) in [
+        (
+            "sweep_bands_nm = [500.0]",
+            true,
+            "500 nm is not among the bands the plan measures",
+        ),
+        ("sweep_bands_nm = []", true, "expected at least one band"),
+        ("sweep_bands_nm = [550.0, 550.0]", true, "listed twice"),
+        (
+            "sweep_bands_nm = [550.0]",
+            false,
+            "sweep_bands_nm without a sweep",
+        ),
+    ] {
+        let e = prepare(&probed(extra, sweep)).expect_err("refused");
+        assert!(
+            e.to_string().contains(says) && e.to_string().contains("sweep_bands_nm"),
+            "{extra}: {e}"
+        );
+    }
+}

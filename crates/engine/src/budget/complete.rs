@@ -421,7 +421,8 @@ pub fn completions(
     // The finite band last: the leak's correction compares the bands at one geometry, each at its nominal
     // geometry by now.
     let leak = leak_spectrum(instrument);
-    let estimates = band_estimates(&run.points, filter_bands(instrument), leak.as_ref());
+    // A geometry measured in one band borrows its spectrum's shape from those measured in several.
+    let estimates = band_estimates(&run.points, &run.points, filter_bands(instrument), leak.as_ref());
     for ((completion, point), estimate) in done.iter_mut().zip(&mut run.points).zip(estimates) {
         let (Some(e), Some(value)) = (estimate, point.brdf_sr) else {
             continue;

@@ -20,7 +20,8 @@
 //!   times the model's slope along the swept angle;
 //! - the finite band (gonio_results::band_component): the leak's correction and the band component from the
 //!   other bands' sweeps of the same arc: readings of every band within [`CORRECTION_SPACING_DEG`] of one angle
-//!   count as one geometry.
+//!   count as one geometry; sweeps in one band (`[plan] sweep_bands_nm`) borrow the spectrum's shape from the
+//!   campaign's points measured in several, the probes.
 //!
 //! Along a sweep the readings are far denser than the aperture is wide (a few hundredths of a degree against
 //! about half a degree), and the correction changes on the aperture's scale: it is worked out at readings
@@ -86,10 +87,13 @@ fn smearing_ratio(model: &gonio_brdf::Material, r: &SweepReading, light: bool) -
     ((ratio - 1.0).abs() <= MAX_SMEARING).then_some(ratio)
 }
 
-/// The completion of `readings` (module doc): one entry per reading, in their order.
+/// The completion of `readings` (module doc): one entry per reading, in their order. `probes`: the campaign's
+/// points, whose geometries measured in several bands lend their spectrum's shape to sweeps swept in one
+/// (gonio_results::band_component).
 pub fn sweep_completions(
     record: &CampaignRecord,
     readings: &[SweepReading],
+    probes: &[Point],
     segments: &[SweepSegmentRecord],
     calibrations: &[CalibrationRecord],
     instrument: &Instrument,
@@ -209,7 +213,12 @@ pub fn sweep_completions(
         .filter_map(|g| Some((g.segment, g.timing_u_s.filter(|u| u.is_finite() && *u >= 0.0)?)))
         .collect();
     let leak = super::complete::leak_spectrum(instrument);
-    let band = band_estimates(&snapped, super::complete::filter_bands(instrument), leak.as_ref());
+    let band = band_estimates(
+        &snapped,
+        probes,
+        super::complete::filter_bands(instrument),
+        leak.as_ref(),
+    );
     readings
         .iter()
         .zip(committed)

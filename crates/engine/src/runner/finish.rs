@@ -38,9 +38,12 @@ impl Run<'_> {
         let readings = lock(&self.store).committed_sweep_readings(self.id)?;
         if !readings.is_empty() {
             let segments = lock(&self.store).sweep_segments(self.id)?;
+            // The points lend their spectra to sweeps swept in fewer bands (the leak's correction).
+            let probes = crate::export::points_table(&record, &committed).points;
             let sweeps = crate::budget::sweep_completions(
                 &record,
                 &readings,
+                &probes,
                 &segments,
                 &calibrations,
                 &self.file.instrument,

@@ -29,6 +29,7 @@ mod motion;
 mod positioning;
 mod relative;
 mod selftest;
+mod spectral_probe;
 mod stalls;
 mod sweeps;
 mod timing;

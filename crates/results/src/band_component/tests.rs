@@ -22,7 +22,7 @@ fn filters(nm: f64) -> Option<FilterBand> {
 
 /// The band components without a leak spectrum.
 fn band_components(points: &[Point], filter: impl Fn(f64) -> Option<FilterBand>) -> Vec<Option<f64>> {
-    band_estimates(points, filter, None)
+    band_estimates(points, &[], filter, None)
         .into_iter()
         .map(|e| e.map(|e| e.u_sr))
         .collect()
@@ -177,7 +177,7 @@ fn the_light_s_centroid_widens_the_centre_s_uncertainty_and_moves_no_value() {
             ..filters(nm)?
         })
     };
-    for e in band_estimates(&points, shifted, None) {
+    for e in band_estimates(&points, &[], shifted, None) {
         let e = e.expect("estimated");
         assert!((e.u_sr - 1e-3 * 1.04f64.sqrt()).abs() < 1e-15, "{e:?}");
         assert_eq!(e.shift_sr, 0.0);
@@ -244,7 +244,7 @@ fn a_leaky_blue_band_is_corrected_to_the_sample_s_own_value() {
         .enumerate()
         .map(|(k, &(nm, f))| point(k as u64, nm, 20.0, (f + l(nm) * fbar) / (1.0 + l(nm))))
         .collect();
-    let e = band_estimates(&points, filter, Some(&leak));
+    let e = band_estimates(&points, &[], filter, Some(&leak));
     for ((p, (nm, f)), e) in points.iter().zip(truth).zip(&e) {
         let e = e.expect("estimated");
         let corrected = p.brdf_sr.expect("value") + e.shift_sr;
@@ -266,6 +266,137 @@ fn a_leaky_blue_band_is_corrected_to_the_sample_s_own_value() {
     // The blue band read 20 % high before the correction.
     assert!(points[0].brdf_sr.expect("value") / 0.05 - 1.0 > 0.1);
     // Without a leak spectrum nothing is corrected and the leak is only bounded.
-    let bounded = band_estimates(&points, filter, None);
+    let bounded = band_estimates(&points, &[], filter, None);
     assert!(bounded.iter().all(|e| e.expect("estimated").shift_sr == 0.0));
+}
+
+/// The leak test's filters: 3 % at 450 nm, 1 % at 550 nm, 0.5 % at 650 nm, each known to a tenth.
+fn leaky(nm: f64) -> Option<FilterBand> {
+    let leakage = match nm as u32 {
+        450 => 0.03,
+        550 => 0.01,
+        _ => 0.005,
+    };
+    Some(FilterBand {
+        band_nm: nm,
+        centre_u_nm: 0.0,
+        leakage,
+        leakage_u_rel: 0.1,
+        passband_variance_nm2: 0.0,
+        centroid_offset_nm: 0.0,
+    })
+}
+
+/// What each band of `truth` reads through the leaky filters: `(f + L fbar) / (1 + L)`.
+fn measured(truth: &[(f64, f64)], leak: &LeakSpectrum) -> Vec<(f64, f64)> {
+    let nodes: Vec<f64> = truth.iter().map(|t| t.0).collect();
+    let w = leak.weights(&nodes).expect("weights");
+    let fbar: f64 = w.nodes.iter().zip(truth).map(|(w, (_, f))| w * f).sum();
+    truth
+        .iter()
+        .map(|&(nm, f)| {
+            let l = leaky(nm).expect("filter").leakage;
+            (nm, (f + l * fbar) / (1.0 + l))
+        })
+        .collect()
+}
+
+/// A probe: every band of `truth` (scaled by `scale`) measured at theta_o.
+fn probe(index: u64, theta_o: f64, truth: &[(f64, f64)], scale: f64, leak: &LeakSpectrum) -> Vec<Point> {
+    let scaled: Vec<(f64, f64)> = truth.iter().map(|&(nm, f)| (nm, f * scale)).collect();
+    measured(&scaled, leak)
+        .into_iter()
+        .enumerate()
+        .map(|(k, (nm, m))| point(index + k as u64, nm, theta_o, m))
+        .collect()
+}
+
+const PAPER: [(f64, f64); 3] = [(450.0, 0.06), (550.0, 0.07), (650.0, 0.52)];
+
+#[test]
+fn one_band_borrows_the_nearest_probe_s_shape_and_is_corrected_to_its_own_value() {
+    let leak = even_leak();
+    // Three probes of paper's shape (at other scales: its BRDF varies with the geometry), and the 550 nm band
+    // alone at theta_o = 32, where the sample is 0.9 times the table.
+    let mut points = probe(0, 20.0, &PAPER, 1.0, &leak);
+    points.extend(probe(3, 40.0, &PAPER, 0.8, &leak));
+    points.extend(probe(6, 60.0, &PAPER, 0.5, &leak));
+    let alone = measured(&PAPER.map(|(nm, f)| (nm, 0.9 * f)), &leak)[1].1;
+    points.push(point(9, 550.0, 32.0, alone));
+    // Read 2.8 % high through the leak before the correction.
+    assert!(alone / (0.9 * 0.07) - 1.0 > 0.025, "{alone}");
+    let e = band_estimates(&points, &points, leaky, Some(&leak));
+    let lone = e[9].expect("borrowed");
+    let corrected = alone + lone.shift_sr;
+    assert!((corrected / (0.9 * 0.07) - 1.0).abs() < 1e-12, "{corrected}");
+    // The probes' shapes agree: the borrowed shape adds nothing, and the component is what the three bands
+    // measured at theta_o = 32 would have given.
+    let mut at_32 = probe(20, 32.0, &PAPER, 0.9, &leak);
+    at_32.push(point(30, 550.0, 70.0, 1.0));
+    let own = band_estimates(&at_32, &[], leaky, Some(&leak))[1].expect("three bands");
+    assert!(
+        (lone.u_sr / own.u_sr - 1.0).abs() < 1e-9,
+        "{} against {}",
+        lone.u_sr,
+        own.u_sr
+    );
+    assert!((lone.scale - 1.01).abs() < 1e-15);
+    // Without the probes the lone band tells nothing of the spectrum.
+    assert_eq!(band_estimates(&points, &[], leaky, Some(&leak))[9], None);
+}
+
+#[test]
+fn the_borrowed_shape_s_uncertainty_is_the_nearest_probes_spread_or_the_whole_correction() {
+    let leak = even_leak();
+    let alone = |f: f64| point(9, 550.0, 32.0, f);
+    // One probe: nothing says how the shape varies; the whole correction is added to the component.
+    let mut one = probe(0, 20.0, &PAPER, 1.0, &leak);
+    let m = measured(&PAPER, &leak)[1].1;
+    one.push(alone(m));
+    let e = band_estimates(&one, &one, leaky, Some(&leak));
+    let (lone, own) = (e[3].expect("borrowed"), e[1].expect("probe"));
+    assert!((lone.shift_sr - own.shift_sr).abs() < 1e-15);
+    let expected = own.u_sr.hypot(own.shift_sr);
+    assert!(
+        (lone.u_sr / expected - 1.0).abs() < 1e-12,
+        "{} against {expected}",
+        lone.u_sr
+    );
+    // Probes of other shapes: the nearest lends its shape (a redder one at theta_o = 30, a greyer one further
+    // off), and the largest difference of the leak's means among the three nearest counts.
+    let redder = [(450.0, 0.06), (550.0, 0.07), (650.0, 0.70)];
+    let greyer = [(450.0, 0.06), (550.0, 0.07), (650.0, 0.30)];
+    let mut mixed = probe(0, 30.0, &redder, 1.0, &leak);
+    mixed.extend(probe(3, 45.0, &PAPER, 1.0, &leak));
+    mixed.extend(probe(6, 60.0, &greyer, 1.0, &leak));
+    mixed.extend(probe(
+        10,
+        75.0,
+        &[(450.0, 0.06), (550.0, 0.07), (650.0, 5.0)],
+        1.0,
+        &leak,
+    ));
+    let m = measured(&redder, &leak)[1].1;
+    mixed.push(alone(m));
+    let e = band_estimates(&mixed, &mixed, leaky, Some(&leak));
+    let lone = e[12].expect("borrowed");
+    let nearest = e[1].expect("probe at 30");
+    assert!((lone.shift_sr - nearest.shift_sr).abs() < 1e-15);
+    // Each probe's leak mean from its 550 nm band's correction, `L (m - fbar)`, scaled to this value (the
+    // correction is linear in the spectrum); the greyer probe's is furthest from the nearest's, and the far one
+    // (650 nm at 5.0) is not among the three nearest.
+    let fbar_at = |k: usize| {
+        let own = mixed[k].brdf_sr.expect("value");
+        (own - e[k].expect("probe").shift_sr / 0.01) * m / own
+    };
+    let expected = nearest.u_sr.hypot(0.01 * (fbar_at(7) - fbar_at(1)));
+    assert!(
+        (lone.u_sr / expected - 1.0).abs() < 1e-9,
+        "{} against {expected}",
+        lone.u_sr
+    );
+    assert!((fbar_at(10) - fbar_at(1)).abs() > (fbar_at(7) - fbar_at(1)).abs());
+    // No probe measured in the band: nothing to borrow.
+    let other = vec![point(0, 450.0, 20.0, 0.06), point(1, 650.0, 20.0, 0.5), alone(m)];
+    assert_eq!(band_estimates(&other, &other, leaky, Some(&leak))[2], None);
 }

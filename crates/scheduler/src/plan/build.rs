@@ -56,6 +56,32 @@ pub fn plan_bands(spec: &PlanSpec, instrument: &Instrument) -> Result<Vec<f64>, 
     }
 }
 
+/// The bands the sweeps are swept in: `[plan] sweep_bands_nm`, each among `plan_bands` (the bands the plan
+/// measures), or all of `plan_bands` without it.
+pub fn sweep_bands(spec: &PlanSpec, plan_bands: &[f64]) -> Result<Vec<f64>, PlanError> {
+    let Some(list) = &spec.sweep_bands_nm else {
+        return Ok(plan_bands.to_vec());
+    };
+    if list.is_empty() {
+        return Err(invalid("", "sweep_bands_nm", "expected at least one band"));
+    }
+    let mut out: Vec<f64> = Vec::new();
+    for b in list {
+        if !plan_bands.iter().any(|a| (a - b).abs() <= 1e-6) {
+            return Err(invalid(
+                "",
+                "sweep_bands_nm",
+                format!("{b} nm is not among the bands the plan measures, {plan_bands:?}"),
+            ));
+        }
+        if out.iter().any(|o| (o - b).abs() <= 1e-6) {
+            return Err(invalid("", "sweep_bands_nm", format!("{b} nm is listed twice")));
+        }
+        out.push(*b);
+    }
+    Ok(out)
+}
+
 /// Validate `[plan.calibration]`.
 pub fn calibration(spec: &CalibrationSpec, instrument: &Instrument) -> Result<Calibration, PlanError> {
     let t = "calibration";

@@ -36,6 +36,10 @@ pub struct PlanSpec {
     /// `[[plan.sweeps]]` (see `crate::sweep`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub sweeps: Vec<SweepSpec>,
+    /// The bands the sweeps are swept in, among `bands_nm` (default: all of them): sweeps in one band beside
+    /// points in several, which lend the sweeps their spectrum (the filters' leak corrected).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sweep_bands_nm: Option<Vec<f64>>,
 }
 
 impl Default for PlanSpec {
@@ -50,6 +54,7 @@ impl Default for PlanSpec {
             adaptive: None,
             calibration: CalibrationSpec::default(),
             sweeps: Vec::new(),
+            sweep_bands_nm: None,
         }
     }
 }
