@@ -3,10 +3,19 @@
 //! incidences [`INCIDENCES_DEG`] in the plane of incidence (what sweeps measure: an arm turns in that plane):
 //!
 //! - stop-and-go grids (`[plan.grid] kind = "in-plane"`, theta_o from -80 to 80 deg at [`GRID_STEPS_DEG`]);
+//! - on an instrument whose filters leak (realistic.toml) and a sample that is not grey, the same grids in three
+//!   bands at
+//!   [`GRID_THREE_BANDS_STEPS_DEG`]: a campaign in one band has no spectrum to correct the leak with, and one
+//!   in three bands does (its 550 nm values are compared); likewise sweeps in three bands at
+//!   [`THREE_BAND_SWEEP_SETTINGS`];
 //! - adaptive stop-and-go plans (`[plan.adaptive]`, first pass at the same incidences, [`ADAPTIVE_BUDGETS`] points);
 //! - constant-speed sweeps of the same arcs at the speeds and averaging of [`SWEEP_SETTINGS`];
 //! - sweeps whose speed follows the BRDF (top speed 20 deg/s, [`FOLLOW_AVERAGING`] samples a reading, the 4 deg/s
 //!   sweeps as the first pass, tolerances [`FOLLOW_TOLERANCES`] of the peak).
+//!
+//! On an instrument whose filters leak and a sample that is not grey, every sweep run measures beside its sweeps the probe a lab would (`gonio
+//! plan` asks for it): the in-plane points at [`PROBE_THETA_O_DEG`] in three bands, which lend the 550 nm sweeps
+//! their spectrum (`[plan] sweep_bands_nm`); their instrument time is the sweep run's.
 //!
 //! Validation set: the plane of incidence at the same incidences, theta_o every 0.25 deg from -80 to 80 where the
 //! instrument can measure (the rules and the kinematics, a 12.5 mm sample). Truth: the material's point BRDF at
@@ -23,6 +32,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use gonio_brdf::Brdf as _;
 use gonio_instrument::InstrumentFile;
 use gonio_scheduler::adaptive::Measured;
 use gonio_scheduler::constraints::Constraints;
@@ -35,6 +45,13 @@ use crate::readings::MATERIALS;
 const INCIDENCES_DEG: [f64; 4] = [15.0, 30.0, 45.0, 60.0];
 const GRID_STEPS_DEG: [f64; 9] = [10.0, 5.0, 2.5, 1.25, 0.625, 0.3125, 0.15625, 0.078125, 0.0390625];
 const ADAPTIVE_BUDGETS: [u32; 3] = [100, 400, 1600];
+const GRID_THREE_BANDS_STEPS_DEG: [f64; 4] = [10.0, 5.0, 2.5, 1.25];
+/// Sweeps in three bands (each arc swept in each), as [`SWEEP_SETTINGS`].
+const THREE_BAND_SWEEP_SETTINGS: [(f64, u32); 2] = [(20.0, 1), (10.0, 1)];
+/// The probe's exitances at each incidence (signed as in-plane grids: > 0 on the specular side).
+const PROBE_THETA_O_DEG: [f64; 5] = [-60.0, -30.0, 0.0, 30.0, 60.0];
+const BAND_NM: f64 = 550.0;
+const THREE_BANDS_NM: &str = "[450.0, 550.0, 650.0]";
 /// (speed, meter samples a reading): fast and noisy to slow and quiet (the reconstruction averages a few
 /// neighbours only, so a reading's own noise sets the error floor on smooth samples).
 const SWEEP_SETTINGS: [(f64, u32); 5] = [(20.0, 1), (4.0, 1), (1.0, 1), (4.0, 10), (2.0, 30)];
@@ -47,8 +64,10 @@ const HOUR_S: f64 = 3600.0;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Kind {
     Grid,
+    GridThreeBands,
     Adaptive,
     Constant,
+    ConstantThreeBands,
     Follow,
 }
 
@@ -56,14 +75,16 @@ impl Kind {
     fn name(self) -> &'static str {
         match self {
             Kind::Grid => "grid",
+            Kind::GridThreeBands => "grid in three bands",
             Kind::Adaptive => "adaptive",
             Kind::Constant => "constant-speed sweeps",
+            Kind::ConstantThreeBands => "constant-speed sweeps in three bands",
             Kind::Follow => "sweeps following the BRDF",
         }
     }
 
     fn sweeps(self) -> bool {
-        matches!(self, Kind::Constant | Kind::Follow)
+        matches!(self, Kind::Constant | Kind::ConstantThreeBands | Kind::Follow)
     }
 }
 
@@ -82,10 +103,35 @@ fn incidences() -> String {
     format!("[{}]", list.join(", "))
 }
 
-fn campaign(material: &str, plan: &str) -> String {
+/// A campaign: `bands` the `[plan]` keys that choose the bands, `plan` its tables.
+fn campaign(material: &str, bands: &str, plan: &str) -> String {
     format!(
-        "[campaign]\nid = \"curve\"\n[sample]\nradius_mm = 12.5\n[plan]\nbands_nm = [550.0]\n{plan}\n\
+        "[campaign]\nid = \"curve\"\n[sample]\nradius_mm = 12.5\n[plan]\n{bands}\n{plan}\n\
          [calibration]\nmethod = \"absolute\"\nsimulate_operator = true\n[material]\npreset = \"{material}\"\n"
+    )
+}
+
+/// Whether `file`'s 550 nm filter leaks light from outside its band (gonio_instrument::leakage).
+fn leaks(file: &InstrumentFile) -> bool {
+    let inst = &file.instrument;
+    inst.filter_wheel
+        .iter()
+        .flat_map(|w| &w.positions)
+        .filter(|f| f.band_nm.is_some_and(|b| (b - BAND_NM).abs() < 1e-6))
+        .filter_map(|f| gonio_instrument::leakage::out_of_band_fraction(inst, f))
+        .any(|l| l > 0.0)
+}
+
+/// The probe beside the sweeps (module doc): its bands keys and its grid.
+fn probe() -> (String, String) {
+    let list: Vec<String> = PROBE_THETA_O_DEG.iter().map(|t| format!("{t:.1}")).collect();
+    (
+        format!("bands_nm = {THREE_BANDS_NM}\nsweep_bands_nm = [{BAND_NM:.1}]"),
+        format!(
+            "[plan.grid]\nkind = \"in-plane\"\ntheta_i_deg = {}\ntheta_o_deg = [{}]\n",
+            incidences(),
+            list.join(", ")
+        ),
     )
 }
 
@@ -144,7 +190,7 @@ fn values(run: &GonioRun, kind: Kind) -> Result<Vec<(Measured, f64)>, String> {
         Ok(run
             .sweeps()?
             .into_iter()
-            .filter(|r| r.flags.is_empty())
+            .filter(|r| r.flags.is_empty() && (r.band_nm - BAND_NM).abs() < 1e-6)
             .filter_map(|r| {
                 let value = r.brdf_sr?;
                 let geometry = Geometry::new(r.theta_i_deg, r.phi_i_deg, r.theta_o_deg, r.phi_o_deg);
@@ -159,7 +205,7 @@ fn values(run: &GonioRun, kind: Kind) -> Result<Vec<(Measured, f64)>, String> {
         Ok(table
             .points
             .into_iter()
-            .filter(|p| p.flags.is_empty())
+            .filter(|p| p.flags.is_empty() && (p.band_nm - BAND_NM).abs() < 1e-6)
             .filter_map(|p| {
                 let value = p.brdf_sr?;
                 let geometry = Geometry::new(p.theta_i_deg, p.phi_i_deg, p.theta_o_deg, p.phi_o_deg);
@@ -181,8 +227,21 @@ fn runs(binary: &Path, material: &str, instrument: &Path, quick: bool) -> Vec<Re
     let rec = reconstructor(&file.instrument);
     let first_pass =
         std::env::temp_dir().join(format!("gonio-bench-curves-{}-first.csv", std::process::id()));
+    let one_band = format!("bands_nm = [{BAND_NM:.1}]");
+    let three_bands = format!("bands_nm = {THREE_BANDS_NM}");
+    // A grey sample cancels the leak (and is measured in one band whatever the campaign asks): no probe.
+    let flat = gonio_brdf::Material::preset(material).is_ok_and(|m| m.is_spectrally_flat());
+    let leaky = leaks(&file) && !flat;
     let measure = |kind: Kind, setting: String, plan: String| -> Result<Run, String> {
-        let run = gonio_run(binary, &campaign(material, &plan), Some(instrument))?;
+        let text = match kind {
+            Kind::GridThreeBands | Kind::ConstantThreeBands => campaign(material, &three_bands, &plan),
+            Kind::Constant | Kind::Follow if leaky => {
+                let (bands, grid) = probe();
+                campaign(material, &bands, &format!("{grid}{plan}"))
+            }
+            _ => campaign(material, &one_band, &plan),
+        };
+        let run = gonio_run(binary, &text, Some(instrument))?;
         let values = values(&run, kind)?;
         if kind == Kind::Constant && setting == "4 deg/s, 1 samples" {
             let text = std::fs::read_to_string(run.out.join("sweeps.csv")).map_err(|e| e.to_string())?;
@@ -213,6 +272,11 @@ fn runs(binary: &Path, material: &str, instrument: &Path, quick: bool) -> Vec<Re
     for step in &GRID_STEPS_DEG[..take(3, GRID_STEPS_DEG.len())] {
         out.push(measure(Kind::Grid, format!("{step} deg"), grid(*step)));
     }
+    if leaky {
+        for step in &GRID_THREE_BANDS_STEPS_DEG[..take(1, GRID_THREE_BANDS_STEPS_DEG.len())] {
+            out.push(measure(Kind::GridThreeBands, format!("{step} deg"), grid(*step)));
+        }
+    }
     for budget in &ADAPTIVE_BUDGETS[..take(1, ADAPTIVE_BUDGETS.len())] {
         out.push(measure(
             Kind::Adaptive,
@@ -226,6 +290,15 @@ fn runs(binary: &Path, material: &str, instrument: &Path, quick: bool) -> Vec<Re
             format!("{speed} deg/s, {averaging} samples"),
             sweeps(speed, averaging, ""),
         ));
+    }
+    if leaky {
+        for (speed, averaging) in &THREE_BAND_SWEEP_SETTINGS[..take(1, THREE_BAND_SWEEP_SETTINGS.len())] {
+            out.push(measure(
+                Kind::ConstantThreeBands,
+                format!("{speed} deg/s, {averaging} samples"),
+                sweeps(*speed, *averaging, ""),
+            ));
+        }
     }
     for tolerance in &FOLLOW_TOLERANCES[..take(1, FOLLOW_TOLERANCES.len())] {
         let follow = format!(
@@ -283,13 +356,18 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
     let _ = writeln!(
         s,
         "Per seed material and instrument file (crates/bench/src/curves.rs): in-plane grids, adaptive plans, \
-         constant-speed sweeps and sweeps following the BRDF at {:?} deg incidence, one band, each through `gonio run`; \
+         constant-speed sweeps and sweeps following the BRDF at {:?} deg incidence, one band (550 nm), each through \
+         `gonio run`; on realistic.toml, whose filters leak, for samples that are not grey, also grids and sweeps \
+         in three bands (their 550 nm values), \
+         and every sweep run with a probe beside it (in-plane points at {:?} deg in three bands, which lend the \
+         sweeps their spectrum: `[plan] sweep_bands_nm`; its time counted in the run's); \
          error: cosine-weighted relative RMS against the point BRDF on one validation set (the plane of incidence at \
          those incidences, every 0.25 deg the instrument can measure), every run's values interpolated by the same \
          reconstruction. Time: instrument time, and measuring time (first value to last). Target: sweeps reach the \
          error the best stop-and-go run reaches within an hour in at most a tenth of the hour ({:.0} s). Figures: \
          docs/bench/time_vs_error_<material>.svg.\n",
         INCIDENCES_DEG,
+        PROBE_THETA_O_DEG,
         RATIO_TARGET * HOUR_S
     );
     s.push_str(
@@ -344,17 +422,25 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
                     let _ = writeln!(targets, "| {material} | {label} | {e} | | | not measured |");
                 }
             }
-            let series = [Kind::Grid, Kind::Adaptive, Kind::Constant, Kind::Follow]
-                .iter()
-                .map(|k| {
-                    let line: Vec<(f64, f64)> = ok
-                        .iter()
-                        .filter(|r| r.kind == *k)
-                        .filter_map(|r| Some((r.instrument_s, r.error?)))
-                        .collect();
-                    (k.name().to_string(), line)
-                })
-                .collect();
+            let series = [
+                Kind::Grid,
+                Kind::GridThreeBands,
+                Kind::Adaptive,
+                Kind::Constant,
+                Kind::ConstantThreeBands,
+                Kind::Follow,
+            ]
+            .iter()
+            .map(|k| {
+                let line: Vec<(f64, f64)> = ok
+                    .iter()
+                    .filter(|r| r.kind == *k)
+                    .filter_map(|r| Some((r.instrument_s, r.error?)))
+                    .collect();
+                (k.name().to_string(), line)
+            })
+            .filter(|(_, line)| !line.is_empty())
+            .collect();
             panels.push((label.to_string(), series));
         }
         let path = root.join(format!("docs/bench/time_vs_error_{material}.svg"));

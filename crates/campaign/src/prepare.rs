@@ -210,7 +210,8 @@ pub fn prepare(campaign: Campaign, instrument: &Instrument) -> Result<Prepared, 
                     .map(|c| c.0)
             })
             .map(|p| p.light_deg < p.detector_deg);
-        let sweep_bands = plan::sweep_bands(spec, &plan.bands_nm).map_err(|e| at.plan(&e))?;
+        let requested = plan::plan_bands(spec, instrument).map_err(|e| at.plan(&e))?;
+        let sweep_bands = plan::sweep_bands(spec, &requested, &plan.bands_nm).map_err(|e| at.plan(&e))?;
         let sweep_plan = build_sweeps(
             sweep_specs,
             instrument,

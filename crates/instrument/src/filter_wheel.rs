@@ -22,6 +22,17 @@ fn default_wheel_speed() -> u8 {
     1
 }
 
+impl FilterWheel {
+    /// Gives every filter (not the blank) a passband `bandwidth_nm` wide (FWHM, nm): the ideal file's filters
+    /// pass a single wavelength, and what a finite band does (its leak, its centroid, the simulator's passband)
+    /// is studied on them made catalogue filters, 10 nm wide.
+    pub fn set_bandwidths_nm(&mut self, bandwidth_nm: f64) {
+        for p in self.positions.iter_mut().filter(|p| !p.blank) {
+            p.bandwidth_nm = Some(bandwidth_nm);
+        }
+    }
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct FilterPosition {

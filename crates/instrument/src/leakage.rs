@@ -98,11 +98,9 @@ mod tests {
     /// given catalogue 10 nm bands (the ideal file's pass a single wavelength).
     fn wheel() -> (Instrument, Vec<FilterPosition>) {
         let inst = InstrumentFile::simulated().instrument;
-        let mut positions = inst.filter_wheel.as_ref().expect("wheel").positions.clone();
-        for p in positions.iter_mut().filter(|p| !p.blank) {
-            p.bandwidth_nm = Some(10.0);
-        }
-        (inst, positions)
+        let mut wheel = inst.filter_wheel.clone().expect("wheel");
+        wheel.set_bandwidths_nm(10.0);
+        (inst, wheel.positions)
     }
 
     #[test]

@@ -98,16 +98,15 @@ mod tests {
     fn the_light_through_a_band_is_centred_to_the_red_and_less_so_further_red() {
         let file = InstrumentFile::simulated();
         let inst = file.instrument;
-        let mut positions = inst.filter_wheel.as_ref().expect("wheel").positions.clone();
+        let mut wheel = inst.filter_wheel.clone().expect("wheel");
         let at = |positions: &[FilterPosition], nm: f64| {
             let p = positions.iter().find(|p| p.band_nm == Some(nm)).expect("band");
             centroid_offset_nm(&inst, p).expect("offset")
         };
         // The ideal file's filters pass a single wavelength.
-        assert_eq!(at(&positions, 550.0), 0.0);
-        for p in positions.iter_mut().filter(|p| !p.blank) {
-            p.bandwidth_nm = Some(10.0);
-        }
+        assert_eq!(at(&wheel.positions, 550.0), 0.0);
+        wheel.set_bandwidths_nm(10.0);
+        let positions = wheel.positions;
         let (blue, green, red) = (
             at(&positions, 450.0),
             at(&positions, 550.0),

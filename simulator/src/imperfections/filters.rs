@@ -120,15 +120,8 @@ mod tests {
     /// wavelength).
     fn file(seed: u64) -> InstrumentFile {
         let mut f = InstrumentFile::simulated();
-        for p in f
-            .instrument
-            .filter_wheel
-            .iter_mut()
-            .flat_map(|w| &mut w.positions)
-        {
-            if !p.blank {
-                p.bandwidth_nm = Some(10.0);
-            }
+        if let Some(w) = f.instrument.filter_wheel.as_mut() {
+            w.set_bandwidths_nm(10.0);
         }
         f.simulator.seed = seed;
         f

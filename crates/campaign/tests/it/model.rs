@@ -223,6 +223,14 @@ fn sweeps_in_fewer_bands_than_the_points_sweep_those_and_a_wrong_list_is_named()
     let all_sweeps = all.sweeps.as_ref().expect("sweeps");
     let ratio = sweeps.schedule.breakdown.total_s() / all_sweeps.schedule.breakdown.total_s();
     assert!(ratio < 0.5, "{ratio}");
+    // A spectrally flat sample is measured in one band: the sweeps' (which the points normalise).
+    let grey = probed("sweep_bands_nm = [550.0]", true).replace(
+        "[plan]\n",
+        "[material]\nmodel = \"lambertian\"\nalbedo = 0.5\n[plan]\n",
+    );
+    let flat = prepare(&grey).expect("prepares");
+    assert_eq!(flat.bands_nm(), &[550.0]);
+    assert_eq!(flat.sweeps.as_ref().expect("sweeps").plan.bands_nm, vec![550.0]);
     for (extra, sweep, says) in [
         (
             "sweep_bands_nm = [500.0]",

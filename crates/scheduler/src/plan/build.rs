@@ -56,28 +56,38 @@ pub fn plan_bands(spec: &PlanSpec, instrument: &Instrument) -> Result<Vec<f64>, 
     }
 }
 
-/// The bands the sweeps are swept in: `[plan] sweep_bands_nm`, each among `plan_bands` (the bands the plan
-/// measures), or all of `plan_bands` without it.
-pub fn sweep_bands(spec: &PlanSpec, plan_bands: &[f64]) -> Result<Vec<f64>, PlanError> {
+/// The bands the sweeps are swept in: `[plan] sweep_bands_nm`, each among `requested` (the plan's
+/// `bands_nm`, [`plan_bands`]), or all of `measured` without it. `measured`: the bands the plan measures, which
+/// for a spectrally flat sample is one (step 5 of [`build`]: the sweeps' first): the sweeps keep those of their
+/// bands the points measure, so that every swept band is normalised.
+pub fn sweep_bands(spec: &PlanSpec, requested: &[f64], measured: &[f64]) -> Result<Vec<f64>, PlanError> {
     let Some(list) = &spec.sweep_bands_nm else {
-        return Ok(plan_bands.to_vec());
+        return Ok(measured.to_vec());
     };
     if list.is_empty() {
         return Err(invalid("", "sweep_bands_nm", "expected at least one band"));
     }
     let mut out: Vec<f64> = Vec::new();
     for b in list {
-        if !plan_bands.iter().any(|a| (a - b).abs() <= 1e-6) {
+        if !requested.iter().any(|a| (a - b).abs() <= 1e-6) {
             return Err(invalid(
                 "",
                 "sweep_bands_nm",
-                format!("{b} nm is not among the bands the plan measures, {plan_bands:?}"),
+                format!("{b} nm is not among the bands the plan measures, {requested:?}"),
             ));
         }
         if out.iter().any(|o| (o - b).abs() <= 1e-6) {
             return Err(invalid("", "sweep_bands_nm", format!("{b} nm is listed twice")));
         }
         out.push(*b);
+    }
+    out.retain(|b| measured.iter().any(|a| (a - b).abs() <= 1e-6));
+    if out.is_empty() {
+        return Err(invalid(
+            "",
+            "sweep_bands_nm",
+            format!("none of {list:?} nm is among the bands the plan measures, {measured:?}"),
+        ));
     }
     Ok(out)
 }
@@ -426,10 +436,17 @@ pub fn build_from_geometries(
         }
     }
 
-    // 5. Spectrally flat materials: one band tells all.
+    // 5. Spectrally flat materials: one band tells all; the sweeps' first band when they name theirs (the
+    //    sweeps are normalised with the points' bands).
     let bands_nm = if ctx.traits.spectrally_flat && n_bands > 1 {
         *skipped.entry(Reason::SpectrallyFlat).or_default() += kept.len() * (n_bands - 1);
-        bands_all[..1].to_vec()
+        let swept = spec
+            .sweep_bands_nm
+            .as_ref()
+            .and_then(|s| s.first())
+            .and_then(|b| bands_all.iter().position(|a| (a - b).abs() <= 1e-6))
+            .unwrap_or(0);
+        vec![bands_all[swept]]
     } else {
         bands_all
     };

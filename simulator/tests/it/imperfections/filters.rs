@@ -121,15 +121,8 @@ fn setup(settings: FilterImperfections) -> (FiltersTruth, Optics, Optics) {
 fn file(filters: FilterImperfections) -> InstrumentFile {
     let mut f = InstrumentFile::simulated();
     // The ideal file's filters pass a single wavelength: these are catalogue 10 nm bands.
-    for p in f
-        .instrument
-        .filter_wheel
-        .iter_mut()
-        .flat_map(|w| &mut w.positions)
-    {
-        if !p.blank {
-            p.bandwidth_nm = Some(10.0);
-        }
+    if let Some(w) = f.instrument.filter_wheel.as_mut() {
+        w.set_bandwidths_nm(10.0);
     }
     f.simulator.seed = 5;
     f.simulator.imperfections.filters = filters;
