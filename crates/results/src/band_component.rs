@@ -385,6 +385,9 @@ pub fn band_estimates(
     let mut lender: Option<borrow::Lender> = None;
     for (first, bands) in spectra(points) {
         if let [band] = &bands[..] {
+            if !band.members.iter().all(|&i| borrow::significant(&points[i])) {
+                continue;
+            }
             let lender = lender.get_or_insert_with(|| borrow::Lender::new(probes));
             if let Some(s) = lender.solve(&points[first], band.nm, band.mean, &filter, &mut weights) {
                 estimate_members(points, &band.members, s, &mut out);

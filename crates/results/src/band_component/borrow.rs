@@ -15,6 +15,9 @@
 //! component. One probe alone says nothing of how the shape varies: the whole correction is then its
 //! uncertainty (the value is moved to the best estimate, and the interval still holds the uncorrected value).
 //!
+//! Only values well above their noise ([`SIGNIFICANT`]) lend a shape or borrow one: a value at the noise (a
+//! mirror's away from its specular direction) has no spectrum to speak of, and a leak's share of it is noise too.
+//!
 //! Nearness: the angle between the half vectors (a glossy sample's shape follows its specular direction) plus
 //! the angle between the incident directions, both in radians.
 
@@ -24,6 +27,10 @@ use crate::run::BAND_TOLERANCE_NM;
 
 /// Probes whose shapes are compared for the borrowed shape's uncertainty.
 pub(super) const NEAREST: usize = 3;
+
+/// A probe's values are at least this many of their standard uncertainties (a value at the noise, a mirror's
+/// away from its specular direction, has no shape to lend: its bands' ratios are the noise's).
+pub(super) const SIGNIFICANT: f64 = 3.0;
 
 /// One probe: its geometry's incident direction and half vector, and its spectrum (`(nm, value)` ascending).
 struct Probe {
@@ -60,12 +67,29 @@ fn geometry(p: &Point) -> Option<([f64; 3], [f64; 3])> {
     Some((wi, half))
 }
 
+/// Whether `p`'s value is at least [`SIGNIFICANT`] times its stated uncertainty (any finite value when it states
+/// none).
+pub(super) fn significant(p: &Point) -> bool {
+    match (p.value(), p.brdf_u_sr) {
+        (Some(f), Some(u)) if u.is_finite() => f >= SIGNIFICANT * u,
+        (Some(f), _) => f.is_finite(),
+        _ => false,
+    }
+}
+
 impl Lender {
-    /// The geometries of `points` measured in at least two bands, every value finite.
+    /// The geometries of `points` measured in at least two bands, every value finite and at least
+    /// [`SIGNIFICANT`] times its stated uncertainty.
     pub(super) fn new(points: &[Point]) -> Lender {
+        let significant = |i: &usize| significant(&points[*i]);
         let probes = spectra(points)
             .into_iter()
-            .filter(|(_, bands)| bands.len() >= 2 && bands.iter().all(|b| b.mean.is_finite()))
+            .filter(|(_, bands)| {
+                bands.len() >= 2
+                    && bands
+                        .iter()
+                        .all(|b| b.mean.is_finite() && b.members.iter().all(significant))
+            })
             .filter_map(|(first, bands)| {
                 let (incident, half) = geometry(&points[first])?;
                 Some(Probe {

@@ -400,3 +400,48 @@ fn the_borrowed_shape_s_uncertainty_is_the_nearest_probes_spread_or_the_whole_co
     let other = vec![point(0, 450.0, 20.0, 0.06), point(1, 650.0, 20.0, 0.5), alone(m)];
     assert_eq!(band_estimates(&other, &other, leaky, Some(&leak))[2], None);
 }
+
+#[test]
+fn a_probe_at_its_noise_lends_no_shape() {
+    let leak = even_leak();
+    // The nearest probe (theta_o = 30) is within three of its uncertainties (a mirror's away from its specular
+    // direction: its bands' ratios are the noise's); the further one (theta_o = 60) lends its shape instead.
+    let mut noisy = probe(
+        0,
+        30.0,
+        &[(450.0, 0.001), (550.0, 0.001), (650.0, 0.02)],
+        1.0,
+        &leak,
+    );
+    for p in &mut noisy {
+        p.brdf_u_sr = Some(0.001);
+    }
+    let mut points = noisy.clone();
+    points.extend(probe(3, 60.0, &PAPER, 1.0, &leak));
+    let m = measured(&PAPER, &leak)[1].1;
+    points.push(point(9, 550.0, 32.0, m));
+    let e = band_estimates(&points, &points, leaky, Some(&leak));
+    let lone = e[6].expect("borrowed from the far probe");
+    let far = e[4].expect("probe at 60");
+    assert!((lone.shift_sr - far.shift_sr).abs() < 1e-15, "{lone:?} {far:?}");
+    // Alone, the noisy probe lends nothing.
+    noisy.push(point(9, 550.0, 32.0, m));
+    assert_eq!(band_estimates(&noisy, &noisy, leaky, Some(&leak))[3], None);
+    // Well above its noise it lends.
+    for p in &mut noisy {
+        p.brdf_u_sr = Some(1e-5);
+    }
+    assert!(band_estimates(&noisy, &noisy, leaky, Some(&leak))[3].is_some());
+}
+
+#[test]
+fn a_lone_band_at_its_noise_borrows_nothing() {
+    let leak = even_leak();
+    let mut points = probe(0, 20.0, &PAPER, 1.0, &leak);
+    let mut lone = point(3, 550.0, 32.0, 0.002);
+    lone.brdf_u_sr = Some(0.001);
+    points.push(lone);
+    assert_eq!(band_estimates(&points, &points, leaky, Some(&leak))[3], None);
+    points[3].brdf_u_sr = Some(1e-4);
+    assert!(band_estimates(&points, &points, leaky, Some(&leak))[3].is_some());
+}
