@@ -6,10 +6,7 @@
 //! nominal pose: checked here against the simulator's ground truth at the nominal geometry, on a tilt stage of
 //! coarse steps.
 
-use std::sync::{Arc, Mutex};
-
-use gonio_engine::store::{CampaignState, Store};
-use gonio_engine::{Control, Rig, prepare_campaign, run_campaign};
+use gonio_engine::store::CampaignState;
 use gonio_instrument::InstrumentFile;
 
 /// Points on the flank of the gloss lobe (5 to 8 degrees from the specular direction, off the plane of
@@ -57,19 +54,9 @@ async fn values_are_brought_from_where_the_axes_stopped_to_the_nominal_geometry(
     ) = (Some(0.01), 0.01, 0.01);
     // A holder that re-seats the sample to 0.01 degree: one error per mounting, shared by every value.
     file.instrument.sample_holder.reseat_u_deg = Some(0.01);
-    let instrument_text = toml::to_string(&file).expect("toml");
     let text = campaign();
     let dir = tempfile::tempdir().expect("tempdir");
-    let prepared = prepare_campaign(&text, "c.toml", dir.path(), &file).expect("valid");
-    let mut store = Store::open(dir.path()).expect("store");
-    let id = store
-        .create_campaign(&prepared.new_campaign(&text, &instrument_text))
-        .expect("create");
-    let store = Arc::new(Mutex::new(store));
-    let rig = Rig::connect_with_time_scale(&file, None, 1.0).await.expect("rig");
-    let state = run_campaign(Arc::clone(&store), id, &rig, Control::new())
-        .await
-        .expect("run");
+    let (store, id, state) = crate::common::run_campaign_text(dir.path(), &text, &file).await;
     assert_eq!(state, CampaignState::Completed);
     let points = store.lock().expect("store").points(id).expect("points");
     let (mut corrected, mut covered, mut valid) = (0, 0, 0);

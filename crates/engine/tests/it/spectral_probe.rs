@@ -3,10 +3,7 @@
 //! has no spectrum to correct that with; beside a few points in every band (`[plan] sweep_bands_nm`), the sweep
 //! readings borrow the nearest points' spectrum (gonio_results::band_component's borrow) and are corrected.
 
-use std::sync::{Arc, Mutex};
-
-use gonio_engine::store::{CampaignState, Store};
-use gonio_engine::{Control, Rig, prepare_campaign, run_campaign};
+use gonio_engine::store::CampaignState;
 use gonio_instrument::InstrumentFile;
 use gonio_results::sweeps::{SweepReading, SweepTruthSummary, truth_summary};
 
@@ -39,18 +36,7 @@ async fn sweep(probe: bool, seed: u64) -> (Vec<SweepReading>, SweepTruthSummary,
     let dir = tempfile::tempdir().expect("tempdir");
     let text = REALISTIC.replace("seed = 16", &format!("seed = {seed}"));
     let file = InstrumentFile::parse(&text, "realistic.toml").expect("valid");
-    let campaign = campaign(probe);
-    let prepared = prepare_campaign(&campaign, "probe.toml", dir.path(), &file).expect("valid campaign");
-    let toml = toml::to_string(&file).expect("toml");
-    let mut store = Store::open(dir.path()).expect("store");
-    let id = store
-        .create_campaign(&prepared.new_campaign(&campaign, &toml))
-        .expect("create");
-    let store = Arc::new(Mutex::new(store));
-    let rig = Rig::connect_with_time_scale(&file, None, 1.0).await.expect("rig");
-    let state = run_campaign(Arc::clone(&store), id, &rig, Control::new())
-        .await
-        .expect("run");
+    let (store, id, state) = crate::common::run_campaign_text(dir.path(), &campaign(probe), &file).await;
     assert_eq!(state, CampaignState::Completed);
     let readings = store.lock().expect("lock").sweep_readings(id).expect("readings");
     assert!(readings.len() > 1000, "{}", readings.len());

@@ -1,5 +1,5 @@
-//! Shared by the engine's alignment tests: `gonio align`'s procedure on a dry-run rig, the simulated operator
-//! making each placement.
+//! Shared by the engine's integration tests: `gonio align`'s procedure on a dry-run rig, the simulated operator
+//! making each placement; a campaign run to its end on a dry-run rig.
 
 use gonio_brdf::material::Material;
 use gonio_engine::align::{AlignOptions, AlignmentReport, OperatorStep, Placement, run_alignment};
@@ -35,4 +35,29 @@ pub async fn dry_run_alignment(
         .map_err(|e| e.to_string());
     drop(motion);
     (rig, report)
+}
+
+/// `campaign` (its text) prepared on `file`, stored in `dir` and run on a dry-run rig to its end: the store, the
+/// campaign's id and the state it ended in.
+pub async fn run_campaign_text(
+    dir: &std::path::Path,
+    campaign: &str,
+    file: &InstrumentFile,
+) -> (
+    std::sync::Arc<std::sync::Mutex<gonio_engine::store::Store>>,
+    gonio_engine::store::CampaignId,
+    gonio_engine::store::CampaignState,
+) {
+    let prepared = gonio_engine::prepare_campaign(campaign, "c.toml", dir, file).expect("valid campaign");
+    let instrument_text = toml::to_string(file).expect("toml");
+    let mut store = gonio_engine::store::Store::open(dir).expect("store");
+    let id = store
+        .create_campaign(&prepared.new_campaign(campaign, &instrument_text))
+        .expect("create");
+    let store = std::sync::Arc::new(std::sync::Mutex::new(store));
+    let rig = Rig::connect_with_time_scale(file, None, 1.0).await.expect("rig");
+    let state = gonio_engine::run_campaign(std::sync::Arc::clone(&store), id, &rig, Control::new())
+        .await
+        .expect("run");
+    (store, id, state)
 }
