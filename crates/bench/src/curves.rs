@@ -113,13 +113,7 @@ fn campaign(material: &str, bands: &str, plan: &str) -> String {
 
 /// Whether `file`'s 550 nm filter leaks light from outside its band (gonio_instrument::leakage).
 fn leaks(file: &InstrumentFile) -> bool {
-    let inst = &file.instrument;
-    inst.filter_wheel
-        .iter()
-        .flat_map(|w| &w.positions)
-        .filter(|f| f.band_nm.is_some_and(|b| (b - BAND_NM).abs() < 1e-6))
-        .filter_map(|f| gonio_instrument::leakage::out_of_band_fraction(inst, f))
-        .any(|l| l > 0.0)
+    gonio_instrument::leakage::band_leakage(&file.instrument, BAND_NM).is_some_and(|l| l > 0.0)
 }
 
 /// The probe beside the sweeps (module doc): its bands keys and its grid.

@@ -246,14 +246,7 @@ fn leak_note(p: &Prepared, file: &InstrumentFile) -> String {
     let Some(&band) = points_bands.first().or(sweep_bands.first()) else {
         return String::new();
     };
-    let inst = &file.instrument;
-    let leak = inst
-        .filter_wheel
-        .iter()
-        .flat_map(|w| &w.positions)
-        .filter(|f| f.band_nm.is_some_and(|b| (b - band).abs() <= 1e-6))
-        .find_map(|f| gonio_instrument::leakage::out_of_band_fraction(inst, f))
-        .unwrap_or(0.0);
+    let leak = gonio_instrument::leakage::band_leakage(&file.instrument, band).unwrap_or(0.0);
     if leak <= 0.0 {
         return String::new();
     }

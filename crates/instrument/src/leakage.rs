@@ -57,6 +57,17 @@ fn light_samples(instrument: &Instrument, light: impl Fn(f64) -> f64) -> Option<
     )
 }
 
+/// The leaked fraction `L` of the wheel's filter for `band_nm` (within 1e-6 nm) on `instrument`
+/// ([`out_of_band_fraction`]); `None` without such a filter or a finite answer.
+pub fn band_leakage(instrument: &Instrument, band_nm: f64) -> Option<f64> {
+    instrument
+        .filter_wheel
+        .iter()
+        .flat_map(|w| &w.positions)
+        .filter(|p| p.band_nm.is_some_and(|b| (b - band_nm).abs() <= 1e-6))
+        .find_map(|p| out_of_band_fraction(instrument, p))
+}
+
 /// The leaked fraction `L` of `position`'s band on `instrument` (module doc); `None` for a position without a
 /// band and a width, a blank, or figures that give no finite answer.
 pub fn out_of_band_fraction(instrument: &Instrument, position: &FilterPosition) -> Option<f64> {
@@ -132,6 +143,28 @@ mod tests {
         assert_eq!(at(&positions, 450.0), 0.0);
         let blank = positions.iter().find(|p| p.blank).expect("blank");
         assert_eq!(out_of_band_fraction(&inst, blank), None);
+    }
+
+    #[test]
+    fn a_band_s_leak_is_its_filter_s_and_none_without_one() {
+        let (mut inst, _) = wheel();
+        // The ideal file's filters pass a single wavelength and block everything else: no leak.
+        assert_eq!(band_leakage(&inst, 550.0), None);
+        let w = inst.filter_wheel.as_mut().expect("wheel");
+        w.set_bandwidths_nm(10.0);
+        for p in &mut w.positions {
+            p.out_of_band_transmission = Some(1e-5);
+        }
+        let green = w
+            .positions
+            .iter()
+            .find(|p| p.band_nm == Some(550.0))
+            .cloned()
+            .expect("550 nm");
+        let expected = out_of_band_fraction(&inst, &green).expect("fraction");
+        assert!(expected > 0.0);
+        assert_eq!(band_leakage(&inst, 550.0), Some(expected));
+        assert_eq!(band_leakage(&inst, 551.0), None);
     }
 
     #[test]
