@@ -207,8 +207,9 @@ pub struct ResidualStats {
     /// Largest `|m - f| / f`.
     pub max_relative: f64,
     /// `r^T V^-1 r / (n - p)` with `r = m - f` and `V` the points' whole stated budget: the independent parts
-    /// on the diagonal, each shared group's signed entries fully correlated within it ([`shared`]): about 1 when
-    /// the model explains the data to within what the budget says, correlations included.
+    /// on the diagonal, each shared group's signed entries fully correlated within it ([`shared`]), `m` at the
+    /// parameters that minimise it (to first order from the fit's): about 1 when the model explains the data to
+    /// within what the budget says, correlations included.
     pub chi2_per_dof: f64,
     /// `sum((m - f)/u)^2 / (n - p)` against the independent parts alone: above the other when what the points
     /// share leaves structure the model cannot absorb (an angle error tilting a lobe).
@@ -499,6 +500,12 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
     } else {
         solution.cost / dof
     };
+    let at_bound: Vec<bool> = (0..p)
+        .map(|j| {
+            (x[j] - lower[j]).abs() <= 1e-9 * lower[j].abs().max(1.0)
+                || (x[j] - upper[j]).abs() <= 1e-9 * upper[j].abs().max(1.0)
+        })
+        .collect();
     let parameter_covariance = covariance
         .as_ref()
         .zip(jac.as_ref())
@@ -507,8 +514,6 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
         .iter()
         .enumerate()
         .map(|(j, d)| {
-            let at_bound = (x[j] - lower[j]).abs() <= 1e-9 * lower[j].abs().max(1.0)
-                || (x[j] - upper[j]).abs() <= 1e-9 * upper[j].abs().max(1.0);
             let std_uncertainty = parameter_covariance
                 .as_ref()
                 .and_then(|c| c.get(j).and_then(|row| row.get(j)).copied())
@@ -520,7 +525,7 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
                 value: nat[j],
                 std_uncertainty,
                 shared_uncertainty: None,
-                at_bound,
+                at_bound: at_bound[j],
             }
         })
         .collect();
@@ -529,7 +534,18 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
         .ok_or_else(|| fail("the fitted parameters do not make a valid material".into()))?;
     let m = predict(opts, &defs, &nat, &obs, &bands, true)
         .ok_or_else(|| fail("the model cannot be evaluated at the solution".into()))?;
-    let residuals = residual_stats(&obs, &m, p, shared::chi2_whole_budget(run, &obs, &m));
+    // The whole budget's sum of squares at the parameters that fit best under it (shared::chi2_whole_budget):
+    // the standardised residuals' derivative in the parameters, a parameter at a bound held there.
+    let standardised_plain = |x: &[f64]| -> Option<Vec<f64>> {
+        let m = predict(opts, &defs, &natural(x), &obs, &bands, true)?;
+        Some(obs.iter().zip(&m).map(|(o, m)| (m - o.f) / o.u).collect())
+    };
+    let z0: Vec<f64> = obs.iter().zip(&m).map(|(o, m)| (m - o.f) / o.u).collect();
+    let mut dz = lm::jacobian(&standardised_plain, &x, &z0, &lower, &upper).unwrap_or_default();
+    for (j, _) in at_bound.iter().enumerate().filter(|(_, b)| **b) {
+        dz.iter_mut().for_each(|row| row[j] = 0.0);
+    }
+    let residuals = residual_stats(&obs, &m, p, shared::chi2_whole_budget(run, &obs, &m, &dz));
     let downweighted = weights.iter().filter(|w| **w < 0.5).count();
     let linear = jac
         .zip(covariance.clone())
