@@ -545,7 +545,7 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
     for (j, _) in at_bound.iter().enumerate().filter(|(_, b)| **b) {
         dz.iter_mut().for_each(|row| row[j] = 0.0);
     }
-    let residuals = residual_stats(&obs, &m, p, shared::chi2_whole_budget(run, &obs, &m, &dz));
+    let residuals = residual_stats(&obs, &m, p, shared::chi2_whole_budget(run, &obs, &z0, &dz));
     let downweighted = weights.iter().filter(|w| **w < 0.5).count();
     let linear = jac
         .zip(covariance.clone())

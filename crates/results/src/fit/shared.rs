@@ -123,7 +123,7 @@ pub(super) fn shared_uncertainties(run: &Run, opts: &FitOptions, report: &FitRep
         .collect()
 }
 
-/// The sum of squares of the residuals `m - f` against the points' whole budget, shared components with their
+/// The sum of squares of the residuals `m - f` (given standardised, `z`) against the points' whole budget, shared components with their
 /// correlations, at the parameters that fit best under it: `min_d (z + A d)^T (I + T T^T)^-1 (z + A d)` with
 /// `z_k = (m_k - f_k) / u_k` (u: the independent part), `A` the derivative of `z` in the parameters at the fit's
 /// solution (`n x p`, the fit linearised; empty: the solution as it stands) and `T_kg` each shared group's
@@ -140,7 +140,7 @@ pub(super) fn shared_uncertainties(run: &Run, opts: &FitOptions, report: &FitRep
 /// on realistic.toml without bring-up, whose points share the instrument file's geometry priors, where the
 /// true model and an honest budget give about 1 (ACCURACY.md). The minimum over the parameters is the
 /// statistic with `n - p` degrees of freedom.
-pub(super) fn chi2_whole_budget(run: &Run, obs: &[Obs], m: &[f64], a: &[Vec<f64>]) -> Option<f64> {
+pub(super) fn chi2_whole_budget(run: &Run, obs: &[Obs], z: &[f64], a: &[Vec<f64>]) -> Option<f64> {
     let mut columns: BTreeMap<(&str, &str), usize> = BTreeMap::new();
     let mut entries: Vec<Vec<(usize, f64)>> = Vec::with_capacity(obs.len());
     for o in obs {
@@ -156,7 +156,9 @@ pub(super) fn chi2_whole_budget(run: &Run, obs: &[Obs], m: &[f64], a: &[Vec<f64>
         }
         entries.push(row);
     }
-    let z: Vec<f64> = obs.iter().zip(m).map(|(o, m)| (m - o.f) / o.u).collect();
+    if z.len() != obs.len() {
+        return None;
+    }
     let zz: f64 = z.iter().map(|v| v * v).sum();
     // The parameters' columns first (only those the derivative fills, finite), then the groups'.
     let p = a.first().map_or(0, Vec::len);
@@ -174,7 +176,7 @@ pub(super) fn chi2_whole_budget(run: &Run, obs: &[Obs], m: &[f64], a: &[Vec<f64>
     }
     let mut n = vec![vec![0.0; q + g]; q + g];
     let mut b = vec![0.0; q + g];
-    for (k, (row, zk)) in entries.iter().zip(&z).enumerate() {
+    for (k, (row, zk)) in entries.iter().zip(z).enumerate() {
         let dense: Vec<(usize, f64)> = usable
             .iter()
             .enumerate()
