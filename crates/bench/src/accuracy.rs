@@ -36,7 +36,111 @@ pub const MATERIALS: &[&str] = gonio_brdf::presets::NAMES;
 pub const SEEDS: [u64; 16] = [16, 3, 5, 7, 11, 21, 29, 42, 2, 13, 17, 23, 31, 37, 53, 61];
 /// Random geometries per material and set-up (each measured in three bands), spread evenly over its seeds.
 pub const GEOMETRIES: usize = 2000;
-pub(crate) const BANDS: &str = "[450.0, 550.0, 650.0]";
+/// The bands every geometry is measured in, unless `--bands` says otherwise (nm).
+pub const BANDS_NM: [f64; 3] = [450.0, 550.0, 650.0];
+
+/// What one accuracy run covers: the table in ACCURACY.md takes the defaults; `--bands`, `--materials` and
+/// `--setups` narrow or change it for working on one part (the five-band experiment in
+/// gonio_results::band_component's notes), written elsewhere (`--out`), never over ACCURACY.md.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    /// Bands in nm, ascending.
+    pub bands_nm: Vec<f64>,
+    pub materials: Vec<&'static str>,
+    /// Which of [`setups`] by kind: `ideal`, `realistic`, `bring-up`.
+    pub setups: Vec<String>,
+}
+
+/// The set-up kinds `--setups` takes, in [`setups`]' order.
+pub const SETUP_KINDS: [&str; 3] = ["ideal", "realistic", "bring-up"];
+
+impl Default for Options {
+    fn default() -> Options {
+        Options {
+            bands_nm: BANDS_NM.to_vec(),
+            materials: MATERIALS.to_vec(),
+            setups: SETUP_KINDS.iter().map(|k| k.to_string()).collect(),
+        }
+    }
+}
+
+impl Options {
+    /// From the bench's arguments after `--accuracy`: `--bands 450,500,550`, `--materials gold,mirror`,
+    /// `--setups ideal,bring-up` (each a comma-separated list); an error names what is wrong.
+    pub fn parse(args: &[String]) -> Result<Options, String> {
+        let mut o = Options::default();
+        let value = |flag: &str| -> Result<Option<Vec<String>>, String> {
+            match args.iter().position(|a| a == flag) {
+                None => Ok(None),
+                Some(i) => args
+                    .get(i + 1)
+                    .filter(|v| !v.starts_with("--"))
+                    .map(|v| Some(v.split(',').map(|x| x.trim().to_string()).collect()))
+                    .ok_or_else(|| format!("{flag} needs a comma-separated list")),
+            }
+        };
+        if let Some(bands) = value("--bands")? {
+            let mut nm = bands
+                .iter()
+                .map(|b| {
+                    b.parse::<f64>()
+                        .ok()
+                        .filter(|v| v.is_finite() && *v > 0.0)
+                        .ok_or_else(|| format!("--bands: {b:?} is not a wavelength in nm"))
+                })
+                .collect::<Result<Vec<f64>, String>>()?;
+            nm.sort_by(f64::total_cmp);
+            nm.dedup();
+            o.bands_nm = nm;
+        }
+        if let Some(materials) = value("--materials")? {
+            o.materials = materials
+                .iter()
+                .map(|m| {
+                    MATERIALS.iter().copied().find(|k| k == m).ok_or_else(|| {
+                        format!(
+                            "--materials: {m:?} is not a preset (one of {})",
+                            MATERIALS.join(", ")
+                        )
+                    })
+                })
+                .collect::<Result<Vec<&'static str>, String>>()?;
+        }
+        if let Some(kinds) = value("--setups")? {
+            for k in &kinds {
+                if !SETUP_KINDS.contains(&k.as_str()) {
+                    return Err(format!(
+                        "--setups: {k:?} is not one of {}",
+                        SETUP_KINDS.join(", ")
+                    ));
+                }
+            }
+            o.setups = kinds;
+        }
+        Ok(o)
+    }
+
+    /// Whether this is the table ACCURACY.md keeps.
+    pub fn is_default(&self) -> bool {
+        *self == Options::default()
+    }
+
+    /// The bands as the campaign file writes them: `[450.0, 550.0, 650.0]`.
+    pub fn bands_toml(&self) -> String {
+        let nm: Vec<String> = self.bands_nm.iter().map(|b| format!("{b:.1}")).collect();
+        format!("[{}]", nm.join(", "))
+    }
+
+    /// The set-ups chosen, in [`setups`]' order.
+    pub fn setups(&self) -> Vec<Setup> {
+        setups()
+            .into_iter()
+            .zip(SETUP_KINDS)
+            .filter(|(_, kind)| self.setups.iter().any(|k| k == kind))
+            .map(|(s, _)| s)
+            .collect()
+    }
+}
 
 /// An instrument set-up the table covers.
 #[derive(Debug, Clone, PartialEq)]
@@ -142,13 +246,13 @@ fn about_specular(ti_deg: f64, off_deg: f64, psi: f64) -> Direction {
     Direction::new(d[0], d[1], d[2]).unwrap_or(s)
 }
 
-fn campaign_text(material: &str, geometries: &[[f64; 4]]) -> String {
+fn campaign_text(material: &str, geometries: &[[f64; 4]], bands_toml: &str) -> String {
     let points: Vec<String> = geometries
         .iter()
         .map(|g| format!("[{:.4}, {:.4}, {:.4}, {:.4}]", g[0], g[1], g[2], g[3]))
         .collect();
     format!(
-        "[campaign]\nid = \"accuracy-{material}\"\n\n[sample]\nradius_mm = 12.5\n\n[plan]\nbands_nm = {BANDS}\n\
+        "[campaign]\nid = \"accuracy-{material}\"\n\n[sample]\nradius_mm = 12.5\n\n[plan]\nbands_nm = {bands_toml}\n\
          repeats = 1\nreciprocity = false\n\n[plan.grid]\nkind = \"points\"\npoints = [{}]\n\n\
          [plan.calibration]\ndark_every_points = 100\nreference_every_s = 600.0\n\
          reference_pose_deg = {{ light = -90.0, detector = 90.0 }}\n\n[calibration]\nmethod = \"absolute\"\n\
@@ -249,7 +353,12 @@ pub struct Run {
 }
 
 /// Every set-up and material, through the release binary `binary`.
-pub fn run(root: &Path, binary: &Path, geometries_per_material: usize) -> Result<Vec<Run>, String> {
+pub fn run(
+    root: &Path,
+    binary: &Path,
+    geometries_per_material: usize,
+    options: &Options,
+) -> Result<Vec<Run>, String> {
     if !binary.exists() {
         return Err(format!(
             "{} not found: build it with `cargo build --release -p gonio`",
@@ -260,7 +369,7 @@ pub fn run(root: &Path, binary: &Path, geometries_per_material: usize) -> Result
         .map_err(|e| format!("config/instruments/realistic.toml: {e}"))?;
     let dir = std::env::temp_dir().join(format!("gonio-bench-accuracy-{}", std::process::id()));
     let mut out = Vec::new();
-    for (k, setup) in setups().into_iter().enumerate() {
+    for (k, setup) in options.setups().into_iter().enumerate() {
         // The geometries spread over the instruments: each its own, the same count.
         let per_instrument = geometries_per_material.div_ceil(setup.seeds.len().max(1));
         for (j, &seed) in setup.seeds.iter().enumerate() {
@@ -279,11 +388,13 @@ pub fn run(root: &Path, binary: &Path, geometries_per_material: usize) -> Result
                 eprintln!("    {label}: gonio align...");
                 crate::bring_up::align(binary, &instrument, &cal)?;
             }
-            for (m, &material) in MATERIALS.iter().enumerate() {
+            for &material in &options.materials {
+                // The material's place among all of them, so that a narrowed run measures the same geometries.
+                let m = MATERIALS.iter().position(|k| *k == material).unwrap_or(0);
                 eprintln!("    {label}: {material}...");
                 let campaign = here.join(format!("{material}.toml"));
                 let geoms = geometries(per_instrument, 1000 + m as u64 + 100 * j as u64);
-                std::fs::write(&campaign, campaign_text(material, &geoms))
+                std::fs::write(&campaign, campaign_text(material, &geoms, &options.bands_toml()))
                     .map_err(|e| format!("{}: {e}", campaign.display()))?;
                 let out_dir = here.join(material);
                 let mut args: Vec<&std::ffi::OsStr> = vec![
@@ -353,6 +464,64 @@ mod tests {
         assert!(g.iter().all(|g| g[2] <= 82.0 && g[0] < 75.0));
         // Deterministic for a seed.
         assert_eq!(geometries(10, 7), geometries(10, 7));
+    }
+
+    fn args(a: &[&str]) -> Vec<String> {
+        a.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn options_default_to_the_table_accuracy_md_keeps() {
+        let o = Options::parse(&args(&["gonio-bench", "--accuracy"])).expect("no options");
+        assert!(o.is_default());
+        assert_eq!(o.bands_toml(), "[450.0, 550.0, 650.0]");
+        assert_eq!(o.setups().len(), 3);
+        assert_eq!(o.materials, MATERIALS);
+    }
+
+    #[test]
+    fn options_narrow_the_bands_materials_and_setups() {
+        let o = Options::parse(&args(&[
+            "--accuracy",
+            "--bands",
+            "650,450,500,550,600",
+            "--materials",
+            "construction-paper,gold",
+            "--setups",
+            "bring-up,ideal",
+        ]))
+        .expect("valid options");
+        assert!(!o.is_default());
+        assert_eq!(o.bands_toml(), "[450.0, 500.0, 550.0, 600.0, 650.0]");
+        assert_eq!(o.materials, ["construction-paper", "gold"]);
+        let setups = o.setups();
+        assert_eq!(setups.len(), 2);
+        assert!(
+            !setups[0].realistic,
+            "the ideal instrument first, in the table's order"
+        );
+        assert!(setups[1].realistic && setups[1].bring_up);
+        // The campaign asks for the bands given.
+        let text = campaign_text("gold", &geometries(3, 1), &o.bands_toml());
+        assert!(
+            text.contains("bands_nm = [450.0, 500.0, 550.0, 600.0, 650.0]"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn options_refuse_what_they_do_not_know() {
+        for bad in [
+            &["--bands", "blue"][..],
+            &["--bands", "-5"],
+            &["--bands"],
+            &["--bands", "--materials"],
+            &["--materials", "velvet"],
+            &["--setups", "perfect"],
+        ] {
+            let e = Options::parse(&args(bad)).expect_err("refused");
+            assert!(e.starts_with(bad[0]), "the message names the option: {e}");
+        }
     }
 
     #[test]

@@ -73,7 +73,7 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     let quick = args.iter().any(|a| a == "--quick");
     if args.iter().any(|a| a == "--accuracy") {
-        write_accuracy(quick);
+        write_accuracy(&args, quick);
         return;
     }
     if let Some(only) = args.iter().skip_while(|a| *a != "--only").nth(1) {
@@ -441,17 +441,40 @@ fn target_dir() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target"))
 }
 
-/// `--accuracy`: issue 29's accuracy table, written to ACCURACY.md (crate::accuracy).
-fn write_accuracy(quick: bool) {
+/// `--accuracy`: issue 29's accuracy table, written to ACCURACY.md (crate::accuracy). Narrowed by `--bands`,
+/// `--materials` or `--setups` (accuracy::Options), it is written to the file `--out` names instead: ACCURACY.md
+/// keeps the whole table.
+fn write_accuracy(args: &[String], quick: bool) {
     let started = Instant::now();
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let binary = target_dir().join("release/gonio");
+    let options = accuracy::Options::parse(args).unwrap_or_else(|e| {
+        eprintln!("accuracy: {e}");
+        std::process::exit(2);
+    });
+    let out = args
+        .iter()
+        .skip_while(|a| *a != "--out")
+        .nth(1)
+        .map(PathBuf::from);
+    let path = match (&out, options.is_default()) {
+        (Some(p), _) => p.clone(),
+        (None, true) => root.join("ACCURACY.md"),
+        (None, false) => {
+            eprintln!("accuracy: a narrowed run (--bands, --materials, --setups) needs --out FILE");
+            std::process::exit(2);
+        }
+    };
     let n = if quick { 200 } else { accuracy::GEOMETRIES };
-    eprintln!("accuracy: {n} geometries per material...");
-    match accuracy::run(&root, &binary, n) {
+    eprintln!(
+        "accuracy: {n} geometries per material, bands {} nm, {} material(s), set-ups {}...",
+        options.bands_toml(),
+        options.materials.len(),
+        options.setups.join(", ")
+    );
+    match accuracy::run(&root, &binary, n, &options) {
         Ok(runs) => {
-            let md = accuracy::markdown(&runs, n, started.elapsed().as_secs_f64());
-            let path = root.join("ACCURACY.md");
+            let md = accuracy::markdown(&runs, n, started.elapsed().as_secs_f64(), &options);
             match std::fs::write(&path, md) {
                 Ok(()) => eprintln!("wrote {}", path.display()),
                 Err(e) => eprintln!("cannot write {}: {e}", path.display()),

@@ -8,7 +8,7 @@ use gonio_results::angular_class::AngularClass;
 use gonio_results::points::Point;
 
 use super::fits::FitOutcome;
-use super::{BANDS, COMMAND, MATERIALS, Run, SEEDS, checked_value, class_row, setups};
+use super::{COMMAND, Options, Run, SEEDS, checked_value, class_row};
 
 fn pct(v: f64) -> String {
     if v.is_finite() {
@@ -35,30 +35,41 @@ fn rel(v: f64) -> String {
 }
 
 /// ACCURACY.md.
-pub fn markdown(runs: &[Run], geometries_per_material: usize, duration_s: f64) -> String {
+pub fn markdown(runs: &[Run], geometries_per_material: usize, duration_s: f64, options: &Options) -> String {
     let mut s = String::new();
     let n = SEEDS.len();
+    let bands = options.bands_toml();
+    let narrowed = if options.is_default() {
+        String::new()
+    } else {
+        format!(
+            " Narrowed with `--accuracy --bands/--materials/--setups`: materials {}, set-ups {}; not the table \
+             ACCURACY.md keeps.",
+            options.materials.join(", "),
+            options.setups.join(", ")
+        )
+    };
     let _ = writeln!(
         s,
         "# Accuracy: does the stated uncertainty cover the truth?\n\n\
          Written by `{COMMAND}` (crates/bench/src/accuracy.rs; `--quick` for fewer geometries); nothing here is \
          edited by hand. {geometries_per_material} random geometries per material (theta_i in [0, 75] deg, a sixth \
          within 2 deg of the specular direction, a sixth 2-15 deg from it, the rest uniform in solid angle to \
-         theta_o = 80 deg; unreachable ones are skipped by the planner), each in the bands {BANDS} nm, dry-run \
+         theta_o = 80 deg; unreachable ones are skipped by the planner), each in the bands {bands} nm, dry-run \
          through the release binary on the ideal instrument and on realistic.toml (every imperfection), without and \
          after bring-up (`gonio align --steps alignment,characterisation,sample-alignment`, its calibration \
          applied). The geometries are spread evenly over {n} instruments, each file at seeds {SEEDS:?}: what all \
          values of an instrument share (the solid angle, a range's gain, a filter's centre, a band's direct-beam \
          reading) is one draw per instrument, so its coverage can only be seen over several. The \
          truth is the simulator's BRDF at the nominal geometry (`brdf_true_sr`). This run took {duration_s:.0} \
-         s.\n\n\
+         s.{narrowed}\n\n\
          Columns: points with a value and a truth (a point flagged `narrow-lobe`, a lobe narrower than the aperture \
          that no correction can undo, is held to its aperture average and the uncertainty meant to cover it; other \
          flagged points are left out and counted); how often the k = 2 interval holds the truth; rms of (value - \
          truth) / u; the median and 95th percentile of |value / truth - 1|; the median k = 2 relative \
          uncertainty; the three largest budget components (median u / value, k = 1).\n"
     );
-    let setups: Vec<String> = setups().into_iter().map(|s| s.name).collect();
+    let setups: Vec<String> = options.setups().into_iter().map(|s| s.name).collect();
     // The targets of issue 29.
     let _ = writeln!(
         s,
@@ -131,7 +142,7 @@ pub fn markdown(runs: &[Run], geometries_per_material: usize, duration_s: f64) -
             }
         );
     }
-    fits_section(&mut s, runs, &setups);
+    fits_section(&mut s, runs, &setups, &options.materials);
     let stopped: Vec<&Run> = runs.iter().filter(|r| r.stopped.is_some()).collect();
     if !stopped.is_empty() {
         let _ = writeln!(
@@ -188,7 +199,7 @@ pub fn markdown(runs: &[Run], geometries_per_material: usize, duration_s: f64) -
             "\n## {name}\n\n| material | class | points | coverage (k = 2) | rms z | median error | p95 error | \
              median u (k = 2) | largest components |\n| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |"
         );
-        for &material in MATERIALS {
+        for &material in &options.materials {
             let all = points_of(runs, name, material);
             if all.is_empty() {
                 continue;
@@ -235,7 +246,7 @@ fn points_of<'a>(runs: &'a [Run], setup: &str, material: &str) -> Vec<&'a Point>
 }
 
 /// `gonio fit` with each material's own model on every run (super::fits), against issue 29's fit targets.
-fn fits_section(s: &mut String, runs: &[Run], setups: &[String]) {
+fn fits_section(s: &mut String, runs: &[Run], setups: &[String], materials: &[&str]) {
     let _ = writeln!(
         s,
         "\n## Fits with the true model\n\n`gonio fit --model <the material's own>` (its default robust loss, every \
@@ -248,7 +259,7 @@ fn fits_section(s: &mut String, runs: &[Run], setups: &[String]) {
          | --- | --- | ---: | --- | ---: | --- | --- |"
     );
     for name in setups {
-        for &material in MATERIALS {
+        for &material in materials {
             let fits: Vec<&Result<FitOutcome, String>> = runs
                 .iter()
                 .filter(|r| &r.setup == name && r.material == material)
