@@ -41,6 +41,8 @@ const CASES: [(&str, f64); 4] = [
 const RATIO_TARGET: f64 = 1.0 / 3.0;
 /// Runs at a constant speed, at most, to find the fastest that meets the tolerance.
 const CONSTANT_TRIES: usize = 4;
+/// The step of the fastest speed law's integration along the arc (deg): [`Truth::fastest_law_s`].
+const BOUND_STEP_DEG: f64 = 0.05;
 
 fn campaign(id: &str, material: &str, speed_deg_s: f64, averaging: u32, follow: &str) -> String {
     format!(
@@ -89,6 +91,46 @@ impl Truth {
         (scale > 0.0).then(|| (sum / f64::from(n) - mid).abs() / scale)
     }
 
+    /// The least time any speed law could take over the truth's arc with readings of `reading_s` each: at every
+    /// place (a step of [`BOUND_STEP_DEG`]) the longest arc a reading centred there may cover within `tolerance`
+    /// (by bisection; smearing grows with the arc), as a speed, at most `top_deg_s`, and the time of the arc at
+    /// those speeds, as if the arm changed speed at once (no acceleration, no pieces): a bound on what
+    /// following can reach, set by the BRDF, the tolerance and the reading's length alone.
+    fn fastest_law_s(&self, reading_s: f64, top_deg_s: f64, tolerance: f64, to_peak: bool) -> Option<f64> {
+        let (&(first, _), &(last, _)) = (self.along.first()?, self.along.last()?);
+        let top_arc = top_deg_s * reading_s;
+        if !(top_arc > 0.0 && last > first) {
+            return None;
+        }
+        let mut total_s = 0.0;
+        let mut at = first;
+        while at < last {
+            let step = BOUND_STEP_DEG.min(last - at);
+            let centre = at + 0.5 * step;
+            let meets = |arc: f64| {
+                self.smearing(centre - 0.5 * arc, centre + 0.5 * arc, to_peak)
+                    // Past the truth's ends: nothing to smear against, as the runs' readings there.
+                    .is_none_or(|e| e <= tolerance)
+            };
+            let arc = if meets(top_arc) {
+                top_arc
+            } else {
+                let (mut lo, mut hi) = (0.0, top_arc);
+                for _ in 0..40 {
+                    let mid = 0.5 * (lo + hi);
+                    if meets(mid) { lo = mid } else { hi = mid }
+                }
+                lo
+            };
+            if arc <= 0.0 {
+                return None;
+            }
+            total_s += step / (arc / reading_s);
+            at += step;
+        }
+        Some(total_s)
+    }
+
     fn worst(&self, readings: &[SweepReading], to_peak: bool) -> f64 {
         readings
             .iter()
@@ -117,6 +159,8 @@ struct Row {
     constant_s: f64,
     constant_worst: f64,
     first_s: f64,
+    /// The fastest speed law's time over the arc ([`Truth::fastest_law_s`]); `None` where it cannot be had.
+    fastest_law_s: Option<f64>,
 }
 
 fn one_case(
@@ -152,6 +196,8 @@ fn one_case(
     let followed = gonio_run(binary, &text, Some(instrument))?.sweeps()?;
     // The fastest constant speed that meets the tolerance.
     let (mut speed, mut best): (f64, Option<(f64, f64, f64)>) = (slowest, None);
+    // How long a reading lasts (s): its arc at a constant speed, over that speed (the median reading).
+    let mut reading_s = None;
     for _ in 0..CONSTANT_TRIES {
         let readings = gonio_run(
             binary,
@@ -160,6 +206,15 @@ fn one_case(
         )?
         .sweeps()?;
         let worst = truth.worst(&readings, to_peak);
+        if reading_s.is_none() {
+            let mut arcs: Vec<f64> = readings
+                .iter()
+                .map(|r| (r.arc_to_deg - r.arc_from_deg).abs())
+                .filter(|a| a.is_finite() && *a > 0.0)
+                .collect();
+            arcs.sort_by(f64::total_cmp);
+            reading_s = arcs.get(arcs.len() / 2).map(|a| a / speed);
+        }
         if worst <= tolerance {
             if best.is_none_or(|b| speed > b.0) {
                 best = Some((speed, sweeping_s(&readings), worst));
@@ -186,6 +241,7 @@ fn one_case(
         constant_s,
         constant_worst,
         first_s,
+        fastest_law_s: reading_s.and_then(|t| truth.fastest_law_s(t, TOP_SPEED_DEG_S, tolerance, to_peak)),
     })
 }
 
@@ -200,16 +256,22 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
          1.8 deg of arc at the top speed), and at the fastest constant speed that meets the same tolerance (found \
          by runs at measured smearing). Smearing: each reading's arc-averaged truth against the truth at its arc's \
          middle (the first pass's truth column, a reading every 0.016 deg), relative to the reading or to the arc's peak; the largest \
-         over the readings is listed. Time: from the first reading to the last. Target: following takes at most \
+         over the readings is listed. Time: from the first reading to the last. Fastest law: the least time any \
+         speed law could take with readings as long (the constant run's), at every place along the arc the fastest \
+         speed whose reading meets the tolerance there (at most the top speed), changed at once, with no \
+         acceleration and no pieces: what following could reach at best. Target: following takes at most \
          a third of the constant speed's time.\n"
     );
     s.push_str(
         "| material | instrument | tolerance | follow: pieces, slowest deg/s, time, largest smearing | constant: deg/s, \
-         time, largest smearing | follow / constant | with the first pass | target |\n|---|---|---|---|---|---|---|---|\n",
+         time, largest smearing | follow / constant | with the first pass | fastest law / constant | target |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
     );
     let cases: &[(&str, f64)] = if quick { &CASES[2..3] } else { &CASES };
     let materials: &[&str] = if quick { &MATERIALS[..1] } else { &MATERIALS };
     let tmp = std::env::temp_dir().join(format!("gonio-bench-follow-{}", std::process::id()));
+    // Rows whose target no speed law could meet (the fastest law's ratio over a third), of the rows with one.
+    let (mut laws, mut beyond_any_law) = (0usize, Vec::<String>::new());
     for material in materials {
         for (label, instrument) in [
             ("ideal", root.join("config/instruments/simulated.toml")),
@@ -225,7 +287,10 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
             let first = match first {
                 Ok(f) => f,
                 Err(e) => {
-                    let _ = writeln!(s, "| {material} | {label} | | FAILED: first pass: {e} | | | | |");
+                    let _ = writeln!(
+                        s,
+                        "| {material} | {label} | | FAILED: first pass: {e} | | | | | |"
+                    );
                     continue;
                 }
             };
@@ -233,7 +298,7 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
             let first_csv = tmp.join(format!("{material}-{label}.csv"));
             if let Err(e) = std::fs::write(&first_csv, gonio_results::sweeps::write_sweeps_csv(&first, true))
             {
-                let _ = writeln!(s, "| {material} | {label} | | FAILED: {e} | | | | |");
+                let _ = writeln!(s, "| {material} | {label} | | FAILED: {e} | | | | | |");
                 continue;
             }
             let truth = Truth::of(&first);
@@ -251,11 +316,17 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
                 ) {
                     Ok(r) => {
                         let ratio = r.follow_s / r.constant_s.max(1e-9);
+                        if let Some(b) = r.fastest_law_s {
+                            laws += 1;
+                            if b / r.constant_s.max(1e-9) > RATIO_TARGET {
+                                beyond_any_law.push(format!("{material}, {label}, {tol}"));
+                            }
+                        }
                         let with_first = (r.follow_s + r.first_s) / r.constant_s.max(1e-9);
                         let _ = writeln!(
                             s,
                             "| {material} | {label} | {tol} | {}, {:.3}, {:.1} s, {:.2e} | {:.3}, {:.1} s, {:.2e} | \
-                             {ratio:.2} | {with_first:.2} | {} |",
+                             {ratio:.2} | {with_first:.2} | {} | {} |",
                             r.pieces,
                             r.slowest_deg_s,
                             r.follow_s,
@@ -263,6 +334,11 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
                             r.constant_deg_s,
                             r.constant_s,
                             r.constant_worst,
+                            r.fastest_law_s.map_or("-".to_string(), |b| format!(
+                                "{:.1} s, {:.2}",
+                                b,
+                                b / r.constant_s.max(1e-9)
+                            )),
                             match (ratio <= RATIO_TARGET, r.follow_worst <= tolerance) {
                                 (true, true) => "met",
                                 (_, false) => "NOT met: following smeared over the tolerance",
@@ -271,12 +347,71 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
                         );
                     }
                     Err(e) => {
-                        let _ = writeln!(s, "| {material} | {label} | {tol} | FAILED: {e} | | | | |");
+                        let _ = writeln!(s, "| {material} | {label} | {tol} | FAILED: {e} | | | | | |");
                     }
                 }
             }
         }
     }
     let _ = std::fs::remove_dir_all(&tmp);
+    if laws > 0 {
+        let _ = writeln!(
+            s,
+            "\nThe fastest law is over a third of the constant speed's time on {} of {laws} rows{}: there no speed \
+             law meets the target with readings this long and this top speed (the top speed caps the law where \
+             the BRDF is smooth; longer readings would leave less of the arc capped, and sweep all of it \
+             slower); on the others following could at best reach the fastest law's ratio, and what it loses to \
+             it is the profile's (its pieces at one speed each, each a move with its ramps, the speed sized for \
+             part of the tolerance from a noisy first pass).",
+            beyond_any_law.len(),
+            if beyond_any_law.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", beyond_any_law.join("; "))
+            }
+        );
+    }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn truth(f: impl Fn(f64) -> f64) -> Truth {
+        let along: Vec<(f64, f64)> = (0..=2000)
+            .map(|k| -10.0 + 0.01 * f64::from(k))
+            .map(|x| (x, f(x)))
+            .collect();
+        let peak = along.iter().map(|p| p.1).fold(0.0, f64::max);
+        Truth { along, peak }
+    }
+
+    #[test]
+    fn the_fastest_law_runs_at_the_top_speed_where_nothing_bends() {
+        // A straight line smears nothing: the whole 20 deg at 20 deg/s.
+        let t = truth(|x| 2.0 + 0.05 * x);
+        let s = t.fastest_law_s(0.09, 20.0, 1e-6, false).expect("a time");
+        assert!((s - 1.0).abs() < 1e-6, "{s}");
+    }
+
+    #[test]
+    fn the_fastest_law_slows_as_the_bend_asks() {
+        // f = 10 - c x^2: an arc a centred anywhere averages to f - c a^2 / 12, a smearing of c a^2 / 12 / 10
+        // against the peak; the longest arc within tol is sqrt(120 tol / c), the speed that arc over the
+        // reading's time.
+        let c = 0.02;
+        let t = truth(|x| 10.0 - c * x * x);
+        let (tol, reading_s) = (1e-4, 0.09);
+        let arc = (120.0 * tol / c).sqrt();
+        // Within half a top-speed arc of the truth's ends a reading would reach past it: nothing to judge it
+        // by (as the runs' readings there), so the top speed.
+        let top_arc = 20.0 * reading_s;
+        let expected = (20.0 - top_arc) / (arc / reading_s) + top_arc / 20.0;
+        let s = t.fastest_law_s(reading_s, 20.0, tol, true).expect("a time");
+        assert!((s / expected - 1.0).abs() < 0.01, "{s} against {expected}");
+        // Halving the tolerance slows every place by sqrt 2.
+        let s2 = t.fastest_law_s(reading_s, 20.0, tol / 2.0, true).expect("a time");
+        assert!((s2 / s - 2f64.sqrt()).abs() < 0.02, "{s2} against {s}");
+    }
 }

@@ -67,8 +67,23 @@
 //! and after bring-up (12 of 16 in three bands), but the other way on construction paper, whose edge the
 //! bands 50 nm apart now cross: its points covered at 100 % (rms z 0.62-0.67, the band component 1.45 % of
 //! the value against a median error of 0.8 %), which took realistic.toml's coverage over the target's 97 %
-//! (97.7 % without bring-up, 98.4 % after); which of the component's parts is too large there is not yet
-//! worked out.
+//! (97.7 % without bring-up, 98.4 % after). Where paper's width comes from there (six instruments of
+//! realistic.toml without bring-up, 150 geometries each, the component taken apart; `gonio-bench --accuracy
+//! --bands 450,500,550,600,650 --materials construction-paper` runs the like):
+//! - at 450 and 500 nm, the leak's correction: the filters pass 1.6 % and 0.7 % of those bands' light from
+//!   outside them, where paper reflects about seven times its blue value; the spectrum beyond 650 nm (within a
+//!   band step of 650 nm's value) is 2.3 % and 1.1 % of the value, the leaked fraction's own uncertainty 1.0 %
+//!   and 0.5 %. Errors at 450 nm -1.4 to +2.4 % (rms z 0.1-0.8): wide, but what lies beyond the last band is
+//!   not known to the data, and the prior is one band step;
+//! - at 550 nm, the passband: the larger side's curvature gives 3.5 % of the value against a bias of about
+//!   +2 % (errors +0.4 to +2.9 %, rms z 0.15-0.8). Paper's edge starts at the band: its spectrum bends on the
+//!   red side only, and a symmetric passband averages the flat side with the bent one, half the larger side's
+//!   bend. The mean of the two sides' signed curvature instead: rms z 0.27-1.43 at 550 nm in five bands, but
+//!   0.38-2.0 in three (the cubic through bands 100 nm apart bends a third as much as paper's spectrum there,
+//!   and the larger side is what covered that). Not adopted: in five bands the cubic through the bands is, on
+//!   the seed materials, the simulator's own spectrum (their tables are monotone cubics through nodes 50 nm
+//!   apart, at the bands), so the mean's good showing there is the simulation's coincidence, not evidence that
+//!   a real spectrum between the bands would give the same.
 
 use crate::points::Point;
 use crate::run::BAND_TOLERANCE_NM;
