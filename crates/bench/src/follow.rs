@@ -149,6 +149,24 @@ fn sweeping_s(readings: &[SweepReading]) -> f64 {
     (hi - lo).max(0.0)
 }
 
+/// The time a run spends between its readings besides their rhythm (s): every pause longer than three reading
+/// periods (the median), less one period. At a constant speed these are the moves the arc asks for whatever the
+/// speed (around the retro-reflection block, back to an arc's other end), which any speed law pays too.
+fn pauses_s(readings: &[SweepReading]) -> f64 {
+    let mut t: Vec<f64> = readings.iter().map(|r| r.t_s).filter(|t| t.is_finite()).collect();
+    t.sort_by(f64::total_cmp);
+    let mut gaps: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    let all = gaps.clone();
+    gaps.sort_by(f64::total_cmp);
+    let Some(&period) = gaps.get(gaps.len() / 2) else {
+        return 0.0;
+    };
+    all.iter()
+        .filter(|g| **g > 3.0 * period)
+        .map(|g| g - period)
+        .sum()
+}
+
 /// One row of the table.
 struct Row {
     pieces: usize,
@@ -159,7 +177,8 @@ struct Row {
     constant_s: f64,
     constant_worst: f64,
     first_s: f64,
-    /// The fastest speed law's time over the arc ([`Truth::fastest_law_s`]); `None` where it cannot be had.
+    /// The fastest speed law's time over the arc ([`Truth::fastest_law_s`]) with the moves between the arc's
+    /// stretches ([`pauses_s`]); `None` where it cannot be had.
     fastest_law_s: Option<f64>,
 }
 
@@ -198,6 +217,8 @@ fn one_case(
     let (mut speed, mut best): (f64, Option<(f64, f64, f64)>) = (slowest, None);
     // How long a reading lasts (s): its arc at a constant speed, over that speed (the median reading).
     let mut reading_s = None;
+    // The moves between the arc's stretches that any speed law pays (`pauses_s` of the first constant run).
+    let mut pauses = None;
     for _ in 0..CONSTANT_TRIES {
         let readings = gonio_run(
             binary,
@@ -206,6 +227,9 @@ fn one_case(
         )?
         .sweeps()?;
         let worst = truth.worst(&readings, to_peak);
+        if pauses.is_none() {
+            pauses = Some(pauses_s(&readings));
+        }
         if reading_s.is_none() {
             let mut arcs: Vec<f64> = readings
                 .iter()
@@ -241,7 +265,9 @@ fn one_case(
         constant_s,
         constant_worst,
         first_s,
-        fastest_law_s: reading_s.and_then(|t| truth.fastest_law_s(t, TOP_SPEED_DEG_S, tolerance, to_peak)),
+        fastest_law_s: reading_s
+            .and_then(|t| truth.fastest_law_s(t, TOP_SPEED_DEG_S, tolerance, to_peak))
+            .map(|law| law + pauses.unwrap_or(0.0)),
     })
 }
 
@@ -259,7 +285,9 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
          over the readings is listed. Time: from the first reading to the last. Fastest law: the least time any \
          speed law could take with readings as long (the constant run's), at every place along the arc the fastest \
          speed whose reading meets the tolerance there (at most the top speed), changed at once, with no \
-         acceleration and no pieces: what following could reach at best. Target: following takes at most \
+         acceleration and no pieces, plus the moves between the arc's stretches that the constant-speed run \
+         made (around the retro-reflection block: its pauses between readings): what following could reach at \
+         best. Target: following takes at most \
          a third of the constant speed's time.\n"
     );
     s.push_str(
@@ -385,6 +413,36 @@ mod tests {
             .collect();
         let peak = along.iter().map(|p| p.1).fold(0.0, f64::max);
         Truth { along, peak }
+    }
+
+    #[test]
+    fn pauses_are_the_moves_between_stretches() {
+        let reading = |t_s: f64| SweepReading {
+            segment: 0,
+            k: 0,
+            band_nm: 550.0,
+            t_s,
+            integration_s: 0.09,
+            theta_i_deg: 30.0,
+            phi_i_deg: 0.0,
+            theta_o_deg: 10.0,
+            phi_o_deg: 180.0,
+            arc_from_deg: 10.0,
+            arc_to_deg: 10.5,
+            signal_w: None,
+            incident_w: None,
+            brdf_sr: None,
+            brdf_u_sr: None,
+            brdf_aperture_sr: None,
+            flags: Vec::new(),
+            truth_point_sr: None,
+        };
+        // Readings every 0.1 s with one 5 s move between two stretches: 4.9 s of pause.
+        let mut r: Vec<SweepReading> = (0..50).map(|k| reading(0.1 * f64::from(k))).collect();
+        r.extend((0..50).map(|k| reading(9.9 + 0.1 * f64::from(k))));
+        assert!((pauses_s(&r) - 4.9).abs() < 1e-9, "{}", pauses_s(&r));
+        assert_eq!(pauses_s(&r[..50]), 0.0);
+        assert_eq!(pauses_s(&[]), 0.0);
     }
 
     #[test]
