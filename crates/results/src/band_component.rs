@@ -62,12 +62,16 @@
 //!
 //! Both estimates are only as good as the band spacing allows: a band between (the wheel's 500 and 600 nm) or
 //! further out resolves an edge the cubic through three bands 100 nm apart only guesses at. Measured with
-//! `gonio-bench --accuracy` in all five of the wheel's bands (at dfe7cda, not the table kept in ACCURACY.md):
-//! coloured plastic's fitted albedo at 550 nm within k = 2 on 15 of 16 instruments of realistic.toml, without
-//! and after bring-up (12 of 16 in three bands), but the other way on construction paper, whose edge the
-//! bands 50 nm apart now cross: its points covered at 100 % (rms z 0.62-0.67, the band component 1.45 % of
-//! the value against a median error of 0.8 %), which took realistic.toml's coverage over the target's 97 %
-//! (97.7 % without bring-up, 98.4 % after). Where paper's width comes from there (six instruments of
+//! `gonio-bench --accuracy --bands 450,500,550,600,650` (all five of the wheel's bands, the whole table; not the
+//! one kept in ACCURACY.md): coloured plastic's fitted albedo at 550 nm within k = 2 on 15 of 16 instruments of
+//! realistic.toml, without and after bring-up (12 of 16 in three bands), and every fit after bring-up within
+//! its targets; but the points' intervals too wide: after bring-up construction paper covered at 100 % (rms z
+//! 0.62, the band component 1.45 % of the value against a median error of 0.76 %), coloured plastic at 99.0 %
+//! (0.66; the component 0.48 %, 0.27 % in three bands) and gold at 99.3 % (0.71; 0.34 %, 0.20 %), realistic.toml's
+//! coverage over the target's 97 % (97.7 % without bring-up, 98.4 % after, rms z 0.76); and on the ideal
+//! instrument, whose bands have no width, the coloured plastic's alpha, ior and 450 nm albedo within k = 2 on
+//! only 12-14 of 16 (rms z 1.27-1.42), not yet understood. Bands 50 nm apart see more of a spectrum's bend
+//! than three do, and the larger side's curvature then counts more of it than the passband averages. Where paper's width comes from there (six instruments of
 //! realistic.toml without bring-up, 150 geometries each, the component taken apart; `gonio-bench --accuracy
 //! --bands 450,500,550,600,650 --materials construction-paper` runs the like):
 //! - at 450 and 500 nm, the leak's correction: the filters pass 1.6 % and 0.7 % of those bands' light from
