@@ -34,7 +34,8 @@ pub const MATERIALS: &[&str] = gonio_brdf::presets::NAMES;
 /// The instruments: each file's seed set to realistic.toml's own and fifteen more, on realistic.toml each a
 /// different draw of every hidden imperfection, on both different noise.
 pub const SEEDS: [u64; 16] = [16, 3, 5, 7, 11, 21, 29, 42, 2, 13, 17, 23, 31, 37, 53, 61];
-/// Random geometries per material and set-up (each measured in three bands), spread evenly over its seeds.
+/// Random geometries per material and set-up (each measured in every band of the run), spread evenly over its
+/// seeds.
 pub const GEOMETRIES: usize = 2000;
 /// The bands every geometry is measured in, unless `--bands` says otherwise (nm).
 pub const BANDS_NM: [f64; 3] = [450.0, 550.0, 650.0];
