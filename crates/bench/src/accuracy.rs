@@ -34,6 +34,13 @@ pub const MATERIALS: &[&str] = gonio_brdf::presets::NAMES;
 /// The instruments: each file's seed set to realistic.toml's own and fifteen more, on realistic.toml each a
 /// different draw of every hidden imperfection, on both different noise.
 pub const SEEDS: [u64; 16] = [16, 3, 5, 7, 11, 21, 29, 42, 2, 13, 17, 23, 31, 37, 53, 61];
+/// More instruments for `--seeds N` (up to 64 with [`SEEDS`]): with 16, an honest k = 2 interval is within on
+/// 14 of 16 or fewer about one time in six, so a fit parameter's row says little on its own.
+const MORE_SEEDS: [u64; 48] = [
+    67, 71, 73, 79, 83, 89, 97, 101, 103, 107, 109, 113, 127, 131, 137, 139, 149, 151, 157, 163, 167, 173,
+    179, 181, 191, 193, 197, 199, 211, 223, 227, 229, 233, 239, 241, 251, 257, 263, 269, 271, 277, 281, 283,
+    293, 307, 311, 313, 317,
+];
 /// Random geometries per material and set-up (each measured in every band of the run), spread evenly over its
 /// seeds.
 pub const GEOMETRIES: usize = 2000;
@@ -50,6 +57,9 @@ pub struct Options {
     pub materials: Vec<&'static str>,
     /// Which of [`setups`] by kind: `ideal`, `realistic`, `bring-up`.
     pub setups: Vec<String>,
+    /// The instruments (simulator seeds) of every set-up: [`SEEDS`], or the first `--seeds N` of them and
+    /// [`MORE_SEEDS`].
+    pub seeds: Vec<u64>,
 }
 
 /// The set-up kinds `--setups` takes, in [`setups`]' order.
@@ -61,13 +71,15 @@ impl Default for Options {
             bands_nm: BANDS_NM.to_vec(),
             materials: MATERIALS.to_vec(),
             setups: SETUP_KINDS.iter().map(|k| k.to_string()).collect(),
+            seeds: SEEDS.to_vec(),
         }
     }
 }
 
 impl Options {
     /// From the bench's arguments after `--accuracy`: `--bands 450,500,550`, `--materials gold,mirror`,
-    /// `--setups ideal,bring-up` (each a comma-separated list); an error names what is wrong.
+    /// `--setups ideal,bring-up` (each a comma-separated list), `--seeds 48` (how many instruments, at most
+    /// 64); an error names what is wrong.
     pub fn parse(args: &[String]) -> Result<Options, String> {
         let mut o = Options::default();
         let value = |flag: &str| -> Result<Option<Vec<String>>, String> {
@@ -107,6 +119,22 @@ impl Options {
                 })
                 .collect::<Result<Vec<&'static str>, String>>()?;
         }
+        if let Some(n) = value("--seeds")? {
+            let all: Vec<u64> = SEEDS.iter().chain(&MORE_SEEDS).copied().collect();
+            let n = match n.as_slice() {
+                [one] => one.parse::<usize>().ok(),
+                _ => None,
+            }
+            .filter(|n| (1..=all.len()).contains(n))
+            .ok_or_else(|| {
+                format!(
+                    "--seeds: {:?} is not a count from 1 to {}",
+                    n.join(","),
+                    all.len()
+                )
+            })?;
+            o.seeds = all[..n].to_vec();
+        }
         if let Some(kinds) = value("--setups")? {
             for k in &kinds {
                 if !SETUP_KINDS.contains(&k.as_str()) {
@@ -134,7 +162,7 @@ impl Options {
 
     /// The set-ups chosen, in [`setups`]' order.
     pub fn setups(&self) -> Vec<Setup> {
-        setups()
+        setups(&self.seeds)
             .into_iter()
             .zip(SETUP_KINDS)
             .filter(|(_, kind)| self.setups.iter().any(|k| k == kind))
@@ -154,10 +182,11 @@ pub struct Setup {
     pub realistic: bool,
 }
 
-pub fn setups() -> Vec<Setup> {
+/// The set-ups, each over the instruments `seeds`.
+pub fn setups(seeds: &[u64]) -> Vec<Setup> {
     let mut s = vec![Setup {
-        name: format!("ideal (simulated.toml), {} seeds", SEEDS.len()),
-        seeds: SEEDS.to_vec(),
+        name: format!("ideal (simulated.toml), {} seeds", seeds.len()),
+        seeds: seeds.to_vec(),
         bring_up: false,
         realistic: false,
     }];
@@ -165,10 +194,10 @@ pub fn setups() -> Vec<Setup> {
         s.push(Setup {
             name: format!(
                 "realistic.toml, {} seeds{}",
-                SEEDS.len(),
+                seeds.len(),
                 if bring_up { ", after bring-up" } else { "" }
             ),
-            seeds: SEEDS.to_vec(),
+            seeds: seeds.to_vec(),
             bring_up,
             realistic: true,
         });
@@ -502,6 +531,19 @@ mod tests {
             "the ideal instrument first, in the table's order"
         );
         assert!(setups[1].realistic && setups[1].bring_up);
+        // More instruments: the sixteen first, then others, every one different.
+        let o48 = Options::parse(&args(&["--seeds", "48"])).expect("48 seeds");
+        assert!(!o48.is_default());
+        assert_eq!(&o48.seeds[..16], &SEEDS[..]);
+        let mut distinct = o48.seeds.clone();
+        distinct.sort_unstable();
+        distinct.dedup();
+        assert_eq!(distinct.len(), 48);
+        assert!(
+            o48.setups()
+                .iter()
+                .all(|s| s.seeds == o48.seeds && s.name.contains("48 seeds"))
+        );
         // The campaign asks for the bands given.
         let text = campaign_text("gold", &geometries(3, 1), &o.bands_toml());
         assert!(
@@ -519,6 +561,9 @@ mod tests {
             &["--bands", "--materials"],
             &["--materials", "velvet"],
             &["--setups", "perfect"],
+            &["--seeds", "0"],
+            &["--seeds", "65"],
+            &["--seeds", "many"],
         ] {
             let e = Options::parse(&args(bad)).expect_err("refused");
             assert!(e.starts_with(bad[0]), "the message names the option: {e}");

@@ -461,7 +461,7 @@ fn write_accuracy(args: &[String], quick: bool) {
         (Some(p), _) => p.clone(),
         (None, true) => root.join("ACCURACY.md"),
         (None, false) => {
-            eprintln!("accuracy: a narrowed run (--bands, --materials, --setups) needs --out FILE");
+            eprintln!("accuracy: a narrowed run (--bands, --materials, --setups, --seeds) needs --out FILE");
             std::process::exit(2);
         }
     };

@@ -8,7 +8,7 @@ use gonio_results::angular_class::AngularClass;
 use gonio_results::points::Point;
 
 use super::fits::FitOutcome;
-use super::{COMMAND, Options, Run, SEEDS, checked_value, class_row};
+use super::{COMMAND, Options, Run, checked_value, class_row};
 
 fn pct(v: f64) -> String {
     if v.is_finite() {
@@ -37,14 +37,14 @@ fn rel(v: f64) -> String {
 /// ACCURACY.md.
 pub fn markdown(runs: &[Run], geometries_per_material: usize, duration_s: f64, options: &Options) -> String {
     let mut s = String::new();
-    let n = SEEDS.len();
+    let (n, seeds) = (options.seeds.len(), &options.seeds);
     let bands = options.bands_toml();
     let narrowed = if options.is_default() {
         String::new()
     } else {
         format!(
-            " Narrowed with `--accuracy --bands/--materials/--setups`: materials {}, set-ups {}; not the table \
-             ACCURACY.md keeps.",
+            " Narrowed with `--accuracy --bands/--materials/--setups/--seeds`: materials {}, set-ups {}; not \
+             the table ACCURACY.md keeps.",
             options.materials.join(", "),
             options.setups.join(", ")
         )
@@ -58,7 +58,7 @@ pub fn markdown(runs: &[Run], geometries_per_material: usize, duration_s: f64, o
          theta_o = 80 deg; unreachable ones are skipped by the planner), each in the bands {bands} nm, dry-run \
          through the release binary on the ideal instrument and on realistic.toml (every imperfection), without and \
          after bring-up (`gonio align --steps alignment,characterisation,sample-alignment`, its calibration \
-         applied). The geometries are spread evenly over {n} instruments, each file at seeds {SEEDS:?}: what all \
+         applied). The geometries are spread evenly over {n} instruments, each file at seeds {seeds:?}: what all \
          values of an instrument share (the solid angle, a range's gain, a filter's centre, a band's direct-beam \
          reading) is one draw per instrument, so its coverage can only be seen over several. The \
          truth is the simulator's BRDF at the nominal geometry (`brdf_true_sr`). This run took {duration_s:.0} \
@@ -173,7 +173,7 @@ pub fn markdown(runs: &[Run], geometries_per_material: usize, duration_s: f64, o
          | set-up | seed | points | coverage (k = 2) | rms z | mean z |\n| --- | ---: | ---: | ---: | ---: | ---: |"
     );
     for name in &setups {
-        for seed in SEEDS {
+        for &seed in &options.seeds {
             let pts: Vec<&Point> = runs
                 .iter()
                 .filter(|r| &r.setup == name && r.seed == seed)
