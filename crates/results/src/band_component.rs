@@ -67,13 +67,15 @@
 //! realistic.toml, without and after bring-up (12 of 16 in three bands), and every fit after bring-up within
 //! its targets; but the points' intervals too wide: after bring-up construction paper covered at 100 % (rms z
 //! 0.62, the band component 1.45 % of the value against a median error of 0.76 %), coloured plastic at 99.0 %
-//! (0.66; the component 0.48 %, 0.27 % in three bands) and gold at 99.3 % (0.71; 0.34 %, 0.20 %), realistic.toml's
-//! coverage over the target's 97 % (97.7 % without bring-up, 98.4 % after, rms z 0.76); and on the ideal
+//! (0.66; the component 0.48 %, 0.27 % in three bands) and gold at 99.3 % (0.71; 0.34 %, 0.20 %),
+//! realistic.toml's coverage over the target's 97 % (97.7 % without bring-up, 98.4 % after, rms z 0.76); and on
+//! the ideal
 //! instrument, whose bands have no width, the coloured plastic's alpha, ior and 450 nm albedo within k = 2 on
 //! only 12-14 of 16 (rms z 1.27-1.42), not yet understood. Bands 50 nm apart see more of a spectrum's bend
-//! than three do, and the larger side's curvature then counts more of it than the passband averages. Where paper's width comes from there (six instruments of
-//! realistic.toml without bring-up, 150 geometries each, the component taken apart; `gonio-bench --accuracy
-//! --bands 450,500,550,600,650 --materials construction-paper` runs the like):
+//! than three do, and the larger side's curvature then counts more of it than the passband averages.
+//! Where paper's width comes from there (six instruments of realistic.toml without bring-up, 150 geometries
+//! each, the component's parts printed by a build made for it: by hand, not a command in the repository;
+//! `gonio-bench --accuracy --bands 450,500,550,600,650 --materials construction-paper` gives the totals):
 //! - at 450 and 500 nm, the leak's correction: the filters pass 1.6 % and 0.7 % of those bands' light from
 //!   outside them, where paper reflects about seven times its blue value; the spectrum beyond 650 nm (within a
 //!   band step of 650 nm's value) is 2.3 % and 1.1 % of the value, the leaked fraction's own uncertainty 1.0 %
@@ -82,9 +84,9 @@
 //! - at 550 nm, the passband: the larger side's curvature gives 3.5 % of the value against a bias of about
 //!   +2 % (errors +0.4 to +2.9 %, rms z 0.15-0.8). Paper's edge starts at the band: its spectrum bends on the
 //!   red side only, and a symmetric passband averages the flat side with the bent one, half the larger side's
-//!   bend. The mean of the two sides' signed curvature instead: rms z 0.27-1.43 at 550 nm in five bands, but
-//!   0.38-2.0 in three (the cubic through bands 100 nm apart bends a third as much as paper's spectrum there,
-//!   and the larger side is what covered that). Not adopted: in five bands the cubic through the bands is, on
+//!   bend. The mean of the two sides' signed curvature instead (tried by hand): rms z 0.27-1.43 at 550 nm in
+//!   five bands, but 0.38-2.0 in three (the cubic through bands 100 nm apart bends a third as much as paper's
+//!   spectrum there, and the larger side is what covered that). Not adopted: in five bands the cubic through the bands is, on
 //!   the seed materials, the simulator's own spectrum (their tables are monotone cubics through nodes 50 nm
 //!   apart, at the bands), so the mean's good showing there is the simulation's coincidence, not evidence that
 //!   a real spectrum between the bands would give the same.
