@@ -86,10 +86,10 @@
 //!   red side only, and a symmetric passband averages the flat side with the bent one, half the larger side's
 //!   bend. The mean of the two sides' signed curvature instead (tried by hand): rms z 0.27-1.43 at 550 nm in
 //!   five bands, but 0.38-2.0 in three (the cubic through bands 100 nm apart bends a third as much as paper's
-//!   spectrum there, and the larger side is what covered that). Not adopted: in five bands the cubic through the bands is, on
-//!   the seed materials, the simulator's own spectrum (their tables are monotone cubics through nodes 50 nm
-//!   apart, at the bands), so the mean's good showing there is the simulation's coincidence, not evidence that
-//!   a real spectrum between the bands would give the same.
+//!   spectrum there, and the larger side is what covered that). Not adopted: in five bands the cubic through
+//!   the bands is, on the seed materials, the simulator's own spectrum (their tables are monotone cubics
+//!   through nodes 50 nm apart, at the bands), so the mean's good showing there is the simulation's
+//!   coincidence, not evidence that a real spectrum between the bands would give the same.
 
 use crate::points::Point;
 use crate::run::BAND_TOLERANCE_NM;
