@@ -47,9 +47,10 @@ pub const GEOMETRIES: usize = 2000;
 /// The bands every geometry is measured in, unless `--bands` says otherwise (nm).
 pub const BANDS_NM: [f64; 3] = [450.0, 550.0, 650.0];
 
-/// What one accuracy run covers: the table in ACCURACY.md takes the defaults; `--bands`, `--materials` and
-/// `--setups` narrow or change it for working on one part (the five-band experiment in
-/// gonio_results::band_component's notes), written elsewhere (`--out`), never over ACCURACY.md.
+/// What one accuracy run covers: the table in ACCURACY.md takes the defaults; `--bands`, `--materials`,
+/// `--setups` and `--seeds` narrow or change it for working on one part (the five-band experiment in
+/// gonio_results::band_component's notes, the 48-instrument run in docs/reference/uncertainty.md), written
+/// elsewhere (`--out`), never over ACCURACY.md.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Options {
     /// Bands in nm, ascending.

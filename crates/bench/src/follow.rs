@@ -95,7 +95,7 @@ impl Truth {
     /// place (a step of [`BOUND_STEP_DEG`]) the longest arc a reading centred there may cover within `tolerance`
     /// (by bisection; smearing grows with the arc), as a speed, at most `top_deg_s`, and the time of the arc at
     /// those speeds, as if the arm changed speed at once (no acceleration, no pieces): a bound on what
-    /// following can reach, set by the BRDF, the tolerance and the reading's length alone.
+    /// following can reach, set by the BRDF, the tolerance, the reading's length and the top speed alone.
     fn fastest_law_s(&self, reading_s: f64, top_deg_s: f64, tolerance: f64, to_peak: bool) -> Option<f64> {
         let (&(first, _), &(last, _)) = (self.along.first()?, self.along.last()?);
         let top_arc = top_deg_s * reading_s;
@@ -213,10 +213,17 @@ fn one_case(
         .ok_or("no speed profile")?;
     let slowest = profile.slowest_deg_s();
     let followed = gonio_run(binary, &text, Some(instrument))?.sweeps()?;
+    // How long a reading lasts (s): the meter's integration time the readings carry (the median reading; every
+    // run here takes the same samples a reading).
+    let mut integrations: Vec<f64> = followed
+        .iter()
+        .map(|r| r.integration_s)
+        .filter(|t| t.is_finite() && *t > 0.0)
+        .collect();
+    integrations.sort_by(f64::total_cmp);
+    let reading_s = integrations.get(integrations.len() / 2).copied();
     // The fastest constant speed that meets the tolerance.
     let (mut speed, mut best): (f64, Option<(f64, f64, f64)>) = (slowest, None);
-    // How long a reading lasts (s): its arc at a constant speed, over that speed (the median reading).
-    let mut reading_s = None;
     // The moves between the arc's stretches that any speed law pays (`pauses_s` of the first constant run).
     let mut pauses = None;
     for _ in 0..CONSTANT_TRIES {
@@ -229,15 +236,6 @@ fn one_case(
         let worst = truth.worst(&readings, to_peak);
         if pauses.is_none() {
             pauses = Some(pauses_s(&readings));
-        }
-        if reading_s.is_none() {
-            let mut arcs: Vec<f64> = readings
-                .iter()
-                .map(|r| (r.arc_to_deg - r.arc_from_deg).abs())
-                .filter(|a| a.is_finite() && *a > 0.0)
-                .collect();
-            arcs.sort_by(f64::total_cmp);
-            reading_s = arcs.get(arcs.len() / 2).map(|a| a / speed);
         }
         if worst <= tolerance {
             if best.is_none_or(|b| speed > b.0) {
@@ -283,7 +281,7 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
          by runs at measured smearing). Smearing: each reading's arc-averaged truth against the truth at its arc's \
          middle (the first pass's truth column, a reading every 0.016 deg), relative to the reading or to the arc's peak; the largest \
          over the readings is listed. Time: from the first reading to the last. Fastest law: the least time any \
-         speed law could take with readings as long (the constant run's), at every place along the arc the fastest \
+         speed law could take with readings as long (the meter's integration time), at every place along the arc the fastest \
          speed whose reading meets the tolerance there (at most the top speed), changed at once, with no \
          acceleration and no pieces, plus the moves between the arc's stretches that the constant-speed run \
          made (around the retro-reflection block: its pauses between readings): what following could reach at \
