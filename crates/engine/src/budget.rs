@@ -31,6 +31,7 @@
 mod complete;
 mod dark;
 mod drift;
+mod optics;
 mod positioning;
 mod sweeps;
 

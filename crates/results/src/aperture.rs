@@ -16,10 +16,15 @@
 //! a floor of [`CORRECTION_U_FRACTION`] of the correction itself (what no fitted shape is trusted beyond).
 //!
 //! No honest correction (the point is flagged [`FLAG_NARROW_LOBE`] and keeps its aperture average): the model's
-//! lobe is narrower than the aperture (its roughness below the aperture's half-angle: a mirror, or a fit that
-//! ran to its bound) and within reach of it, or the correction exceeds [`NARROW_LIMIT`] (the average no longer
-//! says what the peak is), or a value near the specular direction is [`UNRESOLVED_RATIO`] times off the
-//! model's average (the fit missed a lobe it had too few points of).
+//! lobe is narrower than the instrument resolves (its roughness below [`Optics::resolution_rad`], the aperture's
+//! and the beam's half-angles together: a mirror, or a fit that ran to its bound) and within reach of it, or
+//! the correction exceeds [`NARROW_LIMIT`] (the average no longer says what the peak is), or a value near the
+//! specular direction is [`UNRESOLVED_RATIO`] times off the model's average (the fit missed a lobe it had too
+//! few points of), or no model describes the data at all (the best one's residual above [`MODEL_RMS_LIMIT`]:
+//! then nothing is corrected, and every point a delta lobe could reach is flagged). "Within reach" is the
+//! optics' ([`Optics::delta_reach_rad`]): a mirror's reflection is the beam, a tube of its width, and it lies
+//! where the sample's tilt and the zeros put it; an aperture-only reach missed a mirror read at 12 /sr a degree
+//! from its nominal specular direction (issue 29, 48 instruments).
 //! Its uncertainty, `u = value x max(1, 2 |c - 1|)` (the point-value fit widens a lobe narrower than the
 //! aperture, so the model's `c` understates the bias), covers a point value anywhere from 0 (a mirror's, delta
 //! lobe excluded) to three times the average; a finite lobe's peak can lie higher, and no average tells how
@@ -42,6 +47,10 @@ pub const MAX_FIT_POINTS: usize = 300;
 pub const ACCEPTABLE_RMS_RATIO: f64 = 1.5;
 /// The floor of a correction's relative standard uncertainty, as a fraction of `|c - 1|`.
 pub const CORRECTION_U_FRACTION: f64 = 0.25;
+/// A best model whose cos-weighted relative rms residual is above this does not describe the sample: nothing is
+/// corrected by it. The models fitted to the seed materials on realistic.toml leave 0.1-1.4 % (paper, spectralon,
+/// styrofoam 0.1-0.2 %, gold 1.0 %, plastic 1.4 %); to a mirror's few bright points and many dark ones, 48-100 %.
+pub const MODEL_RMS_LIMIT: f64 = 0.1;
 /// A larger `|c - 1|` is not corrected: the point is flagged.
 pub const NARROW_LIMIT: f64 = 0.1;
 /// A value near the specular direction this many times the best model's aperture average (or less than its
@@ -84,6 +93,54 @@ pub struct Corrections {
     pub material: Material,
 }
 
+/// What the instrument's optics do to a lobe narrower than they resolve: how far from its direction a delta
+/// lobe's light still reaches the detector.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Optics {
+    /// The detector aperture's half-angle seen from the sample (rad).
+    pub aperture_half_angle_rad: f64,
+    /// The reflected beam's own half-width at the detector seen from the sample (rad): its radius there (the
+    /// beam's radius and half its divergence over the distance) over the distance. A mirror's collimated
+    /// reflection is a tube of the beam's width, not a ray: it overlaps the aperture while the angle between its
+    /// direction and the aperture's centre is below the sum of the two half-angles.
+    pub beam_half_angle_rad: f64,
+    /// How far the specular direction may lie from where the nominal geometry puts it (rad): three standard
+    /// uncertainties of the reflected direction (the sample's tilt, which turns it twice, the zeros, the beam),
+    /// from the instrument file.
+    pub misalignment_rad: f64,
+}
+
+impl Optics {
+    /// An aperture alone: a point-like beam exactly where the geometry says.
+    pub fn aperture_only(half_angle_rad: f64) -> Optics {
+        Optics {
+            aperture_half_angle_rad: half_angle_rad,
+            beam_half_angle_rad: 0.0,
+            misalignment_rad: 0.0,
+        }
+    }
+
+    /// The instrument's angular resolution (rad): the half-width of what it reads from a delta lobe, the
+    /// aperture's and the beam's half-angles together. A fitted lobe no wider than it is the instrument's own
+    /// response, not the sample's.
+    pub fn resolution_rad(&self) -> f64 {
+        self.aperture_half_angle_rad + self.beam_half_angle_rad
+    }
+
+    /// How far from the nominal specular direction a delta lobe can still put light into the aperture (rad).
+    pub fn delta_reach_rad(&self) -> f64 {
+        self.resolution_rad() + self.misalignment_rad
+    }
+
+    fn is_valid(&self) -> bool {
+        let ok = |x: f64| x.is_finite() && x >= 0.0;
+        self.aperture_half_angle_rad > 0.0
+            && ok(self.aperture_half_angle_rad)
+            && ok(self.beam_half_angle_rad)
+            && ok(self.misalignment_rad)
+    }
+}
+
 /// A fitted model ready to evaluate.
 struct Fitted {
     model: FitModel,
@@ -93,10 +150,12 @@ struct Fitted {
     alpha: Option<f64>,
 }
 
-/// The corrections of `run`'s points for an aperture of `half_angle_rad` (module doc); `None` when no model
-/// could be fitted (too few points, nothing valid) or the aperture is not positive.
-pub fn corrections(run: &Run, half_angle_rad: f64) -> Option<Corrections> {
-    if !(half_angle_rad > 0.0 && half_angle_rad.is_finite()) {
+/// The corrections of `run`'s points measured through `optics` (module doc); `None` when no model could be
+/// fitted (too few points, nothing valid) or the aperture is not positive.
+/// When even the best model leaves residuals above [`MODEL_RMS_LIMIT`] it describes nothing: no point is
+/// corrected by it, and every point a delta lobe could reach is flagged.
+pub fn corrections(run: &Run, optics: &Optics) -> Option<Corrections> {
+    if !optics.is_valid() {
         return None;
     }
     let subset = Run {
@@ -123,9 +182,14 @@ pub fn corrections(run: &Run, half_angle_rad: f64) -> Option<Corrections> {
         .iter()
         .filter(|f| f.rms <= best.rms * ACCEPTABLE_RMS_RATIO)
         .collect();
+    let described = best.rms <= MODEL_RMS_LIMIT;
     let (points, slopes) = crate::parallel::map(&run.points, |p| {
         (
-            correction(p, half_angle_rad, &acceptable),
+            if described {
+                correction(p, optics, &acceptable)
+            } else {
+                undescribed(p, optics, best.alpha.unwrap_or(0.0))
+            },
             slopes(p, &best.material),
         )
     })
@@ -246,12 +310,22 @@ fn point_and_average(
 }
 
 /// Whether a lobe of roughness `alpha` about the mirror direction of `wi` can reach the aperture about `wo`:
-/// within two aperture half-angles (the aperture, and as much again for the sample's misalignment and the
-/// beam's divergence) and three lobe widths (2 alpha each: the half vector turns at half the rate) of it.
-fn lobe_within_reach(wi: &Direction, wo: &Direction, alpha: f64, half_angle_rad: f64) -> bool {
+/// within a delta lobe's reach ([`Optics::delta_reach_rad`]: the aperture, the beam's width, the
+/// misalignment) and three lobe widths (2 alpha each: the half vector turns at half the rate) of it.
+fn lobe_within_reach(wi: &Direction, wo: &Direction, alpha: f64, optics: &Optics) -> bool {
     let mirror = [-wi.x(), -wi.y(), wi.z()];
     let cos = mirror[0] * wo.x() + mirror[1] * wo.y() + mirror[2] * wo.z();
-    cos.clamp(-1.0, 1.0).acos() <= 2.0 * half_angle_rad + 6.0 * alpha
+    cos.clamp(-1.0, 1.0).acos() <= optics.delta_reach_rad() + 6.0 * alpha
+}
+
+/// A point's lot when no model describes the data: flagged with its whole value as uncertainty where a lobe of
+/// the best model's roughness `alpha` (a poor fit's, but the only estimate of its extent) could reach it (what
+/// it reads may be the beam itself, the BRDF there anything from 0 up), else left as measured (`None`: no
+/// correction, none to be had).
+fn undescribed(p: &Point, optics: &Optics, alpha: f64) -> Option<Correction> {
+    p.value()?;
+    let (wi, wo) = directions(p);
+    lobe_within_reach(&wi, &wo, alpha, optics).then_some(Correction::NarrowLobe { u_rel: 1.0 })
 }
 
 /// Whether `p` sees a lobe the best model does not resolve: within reach of the specular direction (a lobe of
@@ -266,14 +340,14 @@ fn unresolved_lobe(
     wi: &Direction,
     wo: &Direction,
     wavelength: Wavelength,
-    half_angle_rad: f64,
+    optics: &Optics,
 ) -> bool {
-    if !lobe_within_reach(wi, wo, 0.0, half_angle_rad) {
+    if !lobe_within_reach(wi, wo, 0.0, optics) {
         return false;
     }
     let (Some(value), Some((_, average))) = (
         p.value(),
-        point_and_average(&best.material, wi, wo, wavelength, half_angle_rad),
+        point_and_average(&best.material, wi, wo, wavelength, optics.aperture_half_angle_rad),
     ) else {
         return false;
     };
@@ -281,16 +355,17 @@ fn unresolved_lobe(
     !(average > 0.0 && (1.0 / UNRESOLVED_RATIO..=UNRESOLVED_RATIO).contains(&ratio))
 }
 
-fn correction(p: &Point, half_angle_rad: f64, models: &[&Fitted]) -> Option<Correction> {
+fn correction(p: &Point, optics: &Optics, models: &[&Fitted]) -> Option<Correction> {
     p.value()?;
     let best = models.first()?;
     let wavelength = Wavelength::from_nm(p.band_nm).ok()?;
     let (wi, wo) = directions(p);
+    let half_angle_rad = optics.aperture_half_angle_rad;
     let c = factor(&best.material, &wi, &wo, wavelength, half_angle_rad);
     let lobe_too_narrow = best
         .alpha
-        .is_some_and(|a| a < half_angle_rad && lobe_within_reach(&wi, &wo, a, half_angle_rad))
-        || unresolved_lobe(p, best, &wi, &wo, wavelength, half_angle_rad);
+        .is_some_and(|a| a < optics.resolution_rad() && lobe_within_reach(&wi, &wo, a, optics))
+        || unresolved_lobe(p, best, &wi, &wo, wavelength, optics);
     let c = match c {
         Some(c) if !lobe_too_narrow && (c - 1.0).abs() <= NARROW_LIMIT => c,
         // At least the whole value, and twice the bias the model sees: fitted to point values, a lobe narrower

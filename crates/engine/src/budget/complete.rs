@@ -301,9 +301,7 @@ pub fn completions(
         point.brdf_sr = Some(renormalised);
     }
 
-    let d = &instrument.detector;
-    let half_angle_rad = gonio_brdf::radiometry::aperture_half_angle_rad(d.aperture_radius_mm, d.distance_mm);
-    if let Some(c) = corrections(&run, half_angle_rad) {
+    if let Some(c) = corrections(&run, &super::optics::optics(instrument)) {
         tracing::info!(
             campaign = %record.id,
             model = c.model.name(),

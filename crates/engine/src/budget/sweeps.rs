@@ -183,9 +183,7 @@ pub fn sweep_completions(
         dry_run: false,
         provenance: None,
     };
-    let d = &instrument.detector;
-    let half_angle_rad = gonio_brdf::radiometry::aperture_half_angle_rad(d.aperture_radius_mm, d.distance_mm);
-    let fitted = corrections(&run, half_angle_rad);
+    let fitted = corrections(&run, &super::optics::optics(instrument));
     if let Some(c) = &fitted {
         tracing::info!(campaign = %record.id, model = c.model.name(), residual_rms = c.residual_rms,
             readings = readings.len(), carriers = carriers.len(), "sweep readings' aperture correction");
