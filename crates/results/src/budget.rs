@@ -89,6 +89,12 @@ pub mod groups {
         format!("normalisation-{}-{k}", nm + 0.0)
     }
 
+    /// The points measured in one of the sample's mountings (`k`: how many normalisation readings came before
+    /// them; the sample leaves the holder for each) under one of its tilt components (`sample`: re-seating).
+    pub fn mounting(k: usize, name: &str) -> String {
+        format!("mounting-{k}-{name}")
+    }
+
     /// Without an applied alignment, the instrument file's angle uncertainty taken as one unknown offset of
     /// the incidence angle shared by the campaign's points (`pointing`); with one, each of its parameters is a
     /// group under its own name (`detector_zero_deg`, `sample_tilt_x_deg`, ...: crates/engine's alignment

@@ -90,6 +90,22 @@ fn add_shifts(
     }
 }
 
+/// Which of the sample's mountings each point was measured in, in the points' order: how many normalisation
+/// readings (direct beam or reference sample; the sample leaves the holder for each, and a dark does not move it)
+/// came before it. Points between the same two readings share a number, and no two mountings do.
+pub(super) fn mountings(calibrations: &[CalibrationRecord], committed: &[PointRecord]) -> Vec<usize> {
+    let mut times: Vec<f64> = calibrations
+        .iter()
+        .filter(|c| c.kind != "dark")
+        .map(|c| c.t_s)
+        .collect();
+    times.sort_by(f64::total_cmp);
+    committed
+        .iter()
+        .map(|p| times.partition_point(|t| *t < p.t_s))
+        .collect()
+}
+
 /// What the instrument file says of each band's filter, looked up by band (nm): each filter's leakage worked out
 /// once (an integral over the spectra), not once per geometry.
 pub(super) fn filter_bands(instrument: &Instrument) -> impl Fn(f64) -> Option<FilterBand> + use<> {
@@ -376,16 +392,30 @@ pub fn completions(
             };
             add_shifts(&mut completion.budget, components::POINTING, value, &shifts);
         }
-        // The sample's re-seating between mountings, which no alignment measures (super::positioning): one
-        // mounting per campaign, shared and signed as the alignment's parameters are.
-        for (((point, completion), committed), slopes) in
-            run.points.iter().zip(&mut done).zip(committed).zip(&c.slopes)
+        // The sample's re-seating between mountings, which no alignment measures (super::positioning): signed
+        // as the alignment's parameters are, and shared by the points of one mounting only: the sample leaves
+        // the holder for every normalisation reading and sits differently each time it goes back.
+        let mounting = mountings(calibrations, committed);
+        for ((((point, completion), committed), slopes), mounting) in run
+            .points
+            .iter()
+            .zip(&mut done)
+            .zip(committed)
+            .zip(&c.slopes)
+            .zip(&mounting)
         {
             let (Some(value), Some(_)) = (point.brdf_sr, slopes) else {
                 continue;
             };
             if let Some(shifts) = pointed.reseat_shifts(&c.material, committed, !relative) {
-                add_shifts(&mut completion.budget, components::SAMPLE, value, &shifts);
+                for (name, rel) in shifts {
+                    let u = value * rel;
+                    if u.is_finite() && u != 0.0 {
+                        completion
+                            .budget
+                            .add(components::SAMPLE, u, Some(groups::mounting(*mounting, name)));
+                    }
+                }
             }
         }
         for ((point, completion), correction) in run.points.iter_mut().zip(&mut done).zip(&c.points) {
@@ -449,6 +479,55 @@ pub fn completions(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn points_between_the_same_two_normalisations_share_a_mounting_and_a_dark_does_not_move_the_sample() {
+        let record = |kind: &str, t_s: f64| CalibrationRecord {
+            kind: kind.into(),
+            band_nm: Some(550.0),
+            t_s,
+            value_w: 1e-3,
+            u_w: 1e-7,
+        };
+        // Two bands' direct beam at 0 and 1 s, a dark at 50 s, both bands again at 100 and 101 s.
+        let calibrations = [
+            record("direct-beam", 0.0),
+            record("direct-beam", 1.0),
+            record("dark", 50.0),
+            record("direct-beam", 101.0),
+            record("direct-beam", 100.0),
+        ];
+        let at = |t_s: f64| PointRecord {
+            index: 0,
+            band_nm: 550.0,
+            theta_i_deg: 30.0,
+            phi_i_deg: 0.0,
+            theta_o_deg: 30.0,
+            phi_o_deg: 180.0,
+            signal_w: 1e-7,
+            dark_w: 0.0,
+            incident_w: 1e-3,
+            brdf_sr: Some(0.1),
+            brdf_u_sr: Some(1e-4),
+            flags: Vec::new(),
+            t_s,
+            readback_deg: Vec::new(),
+            truth_point_sr: None,
+            truth_aperture_sr: None,
+            truth_effects_json: None,
+            brdf_aperture_sr: None,
+            budget: Default::default(),
+        };
+        let points: Vec<PointRecord> = [10.0, 49.0, 60.0, 99.0, 150.0, 200.0].map(at).to_vec();
+        let m = mountings(&calibrations, &points);
+        assert_eq!(m[0], m[1]);
+        assert_eq!(m[1], m[2], "a dark leaves the sample where it is");
+        assert_eq!(m[2], m[3]);
+        assert_ne!(m[3], m[4], "the sample went out for the direct beam at 100 s");
+        assert_eq!(m[4], m[5]);
+        // Before any reading: a mounting of its own.
+        assert_ne!(mountings(&calibrations, &[at(-1.0)])[0], m[0]);
+    }
 
     #[test]
     fn a_value_is_flagged_below_the_noise_floor_by_what_it_now_is() {

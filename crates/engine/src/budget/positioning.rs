@@ -119,8 +119,8 @@ impl Pointed {
 
     /// What the sample's re-seating does to `p`'s value: its tilt moved by the holder's repeatability
     /// (`[instrument.sample_holder] reseat_u_deg`), one component at a time, as [`Pointed::pointing_shifts`]
-    /// moves the alignment's parameters (one mounting serves the whole campaign: shared, signed). `None` for a
-    /// holder that repeats exactly, without a read-back or a model value.
+    /// moves the alignment's parameters (signed; shared by one mounting's points: super::complete::mountings).
+    /// `None` for a holder that repeats exactly, without a read-back or a model value.
     pub(super) fn reseat_shifts(
         &self,
         model: &Material,
