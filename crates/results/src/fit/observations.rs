@@ -114,6 +114,35 @@ fn quantile(mut v: Vec<f64>, q: f64) -> f64 {
     v[i.min(v.len() - 1)]
 }
 
+/// The (eta, k) pairs a conductor's starts take, across the metals' plausible range.
+pub(super) const CONDUCTOR_PAIRS: [(f64, f64); 3] = [(0.3, 3.0), (1.5, 2.0), (1.2, 6.0)];
+
+/// A conductor's start with each band's (eta, k) the [`CONDUCTOR_PAIRS`] pair of lowest `cost` (of the whole
+/// start, natural units) with the other bands held; a band keeps its pair when none is lower.
+pub(super) fn pairs_per_band(
+    start: &mut [f64],
+    defs: &[ParamDef],
+    bands: usize,
+    cost: impl Fn(&[f64]) -> f64,
+) {
+    for b in 0..bands {
+        let at = |key: &str| defs.iter().position(|d| d.key == key && d.band == Some(b));
+        let (Some(ie), Some(ik)) = (at("eta"), at("k")) else {
+            continue;
+        };
+        let mut best = (cost(start), start[ie], start[ik]);
+        for (eta, k) in CONDUCTOR_PAIRS {
+            let mut trial = start.to_vec();
+            (trial[ie], trial[ik]) = (eta, k);
+            let c = cost(&trial);
+            if c < best.0 {
+                best = (c, eta, k);
+            }
+        }
+        (start[ie], start[ik]) = (best.1, best.2);
+    }
+}
+
 /// Start points (natural units) for the model: a small grid over the shape parameters.
 pub(super) fn starts(opts: &FitOptions, defs: &[ParamDef], obs: &[Obs], bands: usize) -> Vec<Vec<f64>> {
     let per_band = |q: Option<f64>| -> Vec<f64> {
@@ -143,7 +172,7 @@ pub(super) fn starts(opts: &FitOptions, defs: &[ParamDef], obs: &[Obs], bands: u
         FitModel::Conductor => {
             let mut v = Vec::new();
             for a in [0.02, 0.08, 0.25, 0.6] {
-                for (eta, k) in [(0.3, 3.0), (1.5, 2.0), (1.2, 6.0)] {
+                for (eta, k) in CONDUCTOR_PAIRS {
                     v.push(vec![("alpha", a), ("eta", eta), ("k", k)]);
                 }
             }

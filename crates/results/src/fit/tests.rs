@@ -355,3 +355,35 @@ fn the_stated_parameter_uncertainty_covers_the_truth_over_noise_draws() {
     let rms = (z.iter().map(|z| z * z).sum::<f64>() / z.len() as f64).sqrt();
     assert!((0.75..1.3).contains(&rms), "rms z {rms} over {z:?}");
 }
+
+#[test]
+fn each_band_of_a_conductor_starts_from_its_own_pair() {
+    // Gold's bands want different pairs (eta 1.5 at 450 nm, 0.35 at 550, 0.17 at 650): a cost that is each
+    // band's distance to its own metal's (eta, k), and a start that gives every band the same pair.
+    let defs = params::param_defs(FitModel::Conductor, 3);
+    let want = [(1.51, 1.88), (0.35, 2.71), (0.168, 3.138)];
+    let index = |key: &str, b: usize| {
+        defs.iter()
+            .position(|d| d.key == key && d.band == Some(b))
+            .expect("a parameter per band")
+    };
+    let cost = |x: &[f64]| -> f64 {
+        (0..3)
+            .map(|b| (x[index("eta", b)] - want[b].0).powi(2) + (x[index("k", b)] - want[b].1).powi(2))
+            .sum()
+    };
+    let mut start = vec![0.08; defs.len()];
+    for b in 0..3 {
+        (start[index("eta", b)], start[index("k", b)]) = (1.2, 6.0);
+    }
+    observations::pairs_per_band(&mut start, &defs, 3, cost);
+    let pair = |b: usize| (start[index("eta", b)], start[index("k", b)]);
+    assert_eq!(pair(0), (1.5, 2.0));
+    assert_eq!(pair(1), (0.3, 3.0));
+    assert_eq!(pair(2), (0.3, 3.0));
+    // Nothing to choose for a model without them: the start is left alone.
+    let lambertian = params::param_defs(FitModel::Lambertian, 3);
+    let mut albedo = vec![0.5; lambertian.len()];
+    observations::pairs_per_band(&mut albedo, &lambertian, 3, |_| 0.0);
+    assert!(albedo.iter().all(|a| *a == 0.5));
+}
