@@ -53,6 +53,9 @@ pub struct Campaign {
     pub id: String,
     pub description: Option<String>,
     pub sample_radius_mm: f64,
+    /// `[sample] non_uniformity`: the reflectance's relative change from centre to edge (standard
+    /// uncertainty); 0 when the file does not state it.
+    pub sample_non_uniformity: f64,
     /// The simulated sample (dry-runs need one: [`crate::Prepared::require_sample`]).
     pub material: Option<Material>,
     pub calibration: CalibrationSettings,
@@ -171,6 +174,16 @@ pub fn load(
         ));
     }
     let sample_radius_mm = radius.unwrap_or(max_r);
+    let sample_non_uniformity = doc.sample.as_ref().and_then(|s| s.non_uniformity).unwrap_or(0.0);
+    if !(sample_non_uniformity.is_finite() && (0.0..1.0).contains(&sample_non_uniformity)) {
+        return Err(at.err(
+            "sample",
+            "non_uniformity",
+            format!(
+                "expected a relative change of the reflectance from centre to edge in [0, 1) (0.003 for                  0.3 %), got {sample_non_uniformity}"
+            ),
+        ));
+    }
 
     let cal = doc.calibration.clone().unwrap_or_default();
     let calibration = calibration(&cal, &doc.plan, &at, &sources, &base, stored.as_ref())?;
@@ -195,6 +208,7 @@ pub fn load(
         id,
         description: campaign.description.clone(),
         sample_radius_mm,
+        sample_non_uniformity,
         material,
         calibration,
         acquisition,

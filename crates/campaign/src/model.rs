@@ -6,7 +6,7 @@
 //!
 //! Tables (see config/campaigns/demo.toml, relative.toml and template.toml for commented examples):
 //! - `[campaign]` `id` (the sample id; names the run), `description`.
-//! - `[sample]` `radius_mm`.
+//! - `[sample]` `radius_mm`, `non_uniformity`.
 //! - `[plan]` the scheduler's schema ([`PlanSpec`]: grid or adaptive plan, bands, repeats, `[plan.calibration]`
 //!   cadence of darks and normalisation readings: direct-beam readings for the absolute method,
 //!   reference-sample readings for the relative one).
@@ -70,6 +70,7 @@ impl CampaignFile {
             }),
             sample: Some(SampleSection {
                 radius_mm: Some(radius_mm),
+                non_uniformity: None,
             }),
             calibration: None,
             acquisition: None,
@@ -137,6 +138,11 @@ pub struct SampleSection {
     /// Sample radius (mm); default: the holder's largest.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub radius_mm: Option<f64>,
+    /// How much the sample's reflectance may change from its centre to its edge (relative standard
+    /// uncertainty, e.g. 0.003: a scan's or a certificate's figure), both across it and towards its rim; the
+    /// budget's non-uniformity part. Absent: a sample taken as uniform (no such part).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub non_uniformity: Option<f64>,
 }
 
 /// `[calibration] method`.

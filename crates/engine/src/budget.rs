@@ -22,7 +22,8 @@
 //!   the reading, carried to the value.
 //! - `stray-light`: the uncertainty of the subtracted signature (characterised instruments).
 //! - `sample`: the sample's re-seating between mountings (the holder's repeatability through the fitted model),
-//!   added when the campaign completes ([`complete`]).
+//!   shared by a mounting's points, and its non-uniformity over the footprint (the campaign's `[sample]
+//!   non_uniformity`: [`uniformity`]), shared by the campaign, added when the campaign completes ([`complete`]).
 //! - `aperture`: the correction from the aperture average to the BRDF at the nominal geometry, or the whole
 //!   bias of a lobe narrower than the aperture, added when the campaign completes ([`complete`]).
 //! - `band` (shared by the band): the finite filter band, from the bands measured at the same geometry, added
@@ -34,10 +35,12 @@ mod drift;
 mod optics;
 mod positioning;
 mod sweeps;
+mod uniformity;
 
 pub use complete::{NoiseFloor, RunContext, completions};
 pub use dark::{DarkSensitivity, Darkened};
 pub use sweeps::{TIMING_U_S, sweep_completions};
+pub use uniformity::SampleSpec;
 
 use gonio_brdf::measurement::BrdfValue;
 use gonio_results::budget::{Budget, components, groups};

@@ -161,6 +161,8 @@ pub struct RunContext<'a> {
     pub dark_sensitivity: &'a DarkSensitivity<'a>,
     /// A characterised detector's noise floor; `None` without a characterisation.
     pub floor: Option<NoiseFloor<'a>>,
+    /// The sample's radius and non-uniformity (super::uniformity).
+    pub sample: super::SampleSpec,
 }
 
 impl NoiseFloor<'_> {
@@ -444,6 +446,18 @@ pub fn completions(
                 None => {}
             }
         }
+    }
+
+    // The sample's non-uniformity over the footprint (super::uniformity), on the value at the nominal geometry.
+    for ((point, completion), c) in run.points.iter().zip(&mut done).zip(committed) {
+        let Some(value) = point.brdf_sr else { continue };
+        let shifts = super::uniformity::shifts(
+            context.sample,
+            c.theta_i_deg,
+            instrument.source.beam_radius_mm,
+            instrument.sample_holder.centring_u_mm(),
+        );
+        super::uniformity::add(&mut completion.budget, value, &shifts);
     }
 
     // The finite band last: the leak's correction compares the bands at one geometry, each at its nominal

@@ -301,7 +301,16 @@ pub fn sweep_completions(
                 };
                 let timing_u_s = timing_of.get(&r.segment).copied().unwrap_or(TIMING_U_S);
                 let timing = along.abs() * speed_rad_s * timing_u_s;
-                for rel in [pointing, timing] {
+                // The sample's non-uniformity over the footprint (super::uniformity), folded in as pointing is.
+                let uniformity = super::uniformity::shifts(
+                    context.sample,
+                    r.theta_i_deg,
+                    instrument.source.beam_radius_mm,
+                    instrument.sample_holder.centring_u_mm(),
+                )
+                .iter()
+                .fold(0.0f64, |a, (_, rel)| a.hypot(*rel));
+                for rel in [pointing, timing, uniformity] {
                     if rel.is_finite() {
                         var += (value * rel).powi(2);
                     }

@@ -25,6 +25,10 @@ impl Run<'_> {
                 detector,
                 averaging: self.c.campaign.acquisition.averaging,
             }),
+            sample: crate::budget::SampleSpec {
+                radius_mm: self.c.campaign.sample_radius_mm,
+                non_uniformity: self.c.campaign.sample_non_uniformity,
+            },
         };
         let updates = crate::budget::completions(
             &record,

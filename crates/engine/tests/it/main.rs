@@ -33,3 +33,4 @@ mod spectral_probe;
 mod stalls;
 mod sweeps;
 mod timing;
+mod uniformity;
