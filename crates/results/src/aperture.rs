@@ -50,7 +50,9 @@ pub const CORRECTION_U_FRACTION: f64 = 0.25;
 /// A best model whose cos-weighted relative rms residual is above this does not describe the sample: nothing is
 /// corrected by it. The models fitted to the seed materials on realistic.toml leave 0.1-1.4 % (paper, spectralon,
 /// styrofoam 0.1-0.2 %, gold 1.0 %, plastic 1.4 %); to a mirror's few bright points and many dark ones, 48-100 %.
-pub const MODEL_RMS_LIMIT: f64 = 0.1;
+/// A sample no model fits closely (a measured table's kinks) still has its corrections from the best of them,
+/// their spread its uncertainty, up to this.
+pub const MODEL_RMS_LIMIT: f64 = 0.3;
 /// A larger `|c - 1|` is not corrected: the point is flagged.
 pub const NARROW_LIMIT: f64 = 0.1;
 /// A value near the specular direction this many times the best model's aperture average (or less than its
@@ -188,7 +190,10 @@ pub fn corrections(run: &Run, optics: &Optics) -> Option<Corrections> {
             if described {
                 correction(p, optics, &acceptable)
             } else {
-                undescribed(p, optics, best.alpha.unwrap_or(0.0))
+                // The poor fit's roughness widens the reach only where it is a lobe the instrument does not
+                // resolve: a broad one would flag the whole hemisphere.
+                let alpha = best.alpha.filter(|a| *a < optics.resolution_rad()).unwrap_or(0.0);
+                undescribed(p, optics, alpha)
             },
             slopes(p, &best.material),
         )
@@ -319,7 +324,7 @@ fn lobe_within_reach(wi: &Direction, wo: &Direction, alpha: f64, optics: &Optics
 }
 
 /// A point's lot when no model describes the data: flagged with its whole value as uncertainty where a lobe of
-/// the best model's roughness `alpha` (a poor fit's, but the only estimate of its extent) could reach it (what
+/// roughness `alpha` (a poor fit's unresolved lobe, the only estimate of its extent; else 0) could reach it (what
 /// it reads may be the beam itself, the BRDF there anything from 0 up), else left as measured (`None`: no
 /// correction, none to be had).
 fn undescribed(p: &Point, optics: &Optics, alpha: f64) -> Option<Correction> {
