@@ -511,27 +511,7 @@ mod tests {
             record("direct-beam", 101.0),
             record("direct-beam", 100.0),
         ];
-        let at = |t_s: f64| PointRecord {
-            index: 0,
-            band_nm: 550.0,
-            theta_i_deg: 30.0,
-            phi_i_deg: 0.0,
-            theta_o_deg: 30.0,
-            phi_o_deg: 180.0,
-            signal_w: 1e-7,
-            dark_w: 0.0,
-            incident_w: 1e-3,
-            brdf_sr: Some(0.1),
-            brdf_u_sr: Some(1e-4),
-            flags: Vec::new(),
-            t_s,
-            readback_deg: Vec::new(),
-            truth_point_sr: None,
-            truth_aperture_sr: None,
-            truth_effects_json: None,
-            brdf_aperture_sr: None,
-            budget: Default::default(),
-        };
+        let at = |t_s: f64| crate::budget::drift::tests::point_at(t_s, 550.0);
         let points: Vec<PointRecord> = [10.0, 49.0, 60.0, 99.0, 150.0, 200.0].map(at).to_vec();
         let m = mountings(&calibrations, &points);
         assert_eq!(m[0], m[1]);

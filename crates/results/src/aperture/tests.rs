@@ -185,22 +185,27 @@ fn the_slopes_follow_the_lobe() {
     assert!(checked >= 20, "{checked} points on the lobe's flanks");
 }
 
-#[test]
-fn a_specular_value_the_model_does_not_resolve_is_not_corrected_by_it() {
-    // A fit that missed the lobe: a smooth matte model, and points near the specular direction reading what a
-    // mirror's delta puts through the aperture.
+/// A smooth matte model (albedo 0.5) that fitted well: what a fit that missed a lobe looks like.
+fn matte_fit() -> Fitted {
     let matte = Material::from_document(
         "[material]\nmodel = \"lambertian\"\nalbedo = 0.5\n",
         "matte",
         std::path::Path::new("."),
     )
     .expect("material");
-    let best = Fitted {
+    Fitted {
         model: FitModel::OrenNayar,
-        material: matte.clone(),
+        material: matte,
         rms: 0.01,
         alpha: None,
-    };
+    }
+}
+
+#[test]
+fn a_specular_value_the_model_does_not_resolve_is_not_corrected_by_it() {
+    // A fit that missed the lobe: a smooth matte model, and points near the specular direction reading what a
+    // mirror's delta puts through the aperture.
+    let best = matte_fit();
     let models = [&best];
     let at = |g: [f64; 4], value: f64| {
         let mut p = Point::at(550.0, g, 0.0);
@@ -233,18 +238,7 @@ fn a_specular_value_the_model_does_not_resolve_is_not_corrected_by_it() {
 fn the_beam_s_width_widens_where_a_delta_reaches() {
     // A matte model and a point 0.9 degree from the specular direction reading a thousand times it: outside a
     // 0.57 degree aperture alone, inside it with a 1.5 mm beam at 250 mm (0.34 degree more).
-    let matte = Material::from_document(
-        "[material]\nmodel = \"lambertian\"\nalbedo = 0.5\n",
-        "matte",
-        std::path::Path::new("."),
-    )
-    .expect("material");
-    let best = Fitted {
-        model: FitModel::OrenNayar,
-        material: matte,
-        rms: 0.01,
-        alpha: None,
-    };
+    let best = matte_fit();
     let models = [&best];
     let mut p = Point::at(550.0, [30.0, 0.0, 30.9, 180.0], 0.0);
     p.brdf_sr = Some(1000.0 * 0.5 / std::f64::consts::PI);
