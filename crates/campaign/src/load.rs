@@ -180,7 +180,7 @@ pub fn load(
             "sample",
             "non_uniformity",
             format!(
-                "expected a relative change of the reflectance from centre to edge in [0, 1) (0.003 for                  0.3 %), got {sample_non_uniformity}"
+                "expected a relative change of the reflectance from centre to edge in [0, 1) (0.003 for 0.3 %), got {sample_non_uniformity}"
             ),
         ));
     }

@@ -457,7 +457,7 @@ pub fn completions(
             instrument.source.beam_radius_mm,
             instrument.sample_holder.centring_u_mm(),
         );
-        super::uniformity::add(&mut completion.budget, value, &shifts);
+        add_shifts(&mut completion.budget, components::SAMPLE, value, &shifts);
     }
 
     // The finite band last: the leak's correction compares the bands at one geometry, each at its nominal

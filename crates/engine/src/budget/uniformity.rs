@@ -13,8 +13,6 @@
 //! The direct beam does not see the sample, so nothing cancels; a reference sample's own non-uniformity is its
 //! certificate's business.
 
-use gonio_results::budget::{Budget, components};
-
 /// The group of the rim term.
 pub const RIM: &str = "non-uniformity-rim";
 /// The group of the gradient term.
@@ -53,16 +51,6 @@ pub(super) fn shifts(
         .into_iter()
         .filter(|(_, rel)| rel.is_finite() && *rel != 0.0)
         .collect()
-}
-
-/// Add the non-uniformity's entries to a value's budget.
-pub(super) fn add(budget: &mut Budget, value: f64, shifts: &[(&'static str, f64)]) {
-    for (group, rel) in shifts {
-        let u = value * rel;
-        if u.is_finite() && u != 0.0 {
-            budget.add(components::SAMPLE, u, Some((*group).to_string()));
-        }
-    }
 }
 
 #[cfg(test)]
@@ -111,14 +99,8 @@ mod tests {
         };
         assert!(shifts(sample, 90.0, 1.5, 0.1).is_empty());
         assert!(shifts(sample, f64::NAN, 1.5, 0.1).is_empty());
-        let mut budget = Budget::default();
-        add(&mut budget, 0.5, &shifts(sample, 30.0, 1.5, 0.1));
-        assert_eq!(budget.entries.len(), 2);
-        assert!(
-            budget
-                .entries
-                .iter()
-                .all(|e| e.component == components::SAMPLE && e.u_sr > 0.0)
-        );
+        let both = shifts(sample, 30.0, 1.5, 0.1);
+        assert_eq!(both.len(), 2);
+        assert!(both.iter().all(|(_, rel)| *rel > 0.0));
     }
 }
