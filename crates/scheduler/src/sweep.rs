@@ -37,8 +37,10 @@
 //! moves: one reading every [`sweep_reading_period_s`] (`averaging` x the detector's sample time, and one
 //! exchange), so a piece of motion time `T` gives `floor(T / period)` readings (at least one), each smeared over
 //! `speed x averaging x sample time` degrees at cruise. The bands of one piece are swept back and forth (the
-//! wheel's shortest covering walk), so consecutive bands need no move. Pieces are visited nearest first from
-//! where the arm is, entering each at its nearer end.
+//! wheel's shortest covering walk), so consecutive bands need no move. A chain of pieces (consecutive pieces each
+//! ending where the next starts: a speed profile's) is swept one way, piece after piece, entered at its end
+//! nearer the arm; chains are visited nearest end first. (Visiting the pieces nearest first, a profile whose arm
+//! stood mid-arc swept the near half, came back through it and swept the rest.)
 //!
 //! Calibrations (darks, then the normalisation readings, as the session's opening one) fall due between arcs
 //! every `Calibration::sweep_every_s` of instrument time, and close the sweeps when the plan asks for references.

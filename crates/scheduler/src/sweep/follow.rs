@@ -9,7 +9,7 @@
 //!
 //! [`speed_profile`] turns samples of the BRDF along an arc (from a first pass at the top speed, or from a
 //! model) into pieces of constant speed: each sample's speed is the slowest any reading near it needs (the
-//! curvature's largest magnitude within a reading's arc at the top speed around it); the arc is cut where that
+//! curvature's largest magnitude within half a reading's arc around it, the arc at that speed); the arc is cut where that
 //! speed crosses a ladder of speeds a factor `sqrt(2)` apart, so that the pieces stay few, and each piece is
 //! swept at the slowest speed any of its samples allows; pieces shorter than `min_piece_deg` are merged into a
 //! slower neighbour. Each piece carries the largest smearing predicted for its readings.
@@ -117,7 +117,7 @@ pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> 
             RelativeTo::Peak => Some(c.iter().map(|p| p.1).fold(0.0, f64::max)),
         })
         .collect();
-    let mut bend: Vec<f64> = (0..n)
+    let bend: Vec<f64> = (0..n)
         .map(|i| {
             let i = i.clamp(1, n - 2);
             curves
@@ -130,30 +130,54 @@ pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> 
                 .fold(0.0, f64::max)
         })
         .collect();
-    // A reading at the top speed spans this many samples: each sample takes the worst bend within it.
-    let reach = ((req.top_speed_deg_s * req.integration_s / 2.0) / h).ceil() as usize + 1;
-    bend = (0..n)
-        .map(|i| {
-            bend[i.saturating_sub(reach)..(i + reach + 1).min(n)]
-                .iter()
-                .copied()
-                .fold(0.0, f64::max)
-        })
-        .collect();
+    // A reading at speed v spans v T of arc: the one over a sample smears with the worst bend within half that
+    // around it (and the next sample: the bend's stencil), `reach(v)` samples either side. The window of each
+    // sample is its own speed's: at a lobe's peak a reading at the slow speed there spans a tenth of a degree,
+    // and the bend a degree away (the window at the top speed) is not its business. `widest[k][i]`: the worst
+    // bend within k samples of i, for k up to the top speed's reach.
+    let reach = |v: f64| ((v * req.integration_s / 2.0) / h).ceil() as usize + 1;
+    let top_reach = reach(req.top_speed_deg_s);
+    let mut widest: Vec<Vec<f64>> = vec![bend.clone()];
+    for k in 1..=top_reach {
+        let prev = &widest[k - 1];
+        let next: Vec<f64> = (0..n)
+            .map(|i| {
+                let below = i.checked_sub(k).map_or(0.0, |j| bend[j]);
+                let above = bend.get(i + k).copied().unwrap_or(0.0);
+                prev[i].max(below).max(above)
+            })
+            .collect();
+        widest.push(next);
+    }
     let smearing = |v: f64, bend: f64| bend * (v * req.integration_s).powi(2) / 24.0;
     // The ladder step of each sample: 0 is the top speed, k is top / LADDER^k, never below the floor.
     let floor_step = ((req.top_speed_deg_s / req.min_speed_deg_s).ln() / LADDER.ln()).floor() as u32;
-    // The fastest speed each sample allows, between the floor and the top speed.
-    let need: Vec<f64> = bend
-        .iter()
-        .map(|&b| {
-            if b <= 0.0 {
-                return req.top_speed_deg_s;
-            }
-            ((24.0 * SMEARING_MARGIN * req.tolerance_rel / b).sqrt() / req.integration_s)
-                .clamp(req.min_speed_deg_s, req.top_speed_deg_s)
+    // The fastest speed each sample allows, between the floor and the top speed: the fastest over the windows
+    // k of a speed whose reach is at most k and that the worst bend within k allows.
+    let allowed = |b: f64| {
+        if b <= 0.0 {
+            f64::INFINITY
+        } else {
+            (24.0 * SMEARING_MARGIN * req.tolerance_rel / b).sqrt() / req.integration_s
+        }
+    };
+    let need: Vec<f64> = (0..n)
+        .map(|i| {
+            let v = (1..=top_reach)
+                .map(|k| {
+                    let within = if k == top_reach {
+                        req.top_speed_deg_s
+                    } else {
+                        2.0 * (k - 1) as f64 * h / req.integration_s
+                    };
+                    allowed(widest[k][i]).min(within)
+                })
+                .fold(0.0, f64::max);
+            v.clamp(req.min_speed_deg_s, req.top_speed_deg_s)
         })
         .collect();
+    // Each sample's worst bend: within its own speed's reach (what its piece's smearing is predicted from).
+    let bend: Vec<f64> = (0..n).map(|i| widest[reach(need[i]).min(top_reach)][i]).collect();
     let steps: Vec<u32> = need
         .iter()
         .map(|&v| {
@@ -322,6 +346,35 @@ mod tests {
         assert_eq!(pieces[0].speed_deg_s, 20.0);
         assert!((pieces[0].from_deg + 80.0).abs() < 1e-9 && (pieces[0].to_deg - 80.0).abs() < 1e-9);
         assert!(pieces[0].smearing_rel < 1e-9);
+    }
+
+    #[test]
+    fn a_sample_near_a_narrow_lobe_is_held_to_the_bend_its_own_readings_cross() {
+        // A lobe 0.3 deg wide, readings 90 ms long: 1.8 deg of arc at the top speed, the tolerance relative to
+        // the peak. A reading over the lobe's shoulder at the shoulder's speed spans a fraction of that, short
+        // of the peak's bend: the shoulder goes several times faster than the peak (the window of the top speed
+        // held it to the peak's speed).
+        let narrow = |s: f64| 1.0 + 50.0 * (-(s / 0.3).powi(2)).exp();
+        let req = FollowRequest {
+            integration_s: 0.09,
+            tolerance_rel: 1e-4,
+            min_piece_deg: 0.0,
+            relative_to: RelativeTo::Peak,
+            ..request()
+        };
+        let pieces = speed_profile(&sampled(narrow, -10.0, 10.0, 0.01), &req);
+        let at = |s: f64| pieces.iter().find(|p| p.from_deg <= s && s <= p.to_deg).unwrap();
+        let peak = at(0.0).speed_deg_s;
+        assert!(at(0.8).speed_deg_s > 3.0 * peak, "{pieces:#?}");
+        for p in &pieces {
+            let mut s = p.from_deg;
+            while s <= p.to_deg {
+                let r = reading(&narrow, s, p.speed_deg_s, req.integration_s);
+                let e = (r - narrow(s)).abs() / narrow(0.0);
+                assert!(e <= 1.2 * req.tolerance_rel, "at {s}: {e:.2e} in {p:?}");
+                s += 0.005;
+            }
+        }
     }
 
     #[test]

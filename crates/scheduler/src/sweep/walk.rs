@@ -105,6 +105,48 @@ pub fn sweep_time_s(m: &AxisModel, motion_s: f64, period_s: f64, positions_read_
         + positions_read_s
 }
 
+/// How many of the nearest chain ends the ordering weighs with the move after them.
+const LOOK_BEYOND: usize = 8;
+
+/// The chain of each arc, numbered from 0: runs of consecutive arcs of the plan each ending where the next
+/// starts (the pieces of a speed profile), swept one after the other, one way, without a move between them.
+fn chains(plan: &SweepPlan) -> Vec<usize> {
+    let joined = |a: &Pose, b: &Pose| {
+        [
+            a.light_deg - b.light_deg,
+            a.detector_deg - b.detector_deg,
+            a.tilt_deg - b.tilt_deg,
+            a.rotation_deg - b.rotation_deg,
+        ]
+        .iter()
+        .all(|d| d.abs() < 1e-6)
+    };
+    let mut chain = 0;
+    plan.arcs
+        .iter()
+        .enumerate()
+        .map(|(k, arc)| {
+            if k > 0 && !joined(&plan.arcs[k - 1].piece.to_pose, &arc.piece.from_pose) {
+                chain += 1;
+            }
+            chain
+        })
+        .collect()
+}
+
+/// For each chain, its first and last arc left (indices into the plan's arcs; `usize::MAX` for a chain with
+/// none left). Arcs are taken from a chain's ends only, so those left are the ones between.
+fn chain_ends(chain: &[usize], left: &[usize]) -> Vec<(usize, usize)> {
+    let n = chain.last().map_or(0, |m| m + 1);
+    let mut ends = vec![(usize::MAX, 0); n];
+    for &a in left {
+        let (first, last) = &mut ends[chain[a]];
+        *first = (*first).min(a);
+        *last = (*last).max(a);
+    }
+    ends
+}
+
 /// Every axis's position read after a sweep (s).
 pub fn positions_read_s(time: &TimeModel) -> f64 {
     time.axes.iter().flatten().map(|m| m.leg.position_read_s).sum()
@@ -158,23 +200,56 @@ pub fn schedule_sweeps(
     let mut last_calibration = clock;
     // The exchanges of every sweep besides its motion (`LegTiming`), and every axis's position read after it.
     let positions_read_s = positions_read_s(time);
+    let chain = chains(plan);
     let mut left: Vec<usize> = (0..plan.arcs.len()).collect();
     while !left.is_empty() {
         if every_s.is_some_and(|e| clock - last_calibration >= e) {
             clock += calibrate(&mut pose, &mut wheel, &mut out);
             last_calibration = clock;
         }
-        // The nearest arc end from where the arm is.
-        let mut best: Option<(f64, usize, bool)> = None;
+        // A chain is entered at one of its ends and left at the other. The next: the one whose entry from where
+        // the arm is, plus the move from its exit to the nearest end of another chain, costs least (entered at
+        // the nearer end alone, the arm crossed the plastic's 160-degree arc once more between its stretches on
+        // either side of the source: section 7 of BENCHMARKS.md).
+        let ends = chain_ends(&chain, &left);
+        let onward = |from: &Pose, own: usize| {
+            ends.iter()
+                .enumerate()
+                .filter(|(c, (first, _))| *c != own && *first != usize::MAX)
+                .flat_map(|(_, (first, last))| {
+                    [
+                        time.fast_cost_s(from, &plan.arcs[*first].piece.from_pose),
+                        time.fast_cost_s(from, &plan.arcs[*last].piece.to_pose),
+                    ]
+                })
+                .filter(|c| c.is_finite())
+                .fold(None, |m: Option<f64>, c| Some(m.map_or(c, |m| m.min(c))))
+                .unwrap_or(0.0)
+        };
+        // (entry cost, slot, forward, exit, chain) of every end left.
+        let mut entries: Vec<(f64, usize, bool, &Pose, usize)> = Vec::new();
         for (slot, &a) in left.iter().enumerate() {
             let piece = &plan.arcs[a].piece;
+            let (first, last) = ends[chain[a]];
             for (forward, entry) in [(true, &piece.from_pose), (false, &piece.to_pose)] {
+                let (end, exit) = if forward {
+                    (first, &plan.arcs[last].piece.to_pose)
+                } else {
+                    (last, &plan.arcs[first].piece.from_pose)
+                };
                 let cost = time.fast_cost_s(&pose, entry);
-                if cost.is_finite() && best.is_none_or(|(c, _, _)| cost < c) {
-                    best = Some((cost, slot, forward));
+                if end == a && cost.is_finite() {
+                    entries.push((cost, slot, forward, exit, chain[a]));
                 }
             }
         }
+        // The look beyond for the nearest few only: it costs a move per chain left for each.
+        entries.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let best = entries
+            .iter()
+            .take(LOOK_BEYOND)
+            .map(|&(cost, slot, forward, exit, own)| (cost + onward(exit, own), slot, forward))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
         let Some((_, slot, mut forward)) = best else {
             out.unreachable += left.len();
             break;

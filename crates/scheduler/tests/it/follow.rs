@@ -133,6 +133,41 @@ fn an_arc_that_follows_is_swept_in_pieces_slower_at_the_lobe_and_faster_in_time_
 }
 
 #[test]
+fn a_profiles_pieces_are_swept_one_after_the_other_one_way_even_from_an_arm_standing_mid_arc() {
+    let profiles = profiles(FOLLOWING);
+    let plan = plan_with(FOLLOWING, &profiles).unwrap();
+    let time = TimeModel::new(&simulated());
+    // The arm stands in the middle of the lobe's slow piece, where the nearest piece end is inside the arc.
+    let slow = plan
+        .arcs
+        .iter()
+        .min_by(|a, b| a.request.speed_deg_s.total_cmp(&b.request.speed_deg_s))
+        .unwrap();
+    let mut start = slow.piece.from_pose;
+    start.detector_deg = 0.5 * (slow.piece.from_pose.detector_deg + slow.piece.to_pose.detector_deg);
+    let sched = schedule_sweeps(&plan, &time, Some((start, None)), None);
+    assert_eq!(sched.steps.len(), plan.arcs.len());
+    // Every piece is entered where the one before it ended, except where the path itself breaks (its own
+    // pieces: the arms' separation); the pieces of one path piece go one way.
+    let breaks = sched
+        .steps
+        .windows(2)
+        .filter(|w| w[0].end_pose != w[1].start_pose)
+        .count();
+    let path_pieces = plan
+        .arcs
+        .windows(2)
+        .filter(|w| w[0].piece.to_pose != w[1].piece.from_pose)
+        .count();
+    assert_eq!(breaks, path_pieces, "{:#?}", sched.steps);
+    for w in sched.steps.windows(2) {
+        if w[0].end_pose == w[1].start_pose {
+            assert_eq!(w[0].forward, w[1].forward);
+        }
+    }
+}
+
+#[test]
 fn an_arc_that_follows_needs_its_profile_and_follow_is_checked() {
     let err = plan_with(FOLLOWING, &[]).unwrap_err().to_string();
     assert!(err.contains("no speed profile for the arc at 30 deg"), "{err}");
