@@ -33,6 +33,11 @@ pub struct AxisCore {
     motion: Mutex<(f64, f64)>,
     /// Controller position where the last move started (`None`: unknown, the wait assumes the whole travel).
     start: Mutex<Option<f64>>,
+    /// The speed and acceleration this driver last wrote to the device and saw taken (`None`: not known, as
+    /// after a reconnect or a homing). A value the device already holds is not written again: each write is a
+    /// set command with its pause (65 ms on an SMC100), and a sweep that follows the BRDF sets its speed once a
+    /// piece with the same acceleration every time.
+    written: Mutex<(Option<f64>, Option<f64>)>,
 }
 
 impl AxisCore {
@@ -42,6 +47,23 @@ impl AxisCore {
             cfg,
             motion,
             start: Mutex::new(None),
+            written: Mutex::new((None, None)),
+        }
+    }
+
+    /// Of a speed and an acceleration, those the device is not known to hold already.
+    fn to_write(&self, speed: f64, accel: f64) -> (Option<f64>, Option<f64>) {
+        let held = self.written.lock().map(|g| *g).unwrap_or((None, None));
+        (
+            (held.0 != Some(speed)).then_some(speed),
+            (held.1 != Some(accel)).then_some(accel),
+        )
+    }
+
+    /// What the device holds after a write (`None`s: not known).
+    fn set_written(&self, held: (Option<f64>, Option<f64>)) {
+        if let Ok(mut g) = self.written.lock() {
+            *g = held;
         }
     }
 
@@ -139,11 +161,11 @@ pub trait AxisDriver: Send + Sync + std::fmt::Debug {
     fn axis_status(&self) -> impl Future<Output = Result<AxisStatus, DriverError>> + Send;
     /// Stop now on the priority path.
     fn stop_axis(&self) -> impl Future<Output = Result<(), DriverError>> + Send;
-    /// Send a speed and acceleration (already checked) to the device.
+    /// Send a speed, an acceleration or both (already checked) to the device; `None`: leave it as it is.
     fn write_speed(
         &self,
-        speed_deg_s: f64,
-        accel_deg_s2: f64,
+        speed_deg_s: Option<f64>,
+        accel_deg_s2: Option<f64>,
     ) -> impl Future<Output = Result<(), DriverError>> + Send;
     /// Make a reopened device ready to be commanded again (e.g. leave a fault state that refuses moves).
     fn re_enable(&self) -> impl Future<Output = Result<(), DriverError>> + Send;
@@ -165,12 +187,21 @@ async fn move_to<D: AxisDriver>(d: &D, target_deg: f64) -> Result<f64, DriverErr
 
 async fn set_speed<D: AxisDriver>(d: &D, speed_deg_s: f64, accel_deg_s2: f64) -> Result<(), DriverError> {
     check_speed(d.device(), speed_deg_s, accel_deg_s2)?;
-    d.write_speed(speed_deg_s, accel_deg_s2).await?;
-    d.core().set_speed_accel(speed_deg_s, accel_deg_s2);
+    let core = d.core();
+    let (speed, accel) = core.to_write(speed_deg_s, accel_deg_s2);
+    if speed.is_some() || accel.is_some() {
+        // Until the device has taken both, what it holds is not known.
+        core.set_written((None, None));
+        d.write_speed(speed, accel).await?;
+        core.set_written((Some(speed_deg_s), Some(accel_deg_s2)));
+    }
+    core.set_speed_accel(speed_deg_s, accel_deg_s2);
     Ok(())
 }
 
 async fn reconnect<D: AxisDriver>(d: &D) -> Result<AxisStatus, DriverError> {
+    // A device that went away may have been power-cycled back to its stored speed.
+    d.core().set_written((None, None));
     reopen(d.line_port(), d.device()).await?;
     d.re_enable().await?;
     let status = d.axis_status().await?;
@@ -198,6 +229,8 @@ impl<D: AxisDriver> Axis for D {
         }
     }
     fn home(&self) -> BoxFuture<'_, Result<(), DriverError>> {
+        // Homing is where a power-cycled controller is met again: its speed is what it stored.
+        self.core().set_written((None, None));
         Box::pin(self.home_axis())
     }
     fn move_to(&self, target_deg: f64) -> BoxFuture<'_, Result<f64, DriverError>> {

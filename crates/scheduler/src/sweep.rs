@@ -27,12 +27,15 @@
 //!
 //! # The time model of a sweep step
 //! A step moves to the piece's start (`TimeModel::plan_move`, settle included), turns the wheel to its band
-//! when it is not there, then sweeps: the swept axis's speed set (`LegTiming::set_speed_s`), one plain move to
-//! the piece's other end at the entry's speed (`speed_deg_s` at cruise, the axis's own acceleration, no
-//! backlash approach: the pose of a reading comes from the controller's position reports, not from the
-//! direction of approach), the reading under way when the motion ends (half a period on average), the stop seen
-//! and checked (`status_s`, `arrived_s`), the speed restored, and every axis's position read back, as the engine
-//! does it (`crates/engine/src/runner/sweep.rs`). When no point precedes the sweeps, the calibration that opens
+//! when it is not there, then sweeps: the swept axis's speed set (`LegTiming::set_velocity_s`; with its
+//! acceleration on the axis's first sweep, `set_speed_s`: the driver writes what the device is not known to
+//! hold), one plain move to the piece's other end at the entry's speed (`speed_deg_s` at cruise, the axis's own
+//! acceleration, no backlash approach: the pose of a reading comes from the controller's position reports, not
+//! from the direction of approach), the reading under way when the motion ends (half a period on average), the
+//! stop seen and checked (`status_s`, `arrived_s`), and every axis's position read back, as the engine does it
+//! (`crates/engine/src/runner/sweep.rs`). The axis's own speed is restored (`set_velocity_s`) before anything
+//! else moves (a move, a calibration, another axis's sweep) and when the sweeps end, not between the pieces of a
+//! chain (below): the next sets its own. When no point precedes the sweeps, the calibration that opens
 //! a session comes first (`crate::schedule::calibration_preamble`). The meter reads back to back while the arm
 //! moves: one reading every [`sweep_reading_period_s`] (`averaging` x the detector's sample time, and one
 //! exchange), so a piece of motion time `T` gives `floor(T / period)` readings (at least one), each smeared over

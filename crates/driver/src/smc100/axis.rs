@@ -390,14 +390,19 @@ impl AxisDriver for Smc100Axis {
         self.ctl.chain.stop_all(std::slice::from_ref(&self.ctl.addr))
     }
 
-    async fn write_speed(&self, speed_deg_s: f64, accel_deg_s2: f64) -> Result<(), DriverError> {
+    async fn write_speed(
+        &self,
+        speed_deg_s: Option<f64>,
+        accel_deg_s2: Option<f64>,
+    ) -> Result<(), DriverError> {
         let ctl = &self.ctl;
-        ctl.chain
-            .command(ctl.addr, "VA", &wire_number(speed_deg_s), true)
-            .await?;
-        ctl.chain
-            .command(ctl.addr, "AC", &wire_number(accel_deg_s2), true)
-            .await
+        if let Some(v) = speed_deg_s {
+            ctl.chain.command(ctl.addr, "VA", &wire_number(v), true).await?;
+        }
+        if let Some(a) = accel_deg_s2 {
+            ctl.chain.command(ctl.addr, "AC", &wire_number(a), true).await?;
+        }
+        Ok(())
     }
 
     /// A stall (following error) or a stop leaves the controller in DISABLE, where it refuses every move (error

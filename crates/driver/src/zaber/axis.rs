@@ -347,11 +347,20 @@ impl AxisDriver for ZaberAxis {
         self.stop_now()
     }
 
-    async fn write_speed(&self, speed_deg_s: f64, accel_deg_s2: f64) -> Result<(), DriverError> {
-        let speed = (speed_deg_s / self.microstep_deg * SPEED_UNIT).round().max(1.0) as i64;
-        let accel = (accel_deg_s2 / self.microstep_deg * ACCEL_UNIT).round().max(1.0) as i64;
-        self.ok(&format!("set maxspeed {speed}"), true).await?;
-        self.ok(&format!("set accel {accel}"), true).await.map(|_| ())
+    async fn write_speed(
+        &self,
+        speed_deg_s: Option<f64>,
+        accel_deg_s2: Option<f64>,
+    ) -> Result<(), DriverError> {
+        if let Some(v) = speed_deg_s {
+            let speed = (v / self.microstep_deg * SPEED_UNIT).round().max(1.0) as i64;
+            self.ok(&format!("set maxspeed {speed}"), true).await?;
+        }
+        if let Some(a) = accel_deg_s2 {
+            let accel = (a / self.microstep_deg * ACCEL_UNIT).round().max(1.0) as i64;
+            self.ok(&format!("set accel {accel}"), true).await?;
+        }
+        Ok(())
     }
 
     /// Nothing to leave: a Zaber device takes moves again once its fault flags are cleared, which the wait

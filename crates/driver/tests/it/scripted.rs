@@ -470,3 +470,38 @@ async fn a_position_report_is_one_query_with_the_sizes_of_its_exchange() {
     let reply = sent.lock().unwrap().last().cloned().expect("replied");
     assert_eq!(r.reply_bytes, reply.len(), "{reply:?}");
 }
+
+#[tokio::test(start_paused = true)]
+async fn smc100_a_speed_the_controller_holds_is_not_written_again() {
+    trace();
+    let (stream, log) = peer(b'\n', smc_peer("000033", "10.00000"));
+    let axis = smc_axis(stream, "light");
+    let sets = |log: &Log| -> Vec<String> {
+        log.lock()
+            .unwrap()
+            .iter()
+            .filter(|l| l[1..].starts_with("VA") || l[1..].starts_with("AC"))
+            .cloned()
+            .collect()
+    };
+    // Nothing is known at first: both written, each a set command with its pause.
+    axis.set_speed(2.5, 80.0).await.expect("speed");
+    assert_eq!(sets(&log), ["1VA2.500000", "1AC80.000000"]);
+    // The same again: nothing sent. A new speed at the same acceleration: VA alone.
+    axis.set_speed(2.5, 80.0).await.expect("speed");
+    axis.set_speed(20.0, 80.0).await.expect("speed");
+    assert_eq!(sets(&log), ["1VA2.500000", "1AC80.000000", "1VA20.000000"]);
+    // Homing is where a power-cycled controller is met again: what it holds is not known after it.
+    axis.home().await.expect("already referenced");
+    axis.set_speed(20.0, 80.0).await.expect("speed");
+    assert_eq!(
+        sets(&log),
+        [
+            "1VA2.500000",
+            "1AC80.000000",
+            "1VA20.000000",
+            "1VA20.000000",
+            "1AC80.000000"
+        ]
+    );
+}

@@ -4,7 +4,7 @@
 //! The pass: the axis's speed set for the sweep (the instrument file's acceleration), the move to the arc's end
 //! commanded, `reader` read back to back until the axis has arrived, a position report asked beside every
 //! `report_every`-th reading (concurrently: the controller's line and the meter's are separate), then the
-//! verified arrival and the axis's own speed set back. What comes back is the commanded trapezoid (started when
+//! verified arrival; the caller sets the axis's own speed back ([`restore_speed`]). What comes back is the commanded trapezoid (started when
 //! the command went out), each reading's request time with what it read, and the dated reports. Where the arm
 //! was at any instant is then the trapezoid shifted by the arm's lag behind it, which [`Pass::lag_s`] takes from
 //! the reports made while it cruised.
@@ -239,13 +239,19 @@ pub(crate) async fn sweep_axis<R: Reader>(
     motion
         .device(Device::Axis(axis), &what, || axis.driver.wait_arrived(to_deg))
         .await?;
+    Ok(pass)
+}
+
+/// The axis's own speed (the instrument file's) set back after sweeping, before it moves otherwise: the pass
+/// leaves it at the sweep's, which the next piece of a sweep that follows the BRDF replaces with its own.
+pub(crate) async fn restore_speed(motion: &Motion<'_>, axis: &RigAxis) -> Result<(), MotionError> {
+    let cfg = &axis.config;
     let what = format!("restore the speed of {}", cfg.name);
     motion
         .device(Device::Axis(axis), &what, || {
             axis.driver.set_speed(cfg.max_speed_deg_s, cfg.accel_deg_s2)
         })
-        .await?;
-    Ok(pass)
+        .await
 }
 
 #[cfg(test)]

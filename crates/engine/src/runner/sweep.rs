@@ -5,8 +5,9 @@
 //!
 //! Per sweep: move to the arc's start (a planned, collision-safe move, as for a point), turn the wheel to the
 //! band, then the pass (crate::motion::sweep): the swept axis's speed set (`set_speed`, the instrument file's
-//! acceleration), the move to the arc's end commanded and the meter read until the axis has arrived, the axis's
-//! speed set back to its `max_speed_deg_s`.
+//! acceleration), the move to the arc's end commanded and the meter read until the axis has arrived. The axis's
+//! own speed (`max_speed_deg_s`) is set back before anything else moves and when the sweeps end, not between
+//! the pieces of a chain (a speed profile's, each starting where the last ended): the next sets its own.
 //! The meter is configured for the sweep's averaging for the sweep and for the campaign's again after it.
 //!
 //! Where a reading was: the commanded trapezoidal profile (start at the move command's reply, the set speed,
@@ -34,6 +35,7 @@
 //! fits and plots read them from there or from the store.
 
 use gonio_brdf::{Direction, Wavelength};
+use gonio_instrument::AxisRole;
 use gonio_scheduler::kinematics::Pose;
 use gonio_scheduler::sweep::{SweepArc, SweepStep, swept_role};
 use gonio_scheduler::timing::DETECTOR_SAMPLE_S;
@@ -44,7 +46,7 @@ use crate::budget;
 use crate::store::SweepSegmentRecord;
 use gonio_results::sweeps::SweepReading;
 
-use crate::motion::sweep::{ReportDating, load_offset_deg, sweep_axis};
+use crate::motion::sweep::{ReportDating, load_offset_deg, restore_speed, sweep_axis};
 use gonio_scheduler::timing::Trapezoid;
 
 /// A position report every this many readings during a sweep (more often in short sweeps: [`report_every`]).
@@ -125,30 +127,75 @@ impl Run<'_> {
             self.darks_all(&bands).await?;
             self.normalise(&bands, None).await?;
         }
+        // The axis a sweep left at its sweep speed: its own restored before anything else moves, and on the way
+        // out when the sweeps end or a person pauses or aborts them (what follows moves at the file's speeds).
+        // Not after an emergency stop or a device in trouble: nothing more is said to the hardware then (the
+        // driver knows the speed it set, so later moves keep honest deadlines).
+        let mut slow: Option<AxisRole> = None;
+        let swept = self.sweep_steps(&sweeps, first, &bands, &mut slow).await;
+        if let Err(Interrupt::Pause(_) | Interrupt::Estop | Interrupt::Fatal(_)) = swept {
+            return swept;
+        }
+        let restored = self.restore_swept(&mut slow).await;
+        swept?;
+        restored?;
+        if self.c.plan.calibration.references() {
+            self.darks_all(&bands).await?;
+            self.normalise(&bands, None).await?;
+        }
+        Ok(())
+    }
+
+    /// The sweeps from step `first` on, each committed (`run_sweeps`); `slow`: the axis left at its sweep speed.
+    async fn sweep_steps(
+        &mut self,
+        sweeps: &gonio_campaign::Sweeps,
+        first: usize,
+        bands: &[f64],
+        slow: &mut Option<AxisRole>,
+    ) -> Result<(), Interrupt> {
+        let steps = &sweeps.schedule.steps;
         // The calibration cadence between arcs, and the closing calibration: as the schedule predicts them
         // (gonio_scheduler::sweep::schedule_sweeps).
         let every_s = self.c.plan.calibration.sweep_every_s();
         let mut last_calibration = self.t();
         for (k, step) in steps.iter().enumerate().skip(first) {
             self.safe_point()?;
-            let new_arc = k > first && steps.get(k - 1).is_some_and(|p| p.arc != step.arc);
-            if new_arc && every_s.is_some_and(|e| self.t() - last_calibration >= e) {
-                self.darks_all(&bands).await?;
-                self.normalise(&bands, None).await?;
-                last_calibration = self.t();
-            }
             let Some(arc) = sweeps.plan.arcs.get(step.arc) else {
                 return Err(Interrupt::Fatal(EngineError::NotRunnable {
                     id: self.id,
                     message: format!("sweep {k} names arc {} of {}", step.arc, sweeps.plan.arcs.len()),
                 }));
             };
+            let previous = k.checked_sub(1).and_then(|p| steps.get(p)).filter(|_| k > first);
+            let new_arc = previous.is_some_and(|p| p.arc != step.arc);
+            if new_arc && every_s.is_some_and(|e| self.t() - last_calibration >= e) {
+                self.restore_swept(slow).await?;
+                self.darks_all(bands).await?;
+                self.normalise(bands, None).await?;
+                last_calibration = self.t();
+            }
+            // The next piece of a chain sets its own speed where the last ended: no move, no restore between.
+            let role = swept_role(arc.request.arm);
+            let chained = previous.is_some_and(|p| p.end_pose == step.start_pose) && *slow == Some(role);
+            if !chained {
+                self.restore_swept(slow).await?;
+            }
             let index = |n: usize| u32::try_from(n).unwrap_or(u32::MAX);
+            // Left at the sweep's speed from its pass on, whatever happens after.
+            *slow = Some(role);
             self.sweep((index(k), index(steps.len())), step, arc).await?;
         }
-        if self.c.plan.calibration.references() {
-            self.darks_all(&bands).await?;
-            self.normalise(&bands, None).await?;
+        Ok(())
+    }
+
+    /// The axis a sweep left at its sweep speed (if any) set back to its own.
+    async fn restore_swept(&mut self, slow: &mut Option<AxisRole>) -> Result<(), Interrupt> {
+        let Some(role) = slow.take() else {
+            return Ok(());
+        };
+        if let Some(axis) = self.rig.axes().iter().find(|a| a.config.role == role) {
+            restore_speed(&self.motion, axis).await?;
         }
         Ok(())
     }

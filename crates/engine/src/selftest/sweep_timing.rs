@@ -23,7 +23,7 @@ use gonio_scheduler::timing::DETECTOR_SAMPLE_S;
 use super::fit::mean_std;
 use crate::align::centre::sorted;
 use crate::align::scan::Profile;
-use crate::motion::sweep::{Reader, ReportDating, load_offset_deg, sweep_axis};
+use crate::motion::sweep::{Reader, ReportDating, load_offset_deg, restore_speed, sweep_axis};
 use crate::motion::{Device, Motion, MotionError};
 use crate::rig::RigAxis;
 
@@ -226,6 +226,7 @@ pub(super) async fn measure_sampling(
                 motion.move_to(&at(from)).await?;
                 let mut meter = FastMeter { motion };
                 let pass = sweep_axis(motion, a, (from, to), v, REPORT_EVERY, on_sending, &mut meter).await?;
+                restore_speed(motion, a).await?;
                 motion.read_positions().await?;
                 assumed_s = assumed_s.max(pass.assumed_after_s);
                 let Some((lag, _)) = pass.lag_s() else {

@@ -82,7 +82,7 @@ pub fn follow_request(r: &SweepRequest, spec: &FollowSpec, time: &TimeModel) -> 
         let motion = m.leg.start_return_s;
         (
             m.accel_deg_s2,
-            sweep_time_s(m, motion, period, positions_read_s(time)) - motion,
+            sweep_time_s(m, motion, period, positions_read_s(time)) - motion + m.leg.set_velocity_s,
         )
     });
     FollowRequest {

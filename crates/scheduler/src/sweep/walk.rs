@@ -6,6 +6,7 @@ use crate::kinematics::Pose;
 use crate::plan::Plan;
 use crate::schedule::{calibration_preamble, cover_walk};
 use crate::timing::{AxisModel, DETECTOR_SAMPLE_S, Move, TimeModel, trapezoid_time_s};
+use gonio_instrument::AxisRole;
 
 /// One sweep of one arc in one band.
 #[derive(Debug, Clone, PartialEq)]
@@ -90,18 +91,18 @@ pub struct SweepCalibration<'a> {
     pub last: bool,
 }
 
-/// The time of one sweep on axis `m` whose motion takes `motion_s`, with a reading every `period_s`: the speed
-/// set; the move command; the readings until the motion is over (and the one under way then, half a period on
-/// average); the stop seen and checked; the speed restored; every axis's position read (`positions_read_s`).
+/// The time of one sweep on axis `m` whose motion takes `motion_s`, with a reading every `period_s`, besides
+/// setting its speed: the move command; the readings until the motion is over (and the one under way then, half
+/// a period on average); the stop seen and checked; every axis's position read (`positions_read_s`). The speed
+/// is the walk's ([`schedule_sweeps`]): set before each sweep (with the acceleration the first time), and the
+/// axis's own restored before anything else moves, not between the pieces of a chain.
 pub fn sweep_time_s(m: &AxisModel, motion_s: f64, period_s: f64, positions_read_s: f64) -> f64 {
     let leg = &m.leg;
-    leg.set_speed_s
-        + leg.command_s
+    leg.command_s
         + motion_s.max(leg.start_return_s)
         + 0.5 * period_s
         + leg.status_s
         + leg.arrived_s
-        + leg.set_speed_s
         + positions_read_s
 }
 
@@ -198,12 +199,28 @@ pub fn schedule_sweeps(
     }
     let every_s = calibration.and_then(|c| c.plan.calibration.sweep_every_s());
     let mut last_calibration = clock;
+    // The axis the last sweep left at its sweep speed, with what restoring its own costs: restored (by the
+    // engine, crates/engine/src/runner/sweep.rs) before a calibration, a move or another axis's sweep, and when
+    // the sweeps end; a chain's next piece sets its own speed from where the last ended. Counted in the sweep
+    // that left it so. And the axes whose acceleration the driver has written (their first sweep's).
+    let mut slow: Option<(AxisRole, f64)> = None;
+    let mut accel_written: Vec<AxisRole> = Vec::new();
+    let restore = |slow: &mut Option<(AxisRole, f64)>, clock: &mut f64, out: &mut SweepSchedule| {
+        if let Some((_, cost)) = slow.take() {
+            *clock += cost;
+            out.breakdown.sweep_s += cost;
+            if let Some(last) = out.steps.last_mut() {
+                last.sweep_s += cost;
+            }
+        }
+    };
     // The exchanges of every sweep besides its motion (`LegTiming`), and every axis's position read after it.
     let positions_read_s = positions_read_s(time);
     let chain = chains(plan);
     let mut left: Vec<usize> = (0..plan.arcs.len()).collect();
     while !left.is_empty() {
         if every_s.is_some_and(|e| clock - last_calibration >= e) {
+            restore(&mut slow, &mut clock, &mut out);
             clock += calibrate(&mut pose, &mut wheel, &mut out);
             last_calibration = clock;
         }
@@ -281,11 +298,22 @@ pub fn schedule_sweeps(
                 out.unreachable += 1;
                 break;
             };
+            let role = swept_role(arc.request.arm);
+            if pose != from || slow.is_some_and(|(r, _)| r != role) {
+                restore(&mut slow, &mut clock, &mut out);
+            }
             let wheel_s = time.wheel_time_s(wheel, position);
             let (motion_s, sweep_s) = match model {
                 Some(m) => {
                     let t = trapezoid_time_s(arc.length_deg(), v, m.accel_deg_s2);
-                    (t, sweep_time_s(m, t, period, positions_read_s))
+                    let set_s = if accel_written.contains(&role) {
+                        m.leg.set_velocity_s
+                    } else {
+                        accel_written.push(role);
+                        m.leg.set_speed_s
+                    };
+                    slow = Some((role, m.leg.set_velocity_s));
+                    (t, set_s + sweep_time_s(m, t, period, positions_read_s))
                 }
                 None => (0.0, 0.0),
             };
@@ -320,6 +348,7 @@ pub fn schedule_sweeps(
             forward = !forward;
         }
     }
+    restore(&mut slow, &mut clock, &mut out);
     if calibration.is_some_and(|c| c.plan.calibration.references()) {
         calibrate(&mut pose, &mut wheel, &mut out);
     }

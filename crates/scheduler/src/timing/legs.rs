@@ -72,8 +72,12 @@ pub struct LegTiming {
     pub first_seen_s: f64,
     /// One verified position read: a lone axis approaching against its backlash reads where it starts first.
     pub position_read_s: f64,
-    /// Setting the axis's speed and acceleration (a sweep sets them before and restores them after).
+    /// Setting the axis's speed and acceleration (the first sweep of an axis: the driver does not know what the
+    /// device holds until it has written both).
     pub set_speed_s: f64,
+    /// Setting the axis's speed alone (a later sweep, and the axis's own speed restored after sweeping: the
+    /// acceleration is the axis's own throughout, which the driver does not write again).
+    pub set_velocity_s: f64,
     /// From the move command until the driver's `start_move` returns (the SMC100's pause and `TE` after `PA`).
     pub start_return_s: f64,
     /// One status question while a sweep ends (SMC100: `TS` and the verified read-back).
@@ -102,6 +106,7 @@ impl LegTiming {
             first_seen_s: super::EXCHANGE_S,
             position_read_s: 0.0,
             set_speed_s: 0.0,
+            set_velocity_s: 0.0,
             start_return_s: 0.0,
             status_s: super::EXCHANGE_S,
             arrived_s: super::EXCHANGE_S,
@@ -122,6 +127,7 @@ impl LegTiming {
                     position_read_s: 2.0 * e,
                     // `VA` and `AC`, each a set command: the pause, then `TE`.
                     set_speed_s: 2.0 * (SMC100_SET_GAP_S + e),
+                    set_velocity_s: SMC100_SET_GAP_S + e,
                     start_return_s: SMC100_SET_GAP_S + e,
                     status_s: 3.0 * e,
                     arrived_s: 4.0 * e,
@@ -138,6 +144,7 @@ impl LegTiming {
                     position_read_s: e,
                     // `set maxspeed`, `set accel`, each acknowledged.
                     set_speed_s: 2.0 * e,
+                    set_velocity_s: e,
                     start_return_s: 0.0,
                     status_s: e,
                     arrived_s: e,
