@@ -217,6 +217,7 @@ pub fn schedule_sweeps(
     // The exchanges of every sweep besides its motion (`LegTiming`), and every axis's position read after it.
     let positions_read_s = positions_read_s(time);
     let chain = chains(plan);
+    let mut current: Option<(usize, bool)> = None;
     let mut left: Vec<usize> = (0..plan.arcs.len()).collect();
     while !left.is_empty() {
         if every_s.is_some_and(|e| clock - last_calibration >= e) {
@@ -243,6 +244,8 @@ pub fn schedule_sweeps(
                 .fold(None, |m: Option<f64>, c| Some(m.map_or(c, |m| m.min(c))))
                 .unwrap_or(0.0)
         };
+        // The chain being swept and its way, while it has pieces left: only its next piece is a candidate.
+        let going = current.filter(|(c, _)| ends[*c].0 != usize::MAX);
         // (entry cost, slot, forward, exit, chain) of every end left.
         let mut entries: Vec<(f64, usize, bool, &Pose, usize)> = Vec::new();
         for (slot, &a) in left.iter().enumerate() {
@@ -254,8 +257,10 @@ pub fn schedule_sweeps(
                 } else {
                     (last, &plan.arcs[first].piece.from_pose)
                 };
+                // A chain entered goes on one way to its other end.
+                let goes_on = going.is_none_or(|(c, way)| c == chain[a] && way == forward);
                 let cost = time.fast_cost_s(&pose, entry);
-                if end == a && cost.is_finite() {
+                if end == a && goes_on && cost.is_finite() {
                     entries.push((cost, slot, forward, exit, chain[a]));
                 }
             }
@@ -272,6 +277,7 @@ pub fn schedule_sweeps(
             break;
         };
         let a = left.remove(slot);
+        current = Some((chain[a], forward));
         let arc = &plan.arcs[a];
         let model = time
             .axes
