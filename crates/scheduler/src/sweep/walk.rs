@@ -226,9 +226,10 @@ pub fn schedule_sweeps(
             last_calibration = clock;
         }
         // A chain is entered at one of its ends and left at the other. The next: the one whose entry from where
-        // the arm is, plus the move from its exit to the nearest end of another chain, costs least (entered at
-        // the nearer end alone, the arm crossed the plastic's 160-degree arc once more between its stretches on
-        // either side of the source: section 7 of BENCHMARKS.md).
+        // the arm is, plus the move from its exit to the nearest end of another chain, costs least (chosen by
+        // its nearer end alone, the plastic's profile in section 7 of BENCHMARKS.md swept the specular side
+        // first and left the detector 100 degrees from the source side's nearer end: 10 s between the two
+        // stretches instead of 6.6 s).
         let ends = chain_ends(&chain, &left);
         let onward = |from: &Pose, own: usize| {
             ends.iter()
