@@ -1,7 +1,8 @@
 //! What every axis driver shares, whatever its protocol: the axis's configuration and motion settings
 //! ([`AxisCore`]), and the [`Axis`] trait built once over the few operations a protocol supplies
-//! ([`AxisDriver`]): limits checked before anything is sent, moves with the backlash approach, speeds checked and
-//! remembered for deadlines, the re-verification after a reconnect.
+//! ([`AxisDriver`]): limits checked before anything is sent, moves with the backlash approach, speeds checked,
+//! remembered for deadlines and not written again while the device is known to hold them, the re-verification
+//! after a reconnect.
 
 use std::future::Future;
 use std::sync::{Arc, Mutex};

@@ -8,6 +8,8 @@
 //!   neighbours) lies on the envelope `E exp(-t / tau)` times `cos(atan(1 / (omega tau)))`, the peaks of a
 //!   damped cosine falling short of its envelope by that factor. A line through the peaks' logarithms gives
 //!   `tau`, their spacing half the period; the settle time is where the envelope comes down to the tolerance.
+//!   Only the leading run of lobes above a quarter of the tolerance (and clear of the noise) is fitted: past it
+//!   the noise, or a meter's flicker between two steps, makes lobes of its own.
 //!   The envelope, not the last reading beyond the tolerance: readings a few milliseconds apart miss the peaks,
 //!   and the last peak beyond the tolerance may fall between two readings;
 //! - a load that creeps in without ringing (fewer than two whole lobes) settles where the last reading beyond

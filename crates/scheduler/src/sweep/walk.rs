@@ -135,8 +135,8 @@ fn chains(plan: &SweepPlan) -> Vec<usize> {
         .collect()
 }
 
-/// For each chain, its first and last arc left (indices into the plan's arcs; `usize::MAX` for a chain with
-/// none left). Arcs are taken from a chain's ends only, so those left are the ones between.
+/// For each chain, its first and last arc left (indices into the plan's arcs; a first of `usize::MAX` for a
+/// chain with none left). Arcs are taken from a chain's ends only, so those left are the ones between.
 fn chain_ends(chain: &[usize], left: &[usize]) -> Vec<(usize, usize)> {
     let n = chain.last().map_or(0, |m| m + 1);
     let mut ends = vec![(usize::MAX, 0); n];
