@@ -41,6 +41,9 @@ const CASES: [(&str, f64); 4] = [
 const RATIO_TARGET: f64 = 1.0 / 3.0;
 /// Runs at a constant speed, at most, to find the fastest that meets the tolerance.
 const CONSTANT_TRIES: usize = 4;
+/// The widest gap between the first pass's readings the truth is interpolated across (deg): they are 0.016 deg
+/// apart along a stretch.
+const TRUTH_GAP_DEG: f64 = 0.1;
 /// The step of the fastest speed law's integration along the arc (deg): [`Truth::fastest_law_s`].
 const BOUND_STEP_DEG: f64 = 0.05;
 
@@ -72,10 +75,13 @@ impl Truth {
         Truth { along, peak }
     }
 
+    /// The truth at `s`, linear between the first pass's readings; none past its ends or inside a gap between
+    /// them wider than [`TRUTH_GAP_DEG`] (the arc's stretches end at the retro-reflection block: a line across
+    /// it is no truth, and a reading reaching into it would seem to smear by the line's kink).
     fn at(&self, s: f64) -> Option<f64> {
         let i = self.along.partition_point(|(x, _)| *x < s);
         let (l, r) = (self.along.get(i.checked_sub(1)?)?, self.along.get(i)?);
-        Some(l.1 + (r.1 - l.1) * (s - l.0) / (r.0 - l.0))
+        (r.0 - l.0 <= TRUTH_GAP_DEG).then(|| l.1 + (r.1 - l.1) * (s - l.0) / (r.0 - l.0))
     }
 
     /// The smearing of a reading over `[a, b]` (module doc); `None` outside the truth.
@@ -441,6 +447,23 @@ mod tests {
         assert!((pauses_s(&r) - 4.9).abs() < 1e-9, "{}", pauses_s(&r));
         assert_eq!(pauses_s(&r[..50]), 0.0);
         assert_eq!(pauses_s(&[]), 0.0);
+    }
+
+    #[test]
+    fn a_reading_reaching_into_the_gap_between_stretches_is_not_judged() {
+        // Two stretches of a gently sloped truth with a 20-deg gap between them (the retro-reflection block): a
+        // line across the gap has a kink at the stretch's end, which a reading reaching over it would seem to
+        // smear by; the truth is not known there.
+        let along: Vec<(f64, f64)> = (0..=500)
+            .map(|k| -30.0 + 0.01 * f64::from(k))
+            .chain((0..=500).map(|k| -5.0 + 0.01 * f64::from(k)))
+            .map(|x| (x, 1.0 + 0.01 * (x + 15.0).abs()))
+            .collect();
+        let t = Truth { along, peak: 1.15 };
+        assert_eq!(t.at(-15.0), None);
+        assert!(t.smearing(-5.05, -4.9, false).is_none());
+        let inside = t.smearing(-4.95, -4.8, false).expect("within a stretch");
+        assert!(inside < 1e-9, "{inside}");
     }
 
     #[test]

@@ -9,10 +9,11 @@
 //!
 //! [`speed_profile`] turns samples of the BRDF along an arc (from a first pass at the top speed, or from a
 //! model) into pieces of constant speed: each sample's speed is the slowest any reading near it needs (the
-//! curvature's largest magnitude within half a reading's arc around it, the arc at that speed); the arc is cut where that
-//! speed crosses a ladder of speeds a factor `sqrt(2)` apart, so that the pieces stay few, and each piece is
-//! swept at the slowest speed any of its samples allows; pieces shorter than `min_piece_deg` are merged into a
-//! slower neighbour. Each piece carries the largest smearing predicted for its readings.
+//! curvature's largest magnitude within half a reading's arc around it, the arc at that speed); each piece is
+//! swept at the slowest speed any of its samples allows, and the arc is cut where the pieces sweep it soonest
+//! (dynamic programming over the cuts between samples), each piece costing its motion with its ramps and the
+//! exchanges around it, none shorter than `min_piece_deg`. Each piece carries the largest smearing predicted for
+//! its readings.
 //! [`profile_time_s`] is the time to sweep the pieces one after the other, each a move of its own.
 
 /// A stretch of an arc swept at one speed.
@@ -45,8 +46,8 @@ pub struct FollowRequest {
     /// the low tails of a lobe go fast.
     pub relative_to: RelativeTo,
     /// The swept axis's acceleration (deg/s^2) and what each piece costs besides its motion (s: its speed set
-    /// and restored, its start and stop seen, the reading under way at its end). Neighbouring pieces are merged
-    /// (at the slower speed) while that saves time; `per_piece_s = 0` merges none.
+    /// and restored, its start and stop seen, the reading under way at its end): what the cut into pieces weighs
+    /// against sweeping a stretch slower than it needs.
     pub accel_deg_s2: f64,
     pub per_piece_s: f64,
 }
@@ -63,9 +64,6 @@ pub enum RelativeTo {
 }
 
 use crate::timing::trapezoid_time_s;
-
-/// Ratio between consecutive speeds of the ladder.
-const LADDER: f64 = std::f64::consts::SQRT_2;
 
 /// The share of the tolerance each piece's speed is sized for. The bend comes from a first pass's readings,
 /// binned and through their noise, and `f'' L^2 / 24` is the smearing's leading order only: sized for the whole
@@ -150,8 +148,6 @@ pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> 
         widest.push(next);
     }
     let smearing = |v: f64, bend: f64| bend * (v * req.integration_s).powi(2) / 24.0;
-    // The ladder step of each sample: 0 is the top speed, k is top / LADDER^k, never below the floor.
-    let floor_step = ((req.top_speed_deg_s / req.min_speed_deg_s).ln() / LADDER.ln()).floor() as u32;
     // The fastest speed each sample allows, between the floor and the top speed: the fastest over the windows
     // k of a speed whose reach is at most k and that the worst bend within k allows.
     let allowed = |b: f64| {
@@ -178,103 +174,75 @@ pub fn speed_profile_curves(curves: &[Vec<(f64, f64)>], req: &FollowRequest) -> 
         .collect();
     // Each sample's worst bend: within its own speed's reach (what its piece's smearing is predicted from).
     let bend: Vec<f64> = (0..n).map(|i| widest[reach(need[i]).min(top_reach)][i]).collect();
-    let steps: Vec<u32> = need
-        .iter()
-        .map(|&v| {
-            if v >= req.top_speed_deg_s {
-                0
-            } else {
-                (((req.top_speed_deg_s / v).ln() / LADDER.ln()).ceil() as u32).min(floor_step + 1)
+    // The cut into pieces that sweeps the arc soonest, by dynamic programming over the cuts between samples: a
+    // piece of samples a..=b runs at the slowest speed any of them allows, and costs its motion (a trapezoid:
+    // its ramps) and `per_piece_s` (its exchanges); no piece is shorter than `min_piece_deg` unless the arc is.
+    // Cutting only ever lets a stretch go faster than its slowest sample, never faster than its own samples
+    // allow, so every reading stays within the tolerance whatever the cut.
+    let from_of = |a: usize| {
+        if a == 0 {
+            samples[0].0
+        } else {
+            samples[a].0 - h / 2.0
+        }
+    };
+    let to_of = |b: usize| {
+        if b == n - 1 {
+            samples[n - 1].0
+        } else {
+            samples[b].0 + h / 2.0
+        }
+    };
+    let ramps = req.accel_deg_s2 > 0.0 && req.accel_deg_s2.is_finite();
+    let piece_s = |length: f64, v: f64| {
+        let motion = if ramps {
+            trapezoid_time_s(length, v, req.accel_deg_s2)
+        } else {
+            length / v
+        };
+        motion + req.per_piece_s.max(0.0)
+    };
+    let whole = samples[n - 1].0 - samples[0].0;
+    // best[b + 1]: the least time to sweep samples 0..=b, with the first sample of its last piece.
+    let mut best: Vec<(f64, usize)> = vec![(f64::INFINITY, 0); n + 1];
+    best[0] = (0.0, 0);
+    for b in 0..n {
+        let mut slowest = f64::INFINITY;
+        for a in (0..=b).rev() {
+            slowest = slowest.min(need[a]);
+            let length = to_of(b) - from_of(a);
+            let allowed = length >= req.min_piece_deg || (a == 0 && b == n - 1) || whole < req.min_piece_deg;
+            if !allowed || !best[a].0.is_finite() {
+                continue;
             }
-        })
-        .collect();
-    // Runs of one step, as (first sample, last sample, step).
-    let mut runs: Vec<(usize, usize, u32)> = Vec::new();
-    for (i, &k) in steps.iter().enumerate() {
-        match runs.last_mut() {
-            Some(r) if r.2 == k => r.1 = i,
-            _ => runs.push((i, i, k)),
-        }
-    }
-    // Merge runs shorter than a piece into the slower neighbour (the slower speed holds both).
-    let length = |r: &(usize, usize, u32)| samples[r.1].0 - samples[r.0].0 + h;
-    while runs.len() > 1 {
-        let Some(short) = (0..runs.len())
-            .filter(|&i| length(&runs[i]) < req.min_piece_deg)
-            .min_by(|&a, &b| length(&runs[a]).total_cmp(&length(&runs[b])))
-        else {
-            break;
-        };
-        let with = match (
-            short.checked_sub(1),
-            (short + 1 < runs.len()).then_some(short + 1),
-        ) {
-            (Some(l), Some(r)) => {
-                if runs[l].2 >= runs[r].2 {
-                    l
-                } else {
-                    r
-                }
+            let t = best[a].0 + piece_s(length, slowest);
+            if t < best[b + 1].0 {
+                best[b + 1] = (t, a);
             }
-            (Some(l), None) => l,
-            (None, Some(r)) => r,
-            (None, None) => break,
-        };
-        let (a, b) = (short.min(with), short.max(with));
-        runs[a] = (runs[a].0, runs[b].1, runs[a].2.max(runs[b].2));
-        runs.remove(b);
-    }
-    // Merging may leave neighbours of one speed: one piece (one move) each.
-    runs.dedup_by(|next, kept| {
-        let same = next.2 == kept.2;
-        if same {
-            kept.1 = next.1;
-        }
-        same
-    });
-    // A piece costs its ramps and its exchanges: merge the neighbours whose merging saves the most time, while
-    // one does (merging only ever slows a stretch down, so every reading stays within the tolerance).
-    // A piece's speed: the slowest any of its samples allows (at least its ladder step's speed).
-    let speed = |r: &(usize, usize, u32)| need[r.0..=r.1].iter().copied().fold(f64::INFINITY, f64::min);
-    if req.per_piece_s > 0.0 && req.accel_deg_s2 > 0.0 && req.accel_deg_s2.is_finite() {
-        let time = |r: &(usize, usize, u32)| {
-            trapezoid_time_s(length(r), speed(r), req.accel_deg_s2) + req.per_piece_s
-        };
-        let joined = |a: &(usize, usize, u32), b: &(usize, usize, u32)| (a.0, b.1, a.2.max(b.2));
-        loop {
-            let best = (1..runs.len())
-                .map(|i| {
-                    let gain = time(&runs[i - 1]) + time(&runs[i]) - time(&joined(&runs[i - 1], &runs[i]));
-                    (i, gain)
-                })
-                .filter(|(_, gain)| *gain > 0.0)
-                .max_by(|a, b| a.1.total_cmp(&b.1));
-            let Some((i, _)) = best else {
-                break;
-            };
-            runs[i - 1] = joined(&runs[i - 1], &runs[i]);
-            runs.remove(i);
         }
     }
-    let last = runs.len().saturating_sub(1);
+    // The pieces as (first sample, last sample), from the end back; one piece when no cut meets the shortest.
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    let mut b = n;
+    while b > 0 && best[b].0.is_finite() {
+        let a = best[b].1;
+        runs.push((a, b - 1));
+        b = a;
+    }
+    if b > 0 || runs.is_empty() {
+        runs = vec![(0, n - 1)];
+    }
+    runs.reverse();
+    let speed = |r: &(usize, usize)| need[r.0..=r.1].iter().copied().fold(f64::INFINITY, f64::min);
     runs.iter()
-        .enumerate()
-        .map(|(j, r)| {
+        .map(|r| {
             let (a, b) = (r.0, r.1);
             let v = speed(r);
             let worst = bend[a..=b].iter().copied().fold(0.0, f64::max);
             FollowPiece {
                 // Pieces meet half-way between their samples; the arc's ends are its first and last samples.
-                from_deg: if j == 0 {
-                    samples[a].0
-                } else {
-                    samples[a].0 - h / 2.0
-                },
-                to_deg: if j == last {
-                    samples[b].0
-                } else {
-                    samples[b].0 + h / 2.0
-                },
+                from_deg: from_of(a),
+                to_deg: to_of(b),
                 speed_deg_s: v,
                 smearing_rel: smearing(v, worst),
             }
@@ -483,48 +451,79 @@ mod tests {
     }
 
     #[test]
-    fn pieces_are_merged_while_merging_saves_time_and_every_reading_stays_within_the_tolerance() {
-        let samples = sampled(lobe, -80.0, 80.0, 0.05);
-        let overhead = 0.5;
-        let all = speed_profile(&samples, &request());
-        let merged_req = FollowRequest {
-            per_piece_s: overhead,
+    fn the_cut_into_pieces_is_the_fastest_of_every_cut_and_no_piece_is_faster_than_its_samples_allow() {
+        // Thirteen samples across a lobe: every cut between them (4,096) tried by hand.
+        let samples = sampled(|s| 1.0 + 50.0 * (-s * s / 4.0).exp(), -3.0, 3.0, 0.5);
+        let n = samples.len();
+        let h = 0.5;
+        // Each sample's own speed: the profile when a piece costs nothing (no exchanges, no ramps, no shortest).
+        let free = FollowRequest {
+            min_piece_deg: 0.0,
+            accel_deg_s2: f64::INFINITY,
             ..request()
         };
-        let merged = speed_profile(&samples, &merged_req);
-        let (t_all, t_merged) = (
-            profile_time_s(&all, 80.0, overhead),
-            profile_time_s(&merged, 80.0, overhead),
-        );
-        eprintln!(
-            "{} pieces {t_all:.2} s, merged {} pieces {t_merged:.2} s",
-            all.len(),
-            merged.len()
-        );
-        assert!(merged.len() < all.len(), "{all:?}");
-        assert!(t_merged < t_all, "{t_merged} against {t_all}");
-        // No further merge of two neighbours saves time.
-        for w in merged.windows(2) {
-            let one = FollowPiece {
-                from_deg: w[0].from_deg,
-                to_deg: w[1].to_deg,
-                speed_deg_s: w[0].speed_deg_s.min(w[1].speed_deg_s),
-                smearing_rel: 0.0,
-            };
-            assert!(
-                profile_time_s(&[one], 80.0, overhead) >= profile_time_s(w, 80.0, overhead) - 1e-9,
-                "{w:?}"
-            );
+        let fine = speed_profile(&samples, &free);
+        let need: Vec<f64> = samples
+            .iter()
+            .map(|(s, _)| {
+                fine.iter()
+                    .find(|p| p.from_deg - 1e-9 <= *s && *s <= p.to_deg + 1e-9)
+                    .map(|p| p.speed_deg_s)
+                    .expect("every sample in a piece")
+            })
+            .collect();
+        assert!(fine.len() >= 3, "{fine:?}");
+        let costly = FollowRequest {
+            per_piece_s: 0.2,
+            min_piece_deg: 1.0,
+            ..request()
+        };
+        let cut = speed_profile(&samples, &costly);
+        let cut_s = profile_time_s(&cut, costly.accel_deg_s2, costly.per_piece_s);
+        let edge = |k: usize| {
+            if k == 0 {
+                samples[0].0
+            } else if k == n {
+                samples[n - 1].0
+            } else {
+                samples[k].0 - h / 2.0
+            }
+        };
+        let mut fastest = f64::INFINITY;
+        for mask in 0u32..(1 << (n - 1)) {
+            // Bit i: a cut between samples i and i + 1.
+            let mut bounds = vec![0];
+            bounds.extend((0..n - 1).filter(|i| mask & (1 << i) != 0).map(|i| i + 1));
+            bounds.push(n);
+            let pieces: Option<Vec<FollowPiece>> = bounds
+                .windows(2)
+                .map(|w| {
+                    let (from_deg, to_deg) = (edge(w[0]), edge(w[1]));
+                    (to_deg - from_deg >= costly.min_piece_deg).then(|| FollowPiece {
+                        from_deg,
+                        to_deg,
+                        speed_deg_s: need[w[0]..w[1]].iter().copied().fold(f64::INFINITY, f64::min),
+                        smearing_rel: 0.0,
+                    })
+                })
+                .collect();
+            if let Some(p) = pieces {
+                fastest = fastest.min(profile_time_s(&p, costly.accel_deg_s2, costly.per_piece_s));
+            }
         }
-        // Every stretch at most as fast as before.
-        for p in &all {
-            let mid = 0.5 * (p.from_deg + p.to_deg);
-            let q = merged
+        assert!(
+            (cut_s - fastest).abs() < 1e-9,
+            "{cut_s} against {fastest} by hand: {cut:?}"
+        );
+        assert!(cut.len() < fine.len(), "{cut:?}");
+        // No stretch faster than its own samples allow, none predicted over the tolerance.
+        for (s, v) in samples.iter().zip(&need) {
+            let p = cut
                 .iter()
-                .find(|q| q.from_deg <= mid && mid <= q.to_deg)
-                .unwrap();
-            assert!(q.speed_deg_s <= p.speed_deg_s, "{q:?} over {p:?}");
-            assert!(q.smearing_rel <= request().tolerance_rel * (1.0 + 1e-12));
+                .find(|p| p.from_deg - 1e-9 <= s.0 && s.0 <= p.to_deg + 1e-9)
+                .expect("covered");
+            assert!(p.speed_deg_s <= *v, "{p:?} over {v} at {}", s.0);
+            assert!(p.smearing_rel <= costly.tolerance_rel * (1.0 + 1e-12));
         }
     }
 
