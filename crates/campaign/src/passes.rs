@@ -68,7 +68,7 @@ pub struct AdaptivePlan {
     pub(crate) adaptive: Adaptive,
     /// `[plan]` without the grid and the adaptive table: bands, repeats, calibration cadence.
     batch_spec: PlanSpec,
-    instrument: gonio_instrument::Instrument,
+    pub(crate) instrument: gonio_instrument::Instrument,
     traits: gonio_scheduler::plan::SampleTraits,
     sample_radius_mm: Option<f64>,
     pub(crate) time: TimeModel,

@@ -8,7 +8,8 @@
 //!   stops, and comes back up: two profiles back to back.
 //! - All axes of a phase start together; the phase ends when the last one arrives. Normally a move is one phase.
 //!   Moving both arms at once keeps [`TimeModel::arm_stopping_margin_deg`] more than that separation at every
-//!   instant: if one arm stops dead (a stall), the other runs on until the engine sees it and stops it.
+//!   instant (if one arm stops dead, a stall, the other runs on until the engine sees it and stops it), unless
+//!   the ranges the two arms sweep stay that separation apart: no stall can bring them closer then.
 //!   When the simultaneous move would bring the arms closer than `min_arm_separation_deg` at some instant, the
 //!   move is split into two phases: one arm (with tilt and rotation) first, then the other arm. One of the two
 //!   orders is always safe when both end poses are (proof at [`TimeModel::plan_move`]).
@@ -304,13 +305,12 @@ impl TimeModel {
         let (l0, ls) = path(AxisRole::LightArm);
         let (d0, ds) = path(AxisRole::DetectorArm);
         let both_move = !ls.is_empty() && !ds.is_empty();
-        let sep = self.min_arm_separation_deg - ANGLE_TOLERANCE_DEG
-            + if both_move {
-                self.arm_stopping_margin_deg()
-            } else {
-                0.0
-            };
-        // Fast sufficient test: the whole ranges swept by the two arms stay apart.
+        let apart = self.min_arm_separation_deg - ANGLE_TOLERANCE_DEG;
+        // Sufficient whether one arm moves or both: the whole ranges swept by the two arms stay apart. An arm
+        // never leaves the range of its own commanded path, whatever befalls the other (a stalled arm stops on
+        // it, one stopped by the engine brakes no harder than its profile's own deceleration), so no stall can
+        // bring them closer than the ranges' gap, and no stopping margin is needed: arms moving apart from the
+        // closest pose allowed (a sweep ended beside the light arm) move together.
         let range = |p0: f64, segs: &[Trapezoid]| {
             segs.iter().fold((p0, p0), |(lo, hi), s| {
                 (lo.min(s.to_deg).min(s.from_deg), hi.max(s.to_deg).max(s.from_deg))
@@ -318,9 +318,16 @@ impl TimeModel {
         };
         let (llo, lhi) = range(l0, &ls);
         let (dlo, dhi) = range(d0, &ds);
-        if !approaches_multiple_of_360(llo - dhi, lhi - dlo, sep) {
+        if !approaches_multiple_of_360(llo - dhi, lhi - dlo, apart) {
             return true;
         }
+        // Ranges that overlap: the arms' positions at each instant, with the stopping margin when both move.
+        let sep = apart
+            + if both_move {
+                self.arm_stopping_margin_deg()
+            } else {
+                0.0
+            };
         // Exact test: between consecutive profile breakpoints both arms are quadratic in time, so their
         // difference is too; its extremes on each interval are at the ends or at the vertex.
         let mut breaks = vec![0.0];
@@ -473,8 +480,8 @@ impl TimeModel {
                 swept[k] = (p0.min(p1) - reach, p0.max(p1) + reach);
             }
         }
-        // With the stopping margin, ranges this far apart pass `phase_is_safe` whether one arm moves or both.
-        let sep = self.min_arm_separation_deg - ANGLE_TOLERANCE_DEG + self.arm_stopping_margin_deg();
+        // Ranges this far apart pass `phase_is_safe` whether one arm moves or both.
+        let sep = self.min_arm_separation_deg - ANGLE_TOLERANCE_DEG;
         let (l, d) = (swept[0], swept[1]);
         if self.axes[0].is_some()
             && self.axes[1].is_some()

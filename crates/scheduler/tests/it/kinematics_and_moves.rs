@@ -155,6 +155,32 @@ fn a_move_that_would_cross_mid_way_is_split_into_two_safe_phases() {
     );
 }
 
+#[test]
+fn arms_that_only_move_apart_from_the_closest_pose_allowed_move_together() {
+    let inst = simulated();
+    let tm = TimeModel::new(&inst);
+    // A sweep ended with the detector just beyond the separation from the light arm (10 deg on the simulated
+    // instrument); the next stretch has the light arm on the other side and the detector far up: each arm only
+    // moves away from the other (the light's backlash approach of 0.02 deg included), so no stall of one can
+    // bring the other closer than they start. One phase, as long as its slowest axis.
+    let from = Pose::new(30.0, 40.02, 0.0, 0.0);
+    let to = Pose::new(-30.0, 80.0, 0.0, -180.0);
+    let m = tm.plan_move(&from, &to).expect("a safe move");
+    assert_eq!(m.phases.len(), 1, "{m:?}");
+    let rotation = trapezoid_time_s(180.0, 30.0, 120.0);
+    assert!(m.motion_s < rotation + 0.1, "{m:?}");
+    assert!(min_separation_during(&inst, &from, &m, 1e-3) >= 10.0 - 1e-6);
+    // Arms whose swept ranges overlap still keep the stopping margin: the detector following the light arm
+    // 12.5 deg behind is two phases (crates/soak/tests/safety_soak.rs has the case the safety soak caught).
+    let m = tm
+        .plan_move(
+            &Pose::new(-6.25, 6.25, 0.0, 0.0),
+            &Pose::new(-60.0, -20.0, 0.0, 0.0),
+        )
+        .expect("a safe move");
+    assert_eq!(m.phases.len(), 2, "{m:?}");
+}
+
 fn geometry_strategy() -> impl Strategy<Value = Geometry> {
     prop_oneof![
         8 => (0.0..89.0f64, -180.0..180.0f64, 0.0..89.0f64, -180.0..180.0f64)
