@@ -126,6 +126,20 @@ impl<'r> Motion<'r> {
         &self.readback
     }
 
+    /// The read-back of the axis of `role` after a motion of its own (a sweep's arrival), the others unmoved.
+    /// A read-back that is not a number leaves everything as it was.
+    pub(crate) fn arrived(&mut self, role: gonio_instrument::AxisRole, deg: f64) {
+        if !deg.is_finite() {
+            return;
+        }
+        if let Some(idx) = self.rig.axes().iter().position(|a| a.config.role == role) {
+            if let Some(slot) = self.readback.get_mut(idx) {
+                *slot = deg;
+            }
+            self.current.set(role, deg);
+        }
+    }
+
     /// Reference the instrument: ask every axis whether it is referenced, home those that are not (the arms in
     /// an order that never sweeps one through the other), then read every axis back.
     pub async fn reference_all(&mut self) -> Result<(), MotionError> {

@@ -5,7 +5,8 @@
 //! commanded, `reader` read back to back until the axis has arrived, a position report asked beside every
 //! `report_every`-th reading (concurrently: the controller's line and the meter's are separate), then the
 //! verified arrival; the caller sets the axis's own speed back ([`restore_speed`]). What comes back is the commanded trapezoid (started when
-//! the command went out), each reading's request time with what it read, and the dated reports. Where the arm
+//! the command went out), each reading's request time with what it read, the dated reports, and the swept axis's read-back at its
+//! arrival (where it is: the other axes did not move, and are not asked). Where the arm
 //! was at any instant is then the trapezoid shifted by the arm's lag behind it, which [`Pass::lag_s`] takes from
 //! the reports made while it cruised.
 //!
@@ -95,6 +96,8 @@ pub(crate) struct Pass<R> {
     pub assumed_after_s: f64,
     /// How the reports were dated.
     pub dating: ReportDating,
+    /// The axis's read-back at its arrival (physical degrees).
+    pub arrived_deg: f64,
 }
 
 impl<R> Pass<R> {
@@ -187,7 +190,9 @@ pub(crate) async fn sweep_axis<R: Reader>(
         widest_window_s: 0.0,
         assumed_after_s: 0.0,
         dating,
+        arrived_deg: f64::NAN,
     };
+    let end_s = profile.t0_s + profile.duration_s();
     loop {
         if motion.control.estop_requested() {
             let _ = axis.driver.stop().await;
@@ -219,7 +224,7 @@ pub(crate) async fn sweep_axis<R: Reader>(
         };
         pass.taken.push((requested_s, reading));
         let now = clock.now_s();
-        if now >= profile.t0_s + profile.duration_s() {
+        if now >= end_s {
             let status = axis.driver.status().await;
             if status.as_ref().is_ok_and(|s| !s.moving) {
                 break;
@@ -236,7 +241,7 @@ pub(crate) async fn sweep_axis<R: Reader>(
         }
     }
     let what = format!("end the sweep of {} at {to_deg:.4} deg", cfg.name);
-    motion
+    pass.arrived_deg = motion
         .device(Device::Axis(axis), &what, || axis.driver.wait_arrived(to_deg))
         .await?;
     Ok(pass)
@@ -347,6 +352,7 @@ mod tests {
                 bytes_per_s: 0.0,
                 sampled_after_s: None,
             },
+            arrived_deg: 12.0,
         };
         let (median, spread) = pass.lag_s().expect("reports on the cruise");
         assert!((median - lag).abs() < 1e-9, "{median}");
@@ -362,6 +368,7 @@ mod tests {
                 bytes_per_s: 0.0,
                 sampled_after_s: Some(0.0),
             },
+            arrived_deg: 12.0,
         };
         assert_eq!(none.lag_s(), None);
         // Told when the controller takes its positions: no window is left unknown.

@@ -270,7 +270,8 @@ impl Run<'_> {
         )
         .await?;
         self.configured_nm = None;
-        self.motion.read_positions().await?;
+        // Only the swept axis moved: its arrival's read-back is where it is (the others are where they were).
+        self.motion.arrived(role, pass.arrived_deg);
         let ended = self.t();
         let clock = self.motion.clock();
         let profile = pass.profile;

@@ -19,7 +19,7 @@ use super::follow::{self, FollowPiece, FollowRequest};
 use super::path::{Piece, swept_role};
 use super::spec::{MIN_PIECE_DEG, SweepRequest};
 use super::sweep_reading_period_s;
-use super::walk::{positions_read_s, sweep_time_s};
+use super::walk::sweep_time_s;
 use crate::kinematics::Geometry;
 use crate::plan::FollowSpec;
 use crate::timing::{DETECTOR_SAMPLE_S, TimeModel};
@@ -82,7 +82,7 @@ pub fn follow_request(r: &SweepRequest, spec: &FollowSpec, time: &TimeModel) -> 
         let motion = m.leg.start_return_s;
         (
             m.accel_deg_s2,
-            sweep_time_s(m, motion, period, positions_read_s(time)) - motion + m.leg.set_velocity_s,
+            sweep_time_s(m, motion, period) - motion + m.leg.set_velocity_s,
         )
     });
     FollowRequest {

@@ -50,7 +50,7 @@ pub struct SweepBreakdown {
     pub settle_s: f64,
     pub wheel_s: f64,
     /// The sweeps themselves (their readings run during them), with the exchanges around each (setting and
-    /// restoring the axis's speed, seeing it stop, reading every axis's position).
+    /// restoring the axis's speed, seeing it stop and where it stopped).
     pub sweep_s: f64,
     /// The calibration that opens the sweeps when no point precedes them (darks, normalisation readings).
     pub calibration_s: f64,
@@ -93,17 +93,13 @@ pub struct SweepCalibration<'a> {
 
 /// The time of one sweep on axis `m` whose motion takes `motion_s`, with a reading every `period_s`, besides
 /// setting its speed: the move command; the readings until the motion is over (and the one under way then, half
-/// a period on average); the stop seen and checked; every axis's position read (`positions_read_s`). The speed
+/// a period on average); the stop seen and checked, with the swept axis's read-back (no other axis moved, and
+/// none is asked where it is). The speed
 /// is the walk's ([`schedule_sweeps`]): set before each sweep (with the acceleration the first time), and the
 /// axis's own restored before anything else moves, not between the pieces of a chain.
-pub fn sweep_time_s(m: &AxisModel, motion_s: f64, period_s: f64, positions_read_s: f64) -> f64 {
+pub fn sweep_time_s(m: &AxisModel, motion_s: f64, period_s: f64) -> f64 {
     let leg = &m.leg;
-    leg.command_s
-        + motion_s.max(leg.start_return_s)
-        + 0.5 * period_s
-        + leg.status_s
-        + leg.arrived_s
-        + positions_read_s
+    leg.command_s + motion_s.max(leg.start_return_s) + 0.5 * period_s + leg.status_s + leg.arrived_s
 }
 
 /// How many of the nearest chain ends the ordering weighs with the move after them.
@@ -146,11 +142,6 @@ fn chain_ends(chain: &[usize], left: &[usize]) -> Vec<(usize, usize)> {
         *last = (*last).max(a);
     }
     ends
-}
-
-/// Every axis's position read after a sweep (s).
-pub fn positions_read_s(time: &TimeModel) -> f64 {
-    time.axes.iter().flatten().map(|m| m.leg.position_read_s).sum()
 }
 
 /// Order and time the sweeps from `start` (the pose and wheel position the instrument is in; none: at the first
@@ -214,8 +205,6 @@ pub fn schedule_sweeps(
             }
         }
     };
-    // The exchanges of every sweep besides its motion (`LegTiming`), and every axis's position read after it.
-    let positions_read_s = positions_read_s(time);
     let chain = chains(plan);
     let mut current: Option<(usize, bool)> = None;
     let mut left: Vec<usize> = (0..plan.arcs.len()).collect();
@@ -320,7 +309,7 @@ pub fn schedule_sweeps(
                         m.leg.set_speed_s
                     };
                     slow = Some((role, m.leg.set_velocity_s));
-                    (t, set_s + sweep_time_s(m, t, period, positions_read_s))
+                    (t, set_s + sweep_time_s(m, t, period))
                 }
                 None => (0.0, 0.0),
             };

@@ -199,10 +199,10 @@ fn a_sweep_takes_its_trapezoid_and_reads_throughout_back_and_forth_over_the_band
         // 65 ms pause after a set command; Zaber at 115200: 3 ms): VA and AC set on the first sweep, VA alone on
         // the others (the driver knows the acceleration is the axis's), 67 ms each; the axis's own VA restored
         // once, after the last (each band starts where the last ended); TP TP before PA, 4 ms; half a 7 ms
-        // reading; TS TP TP, 6 ms; PT TS TP TP, 8 ms; every axis's position, 2 x 4 + 2 x 3 ms.
+        // reading; TS TP TP, 6 ms; PT TS TP TP, 8 ms (its TP TP the read-back; no other axis is asked).
         let set = if k == 0 { 2.0 * 0.067 } else { 0.067 };
         let restore = if k + 1 == sched.steps.len() { 0.067 } else { 0.0 };
-        let overhead = set + restore + 0.004 + 0.0035 + 0.006 + 0.008 + 0.014;
+        let overhead = set + restore + 0.004 + 0.0035 + 0.006 + 0.008;
         assert!(
             (step.sweep_s - step.motion_s - overhead).abs() < 1e-9,
             "{}",
