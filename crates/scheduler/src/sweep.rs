@@ -12,6 +12,7 @@
 //! speed_deg_s = 2.0                         # the swept arm's speed at cruise
 //! averaging = 1                             # meter samples per sweep reading; default 1
 //! follow = { first_pass = "out/first", tolerance_rel = 2e-3 }  # optional: speed that follows the BRDF
+//! isotropic = true                          # optional: the sample is isotropic (below); default false
 //! # arm = "light": theta_o_deg holds the detector (list or range, at phi_o = plane + 180) and theta_i_deg is
 //! # the swept arc { from, to }: > 0 with the source opposite the detector (phi_i = plane), < 0 on its side.
 //! ```
@@ -23,7 +24,12 @@
 //! grazing limit, overfill, the retro-reflection block, the arm separation), the swept axis's limits, and the
 //! side of the arms the plan keeps (the arms never pass each other). What fails is cut out; an arc crossing the
 //! retro-reflection block becomes two pieces, the one beyond the source swept with the mirror axis solution
-//! (the arms keep their order). The degrees cut are reported by rule.
+//! (the arms keep their order): on an in-plane arc, the sample turned half a turn and the light arm on the other
+//! side. With `isotropic = true` (the lab declares that the sample's BRDF depends on the azimuths through their
+//! difference only) such a stretch is measured on the arc turned about the normal instead (plane + 180 deg:
+//! every swept angle keeps theta_i, theta_o and the azimuths' difference), the sample held: only the light arm
+//! changes sides between the stretches. Its readings carry the geometry measured. The degrees cut are reported by
+//! rule.
 //!
 //! # The time model of a sweep step
 //! A step moves to the piece's start (`TimeModel::plan_move`, settle included), turns the wheel to its band
@@ -32,8 +38,8 @@
 //! hold), one plain move to the piece's other end at the entry's speed (`speed_deg_s` at cruise, the axis's own
 //! acceleration, no backlash approach: the pose of a reading comes from the controller's position reports, not
 //! from the direction of approach), the reading under way when the motion ends (half a period on average), the
-//! stop seen and checked (`status_s`, `arrived_s`), and every axis's position read back, as the engine does it
-//! (`crates/engine/src/runner/sweep.rs`). The axis's own speed is restored (`set_velocity_s`) before anything
+//! stop seen and checked with the swept axis's read-back (`status_s`, `arrived_s`; no other axis moved), as the
+//! engine does it (`crates/engine/src/runner/sweep.rs`). The axis's own speed is restored (`set_velocity_s`) before anything
 //! else moves (a move, a calibration, another axis's sweep) and when the sweeps end, not between the pieces of a
 //! chain (below): the next sets its own. When no point precedes the sweeps, the calibration that opens
 //! a session comes first (`crate::schedule::calibration_preamble`). The meter reads back to back while the arm
@@ -85,6 +91,8 @@ pub fn sweep_reading_period_s(averaging: u32) -> f64 {
 /// One sweepable arc: a piece of a requested arc.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SweepArc {
+    /// The arc the piece measures: its request, or the request turned about the normal when the piece is
+    /// (`Piece::turned`: an isotropic sample's stretch swept without turning the sample).
     pub request: SweepRequest,
     pub piece: Piece,
 }
@@ -196,7 +204,7 @@ pub fn build_sweeps(
                     .map(|(piece, speed_deg_s)| SweepArc {
                         request: SweepRequest {
                             speed_deg_s,
-                            ..request
+                            ..request.turned_if(piece.turned)
                         },
                         piece,
                     })
@@ -211,12 +219,10 @@ pub fn build_sweeps(
                     ),
                 });
             }
-            (false, _) => plan.arcs.extend(
-                verdict
-                    .pieces
-                    .into_iter()
-                    .map(|piece| SweepArc { request, piece }),
-            ),
+            (false, _) => plan.arcs.extend(verdict.pieces.into_iter().map(|piece| SweepArc {
+                request: request.turned_if(piece.turned),
+                piece,
+            })),
         }
     }
     Ok(plan)

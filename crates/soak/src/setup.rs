@@ -120,6 +120,7 @@ pub fn soak_sweeps() -> Vec<SweepSpec> {
         speed_deg_s: 10.0,
         averaging: 2,
         follow: None,
+        isotropic: false,
     }]
 }
 

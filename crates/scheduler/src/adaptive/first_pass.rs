@@ -109,6 +109,7 @@ impl Adaptive {
             speed_deg_s: f.speed_deg_s,
             averaging: f.averaging,
             follow: None,
+            isotropic: false,
         }])
     }
 

@@ -418,6 +418,11 @@ pub struct SweepSpec {
     /// Speed that follows the BRDF (`crate::sweep::follow`): `speed_deg_s` is then the top speed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub follow: Option<FollowSpec>,
+    /// The sample is isotropic (its BRDF depends on the azimuths through their difference only): a stretch of
+    /// the arc that would need the sample turned half a turn is measured with the arc turned about the normal
+    /// instead, the sample held (its readings' geometry is the one measured). Default false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub isotropic: bool,
 }
 
 /// `follow = { ... }` in a `[[plan.sweeps]]` entry: the arc is swept in pieces of constant speed, each as fast as

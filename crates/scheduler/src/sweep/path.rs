@@ -45,6 +45,8 @@ struct Family {
     pose: Pose,
     s_ref: f64,
     sigma: f64,
+    /// A solution of the arc turned half a turn about the normal (`SweepRequest::turned`; isotropic only).
+    turned: bool,
 }
 
 /// One sweepable piece of a requested arc.
@@ -57,6 +59,9 @@ pub struct Piece {
     pub from_pose: Pose,
     /// The pose at `to_deg`.
     pub to_pose: Pose,
+    /// The piece measures the request turned half a turn about the normal (`SweepRequest::turned`): an
+    /// isotropic sample's stretch swept without turning the sample.
+    pub turned: bool,
 }
 
 /// What the check of one requested arc found.
@@ -87,7 +92,25 @@ pub struct PathContext<'a> {
 }
 
 impl PathContext<'_> {
+    /// The axis solutions of `r`; of an isotropic request, also those of the arc turned about the normal, the
+    /// ones that hold the sample rotation nearest the plane's azimuth first: a stretch beyond the other arm is
+    /// then measured turned, the sample held, rather than after turning the sample half a turn (the move between
+    /// the stretches of an in-plane arc becomes the light arm's alone).
     fn families(&self, r: &SweepRequest) -> Vec<Family> {
+        let mut out = self.families_of(r, false);
+        if r.isotropic {
+            out.extend(self.families_of(&r.turned(), true));
+            let off = |f: &Family| {
+                let d = (f.pose.rotation_deg - r.plane_phi_deg).rem_euclid(360.0);
+                d.min(360.0 - d)
+            };
+            // Stable: among families as near, the request's own come first.
+            out.sort_by(|a, b| off(a).total_cmp(&off(b)));
+        }
+        out
+    }
+
+    fn families_of(&self, r: &SweepRequest, turned: bool) -> Vec<Family> {
         let role = swept_role(r.arm);
         let hint = Pose::new(0.0, 0.0, 0.0, r.plane_phi_deg);
         let mut out: Vec<Family> = Vec::new();
@@ -113,7 +136,12 @@ impl PathContext<'_> {
                             .all(|q| (f.pose.get(*q) - pose.get(*q)).abs() < 1e-6)
                 };
                 if !out.iter().any(same) {
-                    out.push(Family { pose, s_ref, sigma });
+                    out.push(Family {
+                        pose,
+                        s_ref,
+                        sigma,
+                        turned,
+                    });
                 }
             }
         }
@@ -146,6 +174,7 @@ impl PathContext<'_> {
 
     /// Every rule at signed angle `s` under family `f`.
     fn check(&self, r: &SweepRequest, f: &Family, s: f64) -> Result<Pose, Reason> {
+        let r = &r.turned_if(f.turned);
         let (wi, wo) = r.geometry_at(s).directions();
         self.constraints.check_directions(&wi, &wo)?;
         let pose = self.pose_at(r, f, s);
@@ -231,6 +260,7 @@ impl PathContext<'_> {
                     to_deg: to,
                     from_pose: self.pose_at(r, family, from),
                     to_pose: self.pose_at(r, family, to),
+                    turned: family.turned,
                 });
             }
             k = end + 1;

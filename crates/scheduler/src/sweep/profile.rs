@@ -113,7 +113,7 @@ pub fn curves_on_arc(
                 && p.value.is_finite()
                 && p.value > 0.0
                 && (r.from_deg..=r.to_deg).contains(&p.s_deg)
-                && r.geometry_at(p.s_deg).max_direction_angle_deg(&p.geometry) <= ON_ARC_DEG
+                && on_arc(r, p)
         })
         .collect();
     let (lo, hi) = on.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
@@ -155,6 +155,13 @@ pub fn curves_on_arc(
             })
         })
         .collect()
+}
+
+/// A first-pass reading lies on the arc `r`, or, on an isotropic sample, on the arc turned about the normal (a
+/// stretch the path check measured turned: `SweepRequest::turned`).
+fn on_arc(r: &SweepRequest, p: &PassReading) -> bool {
+    let near = |q: &SweepRequest| q.geometry_at(p.s_deg).max_direction_angle_deg(&p.geometry) <= ON_ARC_DEG;
+    near(r) || (r.isotropic && near(&r.turned()))
 }
 
 fn same_band(a: f64, b: f64) -> bool {
@@ -329,6 +336,7 @@ pub fn split_piece(r: &SweepRequest, piece: &Piece, profile: &ArcProfile) -> Vec
                 to_deg: to,
                 from_pose: if from == a { piece.from_pose } else { pose_at(from) },
                 to_pose: if to == b { piece.to_pose } else { pose_at(to) },
+                turned: piece.turned,
             };
             (sub, v)
         })
@@ -351,6 +359,7 @@ mod tests {
             to_deg: 80.0,
             speed_deg_s: 20.0,
             averaging: 10,
+            isotropic: false,
         }
     }
 
@@ -495,6 +504,7 @@ mod tests {
             to_deg: 60.0,
             from_pose: Pose::new(-30.0, -10.0, 0.0, 0.0),
             to_pose: Pose::new(-30.0, 60.0, 0.0, 0.0),
+            turned: false,
         };
         let p = |from_deg: f64, to_deg: f64, speed_deg_s: f64| FollowPiece {
             from_deg,

@@ -29,9 +29,28 @@ pub struct SweepRequest {
     pub to_deg: f64,
     pub speed_deg_s: f64,
     pub averaging: u32,
+    /// The sample is declared isotropic (`isotropic = true`): the path check may measure stretches of the arc
+    /// turned half a turn about the normal ([`SweepRequest::turned`]).
+    pub isotropic: bool,
 }
 
 impl SweepRequest {
+    /// The same arc turned half a turn about the sample normal (its plane's azimuth + 180 degrees): every swept
+    /// angle keeps its theta_i, theta_o and the azimuths' difference, so on an isotropic sample it measures the
+    /// same BRDF values.
+    pub fn turned(&self) -> SweepRequest {
+        let p = self.plane_phi_deg + 180.0;
+        SweepRequest {
+            plane_phi_deg: if p >= 180.0 { p - 360.0 } else { p },
+            ..*self
+        }
+    }
+
+    /// [`SweepRequest::turned`] when `turned`, else the request itself.
+    pub fn turned_if(&self, turned: bool) -> SweepRequest {
+        if turned { self.turned() } else { *self }
+    }
+
     /// The geometry at signed swept angle `s` (degrees): the in-plane convention of `[plan.grid] kind =
     /// "in-plane"`. Detector sweeps: `s > 0` on the specular side (phi_o = plane + 180), `s < 0` on the source's
     /// side (phi_o = plane). Light sweeps: the detector held at phi_o = plane + 180; `s > 0` puts the source
@@ -227,6 +246,7 @@ pub fn requests(
                     to_deg: to,
                     speed_deg_s: spec.speed_deg_s,
                     averaging: spec.averaging,
+                    isotropic: spec.isotropic,
                 });
             }
         }

@@ -136,6 +136,81 @@ fn a_detector_sweep_through_the_source_is_cut_at_the_separation_and_resumed_beyo
 }
 
 #[test]
+fn an_isotropic_arc_through_the_source_holds_the_sample_and_measures_the_far_stretch_turned() {
+    let inst = simulated();
+    let entry = "[[plan.sweeps]]\ntheta_i_deg = [30.0]\ntheta_o_deg = { from = -80.0, to = 80.0 }\nspeed_deg_s = 2.0\n";
+    let plain = sweeps(entry, &inst, &[550.0]).unwrap();
+    let iso = sweeps(&format!("{entry}isotropic = true\n"), &inst, &[550.0]).unwrap();
+    assert_eq!(iso.arcs.len(), 2, "{:#?}", iso.arcs);
+    check_pieces(&inst, &iso).unwrap();
+    // The same stretches of the arc, the same degrees cut.
+    for (a, b) in plain.arcs.iter().zip(&iso.arcs) {
+        assert!(
+            (a.piece.from_deg - b.piece.from_deg).abs() < 1e-9
+                && (a.piece.to_deg - b.piece.to_deg).abs() < 1e-9
+        );
+    }
+    assert!((plain.swept_deg() - iso.swept_deg()).abs() < 1e-9);
+    // Without the declaration the far stretch turns the sample half a turn; with it the sample holds at the
+    // plane's azimuth and the far stretch measures the arc turned about the normal.
+    let rotations = |p: &SweepPlan| {
+        p.arcs
+            .iter()
+            .map(|a| a.piece.from_pose.rotation_deg)
+            .collect::<Vec<_>>()
+    };
+    assert!(
+        rotations(&plain).iter().any(|r| (r.abs() - 180.0).abs() < 1e-9),
+        "{:?}",
+        rotations(&plain)
+    );
+    assert!(
+        rotations(&iso).iter().all(|r| r.abs() < 1e-9),
+        "{:?}",
+        rotations(&iso)
+    );
+    let turned: Vec<_> = iso.arcs.iter().filter(|a| a.piece.turned).collect();
+    assert_eq!(turned.len(), 1);
+    let kin = Kinematics::new(&inst);
+    let original = plain.arcs[0].request;
+    for arc in &iso.arcs {
+        for (s, pose) in [
+            (arc.piece.from_deg, &arc.piece.from_pose),
+            (arc.piece.to_deg, &arc.piece.to_pose),
+        ] {
+            // What the pose points at (the forward kinematics) is the geometry its readings carry ...
+            let (wi, wo) = kin.forward(pose);
+            let (ei, eo) = arc.request.geometry_at(s).directions();
+            assert!(
+                wi.angle_to(&ei).to_degrees() < 1e-6 && wo.angle_to(&eo).to_degrees() < 1e-6,
+                "{arc:?} at {s}"
+            );
+            // ... with the requested theta_i, theta_o and azimuth difference at that swept angle.
+            let (g, r) = (arc.request.geometry_at(s), original.geometry_at(s));
+            let dphi =
+                |g: &gonio_scheduler::kinematics::Geometry| (g.phi_o_deg - g.phi_i_deg).rem_euclid(360.0);
+            assert!(
+                (g.theta_i_deg - r.theta_i_deg).abs() < 1e-9 && (g.theta_o_deg - r.theta_o_deg).abs() < 1e-9
+            );
+            assert!((dphi(&g) - dphi(&r)).abs() < 1e-9, "{g:?} against {r:?}");
+        }
+    }
+    assert!(
+        turned[0].request.plane_phi_deg.abs() == 180.0,
+        "{:?}",
+        turned[0].request
+    );
+    // Only the light arm changes sides between the stretches: the whole sweep is shorter by the sample's half
+    // turn (180 deg at 30 deg/s, 6.25 s) less the light arm's 60 deg (3.25 s), both arms moving at once.
+    let time = TimeModel::new(&inst);
+    let (a, b) = (
+        schedule_sweeps(&plain, &time, None, None).breakdown.total_s(),
+        schedule_sweeps(&iso, &time, None, None).breakdown.total_s(),
+    );
+    assert!(a - b > 2.5, "{a} s against {b} s");
+}
+
+#[test]
 fn sweeps_stop_at_the_grazing_limit_and_light_sweeps_mirror_detector_sweeps() {
     let inst = simulated();
     let detector = sweeps(

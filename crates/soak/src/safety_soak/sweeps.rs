@@ -39,6 +39,7 @@ fn random_sweep(rng: &mut ChaCha8Rng) -> SweepSpec {
         speed_deg_s: round1(rng.random_range(0.5..15.0f64)),
         averaging: rng.random_range(1..4u32),
         follow: None,
+        isotropic: false,
     }
 }
 
