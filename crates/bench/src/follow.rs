@@ -287,7 +287,7 @@ pub fn section(root: &Path, binary: &Path, quick: bool) -> String {
         s,
         "On the coloured plastic and gold, both instrument files, through `gonio run` (crates/bench/src/follow.rs): \
          a first pass (the detector from -80 to 80 deg at 30 deg incidence, {FIRST_PASS_DEG_S} deg/s, one sample a \
-         reading, 550 nm; every campaign with `isotropic = true`: the stretch beyond the light arm measured on the          arc turned about the normal, the sample held), then the same arc with `follow` (top speed {TOP_SPEED_DEG_S} deg/s, {AVERAGING} samples a reading: 90 ms, \
+         reading, 550 nm; every campaign with `isotropic = true`: the stretch beyond the light arm measured on the arc turned about the normal, the sample held), then the same arc with `follow` (top speed {TOP_SPEED_DEG_S} deg/s, {AVERAGING} samples a reading: 90 ms, \
          1.8 deg of arc at the top speed), and at the fastest constant speed that meets the same tolerance (found \
          by runs at measured smearing). Smearing: each reading's arc-averaged truth against the truth at its arc's \
          middle (the first pass's truth column, a reading every 0.016 deg), relative to the reading or to the arc's peak; the largest \

@@ -37,9 +37,10 @@
 //! acceleration on the axis's first sweep, `set_speed_s`: the driver writes what the device is not known to
 //! hold), one plain move to the piece's other end at the entry's speed (`speed_deg_s` at cruise, the axis's own
 //! acceleration, no backlash approach: the pose of a reading comes from the controller's position reports, not
-//! from the direction of approach), the reading under way when the motion ends (half a period on average), the
-//! stop seen and checked with the swept axis's read-back (`status_s`, `arrived_s`; no other axis moved), as the
-//! engine does it (`crates/engine/src/runner/sweep.rs`). The axis's own speed is restored (`set_velocity_s`) before anything
+//! from the direction of approach), then what the engine waits for after the motion (`walk::sweep_tail_s`: no
+//! reading is asked for that would run more than half its integration past the predicted end, the arm being
+//! within half a reading of its stop; then the stop seen and checked with the swept axis's read-back, no other
+//! axis having moved), as the engine does it (`crates/engine/src/motion/sweep.rs`). The axis's own speed is restored (`set_velocity_s`) before anything
 //! else moves (a move, a calibration, another axis's sweep) and when the sweeps end, not between the pieces of a
 //! chain (below): the next sets its own. When no point precedes the sweeps, the calibration that opens
 //! a session comes first (`crate::schedule::calibration_preamble`). The meter reads back to back while the arm

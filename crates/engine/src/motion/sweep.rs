@@ -78,6 +78,9 @@ impl ReportDating {
 pub(crate) trait Reader {
     type Reading;
     fn read(&mut self) -> impl std::future::Future<Output = Self::Reading> + Send;
+    /// How long one reading integrates (s): [`sweep_axis`] asks for none that would run more than half of it
+    /// past the motion's end.
+    fn integration_s(&self) -> f64;
 }
 
 /// What one pass gave (module doc).
@@ -193,12 +196,27 @@ pub(crate) async fn sweep_axis<R: Reader>(
         arrived_deg: f64::NAN,
     };
     let end_s = profile.t0_s + profile.duration_s();
+    let half_reading_s = 0.5 * reader.integration_s().max(0.0);
     loop {
         if motion.control.estop_requested() {
             let _ = axis.driver.stop().await;
             return Err(MotionError::Estop);
         }
         let requested_s = clock.now_s();
+        // A reading that would run more than half of it past the motion's predicted end would mostly read the
+        // arm at rest, and the next piece would wait for it. The arm is asked where it is: within half a
+        // reading of its stop, the driver's wait for the arrival takes over (asked during the motion, it looks
+        // again just after the predicted end) and the arc's last half reading is left unread; an arm running
+        // late (slower than its file) is read on.
+        if !pass.taken.is_empty() && requested_s + half_reading_s > end_s {
+            let nearly_there = axis.driver.position_report().await.is_ok_and(|r| {
+                time_to_stop_s((to_deg - r.position_deg).abs(), speed_deg_s, cfg.accel_deg_s2)
+                    <= half_reading_s
+            });
+            if nearly_there {
+                break;
+            }
+        }
         let reading = if pass.taken.len() % every == every - 1 {
             // Each report is dated by its own exchange, not when the reading beside it ends: dated late, it
             // would put every reading behind the arm (a bias that changes sign with the sweep's direction).
@@ -247,6 +265,19 @@ pub(crate) async fn sweep_axis<R: Reader>(
     Ok(pass)
 }
 
+/// How long an arm cruising at `v` (deg/s) takes to stop `d` degrees further on, braking at `a` (deg/s^2) (s).
+fn time_to_stop_s(d: f64, v: f64, a: f64) -> f64 {
+    if !(v > 0.0 && a > 0.0) {
+        return if d > 0.0 { f64::INFINITY } else { 0.0 };
+    }
+    let braking = v * v / (2.0 * a);
+    if d >= braking {
+        (d - braking) / v + v / a
+    } else {
+        (2.0 * d / a).sqrt()
+    }
+}
+
 /// The axis's own speed (the instrument file's) set back after sweeping, before it moves otherwise: the pass
 /// leaves it at the sweep's, which the next piece of a sweep that follows the BRDF replaces with its own.
 pub(crate) async fn restore_speed(motion: &Motion<'_>, axis: &RigAxis) -> Result<(), MotionError> {
@@ -269,6 +300,17 @@ mod tests {
             request_bytes: 5,
             reply_bytes: 13,
         }
+    }
+
+    #[test]
+    fn an_arm_stops_after_its_cruise_and_its_braking() {
+        // 20 deg/s braking at 80 deg/s^2: 2.5 deg of braking in 0.25 s; 4.5 deg out, 0.1 s of cruise first.
+        assert!((time_to_stop_s(4.5, 20.0, 80.0) - 0.35).abs() < 1e-12);
+        assert!((time_to_stop_s(2.5, 20.0, 80.0) - 0.25).abs() < 1e-12);
+        // Within the braking: from rest to rest the last d degrees take sqrt(2 d / a).
+        assert!((time_to_stop_s(0.4, 20.0, 80.0) - 0.1).abs() < 1e-12);
+        assert_eq!(time_to_stop_s(0.0, 20.0, 80.0), 0.0);
+        assert_eq!(time_to_stop_s(1.0, 0.0, 80.0), f64::INFINITY);
     }
 
     #[test]

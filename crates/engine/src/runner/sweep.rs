@@ -95,6 +95,9 @@ impl crate::motion::sweep::Reader for SweepMeter<'_, '_> {
             .await
             .map_err(|e| e.to_string())
     }
+    fn integration_s(&self) -> f64 {
+        f64::from(self.acquisition.averaging) * DETECTOR_SAMPLE_S
+    }
 }
 
 impl Run<'_> {

@@ -67,6 +67,9 @@ struct FastMeter<'m, 'r> {
 
 impl Reader for FastMeter<'_, '_> {
     type Reading = Result<f64, String>;
+    fn integration_s(&self) -> f64 {
+        DETECTOR_SAMPLE_S
+    }
     async fn read(&mut self) -> Self::Reading {
         let det = self.motion.rig().detector();
         match self

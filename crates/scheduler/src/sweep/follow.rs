@@ -46,7 +46,7 @@ pub struct FollowRequest {
     /// the low tails of a lobe go fast.
     pub relative_to: RelativeTo,
     /// The swept axis's acceleration (deg/s^2) and what each piece costs besides its motion (s: its speed set
-    /// and restored, its start and stop seen, the reading under way at its end): what the cut into pieces weighs
+    /// and restored, its start and stop seen, what it waits for after its motion): what the cut into pieces weighs
     /// against sweeping a stretch slower than it needs.
     pub accel_deg_s2: f64,
     pub per_piece_s: f64,

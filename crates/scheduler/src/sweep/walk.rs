@@ -5,7 +5,7 @@ use super::{SweepPlan, sweep_reading_period_s};
 use crate::kinematics::Pose;
 use crate::plan::Plan;
 use crate::schedule::{calibration_preamble, cover_walk};
-use crate::timing::{AxisModel, DETECTOR_SAMPLE_S, Move, TimeModel, trapezoid_time_s};
+use crate::timing::{AxisModel, DETECTOR_SAMPLE_S, EXCHANGE_S, Move, TimeModel, trapezoid_time_s};
 use gonio_instrument::AxisRole;
 
 /// One sweep of one arc in one band.
@@ -92,14 +92,28 @@ pub struct SweepCalibration<'a> {
 }
 
 /// The time of one sweep on axis `m` whose motion takes `motion_s`, with a reading every `period_s`, besides
-/// setting its speed: the move command; the readings until the motion is over (and the one under way then, half
-/// a period on average); the stop seen and checked, with the swept axis's read-back (no other axis moved, and
-/// none is asked where it is). The speed
-/// is the walk's ([`schedule_sweeps`]): set before each sweep (with the acceleration the first time), and the
-/// axis's own restored before anything else moves, not between the pieces of a chain.
+/// setting its speed: the move command; the motion; then what the engine (crates/engine/src/motion/sweep.rs)
+/// waits for after it ([`sweep_tail_s`]). The speed is the walk's ([`schedule_sweeps`]): set before each sweep
+/// (with the acceleration the first time), and the axis's own restored before anything else moves, not between
+/// the pieces of a chain.
 pub fn sweep_time_s(m: &AxisModel, motion_s: f64, period_s: f64) -> f64 {
+    m.leg.command_s + motion_s.max(m.leg.start_return_s) + sweep_tail_s(m, period_s)
+}
+
+/// What a sweep waits for after its motion, on average over where the readings fall (s). No reading is asked
+/// for that would run more than half its integration `T` past the predicted end, so the last one ends
+/// uniformly within `(-T/2, period - T/2]` of it: ended before (a share `T/2 / period`), the arm is asked where
+/// it is during the motion and the driver's wait sees the stop a margin and its exchanges after the end
+/// (`seen_after_s`); ended after, that wait, then the stop seen and checked with the read-back (`status_s`,
+/// `arrived_s`).
+pub fn sweep_tail_s(m: &AxisModel, period_s: f64) -> f64 {
     let leg = &m.leg;
-    leg.command_s + motion_s.max(leg.start_return_s) + 0.5 * period_s + leg.status_s + leg.arrived_s
+    let half = 0.5 * (period_s - EXCHANGE_S).max(0.0);
+    if period_s.is_nan() || period_s <= 0.0 {
+        return leg.status_s + leg.arrived_s;
+    }
+    let before = (half / period_s).clamp(0.0, 1.0);
+    before * leg.seen_after_s + (1.0 - before) * (0.5 * (period_s - half) + leg.status_s + leg.arrived_s)
 }
 
 /// How many of the nearest chain ends the ordering weighs with the move after them.
