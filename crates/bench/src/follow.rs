@@ -4,7 +4,7 @@
 //!
 //! Both materials are isotropic and the campaigns say so (`isotropic = true`): the arc's stretch beyond the
 //! light arm is measured turned about the normal with the sample held, so that only the light arm changes sides
-//! between the stretches (3.4 s on the simulated instrument; turning the sample half a turn took 6.6 s, in every
+//! between the stretches (3.6 s from reading to reading on the simulated instrument; turning the sample half a turn took 6.6 s, in every
 //! run alike).
 //!
 //! 1. A first pass: the detector through the plane of incidence at 30 deg incidence, -80 to 80 deg, at
