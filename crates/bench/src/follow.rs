@@ -4,8 +4,8 @@
 //!
 //! Both materials are isotropic and the campaigns say so (`isotropic = true`): the arc's stretch beyond the
 //! light arm is measured turned about the normal with the sample held, so that only the light arm changes sides
-//! between the stretches (3.6 s from reading to reading on the simulated instrument; turning the sample half a turn took 6.6 s, in every
-//! run alike).
+//! between the stretches (3.5 s from reading to reading on the simulated instrument, where turning the sample half
+//! a turn took 6.5 s, in every run alike: crates/engine/tests/it/sweeps.rs prints both).
 //!
 //! 1. A first pass: the detector through the plane of incidence at 30 deg incidence, -80 to 80 deg, at
 //!    [`FIRST_PASS_DEG_S`] with one meter sample a reading (one band, 550 nm). Its readings make the profile; its

@@ -18,8 +18,8 @@
 //!
 //! The stand-in is read as the detector reads it during the run, averaged over its aperture (the aperture
 //! correction comes after the passes): on gold with a first pass of sweeps, the point values made the prediction
-//! of the 20 deg/s campaign in crates/engine/tests/it/timing.rs 1.5 % short, the aperture's mean 1.1 % (the rest
-//! is where the real passes fall).
+//! of the 20 deg/s campaign in crates/engine/tests/it/timing.rs 1.5 % short when this was built, the aperture's
+//! mean 1.1 % (what that test prints; the rest is where the real passes fall).
 //!
 //! The draws are deterministic (seeded by their index): the same campaign and instrument file give the same
 //! prediction every time, which `gonio plan`, `gonio run` and a resumed run rely on to agree.

@@ -514,6 +514,25 @@ async fn an_isotropic_samples_far_stretch_is_measured_turned_without_turning_the
         check_segments(&readings, &s.steps);
         assert_eq!(segments.len(), 2);
         swept_s.push(segments[1].ended_s - segments[0].started_s);
+        let last_of = |seg: u32| {
+            readings
+                .iter()
+                .filter(|r| r.segment == seg)
+                .map(|r| r.t_s)
+                .fold(f64::NAN, f64::max)
+        };
+        let first_of = |seg: u32| {
+            readings
+                .iter()
+                .filter(|r| r.segment == seg)
+                .map(|r| r.t_s)
+                .fold(f64::NAN, f64::min)
+        };
+        // What docs/reference/campaign-file.md quotes: the stretches' gap from one's last reading to the next's first.
+        eprintln!(
+            "isotropic {isotropic}: {:.2} s between the stretches' readings",
+            first_of(1) - last_of(0)
+        );
         // Each stretch's readings carry the geometry measured: the near stretch's incidence at phi_i = 0, the
         // far one's at 0 (the sample turned) or 180 (the arc turned, the sample held).
         let far_phi: Vec<f64> = readings
