@@ -21,7 +21,7 @@
 //! points count against `budget_points` ([`planner_input`]). The sweeps' predicted time counts against
 //! `budget_s`.
 
-use gonio_scheduler::adaptive::{Adaptive, Measured, StopReason};
+use gonio_scheduler::adaptive::{Adaptive, BatchMemo, Measured, StopReason};
 use gonio_scheduler::kinematics::{Geometry, Pose};
 use gonio_scheduler::plan::AdaptiveSpec;
 use gonio_scheduler::plan::{self, BuildContext, Plan, PlanError, PlanSpec};
@@ -152,9 +152,19 @@ impl AdaptivePlan {
 
     /// The pass after the work `after` left the instrument in, from every geometry measured so far (of which
     /// `points` count against the budget: [`planner_input`]) and the predicted instrument time of all the work
-    /// so far (`elapsed_s`). Deterministic (module doc).
-    pub fn next_pass(&self, measured: &[Measured], points: usize, elapsed_s: f64, after: After) -> NextPass {
-        let batch = self.adaptive.next_batch_counting(measured, points, elapsed_s);
+    /// so far (`elapsed_s`). Deterministic (module doc). `memo`: the planner's memory of the passes before
+    /// (one per run; a fresh one places the same pass, only slower).
+    pub fn next_pass(
+        &self,
+        measured: &[Measured],
+        points: usize,
+        elapsed_s: f64,
+        after: After,
+        memo: &mut BatchMemo,
+    ) -> NextPass {
+        let batch = self
+            .adaptive
+            .next_batch_remembering(measured, points, elapsed_s, memo);
         let error_estimate = batch.error_estimate;
         if let Some(reason) = batch.done {
             return NextPass::Done {

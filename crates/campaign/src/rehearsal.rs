@@ -26,6 +26,7 @@
 
 use gonio_brdf::material::Material;
 use gonio_brdf::{Brdf, Wavelength};
+use gonio_scheduler::adaptive::BatchMemo;
 use gonio_scheduler::kinematics::Geometry;
 use gonio_scheduler::schedule::{Schedule, Step};
 use gonio_scheduler::sweep::{SweepPlan, SweepSchedule, sweep_reading_period_s};
@@ -205,10 +206,11 @@ fn rehearse_once(
         Some((_, s)) => After::sweeps(s),
         None => After::schedule(first),
     };
+    let mut memo = BatchMemo::new();
     // Every pass measures at least one point and the budget is finite; the bound is a guard, not a limit.
     for _ in 0..adaptive.budget_points() {
         let (measured, counted) = planner_input(&swept_values, &points);
-        match adaptive.next_pass(&measured, counted, elapsed_s, after) {
+        match adaptive.next_pass(&measured, counted, elapsed_s, after, &mut memo) {
             NextPass::Pass { schedule, .. } => {
                 elapsed_s += schedule.breakdown.total_s();
                 points.extend(schedule.measure_steps().map(&mut value));

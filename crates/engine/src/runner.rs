@@ -158,6 +158,8 @@ struct Run<'a> {
     /// An adaptive plan's committed points read back so far (geometry, BRDF), and the index they reach.
     measured: Vec<(gonio_scheduler::kinematics::Geometry, Option<f64>)>,
     measured_to: u64,
+    /// The adaptive planner's memory of the passes before (each candidate's nearest measured points).
+    batch_memo: gonio_scheduler::adaptive::BatchMemo,
     /// An adaptive plan's first pass of sweeps as its planner takes it (binned readings), once read.
     swept: Option<Vec<(gonio_scheduler::kinematics::Geometry, Option<f64>)>>,
     /// The lag of each swept axis (by name) behind its commanded profile (s), from the last sweep that measured
@@ -331,6 +333,7 @@ pub(crate) async fn run(
         eta_anchor: None,
         measured: Vec::new(),
         measured_to: 0,
+        batch_memo: gonio_scheduler::adaptive::BatchMemo::new(),
         swept: None,
         sweep_lags: std::collections::BTreeMap::new(),
     };

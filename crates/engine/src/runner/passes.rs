@@ -86,7 +86,7 @@ impl<'a> Run<'a> {
             Some(sweeps) if sweeps.first && pass.number == 0 => After::sweeps(&sweeps.schedule),
             _ => After::schedule(&pass.schedule),
         };
-        match adaptive.next_pass(&measured, counted, pass.elapsed_s, after) {
+        match adaptive.next_pass(&measured, counted, pass.elapsed_s, after, &mut self.batch_memo) {
             NextPass::Pass {
                 schedule,
                 error_estimate,

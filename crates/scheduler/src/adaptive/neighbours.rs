@@ -65,40 +65,41 @@ impl KdTree {
         Self::build(&mut right[1..], &mut ar[1..]);
     }
 
-    /// The `k` nearest points to `q` as (squared distance, value), nearest first, into `out`.
+    /// The `k` nearest points to `q` as (squared distance, value), nearest first, into `out`. Points at equal
+    /// distances are taken in their input order ([`KdTree::nearest_ids`]).
     pub(super) fn nearest(&self, q: &[f64; 6], k: usize, out: &mut Vec<(f64, f64)>) {
+        let mut slots = Vec::with_capacity(k + 1);
+        self.nearest_ids(q, k, &mut slots);
         out.clear();
-        if k > 0 {
-            self.search(0, self.pts.len(), q, k, out, &|slot| self.pts[slot].1);
-        }
+        out.extend(slots.iter().map(|&(d2, slot)| (d2, self.pts[slot].1)));
     }
 
     /// The `k` nearest points to `q` as (squared distance, slot), nearest first; `ids[slot]` is the input index.
+    /// Points at equal distances come in their input order, so that the set does not depend on the tree's shape:
+    /// the batches' memo ([`super::memo`]) finds the same neighbours without it.
     pub(super) fn nearest_ids(&self, q: &[f64; 6], k: usize, out: &mut Vec<(f64, usize)>) {
         out.clear();
         if k > 0 {
-            self.search(0, self.pts.len(), q, k, out, &|slot| slot);
+            self.search(0, self.pts.len(), q, k, out);
         }
     }
 
-    fn search<T: Copy>(
-        &self,
-        lo: usize,
-        hi: usize,
-        q: &[f64; 6],
-        k: usize,
-        out: &mut Vec<(f64, T)>,
-        tag: &dyn Fn(usize) -> T,
-    ) {
+    fn search(&self, lo: usize, hi: usize, q: &[f64; 6], k: usize, out: &mut Vec<(f64, usize)>) {
         if lo >= hi {
             return;
         }
         let m = lo + (hi - lo) / 2;
         let p = &self.pts[m].0;
         let d = dist2(q, p);
-        if out.len() < k || d < out[out.len() - 1].0 {
-            let at = out.partition_point(|(x, _)| *x <= d);
-            out.insert(at, (d, tag(m)));
+        let key = |(d2, slot): (f64, usize)| (d2, self.pts[slot].2);
+        let new = (d, self.pts[m].2);
+        let before = |e: &(f64, usize)| {
+            let (x, i) = key(*e);
+            x < new.0 || (x == new.0 && i < new.1)
+        };
+        if out.len() < k || !before(&out[out.len() - 1]) {
+            let at = out.partition_point(before);
+            out.insert(at, (d, m));
             out.truncate(k);
         }
         let a = usize::from(self.axis[m]);
@@ -108,9 +109,10 @@ impl KdTree {
         } else {
             ((m + 1, hi), (lo, m))
         };
-        self.search(first.0, first.1, q, k, out, tag);
-        if out.len() < k || diff * diff < out[out.len() - 1].0 {
-            self.search(second.0, second.1, q, k, out, tag);
+        self.search(first.0, first.1, q, k, out);
+        // A point exactly as far as the k-th may still come before it in input order.
+        if out.len() < k || diff * diff <= out[out.len() - 1].0 {
+            self.search(second.0, second.1, q, k, out);
         }
     }
 }

@@ -26,6 +26,9 @@ pub(super) struct Search<'a> {
     /// All pairwise move costs, row-major, for plans small enough ([`MATRIX_MAX`]): the iterated search
     /// evaluates the same pairs many times and `fast_cost_s` takes a fraction of a microsecond.
     matrix: Option<Vec<f64>>,
+    /// The move from the start pose to each node: a move from the start is weighed at every change near the
+    /// tour's front, and `fast_cost_s` (with its check of the arms' paths) is the search's costliest call.
+    from_start: Vec<f64>,
 }
 
 impl<'a> Search<'a> {
@@ -51,6 +54,9 @@ impl<'a> Search<'a> {
             next_f: Vec::new(),
             next_b: Vec::new(),
             matrix: None,
+            from_start: start.map_or_else(Vec::new, |s| {
+                poses.iter().map(|p| time.fast_cost_s(s, p)).collect()
+            }),
         };
         if n <= MATRIX_MAX {
             let mut m = Vec::with_capacity(n * n);
@@ -76,7 +82,7 @@ impl<'a> Search<'a> {
     fn c_enter(&self, pred: Option<usize>, node: usize) -> f64 {
         match (pred, self.start) {
             (Some(p), _) => self.c(p, node),
-            (None, Some(s)) => self.time.fast_cost_s(s, &self.poses[node]),
+            (None, Some(_)) => self.from_start[node],
             (None, None) => 0.0,
         }
     }

@@ -8,7 +8,7 @@ use gonio_brdf::Brdf;
 use gonio_brdf::geometry::{Direction, half_vector};
 use gonio_brdf::material::Material;
 use gonio_brdf::spectrum::Wavelength;
-use gonio_scheduler::adaptive::{Adaptive, Measured};
+use gonio_scheduler::adaptive::{Adaptive, BatchMemo, Measured};
 use gonio_scheduler::constraints::Constraints;
 use gonio_scheduler::kinematics::Geometry;
 use gonio_scheduler::plan::AdaptiveSpec;
@@ -165,4 +165,40 @@ fn adaptive_beats_uniform_on_the_gold_and_plastic_presets() {
         let ratio = compare(name, &f);
         assert!(ratio < 1.0, "{name}: adaptive/uniform error {ratio}");
     }
+}
+
+/// The planner's memory between batches (each candidate's nearest measured points) changes how fast a batch is
+/// found, never which: over a whole budget, every batch placed with one memo kept from pass to pass is the batch
+/// a fresh planner places from the same points, estimate included.
+#[test]
+fn batches_placed_with_a_memo_are_the_batches_placed_without() {
+    let inst = simulated();
+    let ctx = BuildContext {
+        instrument: &inst,
+        traits: SampleTraits {
+            isotropic: true,
+            spectrally_flat: false,
+        },
+        sample_radius_mm: None,
+        start: None,
+    };
+    let adaptive = Adaptive::new(&spec(260), &ctx).expect("adaptive");
+    let mut memo = BatchMemo::new();
+    let mut measured: Vec<Measured> = Vec::new();
+    let mut batches = 0;
+    loop {
+        let fresh = adaptive.next_batch(&measured, 0.0);
+        let remembered = adaptive.next_batch_remembering(&measured, measured.len(), 0.0, &mut memo);
+        assert_eq!(remembered, fresh, "batch {batches} from {} points", measured.len());
+        if fresh.done.is_some() || fresh.geometries.is_empty() {
+            break;
+        }
+        batches += 1;
+        measured.extend(fresh.geometries.iter().map(|g| Measured {
+            geometry: *g,
+            value: narrow_lobe(g),
+        }));
+    }
+    assert!(batches >= 5, "only {batches} batches: the memo was not exercised");
+    assert_eq!(measured.len(), 260);
 }
