@@ -21,6 +21,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::bring_up::run as gonio;
 
+mod chance;
 mod fits;
 mod report;
 use crate::error_budget::variant_text;

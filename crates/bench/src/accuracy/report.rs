@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use gonio_results::angular_class::AngularClass;
 use gonio_results::points::Point;
 
+use super::chance::{self, ParameterRow};
 use super::fits::FitOutcome;
 use super::{COMMAND, Options, Run, checked_value, class_row};
 
@@ -258,6 +259,7 @@ fn fits_section(s: &mut String, runs: &[Run], setups: &[String], materials: &[&s
          | set-up | material | fits | chi2/dof: median (range) | chi2/dof in 0.7-1.5 | parameters: within k = 2, rms z | verdict |\n\
          | --- | --- | ---: | --- | ---: | --- | --- |"
     );
+    let mut rows: Vec<ParameterRow> = Vec::new();
     for name in setups {
         for &material in materials {
             let fits: Vec<&Result<FitOutcome, String>> = runs
@@ -289,7 +291,13 @@ fn fits_section(s: &mut String, runs: &[Run], setups: &[String], materials: &[&s
                         .flat_map(|f| f.params.iter().filter(|p| p.name == *n).map(|p| p.z()))
                         .filter(|z| z.is_finite())
                         .collect();
-                    let share = z.iter().filter(|z| z.abs() <= 2.0).count() as f64 / z.len().max(1) as f64;
+                    let within = z.iter().filter(|z| z.abs() <= 2.0).count();
+                    rows.push(ParameterRow {
+                        label: format!("{material} {n} ({name})"),
+                        outside: z.len() - within,
+                        instruments: z.len(),
+                    });
+                    let share = within as f64 / z.len().max(1) as f64;
                     worst_share = worst_share.min(share);
                     let rms = (z.iter().map(|z| z * z).sum::<f64>() / z.len().max(1) as f64).sqrt();
                     format!("{n} {} ({})", pct(share), num(rms))
@@ -324,6 +332,7 @@ fn fits_section(s: &mut String, runs: &[Run], setups: &[String], materials: &[&s
             );
         }
     }
+    s.push_str(&chance::paragraph(&rows));
     let failed: Vec<(&Run, &String)> = runs
         .iter()
         .filter_map(|r| match &r.fit {

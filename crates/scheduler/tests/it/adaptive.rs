@@ -189,7 +189,12 @@ fn batches_placed_with_a_memo_are_the_batches_placed_without() {
     loop {
         let fresh = adaptive.next_batch(&measured, 0.0);
         let remembered = adaptive.next_batch_remembering(&measured, measured.len(), 0.0, &mut memo);
-        assert_eq!(remembered, fresh, "batch {batches} from {} points", measured.len());
+        assert_eq!(
+            remembered,
+            fresh,
+            "batch {batches} from {} points",
+            measured.len()
+        );
         if fresh.done.is_some() || fresh.geometries.is_empty() {
             break;
         }
