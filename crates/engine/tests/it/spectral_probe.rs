@@ -98,3 +98,81 @@ async fn one_band_sweeps_borrow_the_probes_spectrum_and_cover_the_truth() {
         assert!(rms_probed < rms_alone - 0.015, "{rms_probed} against {rms_alone}");
     }
 }
+
+/// Sweeps in three bands, no probe: each band's sweep of the arc ends a little off the others' (its own ramp,
+/// and the bands sweep alternately one way and the other), so the last readings of a band have no other band at
+/// their angle. They borrow the spectrum of the nearest angle the arc's sweeps share, and are corrected like the
+/// rest of the arc: without it they kept the leak (construction paper's 550 nm readings there about 2 % above the
+/// readings a degree further in, outside their stated uncertainty).
+#[tokio::test(start_paused = true)]
+async fn the_ends_of_an_arc_swept_in_three_bands_are_corrected_like_the_rest_of_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = InstrumentFile::parse(REALISTIC, "realistic.toml").expect("valid");
+    let text = format!(
+        "[campaign]\nid = \"three\"\n[sample]\nradius_mm = 12.5\n[plan]\nbands_nm = [450.0, 550.0, 650.0]\n{SWEEP}"
+    );
+    let (store, id, state) = crate::common::run_campaign_text(dir.path(), &text, &file).await;
+    assert_eq!(state, CampaignState::Completed);
+    let readings = store.lock().expect("lock").sweep_readings(id).expect("readings");
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    let mut checked = 0;
+    for band in [450.0, 550.0, 650.0] {
+        let of_band: Vec<&SweepReading> = readings
+            .iter()
+            .filter(|r| (r.band_nm - band).abs() < 1e-9 && r.flags.is_empty())
+            .collect();
+        // (signed detection angle along the arc, value / truth - 1)
+        let errors: Vec<(f64, f64)> = of_band
+            .iter()
+            .filter_map(|r| {
+                let signed = if (r.phi_o_deg - r.phi_i_deg).abs() > 90.0 {
+                    r.theta_o_deg
+                } else {
+                    -r.theta_o_deg
+                };
+                Some((signed, r.brdf_sr? / r.truth_point_sr? - 1.0))
+            })
+            .collect();
+        let (lo, hi) = errors
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (s, _)| {
+                (lo.min(*s), hi.max(*s))
+            });
+        // Each end's last quarter degree against the readings half a degree to a degree and a half further in:
+        // the leak is about 2 % of paper's 550 nm value, the BRDF's change over a degree a few tenths of that.
+        for (end, inward) in [(lo, 1.0), (hi, -1.0)] {
+            let within = |from: f64, to: f64| {
+                median(
+                    errors
+                        .iter()
+                        .filter(|(s, _)| (from..=to).contains(&((s - end) * inward)))
+                        .map(|(_, e)| *e)
+                        .collect(),
+                )
+            };
+            let (last, inside) = (within(0.0, 0.25), within(0.5, 1.5));
+            eprintln!("band {band}, end {end:.2}: last quarter degree {last:.4}, a degree in {inside:.4}");
+            assert!(
+                (last - inside).abs() < 0.006,
+                "band {band}, end {end}: {last} against {inside} a degree in"
+            );
+            checked += 1;
+        }
+        let covered = of_band
+            .iter()
+            .filter(|r| match (r.brdf_sr, r.brdf_u_sr, r.truth_point_sr) {
+                (Some(v), Some(u), Some(t)) => (v - t).abs() <= 2.0 * u,
+                _ => false,
+            })
+            .count();
+        assert!(
+            covered as f64 >= 0.95 * of_band.len() as f64,
+            "band {band}: {covered} of {} covered",
+            of_band.len()
+        );
+    }
+    assert_eq!(checked, 6);
+}
