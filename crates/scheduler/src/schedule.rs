@@ -10,8 +10,10 @@
 //! - Repeats: each further pass runs the previous one backwards.
 //! - Calibration: a dark step (wheel on the blank, one reading per band's wavelength setting) and a reference step (move to the reference pose,
 //!   one reading per band, the wheel on the blank before and after while the operator handles the sample)
-//!   at the start, whenever `every_points` measured points or `every_s` seconds have
-//!   passed since the last one, and at the end.
+//!   at the start of every campaign (the engine opens each start with both, whatever the cadence; a dark only
+//!   where the wheel has a blank, and the normalisation where `Calibration::preamble_target` says without a
+//!   cadence of references), whenever `every_points` measured points or `every_s` seconds have passed since the
+//!   last one, and at the end (when the plan asks for that calibration).
 //! - The raster time is the same walk over the plan's request order, bands in their listed order at each
 //!   geometry, passes repeated as they are. The ordered schedule is never longer: if it were, raster order would
 //!   be used.

@@ -8,8 +8,8 @@ use gonio_instrument::{GeometryKind, Instrument};
 
 use super::grid::{Request, key, requests};
 use super::{
-    Calibration, CalibrationSpec, MAX_PLANNED_READINGS, Plan, PlanError, PlanSpec, PlannedGeometry,
-    ReferenceAt, SampleTraits, Served, invalid,
+    Calibration, CalibrationSpec, DEFAULT_DIRECT_BEAM_POSE, MAX_PLANNED_READINGS, Plan, PlanError, PlanSpec,
+    PlannedGeometry, ReferenceAt, SampleTraits, Served, invalid,
 };
 use crate::constraints::{Constraints, Reason};
 use crate::kinematics::{Geometry, Kinematics, KinematicsError, Pose};
@@ -141,21 +141,51 @@ pub fn calibration(spec: &CalibrationSpec, instrument: &Instrument) -> Result<Ca
         });
         return Ok(cal);
     }
+    // The default direct-beam pose: checked against the limits when the plan asks for normalisation readings;
+    // otherwise only the preamble that opens every start reads there, and it is taken when the arms can reach it
+    // (an instrument whose arms cannot has no default direct-beam pose: `Calibration::preamble_target`).
+    let default_pose = || {
+        let mut m = BTreeMap::new();
+        for (role, v) in [
+            (gonio_instrument::AxisRole::LightArm, -90.0),
+            (gonio_instrument::AxisRole::DetectorArm, 90.0),
+        ] {
+            if let Some(a) = instrument.axis(role) {
+                m.insert(a.name.clone(), v);
+            }
+        }
+        m
+    };
     let pose = match &spec.reference_pose_deg {
         Some(p) => p.clone(),
-        None if cal.references() => {
-            let mut m = BTreeMap::new();
+        None if cal.references() => default_pose(),
+        None => {
+            // The whole default pose, the stage's axes included, as the engine has always moved there.
+            let mut m = default_pose();
+            let arms = m.len() == 2;
             for (role, v) in [
-                (gonio_instrument::AxisRole::LightArm, -90.0),
-                (gonio_instrument::AxisRole::DetectorArm, 90.0),
+                (
+                    gonio_instrument::AxisRole::SampleTilt,
+                    DEFAULT_DIRECT_BEAM_POSE.tilt_deg,
+                ),
+                (
+                    gonio_instrument::AxisRole::SampleRotation,
+                    DEFAULT_DIRECT_BEAM_POSE.rotation_deg,
+                ),
             ] {
                 if let Some(a) = instrument.axis(role) {
                     m.insert(a.name.clone(), v);
                 }
             }
-            m
+            let reachable = arms
+                && m.iter().all(|(name, v)| {
+                    instrument
+                        .axes
+                        .iter()
+                        .any(|a| &a.name == name && (a.min_deg..=a.max_deg).contains(v))
+                });
+            if reachable { m } else { BTreeMap::new() }
         }
-        None => BTreeMap::new(),
     };
     for (name, v) in &pose {
         let axis = instrument.axes.iter().find(|a| &a.name == name).ok_or_else(|| {

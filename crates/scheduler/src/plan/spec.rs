@@ -217,15 +217,15 @@ impl Calibration {
             .map(|(_, p)| p)
     }
 
-    /// Where the calibration that opens every start and resume reads its normalisation from `current` when no
-    /// scheduled step says where: the reference geometry (relative method), the plan's direct-beam pose, or
-    /// [`DEFAULT_DIRECT_BEAM_POSE`] when the plan gives none. The engine moves there; the sweeps' time model
-    /// predicts the same move.
+    /// Where the calibration that opens every start and resume reads its normalisation from `current`: the
+    /// reference geometry (relative method), the plan's direct-beam pose, or [`DEFAULT_DIRECT_BEAM_POSE`] when
+    /// the plan gives none (the plan builder puts it in the overrides where the arms reach it). The engine moves
+    /// there; the time model predicts the same move. `None` where no pose is known that the arms reach.
     pub fn preamble_target(&self, current: &Pose, time: &crate::timing::TimeModel) -> Option<Pose> {
         if self.reference_at.is_some() || !self.reference_overrides.is_empty() {
             self.reference_target(current, time)
         } else {
-            Some(DEFAULT_DIRECT_BEAM_POSE)
+            None
         }
     }
 
