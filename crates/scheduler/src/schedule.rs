@@ -13,7 +13,8 @@
 //!   at the start of every campaign (the engine opens each start with both, whatever the cadence; a dark only
 //!   where the wheel has a blank, and the normalisation where `Calibration::preamble_target` says without a
 //!   cadence of references), whenever `every_points` measured points or `every_s` seconds have passed since the
-//!   last one, and at the end (when the plan asks for that calibration).
+//!   last one, and at the end: darks wherever the wheel has a blank, cadence or not (the values are net of the
+//!   dark interpolated between the darks around them), normalisation readings when the plan has a cadence.
 //! - The raster time is the same walk over the plan's request order, bands in their listed order at each
 //!   geometry, passes repeated as they are. The ordered schedule is never longer: if it were, raster order would
 //!   be used.

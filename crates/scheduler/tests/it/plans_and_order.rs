@@ -453,3 +453,41 @@ fn explicit_points_keep_their_geometry_on_an_anisotropic_sample() {
     let got = step.geometry.expect("geometry");
     assert!(got.max_direction_angle_deg(&g) < 1e-9);
 }
+
+/// A campaign with no calibration cadence still opens with darks and the normalisation readings (the engine
+/// takes them on every start) and closes with darks (the values are net of the dark interpolated between the
+/// darks around them): both are steps of the schedule, so their time is predicted. Without a blank on the wheel
+/// there is no dark to take, at either end.
+#[test]
+fn a_schedule_without_a_cadence_opens_with_darks_and_normalisation_and_closes_with_darks() {
+    let inst = simulated();
+    let plan = build(&iso_grid(30.0, 60.0, 60.0), &inst, ISO).expect("plan");
+    assert!(!plan.calibration.darks() && !plan.calibration.references());
+    let sched = schedule::schedule(&plan, &TimeModel::new(&inst), None);
+    let kinds: Vec<StepKind> = sched.steps.iter().map(|s| s.kind).collect();
+    let first_measure = kinds
+        .iter()
+        .position(|k| *k == StepKind::Measure)
+        .expect("measure steps");
+    let last_measure = kinds
+        .iter()
+        .rposition(|k| *k == StepKind::Measure)
+        .expect("measure steps");
+    assert_eq!(kinds[0], StepKind::Dark, "{kinds:?}");
+    assert!(
+        kinds[1..first_measure].iter().all(|k| *k == StepKind::Reference),
+        "{kinds:?}"
+    );
+    assert_eq!(first_measure, 1 + plan.bands_nm.len(), "{kinds:?}");
+    assert_eq!(&kinds[last_measure + 1..], &[StepKind::Dark], "{kinds:?}");
+    assert!(sched.breakdown.calibration_s > 0.0);
+    // The same instrument without a blank: the normalisation readings only.
+    let mut no_blank = inst.clone();
+    if let Some(w) = no_blank.filter_wheel.as_mut() {
+        w.positions.retain(|p| !p.blank);
+    }
+    let plan = build(&iso_grid(30.0, 60.0, 60.0), &no_blank, ISO).expect("plan");
+    let sched = schedule::schedule(&plan, &TimeModel::new(&no_blank), None);
+    assert!(sched.steps.iter().all(|s| s.kind != StepKind::Dark));
+    assert_eq!(sched.steps[0].kind, StepKind::Reference);
+}
