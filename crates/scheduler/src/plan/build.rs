@@ -147,8 +147,14 @@ pub fn calibration(spec: &CalibrationSpec, instrument: &Instrument) -> Result<Ca
     let default_pose = || {
         let mut m = BTreeMap::new();
         for (role, v) in [
-            (gonio_instrument::AxisRole::LightArm, -90.0),
-            (gonio_instrument::AxisRole::DetectorArm, 90.0),
+            (
+                gonio_instrument::AxisRole::LightArm,
+                DEFAULT_DIRECT_BEAM_POSE.light_deg,
+            ),
+            (
+                gonio_instrument::AxisRole::DetectorArm,
+                DEFAULT_DIRECT_BEAM_POSE.detector_deg,
+            ),
         ] {
             if let Some(a) = instrument.axis(role) {
                 m.insert(a.name.clone(), v);
