@@ -4,7 +4,7 @@
 use std::collections::{BTreeMap, HashMap};
 
 use gonio_brdf::geometry::Direction;
-use gonio_instrument::{GeometryKind, Instrument};
+use gonio_instrument::{AxisRole, GeometryKind, Instrument};
 
 use super::grid::{Request, key, requests};
 use super::{
@@ -144,46 +144,29 @@ pub fn calibration(spec: &CalibrationSpec, instrument: &Instrument) -> Result<Ca
     // The default direct-beam pose: checked against the limits when the plan asks for normalisation readings;
     // otherwise only the preamble that opens every start reads there, and it is taken when the arms can reach it
     // (an instrument whose arms cannot has no default direct-beam pose: `Calibration::preamble_target`).
-    let default_pose = || {
-        let mut m = BTreeMap::new();
-        for (role, v) in [
-            (
-                gonio_instrument::AxisRole::LightArm,
-                DEFAULT_DIRECT_BEAM_POSE.light_deg,
-            ),
-            (
-                gonio_instrument::AxisRole::DetectorArm,
-                DEFAULT_DIRECT_BEAM_POSE.detector_deg,
-            ),
-        ] {
-            if let Some(a) = instrument.axis(role) {
-                m.insert(a.name.clone(), v);
-            }
-        }
-        m
+    let d = DEFAULT_DIRECT_BEAM_POSE;
+    let arms = [
+        (AxisRole::LightArm, d.light_deg),
+        (AxisRole::DetectorArm, d.detector_deg),
+    ];
+    let stage = [
+        (AxisRole::SampleTilt, d.tilt_deg),
+        (AxisRole::SampleRotation, d.rotation_deg),
+    ];
+    // The instrument's axes among `roles`, by name, at their default angles.
+    let named = |roles: &[(AxisRole, f64)]| -> BTreeMap<String, f64> {
+        roles
+            .iter()
+            .filter_map(|(role, v)| instrument.axis(*role).map(|a| (a.name.clone(), *v)))
+            .collect()
     };
     let pose = match &spec.reference_pose_deg {
         Some(p) => p.clone(),
-        None if cal.references() => default_pose(),
+        None if cal.references() => named(&arms),
         None => {
             // The whole default pose, the stage's axes included, as the engine has always moved there.
-            let mut m = default_pose();
-            let arms = m.len() == 2;
-            for (role, v) in [
-                (
-                    gonio_instrument::AxisRole::SampleTilt,
-                    DEFAULT_DIRECT_BEAM_POSE.tilt_deg,
-                ),
-                (
-                    gonio_instrument::AxisRole::SampleRotation,
-                    DEFAULT_DIRECT_BEAM_POSE.rotation_deg,
-                ),
-            ] {
-                if let Some(a) = instrument.axis(role) {
-                    m.insert(a.name.clone(), v);
-                }
-            }
-            let reachable = arms
+            let m = named(&[arms, stage].concat());
+            let reachable = named(&arms).len() == 2
                 && m.iter().all(|(name, v)| {
                     instrument
                         .axes

@@ -83,17 +83,22 @@ fn error(adaptive: &Adaptive, measured: &[Measured], reference: &[(Geometry, f64
     (s / reference.len() as f64).sqrt()
 }
 
-fn compare(name: &str, f: &dyn Fn(&Geometry) -> f64) -> f64 {
-    let inst = simulated();
-    let ctx = BuildContext {
-        instrument: &inst,
+/// How the adaptive planner is built in these tests: an isotropic sample, no start pose.
+fn isotropic_context(inst: &gonio_instrument::Instrument) -> BuildContext<'_> {
+    BuildContext {
+        instrument: inst,
         traits: SampleTraits {
             isotropic: true,
             spectrally_flat: false,
         },
         sample_radius_mm: None,
         start: None,
-    };
+    }
+}
+
+fn compare(name: &str, f: &dyn Fn(&Geometry) -> f64) -> f64 {
+    let inst = simulated();
+    let ctx = isotropic_context(&inst);
     let constraints = Constraints::new(&inst, None);
     let reachable = |g: &Geometry| {
         let (wi, wo) = g.directions();
@@ -173,15 +178,7 @@ fn adaptive_beats_uniform_on_the_gold_and_plastic_presets() {
 #[test]
 fn batches_placed_with_a_memo_are_the_batches_placed_without() {
     let inst = simulated();
-    let ctx = BuildContext {
-        instrument: &inst,
-        traits: SampleTraits {
-            isotropic: true,
-            spectrally_flat: false,
-        },
-        sample_radius_mm: None,
-        start: None,
-    };
+    let ctx = isotropic_context(&inst);
     let adaptive = Adaptive::new(&spec(260), &ctx).expect("adaptive");
     let mut memo = BatchMemo::new();
     let mut measured: Vec<Measured> = Vec::new();
