@@ -25,6 +25,8 @@ const EMPTY: (f64, u32) = (f64::INFINITY, u32::MAX);
 /// memo gives the same batches; it only makes the later ones cheaper.
 #[derive(Debug, Clone, Default)]
 pub struct BatchMemo {
+    /// The candidates the rows are for (embeddings): a memo handed to another planner starts afresh.
+    candidates: Vec<[f64; 6]>,
     /// The measured points the rows were made from: (embedding, ln(1 + f)).
     seen: Vec<([f64; 6], f64)>,
     /// `K` entries per fixed candidate: (squared distance, index into `seen`), ascending by (distance, index),
@@ -56,13 +58,21 @@ impl BatchMemo {
 
     /// Brings every candidate's row up to `points` (embedding, ln(1 + f)), in the planner's order.
     pub(super) fn update(&mut self, candidates: &[[f64; 6]], points: &[([f64; 6], f64)]) {
+        let same_point =
+            |a: &[f64; 6], b: &[f64; 6]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
         let same = |a: &([f64; 6], f64), b: &([f64; 6], f64)| {
-            a.1.to_bits() == b.1.to_bits() && a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits())
+            a.1.to_bits() == b.1.to_bits() && same_point(&a.0, &b.0)
         };
-        let extends = self.rows.len() == candidates.len() * K
+        let extends = self.candidates.len() == candidates.len()
+            && self
+                .candidates
+                .iter()
+                .zip(candidates)
+                .all(|(a, b)| same_point(a, b))
             && self.seen.len() <= points.len()
             && self.seen.iter().zip(points).all(|(a, b)| same(a, b));
         if !extends {
+            self.candidates = candidates.to_vec();
             self.seen.clear();
             self.rows.clear();
             self.rows.resize(candidates.len() * K, EMPTY);
@@ -144,6 +154,20 @@ mod tests {
                     assert_eq!(rows, near, "grid {grid}, {end} points, candidate {j}");
                 }
             }
+            // Other candidates of the same number (another planner) start the rows afresh.
+            let others: Vec<[f64; 6]> = random_points(&mut rng, 300, grid).iter().map(|p| p.0).collect();
+            memo.update(&others, &points);
+            let tree = KdTree::new(points.clone());
+            let mut near = Vec::new();
+            for (j, c) in others.iter().enumerate() {
+                tree.nearest(c, K, &mut near);
+                assert_eq!(
+                    memo.nearest(j).collect::<Vec<_>>(),
+                    near,
+                    "grid {grid}, other candidates"
+                );
+            }
+            memo.update(&candidates, &points);
             // A changed value starts the rows afresh rather than keeping a stale neighbour.
             let mut changed = points.clone();
             changed[5].1 += 1.0;

@@ -76,6 +76,11 @@ impl<'a> Walker<'a> {
         self.steps.push(step);
     }
 
+    /// The wheel's blank position (None: no wheel, or no blank on it: no dark can be taken).
+    fn blank(&self) -> Option<u8> {
+        self.time.wheel.as_ref().and_then(|w| w.blank)
+    }
+
     fn wheel_to(&mut self, to: Option<u8>) -> f64 {
         match self.wheel {
             None => 0.0,
@@ -84,7 +89,7 @@ impl<'a> Walker<'a> {
     }
 
     fn dark(&mut self, at: Pose) {
-        let blank = self.time.wheel.as_ref().and_then(|w| w.blank);
+        let blank = self.blank();
         let wheel_s = self.wheel_to(blank);
         let pose = self.pose.unwrap_or(at);
         self.push(Step {
@@ -131,7 +136,7 @@ impl<'a> Walker<'a> {
         };
         // The daemon closes the beam (wheel on the blank) while the operator removes the sample, and again while
         // they mount it back: a turn to the blank before the bands' walk and one after it.
-        let blank = self.time.wheel.as_ref().and_then(|w| w.blank);
+        let blank = self.blank();
         let mut blank_before_s = 0.0;
         if blank.is_some() {
             blank_before_s = self.wheel_to(blank);
@@ -300,7 +305,7 @@ impl<'a> Walker<'a> {
     /// instrument (the curves bench's in-plane grid in three bands, 338.5 s against 363.2 s) and one band's 17 %.
     fn begin(&mut self, first: Pose) {
         // Without a blank on the wheel the engine has no way to take a dark, and takes none.
-        if self.time.wheel.as_ref().and_then(|w| w.blank).is_some() {
+        if self.blank().is_some() {
             self.dark(first);
         }
         let cadence = self.plan.calibration.references();
@@ -312,7 +317,7 @@ impl<'a> Walker<'a> {
         // interpolated between the darks around them, and with the opening dark alone a dark that drifts (the
         // room's light) is held from the start. On realistic.toml, construction paper's 550 nm values at 80 deg
         // came 1.7 % lower than at 40 deg after five minutes without one (a grid in three bands, no cadence).
-        let blank = self.time.wheel.as_ref().and_then(|w| w.blank);
+        let blank = self.blank();
         if close && blank.is_some() {
             self.dark(first);
         }
