@@ -194,6 +194,21 @@ impl AdaptivePlan {
             },
         }
     }
+
+    /// The calibration that closes the campaign once the planner stops, after the work `after` left the
+    /// instrument in ([`schedule::schedule_closing`]): the run takes these steps and its rehearsal counts them.
+    /// None when nothing was measured (no pose to close at: the run ends as it began).
+    pub fn closing(&self, after: After) -> Option<Schedule> {
+        let at = after.pose?;
+        let ctx = BuildContext {
+            instrument: &self.instrument,
+            traits: self.traits,
+            sample_radius_mm: self.sample_radius_mm,
+            start: Some(at),
+        };
+        let plan = plan::build_from_geometries(&self.batch_spec, &ctx, &[], true).ok()?;
+        Some(schedule::schedule_closing(&plan, &self.time, at, after.cadence))
+    }
 }
 
 /// A first pass of sweeps as the planner takes it: each reading `(geometry at its arc's centre, BRDF in 1/sr or

@@ -219,11 +219,9 @@ fn rehearse_once(
             NextPass::Done { .. } => break,
         }
     }
-    // The daemon closes the beam when the run ends: a last turn of the wheel to its blank.
-    let blank = adaptive.time.wheel.as_ref().and_then(|w| w.blank);
-    if after.cadence.wheel.is_some() {
-        elapsed_s += adaptive.time.wheel_time_s(after.cadence.wheel, blank);
-    }
+    // The calibration the run closes with once the planner stops, and the daemon's last turn of the wheel to
+    // its blank.
+    elapsed_s += adaptive.closing(after).map_or(0.0, |c| c.breakdown.total_s());
     (elapsed_s, points.len() as u64)
 }
 

@@ -503,7 +503,10 @@ impl<'a> Run<'a> {
                     pass = next;
                     i = 0;
                 }
-                None => return self.run_sweeps(true).await,
+                None => {
+                    self.close_passes(&pass, &bands).await?;
+                    return self.run_sweeps(true).await;
+                }
             }
         }
     }

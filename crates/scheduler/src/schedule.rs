@@ -308,6 +308,25 @@ fn schedule_framed(plan: &Plan, time: &TimeModel, start: Option<&Pose>, frame: F
     }
 }
 
+/// The calibration that closes a campaign whose schedules continue one another (an adaptive campaign's, when
+/// its planner stops): from `at`, where the last one left the instrument, with the cadence it left (`from`,
+/// its [`Schedule::end`]), what a complete schedule closes with: darks where the wheel has a blank, the
+/// normalisation readings when the plan has a cadence of them, and the wheel's last turn to its blank
+/// (`closing_s`). Without them the values measured after the last dark were net of that dark held, whatever
+/// the room's light did since.
+pub fn schedule_closing(plan: &Plan, time: &TimeModel, at: Pose, from: Cadence) -> Schedule {
+    let (steps, breakdown, dropped, end) = walk::close(plan, time, at, from);
+    Schedule {
+        steps,
+        mode: BandMode::PerGeometry,
+        raster: breakdown,
+        lower_bound_s: 0.0,
+        breakdown,
+        dropped,
+        end,
+    }
+}
+
 /// The reason recorded for readings dropped during the walk.
 pub const DROPPED_REASON: Reason = Reason::ArmSeparation;
 

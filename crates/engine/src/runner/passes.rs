@@ -81,11 +81,7 @@ impl<'a> Run<'a> {
         let Some(adaptive) = &self.c.adaptive else {
             return Ok(None);
         };
-        // The first pass of points is empty after a first pass of sweeps: the next pass starts where they ended.
-        let after = match &self.c.sweeps {
-            Some(sweeps) if sweeps.first && pass.number == 0 => After::sweeps(&sweeps.schedule),
-            _ => After::schedule(&pass.schedule),
-        };
+        let after = self.after(pass);
         match adaptive.next_pass(&measured, counted, pass.elapsed_s, after, &mut self.batch_memo) {
             NextPass::Pass {
                 schedule,
@@ -121,6 +117,31 @@ impl<'a> Run<'a> {
                 Ok(None)
             }
         }
+    }
+
+    /// Where `pass` leaves the instrument. The first pass of points is empty after a first pass of sweeps: what
+    /// follows starts where they ended.
+    fn after(&self, pass: &Pass) -> After {
+        match &self.c.sweeps {
+            Some(sweeps) if sweeps.first && pass.number == 0 => After::sweeps(&sweeps.schedule),
+            _ => After::schedule(&pass.schedule),
+        }
+    }
+
+    /// An adaptive plan's closing calibration once its planner has stopped after `pass`
+    /// (`AdaptivePlan::closing`: darks, and the normalisation readings under a cadence), as a fixed plan's
+    /// schedule closes. Without it the points measured after the last dark were net of that dark held
+    /// (the values are net of the dark interpolated between the darks around them). Nothing for a fixed plan:
+    /// its schedule holds its own.
+    pub(super) async fn close_passes(&mut self, pass: &Pass, bands: &[f64]) -> Result<(), Interrupt> {
+        let Some(adaptive) = self.c.adaptive.as_ref() else {
+            return Ok(());
+        };
+        if let Some(closing) = adaptive.closing(self.after(pass)) {
+            tracing::info!(campaign = %self.id, steps = closing.steps.len(), "adaptive plan: closing calibration");
+            self.run_steps(&closing.steps, 0, bands).await?;
+        }
+        Ok(())
     }
 
     /// Progress and ETA follow `pass`: the rest of its predicted time, plus, for an adaptive plan, the rest of

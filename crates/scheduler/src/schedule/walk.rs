@@ -459,3 +459,9 @@ pub(super) fn preamble(
     let pose = w.pose.unwrap_or(at);
     (w.steps, w.breakdown, pose, w.wheel)
 }
+
+/// The calibration that closes a campaign placed pass by pass (an adaptive one, when its planner stops): what
+/// a complete schedule closes with ([`Walker::finish`]), from `at` with the cadence `from` the last pass left.
+pub(super) fn close(plan: &Plan, time: &TimeModel, at: Pose, from: Cadence) -> Walked {
+    Walker::new(plan, time, Some(&at), &[], Some(from)).finish(at, true)
+}
