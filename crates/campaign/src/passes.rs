@@ -179,9 +179,18 @@ impl AdaptivePlan {
             sample_radius_mm: self.sample_radius_mm,
             start,
         };
+        // A batch that fills the budget is the last pass: ordered towards the closing that follows it.
+        let last = (points + batch.geometries.len()) as u64 * self.points_per_geometry >= self.budget_points;
         let schedule = plan::build_from_geometries(&self.batch_spec, &ctx, &batch.geometries, true)
             .ok()
-            .map(|p| schedule::schedule_continuing(&p, &self.time, start.as_ref(), Some(after.cadence)));
+            .map(|p| {
+                let continuing = if last {
+                    schedule::schedule_last
+                } else {
+                    schedule::schedule_continuing
+                };
+                continuing(&p, &self.time, start.as_ref(), Some(after.cadence))
+            });
         match schedule {
             // Nothing of the batch can be measured: the planner would only propose it again.
             Some(s) if s.measure_steps().next().is_some() => NextPass::Pass {

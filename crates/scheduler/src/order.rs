@@ -13,7 +13,9 @@
 //!    if strictly cheaper; count fixed by the plan's size, seeded generator: reproducible). Only for plans of
 //!    8 to [`MATRIX_MAX`] poses, which cache the whole cost matrix for it.
 //!
-//! The path is open: it starts at `start` (or anywhere, at no cost, when no start is given) and ends anywhere.
+//! The path is open: it starts at `start` (or anywhere, at no cost, when no start is given) and ends anywhere,
+//! or, with [`order_towards`], where leaving it costs least: the move after the last node (`exit_s`, per node)
+//! is part of the path's cost (a schedule that closes with normalisation readings at the reference pose).
 //!
 //! # Lower bound ([`lower_bound_s`])
 //! Every node except the first visited is entered at least once by a move from another node's pose (or from the
@@ -120,6 +122,18 @@ fn neighbour_lists(poses: &[Pose], k: usize, time: &TimeModel) -> Vec<Vec<usize>
         out[i] = best.into_iter().map(|(_, j)| j).collect();
     }
     out
+}
+
+/// Exact cost of a path through `tour`, and of leaving its last node (`exit_s[node]`; empty: leaving is free).
+pub fn path_cost_towards(
+    tour: &[usize],
+    poses: &[Pose],
+    start: Option<&Pose>,
+    exit_s: &[f64],
+    time: &TimeModel,
+) -> f64 {
+    let exit = tour.last().and_then(|l| exit_s.get(*l)).copied().unwrap_or(0.0);
+    path_cost(tour, poses, start, time) + exit
 }
 
 /// Exact cost of a path through `tour`.
@@ -283,6 +297,16 @@ fn serpentine(poses: &[Pose], time: &TimeModel) -> Vec<usize> {
 
 /// An order of `poses` (indices) minimising the total move time from `start`. Never worse than raster order.
 pub fn order(poses: &[Pose], start: Option<&Pose>, time: &TimeModel) -> Vec<usize> {
+    order_towards(poses, start, &[], time)
+}
+
+/// [`order`], the move after the last node counted: `exit_s[v]` is what leaving the path from node `v` costs
+/// (s), for every node; empty, leaving is free (an open end).
+pub fn order_towards(poses: &[Pose], start: Option<&Pose>, exit_s: &[f64], time: &TimeModel) -> Vec<usize> {
+    let exit_s = if exit_s.len() == poses.len() { exit_s } else { &[] };
+    let path_cost = |tour: &[usize], poses: &[Pose], start: Option<&Pose>, time: &TimeModel| {
+        path_cost_towards(tour, poses, start, exit_s, time)
+    };
     let n = poses.len();
     if n <= 2 {
         let raster: Vec<usize> = (0..n).collect();
@@ -311,7 +335,7 @@ pub fn order(poses: &[Pose], start: Option<&Pose>, time: &TimeModel) -> Vec<usiz
             best_cost = cost;
         }
     }
-    let mut s = Search::new(poses, start, time, best);
+    let mut s = Search::new(poses, start, exit_s, time, best);
     // Stop when a round gains less than MIN_ROUND_GAIN of the path: the tail of tiny improvements costs a lot of
     // time for nothing.
     let mut cost = path_cost(&s.tour, poses, start, time);

@@ -29,12 +29,15 @@ pub(super) struct Search<'a> {
     /// The move from the start pose to each node: a move from the start is weighed at every change near the
     /// tour's front, and `fast_cost_s` (with its check of the arms' paths) is the search's costliest call.
     from_start: Vec<f64>,
+    /// What leaving the path from each node costs when it is the last (empty: nothing).
+    exit_s: &'a [f64],
 }
 
 impl<'a> Search<'a> {
     pub(super) fn new(
         poses: &'a [Pose],
         start: Option<&'a Pose>,
+        exit_s: &'a [f64],
         time: &'a TimeModel,
         tour: Vec<usize>,
     ) -> Search<'a> {
@@ -57,6 +60,7 @@ impl<'a> Search<'a> {
             from_start: start.map_or_else(Vec::new, |s| {
                 poses.iter().map(|p| time.fast_cost_s(s, p)).collect()
             }),
+            exit_s,
         };
         if n <= MATRIX_MAX {
             let mut m = Vec::with_capacity(n * n);
@@ -87,11 +91,21 @@ impl<'a> Search<'a> {
         }
     }
 
+    /// Cost of leaving `node` by the edge to `next`, or, as the path's last node, of leaving the path.
+    fn c_leave(&self, node: usize, next: Option<usize>) -> f64 {
+        match next {
+            Some(x) => self.c(node, x),
+            None => self.exit_s.get(node).copied().unwrap_or(0.0),
+        }
+    }
+
     /// Exact cost of the current tour (after `refresh`).
     fn cost(&self) -> f64 {
-        match self.tour.first() {
-            Some(&f) => self.c_enter(None, f) + self.fwd[self.tour.len() - 1],
-            None => 0.0,
+        match (self.tour.first(), self.tour.last()) {
+            (Some(&f), Some(&l)) => {
+                self.c_enter(None, f) + self.fwd[self.tour.len() - 1] + self.c_leave(l, None)
+            }
+            _ => 0.0,
         }
     }
 
@@ -141,16 +155,11 @@ impl<'a> Search<'a> {
 
     /// Gain of reversing positions i..=j (positive = better).
     fn two_opt_gain(&self, i: usize, j: usize) -> f64 {
-        let n = self.tour.len();
         let pred = if i > 0 { Some(self.tour[i - 1]) } else { None };
         let (ti, tj) = (self.tour[i], self.tour[j]);
-        let mut old = self.c_enter(pred, ti) + (self.fwd[j] - self.fwd[i]);
-        let mut new = self.c_enter(pred, tj) + (self.bwd[j] - self.bwd[i]);
-        if j + 1 < n {
-            let nx = self.tour[j + 1];
-            old += self.c(tj, nx);
-            new += self.c(ti, nx);
-        }
+        let next = self.tour.get(j + 1).copied();
+        let old = self.c_enter(pred, ti) + (self.fwd[j] - self.fwd[i]) + self.c_leave(tj, next);
+        let new = self.c_enter(pred, tj) + (self.bwd[j] - self.bwd[i]) + self.c_leave(ti, next);
         if !new.is_finite() {
             return f64::NEG_INFINITY;
         }
@@ -186,7 +195,7 @@ impl<'a> Search<'a> {
                 }
             }
         } else {
-            // Reversing a suffix costs no end edge.
+            // Reversing a suffix: its new last node leaves the path.
             for k in 0..i.min(NEIGHBOURS) {
                 let g = self.two_opt_gain(i - 1 - k, i);
                 if g > 1e-9 && best.is_none_or(|b| g > b.0) {
@@ -213,8 +222,13 @@ impl<'a> Search<'a> {
             let (s0, s1) = (self.tour[i], self.tour[i + len - 1]);
             let pred = if i > 0 { Some(self.tour[i - 1]) } else { None };
             let next = self.tour.get(i + len).copied();
-            let removed = self.c_enter(pred, s0) + next.map_or(0.0, |x| self.c(s1, x))
-                - next.map_or(0.0, |x| self.c_enter(pred, x));
+            // Taken out, its predecessor joins its successor, or becomes the last node.
+            let joined = match (next, pred) {
+                (Some(x), _) => self.c_enter(pred, x),
+                (None, Some(p)) => self.c_leave(p, None),
+                (None, None) => 0.0,
+            };
+            let removed = self.c_enter(pred, s0) + self.c_leave(s1, next) - joined;
             let mut best: Option<(f64, usize)> = None; // insert after position p (p = usize::MAX: at front)
             let consider = |after: Option<usize>, best: &mut Option<(f64, usize)>| {
                 // after = position of the node the segment follows; it must lie outside the segment.
@@ -232,8 +246,13 @@ impl<'a> Search<'a> {
                     None => self.tour.first().copied(),
                 };
                 let b = b.filter(|x| *x != s0);
-                let added = self.c_enter(a, s0) + b.map_or(0.0, |x| self.c(s1, x))
-                    - b.map_or(0.0, |x| self.c_enter(a, x));
+                // Put in after the last node, the run leaves the path instead of it.
+                let split = match (b, a) {
+                    (Some(x), _) => self.c_enter(a, x),
+                    (None, Some(a)) => self.c_leave(a, None),
+                    (None, None) => 0.0,
+                };
+                let added = self.c_enter(a, s0) + self.c_leave(s1, b) - split;
                 let gain = removed - added;
                 if gain.is_finite() && gain > 1e-9 && best.is_none_or(|(g, _)| gain > g) {
                     *best = Some((gain, after.unwrap_or(usize::MAX)));

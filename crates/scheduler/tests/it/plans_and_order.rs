@@ -15,7 +15,7 @@ use gonio_scheduler::schedule::{self, BandMode, Schedule, StepKind};
 use gonio_scheduler::timing::{EXCHANGE_S, TimeModel};
 use proptest::prelude::*;
 
-const ISO: SampleTraits = SampleTraits {
+pub(crate) const ISO: SampleTraits = SampleTraits {
     isotropic: true,
     spectrally_flat: false,
 };
@@ -24,7 +24,7 @@ const ANISO: SampleTraits = SampleTraits {
     spectrally_flat: false,
 };
 
-fn build(text: &str, inst: &Instrument, traits: SampleTraits) -> Result<Plan, String> {
+pub(crate) fn build(text: &str, inst: &Instrument, traits: SampleTraits) -> Result<Plan, String> {
     let spec = PlanSpec::from_toml(text, "test.toml").map_err(|e| e.to_string())?;
     let ctx = BuildContext {
         instrument: inst,
@@ -66,7 +66,7 @@ fn plan_errors_name_the_key() {
 }
 
 /// Isotropic 3-D grid text.
-fn iso_grid(step_t: f64, step_p: f64, max_t: f64) -> String {
+pub(crate) fn iso_grid(step_t: f64, step_p: f64, max_t: f64) -> String {
     format!(
         "[plan]\nbands_nm = [450.0, 550.0, 650.0]\n[plan.grid]\nkind = \"isotropic\"\n\
          theta_i_deg = {{ from = 0.0, to = {max_t}, step = {step_t} }}\ntheta_o_deg = {{ from = 0.0, to = {max_t}, step = {step_t} }}\n\
@@ -389,7 +389,7 @@ proptest! {
     }
 }
 
-fn permute(v: &mut Vec<usize>, k: usize, f: &mut dyn FnMut(&[usize])) {
+pub(crate) fn permute(v: &mut Vec<usize>, k: usize, f: &mut dyn FnMut(&[usize])) {
     if k == v.len() {
         f(v);
         return;
@@ -490,64 +490,4 @@ fn a_schedule_without_a_cadence_opens_with_darks_and_normalisation_and_closes_wi
     let sched = schedule::schedule(&plan, &TimeModel::new(&no_blank), None);
     assert!(sched.steps.iter().all(|s| s.kind != StepKind::Dark));
     assert_eq!(sched.steps[0].kind, StepKind::Reference);
-}
-
-/// A campaign placed pass by pass (an adaptive one) learns which pass was its last only when the planner
-/// stops: its closing is then scheduled on its own, from where the last pass left the instrument and with the
-/// cadence it left. A schedule continued without a close, then its closing, is the complete schedule: the same
-/// steps and the same time, with or without a cadence; without a blank, no dark.
-#[test]
-fn a_closing_scheduled_after_a_continued_schedule_is_the_complete_schedules_own() {
-    let inst = simulated();
-    let cadence = format!(
-        "{}[plan.calibration]\ndark_every_points = 7\nreference_every_points = 11\n",
-        iso_grid(20.0, 60.0, 60.0)
-    );
-    let mut no_blank = inst.clone();
-    if let Some(w) = no_blank.filter_wheel.as_mut() {
-        w.positions.retain(|p| !p.blank);
-    }
-    for (what, text, inst, closing_kinds) in [
-        (
-            "no cadence",
-            iso_grid(20.0, 60.0, 60.0),
-            &inst,
-            vec![StepKind::Dark],
-        ),
-        ("a cadence", cadence.clone(), &inst, {
-            let mut k = vec![StepKind::Dark];
-            k.extend([StepKind::Reference; 3]);
-            k
-        }),
-        (
-            "no blank",
-            cadence.replace("dark_every_points = 7\n", ""),
-            &no_blank,
-            vec![StepKind::Reference; 3],
-        ),
-    ] {
-        let plan = build(&text, inst, ISO).expect("plan");
-        let time = TimeModel::new(inst);
-        let complete = schedule::schedule(&plan, &time, None);
-        let open = schedule::schedule_continuing(&plan, &time, None, None);
-        let last = open.steps.last().expect("steps").pose;
-        let closing = schedule::schedule_closing(&plan, &time, last, open.end);
-        let kinds: Vec<StepKind> = closing.steps.iter().map(|s| s.kind).collect();
-        assert_eq!(kinds, closing_kinds, "{what}");
-        assert!(closing.steps.iter().all(|s| s.geometry.is_none()), "{what}");
-        let joined: Vec<StepKind> = open.steps.iter().chain(&closing.steps).map(|s| s.kind).collect();
-        let whole: Vec<StepKind> = complete.steps.iter().map(|s| s.kind).collect();
-        assert_eq!(joined, whole, "{what}");
-        let sum = open.breakdown.total_s() + closing.breakdown.total_s();
-        assert!(
-            (sum - complete.breakdown.total_s()).abs() < 1e-9,
-            "{what}: {sum} s against {} s",
-            complete.breakdown.total_s()
-        );
-        assert_eq!(closing.end.wheel, complete.end.wheel, "{what}");
-        assert!(
-            (closing.end.since_dark_s - complete.end.since_dark_s).abs() < 1e-9,
-            "{what}"
-        );
-    }
 }
