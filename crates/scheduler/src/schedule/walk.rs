@@ -365,7 +365,7 @@ pub(super) enum Visits<'a> {
 }
 
 /// Steps, their time, readings dropped, and the cadence at the end.
-type Walked = (Vec<Step>, Breakdown, usize, Cadence);
+pub(super) type Walked = (Vec<Step>, Breakdown, usize, Cadence);
 
 pub(super) fn walk(
     plan: &Plan,

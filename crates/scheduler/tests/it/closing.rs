@@ -161,3 +161,45 @@ fn the_last_pass_is_ordered_towards_its_closing() {
     );
     assert!(last_s + last_close_s < open_s + open_close_s);
 }
+
+/// Both orders are walked and the quicker kept: a complete schedule is never longer than the same plan ordered
+/// to end anywhere and closed from where it ends, whatever the walk's last traversal (an even number of repeats
+/// or of bands' tours runs the tour backwards last, ending at its other end).
+#[test]
+fn a_schedule_towards_its_closing_is_never_longer_than_one_ordered_to_end_anywhere() {
+    let inst = simulated();
+    let time = TimeModel::new(&inst);
+    let calibration = "[plan.calibration]\nreference_every_s = 600.0\nreference_pose_deg = { light = -90.0, detector = 90.0 }\n";
+    let grid = iso_grid(15.0, 45.0, 75.0);
+    let plans = [
+        ("three bands", format!("{grid}{calibration}")),
+        (
+            "two bands",
+            format!("{grid}{calibration}").replace("[450.0, 550.0, 650.0]", "[450.0, 650.0]"),
+        ),
+        (
+            "two repeats",
+            format!("{grid}{calibration}").replace("[plan]\n", "[plan]\nrepeats = 2\n"),
+        ),
+    ];
+    for (what, text) in plans {
+        let plan = build(&text, &inst, ISO).expect("plan");
+        assert!(plan.calibration.references(), "{what}");
+        let complete = schedule::schedule(&plan, &time, None);
+        let anywhere = schedule::schedule_continuing(&plan, &time, None, None);
+        let last = anywhere.steps.last().expect("steps").pose;
+        let closed = anywhere.breakdown.total_s()
+            + schedule::schedule_closing(&plan, &time, last, anywhere.end)
+                .breakdown
+                .total_s();
+        eprintln!(
+            "{what}: {:.2} s, ordered to end anywhere {closed:.2} s",
+            complete.breakdown.total_s()
+        );
+        assert!(
+            complete.breakdown.total_s() <= closed + 1e-9,
+            "{what}: {} s against {closed} s",
+            complete.breakdown.total_s()
+        );
+    }
+}
