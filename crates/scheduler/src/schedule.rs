@@ -265,9 +265,10 @@ fn schedule_framed(plan: &Plan, time: &TimeModel, start: Option<&Pose>, frame: F
     // or of bands' tours, the walk's last traversal of the tour runs backwards and ends at its other end; and the
     // two searches land in different local optima.
     let free = order::order(&representative, start, time);
-    let exit_s = exit_costs(plan, time, &representative, end);
-    let towards = (!exit_s.is_empty() && representative.len() <= BOTH_ORDERS_MAX)
-        .then(|| order::order_towards(&representative, start, &exit_s, time));
+    let towards = (representative.len() <= BOTH_ORDERS_MAX)
+        .then(|| exit_costs(plan, time, &representative, end))
+        .filter(|exit_s| !exit_s.is_empty())
+        .map(|exit_s| order::order_towards(&representative, start, &exit_s, time));
     // What a walk is judged by: its time, and for the last of continued schedules, the closing's after it
     // (a complete schedule holds its closing).
     let judged_s = |walked: &walk::Walked| {

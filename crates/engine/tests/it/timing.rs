@@ -63,6 +63,21 @@ async fn launch(text: &str, instrument_toml: &str) -> Launched {
 
 /// [`dry_run`] on the instrument file `instrument_toml`.
 async fn dry_run_on(text: &str, instrument_toml: &str) -> (f64, f64) {
+    let ran = run_to_completion(text, instrument_toml).await;
+    (ran.predicted_s, ran.ended_s)
+}
+
+/// A campaign run to completion: its prediction, when the run ended (s of instrument time) and its store.
+struct Ran {
+    predicted_s: f64,
+    ended_s: f64,
+    store: Arc<Mutex<Store>>,
+    id: gonio_engine::store::CampaignId,
+    _dir: tempfile::TempDir,
+}
+
+/// Run `text` on `instrument_toml` until it completes (a pause or a failure fails the test).
+async fn run_to_completion(text: &str, instrument_toml: &str) -> Ran {
     let Launched {
         predicted_s,
         store,
@@ -80,25 +95,34 @@ async fn dry_run_on(text: &str, instrument_toml: &str) -> (f64, f64) {
     };
     task.await.expect("join").expect("run");
     assert_eq!(state, CampaignState::Completed);
-    let s = store.lock().expect("store lock");
-    let last_record_s = s
-        .points(id)
-        .expect("points")
-        .iter()
-        .map(|p| p.t_s)
-        .chain(s.calibrations(id).expect("calibrations").iter().map(|c| c.t_s))
-        .fold(0.0f64, f64::max);
-    let ended_s = s
-        .campaign(id)
-        .expect("campaign")
-        .ended_instrument_s
-        .expect("the run's end is recorded");
-    // The end comes after every reading: the closing calibration's last wheel turn.
-    assert!(
-        ended_s >= last_record_s,
-        "ended {ended_s} s before its last record at {last_record_s} s"
-    );
-    (predicted_s, ended_s)
+    let ended_s = {
+        let s = store.lock().expect("store lock");
+        let last_record_s = s
+            .points(id)
+            .expect("points")
+            .iter()
+            .map(|p| p.t_s)
+            .chain(s.calibrations(id).expect("calibrations").iter().map(|c| c.t_s))
+            .fold(0.0f64, f64::max);
+        let ended_s = s
+            .campaign(id)
+            .expect("campaign")
+            .ended_instrument_s
+            .expect("the run's end is recorded");
+        // The end comes after every reading: the closing calibration's last wheel turn.
+        assert!(
+            ended_s >= last_record_s,
+            "ended {ended_s} s before its last record at {last_record_s} s"
+        );
+        ended_s
+    };
+    Ran {
+        predicted_s,
+        ended_s,
+        store,
+        id,
+        _dir,
+    }
 }
 
 /// A plan exercising repeats, frequent darks and direct-beam references (operator sessions with the wheel
@@ -281,24 +305,13 @@ async fn an_adaptive_campaign_closes_with_its_calibration_once_the_planner_stops
         ("adaptive.toml", ADAPTIVE, true),
         ("adaptive.toml without a cadence", without_cadence.as_str(), false),
     ] {
-        let Launched {
+        let Ran {
             predicted_s,
+            ended_s,
             store,
             id,
-            mut rx,
-            task,
             _dir,
-            ..
-        } = launch(text, SIMULATED_INSTRUMENT_TOML).await;
-        loop {
-            if let Event::State { state, .. } = rx.recv().await.expect("event")
-                && state.is_final()
-            {
-                assert_eq!(state, CampaignState::Completed);
-                break;
-            }
-        }
-        task.await.expect("join").expect("run");
+        } = run_to_completion(text, SIMULATED_INSTRUMENT_TOML).await;
         let s = store.lock().expect("store lock");
         let last_point_s = s
             .points(id)
@@ -313,11 +326,6 @@ async fn an_adaptive_campaign_closes_with_its_calibration_once_the_planner_stops
             .filter(|c| c.t_s > last_point_s)
             .map(|c| c.kind)
             .collect();
-        let ended_s = s
-            .campaign(id)
-            .expect("campaign")
-            .ended_instrument_s
-            .expect("ended");
         eprintln!(
             "{what}: after the last point {after:?}; predicted {predicted_s:.2} s, dry-run {ended_s:.2} s"
         );
