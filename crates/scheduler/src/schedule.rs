@@ -206,8 +206,8 @@ pub fn schedule_continuing(
 
 /// [`schedule_continuing`] for the last of the schedules that continue one another (an adaptive campaign's pass
 /// that fills its budget): ordered to end where the closing that follows it ([`schedule_closing`]) moves least.
-/// A closing with normalisation readings moves the arms to the reference pose: from wherever the last pass
-/// happened to end, a move of 0.8 s or 3.5 s on adaptive.toml.
+/// A closing with normalisation readings moves the arms to the reference pose, from wherever the last pass
+/// happened to end (the test `the_last_pass_is_ordered_towards_its_closing` prints both closings' times).
 pub fn schedule_last(plan: &Plan, time: &TimeModel, start: Option<&Pose>, from: Option<Cadence>) -> Schedule {
     schedule_framed(plan, time, start, Frame::Open { from }, End::TowardsClosing)
 }

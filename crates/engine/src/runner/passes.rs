@@ -107,7 +107,17 @@ impl<'a> Run<'a> {
                 reason,
                 error_estimate,
             } => {
-                tracing::info!(campaign = %self.id, points = end, ?reason, error_estimate, "adaptive plan complete");
+                // The passes' predicted time beside the instrument time they took: how far the model was off on
+                // the passes this run placed (a rehearsal places its own).
+                tracing::info!(
+                    campaign = %self.id,
+                    points = end,
+                    ?reason,
+                    error_estimate,
+                    passes_predicted_s = pass.elapsed_s,
+                    instrument_s = self.motion.clock().now_s() - self.t_clock0,
+                    "adaptive plan complete"
+                );
                 if end < self.total {
                     self.st(|s| s.set_total_points(self.id, end))?;
                     self.total = end;
@@ -138,7 +148,12 @@ impl<'a> Run<'a> {
             return Ok(());
         };
         if let Some(closing) = adaptive.closing(self.after(pass)) {
-            tracing::info!(campaign = %self.id, steps = closing.steps.len(), "adaptive plan: closing calibration");
+            tracing::info!(
+                campaign = %self.id,
+                steps = closing.steps.len(),
+                predicted_s = closing.breakdown.total_s(),
+                "adaptive plan: closing calibration"
+            );
             self.run_steps(&closing.steps, 0, bands).await?;
         }
         Ok(())
