@@ -30,6 +30,8 @@ pub struct ReadingNoise {
     /// A/W at the band; `None` when the file has no responsivity.
     pub responsivity_a_per_w: Option<f64>,
     pub dark_current_a: f64,
+    /// The head's excess current noise density (A/sqrt(Hz)): the file's `amplifier_noise_a_per_rthz`.
+    pub amplifier_noise_a_per_rthz: f64,
     pub source_relative_noise: f64,
     pub averaging: u32,
 }
@@ -44,6 +46,7 @@ impl ReadingNoise {
         ReadingNoise {
             responsivity_a_per_w: responsivity,
             dark_current_a: instrument.detector.dark_current_a.max(0.0),
+            amplifier_noise_a_per_rthz: instrument.detector.amplifier_noise_a_per_rthz.max(0.0),
             source_relative_noise: instrument.source.relative_noise.max(0.0),
             averaging: averaging.max(1),
         }
@@ -51,15 +54,17 @@ impl ReadingNoise {
 
     /// The standard deviation of a reading of `power_w` on a range of full scale `range_w` (W).
     pub fn std_w(&self, power_w: f64, range_w: f64) -> f64 {
-        use gonio_instrument::meter_noise::{johnson_a2, lsb, shot_a2};
+        use gonio_instrument::meter_noise::{amplifier_a2, johnson_a2, lsb, shot_a2};
         let n = f64::from(self.averaging);
         let source = self.source_relative_noise * power_w.abs();
         let per_sample_w2 = match self.responsivity_a_per_w {
             Some(r) => {
                 let current_a = power_w.abs() * r + self.dark_current_a;
                 let full_scale_a = range_w.abs() * r;
-                let meter_a2 =
-                    shot_a2(current_a) + johnson_a2(full_scale_a) + lsb(full_scale_a).powi(2) / 12.0;
+                let meter_a2 = shot_a2(current_a)
+                    + johnson_a2(full_scale_a)
+                    + amplifier_a2(self.amplifier_noise_a_per_rthz)
+                    + lsb(full_scale_a).powi(2) / 12.0;
                 meter_a2 / (r * r) + source * source
             }
             None => lsb(range_w.abs()).powi(2) / 12.0 + source * source,

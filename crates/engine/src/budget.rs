@@ -20,7 +20,8 @@
 //!   instead, with the alignment's uncertainty times the fitted model's slope ([`complete`]).
 //! - `range` (shared by the range): the characterisation's range-gain and linearity correction, relative to
 //!   the reading, carried to the value.
-//! - `stray-light`: the uncertainty of the subtracted signature (characterised instruments).
+//! - `stray-light`: the uncertainty of the subtracted signature (characterised instruments, independent), or
+//!   the instrument file's `signature_u_sr` where none was subtracted (shared by the campaign: [`StrayLight`]).
 //! - `sample`: the sample's re-seating between mountings (the holder's repeatability through the fitted model),
 //!   shared by a mounting's points, and its non-uniformity over the footprint (the campaign's `[sample]
 //!   non_uniformity`: [`uniformity`]), shared by the campaign, added when the campaign completes ([`complete`]).
@@ -57,8 +58,30 @@ pub struct Parts<'a> {
     pub range: Option<usize>,
     /// The characterisation's range correction's relative standard uncertainty on the reading (0 without).
     pub range_rel: f64,
-    /// The subtracted signature's standard uncertainty (1/sr; 0 when none was subtracted).
-    pub stray_light_sr: f64,
+    /// The instrument signature's uncertainty in the value.
+    pub stray_light: StrayLight,
+}
+
+/// The instrument signature (stray light) in a value, as a standard uncertainty (1/sr).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StrayLight {
+    /// A measured signature was subtracted: the measurement's own uncertainty at this geometry, independent per
+    /// point.
+    Subtracted(f64),
+    /// None was subtracted: the instrument file's `signature_u_sr`, the light the instrument itself scatters
+    /// into the detector, left in. It is one unknown function of the angle between source and detector, the
+    /// same for every point at that angle, so it is shared by the campaign (one unknown level of the file's
+    /// profile, adding light to every value: positive entries), not scatter a fit could average away.
+    Unmeasured(f64),
+}
+
+impl StrayLight {
+    /// The standard uncertainty (1/sr).
+    pub fn u_sr(self) -> f64 {
+        match self {
+            StrayLight::Subtracted(u) | StrayLight::Unmeasured(u) => u,
+        }
+    }
 }
 
 /// The point's budget; its [`Budget::total_sr`] is the point's `brdf_u_sr`.
@@ -87,7 +110,11 @@ pub fn of_point(p: &Parts<'_>) -> Budget {
     add(&mut b, components::POINTING, e.angles_per_sr, None);
     let range_u = (p.equation.value_per_sr * p.range_rel).abs();
     add(&mut b, components::RANGE, range_u, p.range.map(groups::range));
-    add(&mut b, components::STRAY_LIGHT, p.stray_light_sr, None);
+    let stray_group = match p.stray_light {
+        StrayLight::Subtracted(_) => None,
+        StrayLight::Unmeasured(_) => Some(groups::SIGNATURE.to_string()),
+    };
+    add(&mut b, components::STRAY_LIGHT, p.stray_light.u_sr(), stray_group);
     b
 }
 
@@ -120,7 +147,7 @@ mod tests {
             band_nm: 550.0,
             range: Some(3),
             range_rel: 1e-3,
-            stray_light_sr: 0.0,
+            stray_light: StrayLight::Subtracted(0.0),
         });
         let find = |name: &str| b.entries.iter().find(|e| e.component == name).cloned();
         assert_eq!(find(components::NORMALISATION).unwrap().u_sr, 5e-5);
@@ -155,12 +182,41 @@ mod tests {
             band_nm: 450.0,
             range: None,
             range_rel: 0.0,
-            stray_light_sr: 1e-5,
+            stray_light: StrayLight::Subtracted(1e-5),
         });
         let names: Vec<&str> = b.entries.iter().map(|e| e.component.as_str()).collect();
         assert!(names.contains(&components::CERTIFICATE), "{names:?}");
         assert!(!names.contains(&components::SOLID_ANGLE), "{names:?}");
         assert!(!names.contains(&components::RANGE), "{names:?}");
         assert!(names.contains(&components::STRAY_LIGHT), "{names:?}");
+    }
+
+    #[test]
+    fn a_signature_left_in_is_shared_by_the_campaign_and_a_subtracted_one_is_not() {
+        let v = value();
+        let parts = |stray_light| Parts {
+            equation: &v,
+            relative: false,
+            band_nm: 550.0,
+            range: None,
+            range_rel: 0.0,
+            stray_light,
+        };
+        let stray = |b: &Budget| {
+            b.entries
+                .iter()
+                .find(|e| e.component == components::STRAY_LIGHT)
+                .cloned()
+                .expect("a stray-light entry")
+        };
+        let left_in = of_point(&parts(StrayLight::Unmeasured(4e-5)));
+        let e = stray(&left_in);
+        assert_eq!((e.u_sr, e.shared.as_deref()), (4e-5, Some(groups::SIGNATURE)));
+        let subtracted = of_point(&parts(StrayLight::Subtracted(4e-5)));
+        let e = stray(&subtracted);
+        assert_eq!((e.u_sr, e.shared), (4e-5, None));
+        // The same size either way: only what a fit may average away differs.
+        assert_eq!(left_in.total_sr(), subtracted.total_sr());
+        assert!(left_in.independent_sr() < subtracted.independent_sr());
     }
 }

@@ -383,6 +383,12 @@ pub struct Detector {
     /// Enable the simulated noise terms (shot, Johnson, quantisation).
     #[serde(default)]
     pub noise: bool,
+    /// The head's excess input current noise (A/sqrt(Hz)) above the photocurrent's shot noise and the feedback
+    /// resistor's Johnson noise: its amplifier's, from the head's datasheet or a dark measurement. It dominates
+    /// the lowest ranges, so a value read there carries it in its `signal-noise` until a characterisation
+    /// (`gonio align --steps characterisation`) has measured the darks' spread. Absent: 0 (none known).
+    #[serde(default)]
+    pub amplifier_noise_a_per_rthz: f64,
     /// Relative standard uncertainty of each range's gain (its factory calibration) while no characterisation
     /// (`gonio align`) has measured it; absent: [`DEFAULT_RANGE_GAIN_U`].
     #[serde(default)]

@@ -29,6 +29,11 @@ pub fn johnson_a2(full_scale_a: f64) -> f64 {
     4.0 * BOLTZMANN_J_K * TEMPERATURE_K * bandwidth_hz() * full_scale_a / FULL_SCALE_V
 }
 
+/// An amplifier's excess current noise of density `a_per_rthz` (A/sqrt(Hz)) in one sample (A^2).
+pub fn amplifier_a2(a_per_rthz: f64) -> f64 {
+    a_per_rthz * a_per_rthz * bandwidth_hz()
+}
+
 /// One count of the converter on a range of full scale `full_scale` (in the range's unit).
 pub fn lsb(full_scale: f64) -> f64 {
     full_scale / ADC_COUNTS

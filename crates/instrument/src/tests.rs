@@ -189,3 +189,24 @@ fn an_instrument_kept_without_its_filter_imperfections_states_filters_that_do_no
     assert!(blocking(&filters).iter().all(|t| *t == Some(1.0e-5)));
     assert!(widths(&filters).iter().all(|b| *b == Some(10.0)));
 }
+
+#[test]
+fn the_heads_amplifier_noise_is_a_current_density_defaulting_to_none() {
+    let file = InstrumentFile::parse(SIMULATED_INSTRUMENT_TOML, "simulated.toml").expect("valid");
+    assert_eq!(file.instrument.detector.amplifier_noise_a_per_rthz, 0.0);
+    let with = |v: &str| {
+        SIMULATED_INSTRUMENT_TOML.replacen(
+            "[instrument.detector]",
+            &format!("[instrument.detector]\namplifier_noise_a_per_rthz = {v}"),
+            1,
+        )
+    };
+    let file = InstrumentFile::parse(&with("2.0e-14"), "x.toml").expect("20 fA/sqrt(Hz)");
+    assert_eq!(file.instrument.detector.amplifier_noise_a_per_rthz, 2.0e-14);
+    for bad in ["-1e-14", "0.5", "nan"] {
+        let msg = InstrumentFile::parse(&with(bad), "x.toml")
+            .expect_err(bad)
+            .to_string();
+        assert!(msg.contains("amplifier_noise_a_per_rthz"), "{bad}: {msg}");
+    }
+}

@@ -309,6 +309,14 @@ impl Instrument {
                 d.dark_current_a
             ));
         }
+        if !(d.amplifier_noise_a_per_rthz.is_finite() && (0.0..1e-6).contains(&d.amplifier_noise_a_per_rthz))
+        {
+            return Err(format!(
+                "[instrument.detector]: amplifier_noise_a_per_rthz is a current noise density in A/sqrt(Hz), in \
+                 [0, 1e-6), got {}",
+                d.amplifier_noise_a_per_rthz
+            ));
+        }
         if d.averaging == 0 {
             return Err("[instrument.detector]: averaging must be at least 1".into());
         }

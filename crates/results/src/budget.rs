@@ -52,7 +52,8 @@ pub mod components {
     /// The meter's range gain and nonlinearity on the ranges the reading and its normalisation were taken on
     /// (the characterisation's, or the instrument file's without one); shared by the points on a range.
     pub const RANGE: &str = "range";
-    /// The instrument signature (stray light) subtracted, or left in without a characterisation.
+    /// The instrument signature (stray light) subtracted (independent), or left in without a characterisation
+    /// (shared by the campaign: groups::SIGNATURE).
     pub const STRAY_LIGHT: &str = "stray-light";
     /// The finite filter band: the sample's spectral slope at the band times the uncertainty of the filter's
     /// centre, the passband's averaging of a curved spectrum, and the light the filter leaks outside its band
@@ -104,6 +105,10 @@ pub mod groups {
     pub const THETA_O: &str = "theta_o";
     /// As [`THETA_I`], for the azimuth between source and detector.
     pub const PHI: &str = "phi";
+
+    /// The instrument signature left in a value (no characterisation subtracted it): one unknown level of the
+    /// instrument file's `signature_u_sr` profile, shared by the campaign's points.
+    pub const SIGNATURE: &str = "signature";
 }
 
 /// One component of a point's budget.

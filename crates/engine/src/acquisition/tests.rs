@@ -124,6 +124,7 @@ fn a_reading_is_resolved_on_the_smallest_range_holding_it_under_auto_range() {
     let noise = ReadingNoise {
         responsivity_a_per_w: None,
         dark_current_a: 0.0,
+        amplifier_noise_a_per_rthz: 0.0,
         source_relative_noise: 0.0,
         averaging: 3,
     };
@@ -164,6 +165,32 @@ fn the_reading_noise_is_the_files_figures_averaged_over_the_samples() {
     assert!(got > inst.source.relative_noise * p / 10f64.sqrt());
     let more = ReadingNoise::new(inst, 550.0, 40).std_w(p, fs);
     assert!((more / got - 0.5).abs() < 1e-9);
+}
+
+#[test]
+fn the_heads_amplifier_noise_from_the_file_is_in_a_low_ranges_reading() {
+    let mut file = InstrumentFile::simulated();
+    let r = 0.29; // A/W at 550 nm in simulated.toml
+    // A dim reading (1 nW) on the lowest range (50 nW), where the feedback resistor's Johnson noise is smallest.
+    let (p, fs) = (1.0e-9, 5.0e-8);
+    let without = ReadingNoise::new(&file.instrument, 550.0, 10).std_w(p, fs);
+    file.instrument.detector.amplifier_noise_a_per_rthz = 2.0e-14;
+    let with = ReadingNoise::new(&file.instrument, 550.0, 10).std_w(p, fs);
+    // 20 fA/sqrt(Hz) over the sample's 1 / (2 x 3 ms) bandwidth, in W through the responsivity, over 10 samples.
+    let amplifier_w2 = (2.0e-14f64.powi(2) * (1.0 / 0.006)) / (r * r) / 10.0;
+    assert!(
+        ((with * with - without * without) / amplifier_w2 - 1.0).abs() < 1e-9,
+        "{with} against {without}"
+    );
+    // There it is larger than the shot and Johnson noise it adds to: the reading's noise grows by more than 40 %.
+    assert!(with > 1.4 * without, "{with} against {without}");
+    // A bright reading on a high range hardly feels it.
+    let (p, fs) = (3.0e-4, 5.0e-4);
+    file.instrument.detector.amplifier_noise_a_per_rthz = 0.0;
+    let bright = ReadingNoise::new(&file.instrument, 550.0, 10).std_w(p, fs);
+    file.instrument.detector.amplifier_noise_a_per_rthz = 2.0e-14;
+    let bright_with = ReadingNoise::new(&file.instrument, 550.0, 10).std_w(p, fs);
+    assert!(bright_with / bright - 1.0 < 1e-6);
 }
 
 #[test]

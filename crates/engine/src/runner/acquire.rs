@@ -142,7 +142,7 @@ impl<'a> Run<'a> {
     /// `theta_o_deg`, for readings averaging `averaging` samples: a characterised instrument's subtracted (the
     /// value flagged where it was not measured or is below three NEBRDF, crate::characterise::correction), else
     /// the instrument file's `signature_u_sr` as an uncertainty (gonio_instrument::signature). Returns the value
-    /// and the signature's standard uncertainty in it (1/sr).
+    /// and the signature's uncertainty in it.
     pub(super) fn less_signature(
         &self,
         value: f64,
@@ -150,20 +150,22 @@ impl<'a> Run<'a> {
         theta_o_deg: f64,
         (band_nm, averaging): (f64, u32),
         flags: &mut Vec<String>,
-    ) -> (f64, f64) {
+    ) -> (f64, budget::StrayLight) {
         let alpha = alpha_between_deg(wi, wo);
         let cos = theta_o_deg.to_radians().cos();
         // What the file knows of the signature, over the equation's cosine (none is divided at grazing angles).
-        let unmeasured = if cos > 0.0 {
+        let unmeasured = budget::StrayLight::Unmeasured(if cos > 0.0 {
             self.signature_u.at(alpha) / cos
         } else {
             0.0
-        };
+        });
         let Some(d) = &self.detector else {
             return (value, unmeasured);
         };
         let (value, u_stray) = match d.signature(band_nm, alpha, theta_o_deg) {
-            SignatureAt::Subtract { brdf_sr, u_sr } => (value - brdf_sr, u_sr),
+            SignatureAt::Subtract { brdf_sr, u_sr } => {
+                (value - brdf_sr, budget::StrayLight::Subtracted(u_sr))
+            }
             SignatureAt::NearBeam => {
                 flags.push(FLAG_NEAR_BEAM.to_string());
                 (value, unmeasured)
@@ -309,7 +311,7 @@ impl<'a> Run<'a> {
                             } else {
                                 0.0
                             },
-                            stray_light_sr: u_stray,
+                            stray_light: u_stray,
                         };
                         budget = budget::of_point(&parts);
                         brdf = Some(value);

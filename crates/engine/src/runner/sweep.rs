@@ -408,7 +408,7 @@ impl Run<'_> {
                             } else {
                                 0.0
                             },
-                            stray_light_sr: u_stray,
+                            stray_light: u_stray,
                         };
                         brdf = Some(value);
                         brdf_u = Some(budget::of_point(&parts).total_sr());
