@@ -14,7 +14,8 @@
 //! - Reply latency: ten position queries of each device, timed; a motion controller's time beyond its reply's
 //!   time on the line is its `reply_latency_ms`, which the time model adds to each exchange (`measure_latency`).
 //! - Dark and noise: the blank in the beam, the meter fixed on each of its ranges in turn, readings' mean and
-//!   spread; the head's dark current (`detector.dark_current_a`) from the smallest range's, and the source's
+//!   spread; the head's dark current (`detector.dark_current_a`) from the smallest range's, its amplifier's
+//!   current noise (`detector.amplifier_noise_a_per_rthz`) from that range's scatter at averaging 1, and the source's
 //!   white relative noise (`source.relative_noise`) from readings of the direct beam at averaging 1 while the
 //!   holder is empty for the settle times (`noise`: how, and what ambient light does to a dark).
 //!
@@ -25,6 +26,7 @@
 //!   way, and the report says so. The settle time fails only when the hardware needs longer than the file
 //!   waits (a shorter one is not wrong); the backlash fails either way.
 
+mod amplifier;
 mod fit;
 mod noise;
 mod report;

@@ -2,6 +2,8 @@
 //! (for the record), the head's dark current (`detector.dark_current_a`) and the source's white relative noise
 //! (`source.relative_noise`).
 //!
+//! - Amplifier noise (`detector.amplifier_noise_a_per_rthz`): the same blank, the smallest range at averaging 1
+//!   (crate::selftest's `amplifier`).
 //! - Dark current: the blank in the beam, the meter on its smallest range; the mean reading (W at the set
 //!   wavelength) times the file's responsivity there is the current the head delivers in the dark. Room light
 //!   leaking past the baffles (ambient light) adds to it and cannot be told from it in a test of minutes (it
@@ -51,11 +53,11 @@ pub const FLICKER_ALLOWANCE: f64 = 0.3;
 pub const MAX_FILL: f64 = 0.75;
 
 /// The file's responsivity, or why there is none to convert with.
-fn responsivity(motion: &Motion<'_>) -> Result<Responsivity, String> {
+pub(super) fn responsivity(motion: &Motion<'_>) -> Result<Responsivity, String> {
     Responsivity::from_detector(&motion.rig().file().instrument.detector).map_err(|e| e.0)
 }
 
-async fn configure(motion: &Motion<'_>, config: DetectorConfig) -> Result<(), MotionError> {
+pub(super) async fn configure(motion: &Motion<'_>, config: DetectorConfig) -> Result<(), MotionError> {
     let det = motion.rig().detector();
     motion
         .device(Device::Detector, "configure the meter", || det.configure(config))
@@ -63,7 +65,7 @@ async fn configure(motion: &Motion<'_>, config: DetectorConfig) -> Result<(), Mo
 }
 
 /// `n` readings (W); None when one is an overload.
-async fn readings(motion: &Motion<'_>, n: usize) -> Result<Option<Vec<f64>>, MotionError> {
+pub(super) async fn readings(motion: &Motion<'_>, n: usize) -> Result<Option<Vec<f64>>, MotionError> {
     let det = motion.rig().detector();
     let mut values = Vec::with_capacity(n);
     for _ in 0..n {
@@ -156,6 +158,12 @@ pub(super) async fn measure_meter(
         (true, Some(_), Err(e)) => missing.push(format!("detector.dark_current_a: {e}")),
         (true, None, _) => missing.push("detector.dark_current_a: no dark on the smallest range".into()),
         (false, _, _) => {}
+    }
+    if dark {
+        match super::amplifier::measure(motion, nm, tolerance).await? {
+            Ok(check) => out.push(check),
+            Err(e) => missing.push(format!("detector.amplifier_noise_a_per_rthz: {e}")),
+        }
     }
     Ok((out, missing))
 }

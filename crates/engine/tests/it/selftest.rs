@@ -492,6 +492,18 @@ async fn on_realistic_instruments_the_hidden_noise_figures_are_found_within_ten_
             (got_flicker / flicker - 1.0).abs() < FLICKER_ALLOWANCE,
             "seed {seed}: flicker {got_flicker} for {flicker}"
         );
+        // The head's amplifier against the hidden one (the file claims 2e-14 A/sqrt(Hz), the simulator's too).
+        let amplifier = truth
+            .detector
+            .as_ref()
+            .expect("a detector drawn")
+            .amplifier_noise_a_per_rthz;
+        let got_amplifier = measured(&r, "detector.amplifier_noise_a_per_rthz");
+        eprintln!("seed {seed}: amplifier {got_amplifier:.3e} A/sqrt(Hz) (true {amplifier:.1e})");
+        assert!(
+            (got_amplifier / amplifier - 1.0).abs() < 0.10,
+            "seed {seed}: amplifier {got_amplifier} for {amplifier}"
+        );
         assert!(r.failed_keys().is_empty(), "seed {seed}: {:?}", r.failed_keys());
     }
 }
@@ -524,6 +536,13 @@ async fn a_noisier_or_flickering_source_or_a_darker_head_than_claimed_fails_nami
             "source.flicker_rel",
             6.0e-4,
             FLICKER_ALLOWANCE,
+        ),
+        (
+            // The ideal file knows no amplifier noise; this head has realistic.toml's.
+            "[simulator.imperfections.detector]\namplifier_noise_a_per_rthz = 2.0e-14\n".to_string(),
+            "detector.amplifier_noise_a_per_rthz",
+            2.0e-14,
+            0.10,
         ),
     ] {
         let r = selftest_of(&with_actual(&extra)).await;
