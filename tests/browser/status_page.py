@@ -529,6 +529,10 @@ def run(gonio, chromium, workdir):
         # 4. Progress and the plot grow with the event stream, without fetching the points again.
         tab.wait_for("points on the plot", "document.querySelectorAll('#polar circle.pt').length >= 2")
         csv_fetches = tab.count_requests("points.csv")
+        # A fetch of points.csv sent when the page opened may still be on its way: its points, drawn later, would
+        # grow the plot without an event. Count from when every fetch sent so far has been answered and drawn.
+        tab.wait_for("the points fetched so far drawn",
+                     f"Number(document.body.dataset.drawnLoads || 0) >= {csv_fetches}", daemon=daemon)
         events_before = int(tab.eval("Number(document.body.dataset.sseEvents || 0)"))
         n1 = len(tab.circles())
         p1 = tab.eval("document.getElementById('c-progress').value")

@@ -37,6 +37,7 @@
     points: new Map(), // point index -> point
     latestIndex: null,
     sseEvents: 0,
+    pointsLoads: 0, // points.csv fetches answered
     plotMode: 'auto', // 'auto' | 'in-plane' | 'hemisphere'
     logScale: null, // null: chosen from the data (log when the values span more than LOG_SCALE_RANGE)
     abortArmed: null, // timer while the abort button waits for its second click
@@ -197,7 +198,14 @@
   // completed, and its completion (values normalised again between references and corrected to the nominal
   // geometry, budgets completed) replaces what the events said; body[data-final-points] names it once drawn.
   async function loadPoints(id, final = false) {
-    const text = await (await api('/api/campaigns/' + id + '/points.csv')).text();
+    let text;
+    try {
+      text = await (await api('/api/campaigns/' + id + '/points.csv')).text();
+    } finally {
+      // Every answered fetch counted, drawn or not: the next render marks it drawn (`drawnLoads`), so that a
+      // reader of the page (tests/browser) can tell points from a fetch from points from the event stream.
+      page.pointsLoads += 1;
+    }
     if (page.pointsFor !== id) return;
     for (const point of parsePointsCsv(text)) {
       if (final || !page.points.has(point.index)) page.points.set(point.index, point);
@@ -478,6 +486,7 @@
       renderCampaignList();
       renderReadings();
       renderPlot();
+      document.body.dataset.drawnLoads = String(page.pointsLoads);
     }, wait);
   }
 
