@@ -557,3 +557,41 @@ fn plan_says_when_one_band_through_a_leaking_filter_has_no_spectrum_to_correct_t
     );
     assert!(!flat.contains("through a filter that passes"), "{flat}");
 }
+
+/// A campaign that runs for minutes on its opening normalisation alone says that the lamp's drift since is
+/// covered only by the file's bound; with any later reading (a reference cadence, or one longer than the
+/// campaign: a reading at its end), or when short, nothing.
+#[test]
+fn plan_says_when_a_long_campaign_has_no_normalisation_after_its_opening_one() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let simulated =
+        std::fs::read_to_string(repo_root().join("config/instruments/simulated.toml")).expect("read");
+    let campaign = |step: f64, calibration: &str| {
+        let path = dir.path().join("c.toml");
+        std::fs::write(
+            &path,
+            format!(
+                "[campaign]\nid = \"c\"\n[sample]\nradius_mm = 12.5\n[plan]\nbands_nm = [550.0]\n\
+                 [plan.grid]\nkind = \"in-plane\"\ntheta_i_deg = [15.0, 30.0, 45.0, 60.0]\n\
+                 theta_o_deg = {{ from = -80.0, to = 80.0, step = {step} }}\n{calibration}\
+                 [material]\npreset = \"white-styrofoam\"\n"
+            ),
+        )
+        .expect("write");
+        path
+    };
+    let note = "no normalisation reading after the opening one";
+    let long = plan_on(dir.path(), &campaign(0.3125, ""), &simulated);
+    let minutes: f64 = long
+        .split("values up to ")
+        .nth(1)
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|w| w.parse().ok())
+        .unwrap_or_else(|| panic!("no minutes in the note:\n{long}"));
+    assert!(long.contains(note) && minutes >= 5.0, "{long}");
+    assert!(long.contains("source.drift_per_hour"), "{long}");
+    let closed = "[plan.calibration]\nreference_every_s = 1.0e9\n";
+    assert!(!plan_on(dir.path(), &campaign(0.3125, closed), &simulated).contains(note));
+    let short = plan_on(dir.path(), &campaign(5.0, ""), &simulated);
+    assert!(!short.contains(note), "{short}");
+}
