@@ -146,6 +146,10 @@ const KEYS_SINCE_BEFORE: [&str; 12] = [
     "bandwidth_u_nm",
 ];
 
+/// Keys added since that the earlier binary knows in another table: removed only under this one (the
+/// head's amplifier noise as the lab states it; the simulator's hidden one it knows).
+const TABLE_KEYS_SINCE_BEFORE: [(&str, &str); 1] = [("[instrument.detector]", "amplifier_noise_a_per_rthz")];
+
 /// Keys added since that may also sit inside an inline table (a filter-wheel position's `{ ... }`; `gonio
 /// selftest --write` writes the positions as tables, one key a line).
 const INLINE_KEYS_SINCE_BEFORE: [&str; 1] = ["bandwidth_u_nm"];
@@ -191,17 +195,22 @@ fn for_before(path: &Path, dir: &Path, name: &str) -> Result<PathBuf, String> {
     // A key as `key = ...`, or as a table of its own (`[instrument.detector.key]`, as `gonio selftest --write`
     // writes one) up to the next header.
     let mut in_removed_table = false;
+    let mut table = "";
     let kept: Vec<String> = text
         .lines()
         .filter(|l| {
             let t = l.trim_start();
             if t.starts_with('[') {
+                table = t.trim_end();
                 in_removed_table = KEYS_SINCE_BEFORE
                     .iter()
                     .any(|k| t.trim_end().trim_end_matches(']').ends_with(&format!(".{k}")));
                 return !in_removed_table;
             }
-            !in_removed_table && !KEYS_SINCE_BEFORE.iter().any(|k| t.starts_with(k))
+            let added_here = TABLE_KEYS_SINCE_BEFORE
+                .iter()
+                .any(|(in_table, k)| *in_table == table && t.starts_with(k));
+            !in_removed_table && !added_here && !KEYS_SINCE_BEFORE.iter().any(|k| t.starts_with(k))
         })
         .map(without_inline_keys)
         .collect();
@@ -490,6 +499,21 @@ mod tests {
         assert_eq!(
             b,
             "[instrument.detector]\naveraging = 10\n[instrument.source]\npower_w = 1e-3\n"
+        );
+        // The amplifier's noise leaves the lab's table and stays in the simulator's, which the earlier binary
+        // knows.
+        let amplifier = dir.path().join("amplifier.toml");
+        std::fs::write(
+            &amplifier,
+            "[instrument.detector]\namplifier_noise_a_per_rthz = 2e-14\naveraging = 10\n\
+             [simulator.imperfections.detector]\namplifier_noise_a_per_rthz = 2e-14\n",
+        )
+        .expect("write");
+        let c = read(for_before(&amplifier, dir.path(), "amplifier").expect("written"));
+        assert_eq!(
+            c,
+            "[instrument.detector]\naveraging = 10\n[simulator.imperfections.detector]\n\
+             amplifier_noise_a_per_rthz = 2e-14\n"
         );
     }
 
