@@ -116,9 +116,15 @@ pub async fn run_selftest(
         }
     }
     checks.extend(measure_latency(motion, tolerance).await?);
-    let (meter, missing) = noise::measure_meter(motion, tolerance).await?;
-    checks.extend(meter);
-    not_measured.extend(missing);
+    let meter = noise::measure_meter(motion, tolerance).await?;
+    checks.extend(meter.checks);
+    not_measured.extend(meter.not_measured);
+    if let Some(nm) = meter.blank_at_nm {
+        match amplifier::measure(motion, nm, tolerance).await? {
+            Ok(check) => checks.push(check),
+            Err(e) => not_measured.push(format!("detector.amplifier_noise_a_per_rthz: {e}")),
+        }
+    }
     let settling = settle::measure_settling(motion, operator, tolerance, &accelerations).await?;
     checks.extend(settling.checks);
     not_measured.extend(settling.not_measured);

@@ -2,8 +2,8 @@
 //! (for the record), the head's dark current (`detector.dark_current_a`) and the source's white relative noise
 //! (`source.relative_noise`).
 //!
-//! - Amplifier noise (`detector.amplifier_noise_a_per_rthz`): the same blank, the smallest range at averaging 1
-//!   (crate::selftest's `amplifier`).
+//! - Amplifier noise (`detector.amplifier_noise_a_per_rthz`): right after, through the blank [`measure_meter`]
+//!   leaves in the beam, the smallest range at averaging 1 (crate::selftest's `amplifier`).
 //! - Dark current: the blank in the beam, the meter on its smallest range; the mean reading (W at the set
 //!   wavelength) times the file's responsivity there is the current the head delivers in the dark. Room light
 //!   leaking past the baffles (ambient light) adds to it and cannot be told from it in a test of minutes (it
@@ -80,12 +80,17 @@ pub(super) async fn readings(motion: &Motion<'_>, n: usize) -> Result<Option<Vec
     Ok(Some(values))
 }
 
+/// What [`measure_meter`] found, and where it left the meter.
+pub(super) struct MeterNoise {
+    pub checks: Vec<Check>,
+    pub not_measured: Vec<String>,
+    /// The blank is in the beam and the meter set to this wavelength (nm); None without a blank.
+    pub blank_at_nm: Option<f64>,
+}
+
 /// The meter's dark and noise on each range with the blank in the beam, and the head's dark current from the
-/// smallest range (module doc).
-pub(super) async fn measure_meter(
-    motion: &Motion<'_>,
-    tolerance: f64,
-) -> Result<(Vec<Check>, Vec<String>), MotionError> {
+/// smallest range (module doc). The blank stays in the beam.
+pub(super) async fn measure_meter(motion: &Motion<'_>, tolerance: f64) -> Result<MeterNoise, MotionError> {
     let rig = motion.rig();
     let inst = &rig.file().instrument;
     let mut missing = Vec::new();
@@ -159,13 +164,11 @@ pub(super) async fn measure_meter(
         (true, None, _) => missing.push("detector.dark_current_a: no dark on the smallest range".into()),
         (false, _, _) => {}
     }
-    if dark {
-        match super::amplifier::measure(motion, nm, tolerance).await? {
-            Ok(check) => out.push(check),
-            Err(e) => missing.push(format!("detector.amplifier_noise_a_per_rthz: {e}")),
-        }
-    }
-    Ok((out, missing))
+    Ok(MeterNoise {
+        checks: out,
+        not_measured: missing,
+        blank_at_nm: dark.then_some(nm),
+    })
 }
 
 /// The dark current's verdict (module doc): ambient light only adds.
