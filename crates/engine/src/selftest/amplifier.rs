@@ -10,11 +10,9 @@
 //! about sqrt(2 / (N - 1)) of itself) sets the verdict: the figure passes within the tolerance of the claim or
 //! [`SIGMAS`] of its own uncertainty, whichever is wider.
 
-use gonio_driver::{DetectorConfig, PowerRange};
 use gonio_instrument::meter_noise;
 
-use super::fit::mean_std;
-use super::noise::{configure, meter_floor_w2, readings, responsivity};
+use super::noise::{meter_floor_w2, readings_at_averaging_1, responsivity, white_variance};
 use super::report::line;
 use crate::motion::{Motion, MotionError};
 use crate::selftest::Check;
@@ -34,15 +32,12 @@ pub struct Measured {
 /// The amplifier noise density of dark readings `values` (W, averaging 1) on a range of `range_w`, the head
 /// delivering `a_per_w` at the set wavelength (module doc). None for fewer than three readings.
 pub fn amplifier_noise(values: &[f64], range_w: f64, a_per_w: f64) -> Option<Measured> {
-    let (mean_w, _) = mean_std(values)?;
-    let diffs: Vec<f64> = values.windows(2).map(|w| w[1] - w[0]).collect();
-    let (_, diff_std) = mean_std(&diffs)?;
-    let sample_w2 = 0.5 * diff_std * diff_std;
+    let (mean_w, sample_w2, differences) = white_variance(values)?;
     let floor_w2 = meter_floor_w2(mean_w.max(0.0), range_w, a_per_w);
     // W^2 of one sample -> A^2/Hz.
     let to_density = a_per_w * a_per_w / meter_noise::bandwidth_hz();
     let excess = (sample_w2 - floor_w2).max(0.0) * to_density;
-    let u_excess = sample_w2 * (2.0 / (diffs.len() as f64 - 1.0).max(1.0)).sqrt() * to_density;
+    let u_excess = sample_w2 * (2.0 / (differences as f64 - 1.0).max(1.0)).sqrt() * to_density;
     let a_per_rthz = excess.sqrt();
     // Near zero the square root's slope diverges: there the figure is known to within sqrt(u_excess).
     let u_a_per_rthz = if excess > u_excess {
@@ -90,18 +85,7 @@ pub(super) async fn measure(
         readings = READINGS,
         "self-test: the head's amplifier noise on the dark"
     );
-    configure(
-        motion,
-        DetectorConfig {
-            wavelength_nm: nm,
-            averaging: 1,
-            range: PowerRange::Fixed {
-                full_scale_w: range_w,
-            },
-        },
-    )
-    .await?;
-    let Some(values) = readings(motion, READINGS).await? else {
+    let Some(values) = readings_at_averaging_1(motion, nm, range_w, READINGS).await? else {
         return Ok(Err(format!("the dark overloads the {range_w:e} W range")));
     };
     Ok(match amplifier_noise(&values, range_w, r) {

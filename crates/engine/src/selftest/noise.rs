@@ -57,15 +57,37 @@ pub(super) fn responsivity(motion: &Motion<'_>) -> Result<Responsivity, String> 
     Responsivity::from_detector(&motion.rig().file().instrument.detector).map_err(|e| e.0)
 }
 
-pub(super) async fn configure(motion: &Motion<'_>, config: DetectorConfig) -> Result<(), MotionError> {
+async fn configure(motion: &Motion<'_>, config: DetectorConfig) -> Result<(), MotionError> {
     let det = motion.rig().detector();
     motion
         .device(Device::Detector, "configure the meter", || det.configure(config))
         .await
 }
 
+/// `n` readings (W) with the meter set to `nm`, averaging 1, on the fixed range of full scale `range_w`; None
+/// when one is an overload.
+pub(super) async fn readings_at_averaging_1(
+    motion: &Motion<'_>,
+    nm: f64,
+    range_w: f64,
+    n: usize,
+) -> Result<Option<Vec<f64>>, MotionError> {
+    configure(
+        motion,
+        DetectorConfig {
+            wavelength_nm: nm,
+            averaging: 1,
+            range: PowerRange::Fixed {
+                full_scale_w: range_w,
+            },
+        },
+    )
+    .await?;
+    readings(motion, n).await
+}
+
 /// `n` readings (W); None when one is an overload.
-pub(super) async fn readings(motion: &Motion<'_>, n: usize) -> Result<Option<Vec<f64>>, MotionError> {
+async fn readings(motion: &Motion<'_>, n: usize) -> Result<Option<Vec<f64>>, MotionError> {
     let det = motion.rig().detector();
     let mut values = Vec::with_capacity(n);
     for _ in 0..n {
@@ -261,18 +283,7 @@ pub(super) async fn source_noise(
         readings = NOISE_READINGS,
         "self-test: the source's relative noise on the direct beam"
     );
-    configure(
-        motion,
-        DetectorConfig {
-            wavelength_nm: nm,
-            averaging: 1,
-            range: PowerRange::Fixed {
-                full_scale_w: range_w,
-            },
-        },
-    )
-    .await?;
-    let Some(values) = readings(motion, NOISE_READINGS).await? else {
+    let Some(values) = readings_at_averaging_1(motion, nm, range_w, NOISE_READINGS).await? else {
         return Ok(Err(format!("the direct beam overloads the {range_w:e} W range")));
     };
     let Some(measured) = relative_noise(&values, range_w, r.at(nm), inst.detector.noise) else {
@@ -388,21 +399,28 @@ fn flicker_check(claimed: f64, measured: f64, white_rel: f64, readings: usize) -
     )
 }
 
+/// The mean of `values` and one reading's white variance: half the variance of consecutive differences, in
+/// which a slow drift cancels; and how many differences it rests on. None for fewer than three readings.
+pub fn white_variance(values: &[f64]) -> Option<(f64, f64, usize)> {
+    let (mean, _) = mean_std(values)?;
+    let diffs: Vec<f64> = values.windows(2).map(|w| w[1] - w[0]).collect();
+    let (_, diff_std) = mean_std(&diffs)?;
+    Some((mean, 0.5 * diff_std * diff_std, diffs.len()))
+}
+
 /// The white relative noise of `values` (module doc): consecutive differences, less the meter's own noise when
 /// the file says the meter has it (`noise`). None without a positive mean.
 pub fn relative_noise(values: &[f64], range_w: f64, a_per_w: f64, meter_noise: bool) -> Option<f64> {
-    let (mean, _) = mean_std(values)?;
+    let (mean, white_w2, _) = white_variance(values)?;
     if mean <= 0.0 {
         return None;
     }
-    let diffs: Vec<f64> = values.windows(2).map(|w| w[1] - w[0]).collect();
-    let (_, diff_std) = mean_std(&diffs)?;
     let floor = if meter_noise {
         meter_floor_w2(mean, range_w, a_per_w)
     } else {
         0.0
     };
-    Some((0.5 * diff_std * diff_std - floor).max(0.0).sqrt() / mean)
+    Some((white_w2 - floor).max(0.0).sqrt() / mean)
 }
 
 #[cfg(test)]
