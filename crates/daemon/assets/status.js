@@ -486,7 +486,11 @@
       renderCampaignList();
       renderReadings();
       renderPlot();
+      // What the drawing shows: the points.csv fetches answered and the events received when it was drawn (a
+      // reader of the page, tests/browser, counts the plot's growth against these, not against events that
+      // arrived while a redraw was held back).
       document.body.dataset.drawnLoads = String(page.pointsLoads);
+      document.body.dataset.drawnEvents = String(page.sseEvents);
     }, wait);
   }
 
