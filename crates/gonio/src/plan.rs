@@ -267,10 +267,12 @@ const DRIFT_NOTE_AFTER_S: f64 = 300.0;
 /// A line for a campaign that takes no normalisation reading after its opening one (no reference cadence in
 /// `[plan.calibration]`) and runs longer than [`DRIFT_NOTE_AFTER_S`]: every value is normalised by that reading
 /// carried forward, the lamp's drift since covered only by the file's `source.drift_per_hour`, and a lamp still
-/// warming up drifts far faster. Measured: realistic.toml's simulated lamp (1 % low at switch-on, settling in
-/// 15 minutes) under a 20-minute in-plane grid of white styrofoam read its last values 0.57 % high, k = 2
-/// coverage 64 % over the run; with one reading at the end (`reference_every_s` longer than the campaign) the
-/// values in between are interpolated and covered: 100 %, rms z 0.82. Empty otherwise.
+/// warming up drifts far faster. Measured by hand while this was built (no test repeats it): realistic.toml's
+/// simulated lamp (1 % low at switch-on, settling in 15 minutes) under a 20-minute in-plane grid of white
+/// styrofoam (theta_i 15-60 deg, theta_o every 0.078125 deg, 550 nm, `gonio run` against `brdf_true_sr`) read its
+/// last values 0.57 % high, k = 2 coverage 64 % over the run; with one reading at the end (`reference_every_s`
+/// longer than the campaign) the values in between are interpolated and covered: 100 %, rms z 0.82. Empty
+/// otherwise.
 fn drift_note(p: &Prepared, file: &InstrumentFile) -> String {
     let duration_s = p.predicted_s();
     // A duration that is not a number (nothing rehearsed) says nothing either.
