@@ -8,7 +8,7 @@ use gonio_results::angular_class::AngularClass;
 use gonio_results::points::Point;
 
 use super::chance::{self, ParameterRow};
-use super::fits::FitOutcome;
+use super::fits::{FitOutcome, FittedParam};
 use super::{COMMAND, Options, Run, checked_value, class_row};
 
 fn pct(v: f64) -> String {
@@ -255,7 +255,9 @@ fn fits_section(s: &mut String, runs: &[Run], setups: &[String], materials: &[&s
          0.7 and 1.5 against the points' whole budget (shared components with their correlations), and each \
          fitted parameter within its k = 2 \
          interval (independent and shared uncertainties in quadrature) of the simulated value in at least 93 % of \
-         instruments. Per parameter: how often it is within k = 2, over the instruments, and its rms z.\n\n\
+         instruments. Per parameter: how often it is within k = 2, over the instruments, and its rms z; a \
+         parameter stuck at a bound of the model (its uncertainty then means nothing) counts as outside and is \
+         left out of the rms, and how many were is said.\n\n\
          | set-up | material | fits | chi2/dof: median (range) | chi2/dof in 0.7-1.5 | parameters: within k = 2, rms z | verdict |\n\
          | --- | --- | ---: | --- | ---: | --- | --- |"
     );
@@ -286,21 +288,28 @@ fn fits_section(s: &mut String, runs: &[Run], setups: &[String], materials: &[&s
             let params: Vec<String> = names
                 .iter()
                 .map(|n| {
-                    let z: Vec<f64> = done
+                    let fitted: Vec<&FittedParam> = done
                         .iter()
-                        .flat_map(|f| f.params.iter().filter(|p| p.name == *n).map(|p| p.z()))
-                        .filter(|z| z.is_finite())
+                        .flat_map(|f| f.params.iter().filter(|p| p.name == *n))
+                        .filter(|p| p.z().is_finite() || p.at_bound)
                         .collect();
-                    let within = z.iter().filter(|z| z.abs() <= 2.0).count();
+                    let within = fitted.iter().filter(|p| p.within_k2()).count();
+                    let at_bound = fitted.iter().filter(|p| p.at_bound).count();
                     rows.push(ParameterRow {
                         label: format!("{material} {n} ({name})"),
-                        outside: z.len() - within,
-                        instruments: z.len(),
+                        outside: fitted.len() - within,
+                        instruments: fitted.len(),
                     });
-                    let share = within as f64 / z.len().max(1) as f64;
+                    let share = within as f64 / fitted.len().max(1) as f64;
                     worst_share = worst_share.min(share);
+                    // The rms over the parameters with an interval (not at a bound).
+                    let z: Vec<f64> = fitted.iter().filter(|p| !p.at_bound).map(|p| p.z()).collect();
                     let rms = (z.iter().map(|z| z * z).sum::<f64>() / z.len().max(1) as f64).sqrt();
-                    format!("{n} {} ({})", pct(share), num(rms))
+                    let bound = match at_bound {
+                        0 => String::new(),
+                        n => format!("; {n} at a bound"),
+                    };
+                    format!("{n} {} ({}{bound})", pct(share), num(rms))
                 })
                 .collect();
             let median = chi2.get(chi2.len() / 2).copied().unwrap_or(f64::NAN);

@@ -404,9 +404,14 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
         let m = predict(opts, &defs, &natural(x), &obs, &bands, true)?;
         Some(obs.iter().zip(&m).map(|(o, m)| (m - o.f) / o.u).collect())
     };
+    // The candidates' score: the median magnitude of the cos-weighted residuals (the objective's own weighting:
+    // errors as they matter in rendered radiance).
     let median_abs = |x: &[f64]| -> f64 {
         standardised(x)
-            .map(|e| median(e.iter().map(|v| v.abs()).collect()))
+            .map(|e| {
+                let weighted = e.iter().zip(&obs).map(|(v, o)| (o.cos_weight * v).abs());
+                median(weighted.collect())
+            })
             .filter(|m| m.is_finite())
             .unwrap_or(f64::INFINITY)
     };

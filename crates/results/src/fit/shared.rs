@@ -255,11 +255,17 @@ pub(super) fn whole_budget_minimum(
             let Some(w) = chi2_whole_budget(run, obs, &z, &dz, damping) else {
                 break;
             };
+            let longest = w.step.iter().fold(0.0f64, |m, d| m.max(d.abs()));
+            let shrink = if longest > WHOLE_BUDGET_TRUST {
+                WHOLE_BUDGET_TRUST / longest
+            } else {
+                1.0
+            };
             let next: Vec<f64> = x
                 .iter()
                 .zip(&w.step)
                 .enumerate()
-                .map(|(j, (v, d))| (v + d).clamp(lower[j], upper[j]))
+                .map(|(j, (v, d))| (v + shrink * d).clamp(lower[j], upper[j]))
                 .collect();
             if let Some(z_next) = standardised(&next)
                 && let Some(there) = at(&z_next)
@@ -283,7 +289,8 @@ pub(super) fn whole_budget_minimum(
 }
 
 /// At most this many steps towards the whole budget's minimum.
-const WHOLE_BUDGET_STEPS: usize = 20;
+const WHOLE_BUDGET_STEPS: usize = 60;
+const WHOLE_BUDGET_TRUST: f64 = 0.05;
 
 /// [`chi2_whole_budget`]'s answer.
 #[derive(Debug, Clone, PartialEq)]
