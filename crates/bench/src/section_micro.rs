@@ -119,7 +119,10 @@ pub(super) fn throughput_markdown(t: &ThroughputRuns) -> String {
         s,
         "Where the time goes (a perf profile of the in-process run with the store on disk, taken while \
          developing this benchmark, not by this run): about 41 device exchanges per point (status polls while \
-         the axes move are most of them: 13 SMC100 `TS`, 8 Zaber `get pos`), each costing microseconds in the \
+         the axes move are most of them: 13 SMC100 `TS`, 8 Zaber `get pos`; since then the drivers no longer \
+         read where a move starts when the last move's read-back says where the axis came to rest, two `TP` \
+         fewer before each SMC100 `PA` and one `get pos` before each Zaber `move abs`), each costing \
+         microseconds in the \
          driver, in the emulated device and in tokio's timers: drivers 26 %, device emulation 26 %, tokio timers \
          and parking 20 %, SQLite 9 %, engine and store 8 % (about 0.07 ms per point), BRDF evaluation 2.5 %. \
          The in-process targets are missed because of that exchange count, which is what the real devices need \

@@ -102,7 +102,7 @@ pub fn simultaneous_phases(time: &TimeModel, from: &Pose, to: &Pose) -> (Vec<Vec
             phases[leg].push(AxisMotion {
                 role: *role,
                 axis_index: model.axis_index,
-                duration_s: model.driven_time_s(at, &[waypoint], false),
+                duration_s: model.driven_time_s(at, &[waypoint]),
                 waypoints_deg: vec![waypoint],
             });
             at = waypoint;

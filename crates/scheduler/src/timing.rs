@@ -20,9 +20,8 @@
 //! - Reading: `averaging x` [`DETECTOR_SAMPLE_S`], plus the driver's range query ([`reading_time_s`]).
 //! - Driver overheads the daemon really pays: each leg's exchanges before its motion starts and until its end is
 //!   seen, by protocol and line speed (`legs`: the SMC100's pause after a move command, the status question at
-//!   the predicted end, the read-back); axes of one controller chain moving in one phase start one after the other
-//!   (each leg's opening exchanges hold the line); about [`EXCHANGE_S`] per request/reply of the meter and the
-//!   wheel (a filter change is five).
+//!   the predicted end, the read-back; none before the motion, the driver knowing where the axis came to rest);
+//!   about [`EXCHANGE_S`] per request/reply of the meter and the wheel (a filter change is five).
 //! - The wheel and the axes do not move at the same time (the daemon changes the filter once the axes have
 //!   settled), so the parts of the breakdown add up.
 
@@ -268,7 +267,6 @@ impl TimeModel {
                 moving.push((m, a, waypoints));
             }
         }
-        let alone = moving.len() == 1;
         let mut out = Vec::with_capacity(moving.len());
         for (k, (m, a, waypoints)) in moving.iter().enumerate() {
             let queued: f64 = moving[..k]
@@ -277,7 +275,7 @@ impl TimeModel {
                 .map(|(o, _, _)| o.leg.command_s)
                 .sum();
             let segments = m.segments(*a, waypoints, 0.0);
-            let duration_s = queued + m.driven_time_s(*a, waypoints, alone);
+            let duration_s = queued + m.driven_time_s(*a, waypoints);
             out.push((
                 AxisMotion {
                     role: m.role,
@@ -490,7 +488,6 @@ impl TimeModel {
             return self.move_cost_s(from, to);
         }
         // The same arithmetic as `phase` over one phase of every moving axis, without the waypoint vectors.
-        let alone = legs.iter().flatten().count() == 1;
         let mut motion: f64 = 0.0;
         let mut total: f64 = 0.0;
         let mut queued = [(usize::MAX, 0.0); 4];
@@ -507,9 +504,8 @@ impl TimeModel {
             let t = wait
                 + if reach > 0.0 {
                     let via = b - reach;
-                    (if alone { m.leg.position_read_s } else { 0.0 })
-                        + m.leg
-                            .leg_s(trapezoid_time_s(via - a, m.max_speed_deg_s, m.accel_deg_s2))
+                    m.leg
+                        .leg_s(trapezoid_time_s(via - a, m.max_speed_deg_s, m.accel_deg_s2))
                         + m.leg
                             .leg_s(trapezoid_time_s(reach, m.max_speed_deg_s, m.accel_deg_s2))
                 } else {

@@ -259,7 +259,7 @@ impl AxisDriver for Smc100Axis {
     }
 
     /// Send `PA` for a physical target (idempotent, retried when its TE is lost).
-    async fn command_move(&self, target_deg: f64) -> Result<(), DriverError> {
+    async fn command_move(&self, target_deg: f64, start_c: Option<f64>) -> Result<(), DriverError> {
         let ctl = &self.ctl;
         let controller = self.core.cfg().controller_from_physical_deg(target_deg);
         self.core.set_start(None);
@@ -267,30 +267,31 @@ impl AxisDriver for Smc100Axis {
             *g = Some(tokio::time::Instant::now());
         }
         tracing::info!(axis = %ctl.device, target_deg, controller, "move absolute");
-        // The position the move starts from (read twice, see `verified_position`) goes out in the same exchange
-        // as PA: the distance sets the deadline and when to ask whether the move is over. When the two reads do
-        // not agree the start stays unknown and the wait assumes the whole travel (a longer deadline, no harm).
+        // The position the move starts from sets the deadline and when to ask whether the move is over. Known
+        // (where the axis came to rest), PA goes out alone; otherwise it is read twice (see `verified_position`)
+        // in the same exchange as PA. When the two reads do not agree the start stays unknown and the wait
+        // assumes the whole travel (a longer deadline, no harm).
+        let reads: &[(&str, &str)] = if start_c.is_some() {
+            &[]
+        } else {
+            &[("TP", ""), ("TP", "")]
+        };
         let start = ctl
             .chain
-            .command_after(
-                ctl.addr,
-                &[("TP", ""), ("TP", "")],
-                "PA",
-                &wire_number(controller),
-                true,
-            )
+            .command_after(ctl.addr, reads, "PA", &wire_number(controller), true)
             .await;
         match start {
             Ok(start) => {
-                // The move is under way since the PA itself went out, after the two reads before it.
+                // The move is under way since the PA itself went out, after any reads before it.
                 if let (Ok(mut g), Some(sent)) = (self.pa_sent.lock(), ctl.chain.last_set_sent(ctl.addr)) {
                     *g = Some(sent);
                 }
-                self.core
-                    .set_start(match (number_at(&start, 0), number_at(&start, 1)) {
+                self.core.set_start(
+                    start_c.or_else(|| match (number_at(&start, 0), number_at(&start, 1)) {
                         (Some(a), Some(b)) if self.reads_agree(a, b, false) => Some(b),
                         _ => None,
-                    });
+                    }),
+                );
                 Ok(())
             }
             // A retried PA whose first copy got through (only its TE reply was lost) meets the axis already

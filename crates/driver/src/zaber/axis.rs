@@ -260,9 +260,14 @@ impl AxisDriver for ZaberAxis {
         Ok(())
     }
 
-    async fn command_move(&self, target_deg: f64) -> Result<(), DriverError> {
-        let (start, _, _) = self.get_pos().await?;
-        self.core.set_start(Some(start as f64 * self.microstep_deg));
+    async fn command_move(&self, target_deg: f64, start_c: Option<f64>) -> Result<(), DriverError> {
+        // The start sets the deadline and when to ask whether the move is over: where the axis came to rest,
+        // or read now.
+        let start_c = match start_c {
+            Some(c) => c,
+            None => self.get_pos().await?.0 as f64 * self.microstep_deg,
+        };
+        self.core.set_start(Some(start_c));
         let steps = self.steps_from_deg(target_deg);
         tracing::info!(axis = %self.dev(), target_deg, steps, "move abs");
         let r = self.ok(&format!("move abs {steps}"), true).await?;

@@ -82,6 +82,41 @@ async fn commands_go_out_one_at_a_time_and_paced_after_set_commands() {
     );
 }
 
+#[tokio::test(start_paused = true)]
+async fn a_move_starts_from_where_the_last_came_to_rest_without_reading_it_again() {
+    trace();
+    let (stream, seen) = strict_controller();
+    let port = Arc::new(LinePort::from_stream("arms", Box::new(stream)));
+    let chain = Smc100Chain::new("arms", port);
+    let _ = chain.ts(1).await;
+    let axis = Smc100Axis::new(Arc::clone(&chain), sim_axis("light"));
+    let lines_from = |k: usize| -> Vec<String> {
+        seen.lock().unwrap()[k..]
+            .iter()
+            .map(|(_, l, _)| l.clone())
+            .collect()
+    };
+    // Nothing known of where the axis is: the start is read (twice) before the PA.
+    let before = seen.lock().unwrap().len();
+    axis.start_move(5.0).await.expect("first move");
+    assert_eq!(lines_from(before), ["1TP", "1TP", "1PA5.000000", "1TE"]);
+    axis.wait_arrived(5.0).await.expect("arrived");
+    // Seen over and read back: the next move starts from there, PA alone (two reads fewer, ~25 ms a leg on a
+    // real controller).
+    let before = seen.lock().unwrap().len();
+    axis.start_move(7.0).await.expect("second move");
+    assert_eq!(lines_from(before), ["1PA7.000000", "1TE"]);
+    axis.wait_arrived(7.0).await.expect("arrived");
+    // A stop forgets it: whatever moved since, the start is read again.
+    let before = seen.lock().unwrap().len();
+    axis.stop().await.expect("stop");
+    axis.start_move(3.0).await.expect("move after a stop");
+    let lines = lines_from(before);
+    assert_eq!(lines.first().map(String::as_str), Some("1ST"), "{lines:?}");
+    let after_stop: Vec<String> = lines.into_iter().skip_while(|l| l == "1ST").collect();
+    assert_eq!(after_stop, ["1TP", "1TP", "1PA3.000000", "1TE"]);
+}
+
 /// Home and move both arms, then read their status: under the variant `f` sets.
 async fn both_arms_work(f: impl FnOnce(&mut gonio_instrument::InstrumentFile)) -> Arc<Smc100Chain> {
     both_arms_work_at(f, 1.0).await

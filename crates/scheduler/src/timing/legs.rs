@@ -4,15 +4,21 @@
 //!
 //! A leg of motion time `T` takes `command_s`, then `first_seen_s` when the motion is over by the driver's first
 //! question (`T <= first_question_s`), else `T + seen_after_s` ([`LegTiming::leg_s`]):
-//! - **SMC100** (one command or query per line, `crates/driver/src/smc100`): the move is the exchange
-//!   `TP TP PA`, then the controller's pause after a set command ([`SMC100_SET_GAP_S`]) and `TE`; the wait then
-//!   asks `PT TS` at once (and the read-back `TP TP` with it when the move should be over by then), and otherwise
-//!   `TS`, then `TP TP`, just after the predicted end counted from the `PA` ([`ARRIVAL_MARGIN_S`]). So the
-//!   motion starts two exchanges into the leg, is seen over the margin and three exchanges after it ends, and never sooner than the pause and five exchanges after
-//!   it started (a backlash overshoot of a few hundredths of a degree costs that pause, not its motion).
-//! - **Zaber ASCII** (`crates/driver/src/zaber`): `get pos`, then `move abs`; the wait asks `get pos` (busy or
-//!   idle, and where) at once and just after the predicted end counted from the `move abs` reply. The motion
-//!   starts one exchange into the leg and is seen the margin and two exchanges after it ends.
+//! - **SMC100** (one command or query per line, `crates/driver/src/smc100`): the move is `PA`, then the
+//!   controller's pause after a set command ([`SMC100_SET_GAP_S`]) and `TE`; the wait then asks `PT TS` at once
+//!   (and the read-back `TP TP` with it when the move should be over by then), and otherwise `TS`, then `TP TP`,
+//!   just after the predicted end counted from the `PA` ([`ARRIVAL_MARGIN_S`]). So the motion starts with the
+//!   leg, is seen over the margin and three exchanges after it ends, and never sooner than the pause and five
+//!   exchanges after it started (a backlash overshoot of a few hundredths of a degree costs that pause, not its
+//!   motion).
+//! - **Zaber ASCII** (`crates/driver/src/zaber`): `move abs`; the wait asks `get pos` (busy or idle, and where)
+//!   at once and just after the predicted end counted from the `move abs` reply. The motion starts with the leg
+//!   and is seen the margin and two exchanges after it ends.
+//!
+//! Where a leg starts is where the axis came to rest, read back at the end of the leg before
+//! (`gonio_driver::axis_driver::AxisCore`), so neither driver reads it again before the move; only the first
+//! move after a homing, a stop or an error does (`TP TP` before `PA`, `get pos` before `move abs`), once an axis
+//! a run, which the model leaves out.
 //! - An axis on another protocol (none today) keeps one exchange for the arrival.
 //!
 //! One exchange is a short request and its reply on the wire: the reply's bytes at the line's speed (8N1: ten
@@ -70,8 +76,6 @@ pub struct LegTiming {
     pub first_question_s: f64,
     /// From the start of the motion until a motion over by the first question is seen over.
     pub first_seen_s: f64,
-    /// One verified position read: a lone axis approaching against its backlash reads where it starts first.
-    pub position_read_s: f64,
     /// Setting the axis's speed and acceleration (the first sweep of an axis: the driver does not know what the
     /// device holds until it has written both).
     pub set_speed_s: f64,
@@ -104,7 +108,6 @@ impl LegTiming {
             seen_after_s: super::EXCHANGE_S,
             first_question_s: 0.0,
             first_seen_s: super::EXCHANGE_S,
-            position_read_s: 0.0,
             set_speed_s: 0.0,
             set_velocity_s: 0.0,
             start_return_s: 0.0,
@@ -119,12 +122,11 @@ impl LegTiming {
             Protocol::Smc100 => {
                 let e = exchange_after_s(SMC100_REPLY_BYTES, baud, latency_s);
                 LegTiming {
-                    command_s: 2.0 * e,
+                    command_s: 0.0,
                     seen_after_s: ARRIVAL_MARGIN_S + 3.0 * e,
                     // The pause, TE, then PT and TS; with TP TP when over.
                     first_question_s: SMC100_SET_GAP_S + 2.0 * e,
                     first_seen_s: SMC100_SET_GAP_S + 5.0 * e,
-                    position_read_s: 2.0 * e,
                     // `VA` and `AC`, each a set command: the pause, then `TE`.
                     set_speed_s: 2.0 * (SMC100_SET_GAP_S + e),
                     set_velocity_s: SMC100_SET_GAP_S + e,
@@ -136,12 +138,11 @@ impl LegTiming {
             Protocol::ZaberAscii => {
                 let e = exchange_after_s(ZABER_REPLY_BYTES, baud, latency_s);
                 LegTiming {
-                    command_s: e,
+                    command_s: 0.0,
                     seen_after_s: ARRIVAL_MARGIN_S + 2.0 * e,
                     // The move abs reply, then get pos.
                     first_question_s: e,
                     first_seen_s: 2.0 * e,
-                    position_read_s: e,
                     // `set maxspeed`, `set accel`, each acknowledged.
                     set_speed_s: 2.0 * e,
                     set_velocity_s: e,
@@ -192,23 +193,24 @@ mod tests {
     fn a_controller_that_takes_its_time_to_answer_makes_every_exchange_of_a_leg_longer() {
         let quick = LegTiming::for_protocol(Protocol::Smc100, 57_600, 0.0);
         let slow = LegTiming::for_protocol(Protocol::Smc100, 57_600, 0.010);
-        // A 1 s move: two reads before, three exchanges after, each 10 ms longer.
-        assert!((slow.leg_s(1.0) - quick.leg_s(1.0) - 0.050).abs() < 1e-12);
+        // A 1 s move: three exchanges after it (none before: the start is where the axis came to rest), each
+        // 10 ms longer.
+        assert!((slow.leg_s(1.0) - quick.leg_s(1.0) - 0.030).abs() < 1e-12);
         let quick = LegTiming::for_protocol(Protocol::ZaberAscii, 115_200, 0.0);
         let slow = LegTiming::for_protocol(Protocol::ZaberAscii, 115_200, 0.010);
-        assert!((slow.leg_s(1.0) - quick.leg_s(1.0) - 0.030).abs() < 1e-12);
+        assert!((slow.leg_s(1.0) - quick.leg_s(1.0) - 0.020).abs() < 1e-12);
     }
 
     #[test]
     fn a_short_smc100_leg_costs_the_pause_after_its_move_command_a_long_one_its_motion() {
         let smc = LegTiming::for_protocol(Protocol::Smc100, 57_600, 0.0);
-        // A 32 ms backlash overshoot: two reads, then the pause and five exchanges after the PA.
-        assert!((smc.leg_s(0.032) - (0.004 + 0.065 + 0.010)).abs() < 1e-12);
-        // A 1 s move: two reads, the motion, then TS TP TP just after its end.
-        assert!((smc.leg_s(1.0) - (0.004 + 1.0 + 0.001 + 0.006)).abs() < 1e-12);
+        // A 32 ms backlash overshoot: the pause and five exchanges after the PA.
+        assert!((smc.leg_s(0.032) - (0.065 + 0.010)).abs() < 1e-12);
+        // A 1 s move: the motion, then TS TP TP just after its end.
+        assert!((smc.leg_s(1.0) - (1.0 + 0.001 + 0.006)).abs() < 1e-12);
         let zaber = LegTiming::for_protocol(Protocol::ZaberAscii, 115_200, 0.0);
-        assert!((zaber.leg_s(1.0) - (0.003 + 1.0 + 0.001 + 0.006)).abs() < 1e-12);
+        assert!((zaber.leg_s(1.0) - (1.0 + 0.001 + 0.006)).abs() < 1e-12);
         // A 2 ms move is over by the first get pos, 3 ms in: seen at its reply.
-        assert!((zaber.leg_s(0.002) - 0.009).abs() < 1e-12);
+        assert!((zaber.leg_s(0.002) - 0.006).abs() < 1e-12);
     }
 }

@@ -66,15 +66,10 @@ impl AxisModel {
     }
 
     /// Time the daemon takes to drive the axis through the waypoints, from its first exchange until it has seen
-    /// the last arrival: each leg's motion and the driver's exchanges around it ([`LegTiming::leg_s`]). An axis
-    /// `alone` in its phase with a backlash approach first reads where it is (the driver plans the approach).
-    pub fn driven_time_s(&self, from_ctrl_deg: f64, waypoints: &[f64], alone: bool) -> f64 {
+    /// the last arrival: each leg's motion and the driver's exchanges around it ([`LegTiming::leg_s`]).
+    pub fn driven_time_s(&self, from_ctrl_deg: f64, waypoints: &[f64]) -> f64 {
         let mut at = from_ctrl_deg;
-        let mut t = if alone && waypoints.len() > 1 {
-            self.leg.position_read_s
-        } else {
-            0.0
-        };
+        let mut t = 0.0;
         for w in waypoints {
             t += self
                 .leg

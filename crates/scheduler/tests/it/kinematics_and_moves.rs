@@ -87,27 +87,27 @@ fn a_move_lasts_as_long_as_its_slowest_axis_plus_settle_and_backlash() {
     let m = tm
         .plan_move(&Pose::new(0.0, 60.0, 0.0, 0.0), &Pose::new(40.0, 70.0, 10.0, 0.0))
         .expect("move");
-    // Plus the SMC100 driver's exchanges (2 ms each at 57600 baud): two position reads before the PA, then the
-    // status and two reads just after (1 ms) the predicted end.
+    // Plus the SMC100 driver's exchanges (2 ms each at 57600 baud): none before the PA (the driver knows where
+    // the axis came to rest), the status and two reads just after (1 ms) the predicted end.
     assert_eq!(m.phases.len(), 1);
-    assert!((m.motion_s - (0.004 + 2.25 + 0.007)).abs() < 1e-12, "{m:?}");
-    // The detector, second on the arms' chain, starts after the light arm's opening reads: 0.75 s of motion.
+    assert!((m.motion_s - (2.25 + 0.007)).abs() < 1e-12, "{m:?}");
+    // The detector, second on the arms' chain, starts with the light arm: 0.75 s of motion.
     let detector = m.phases[0]
         .iter()
         .find(|a| a.role == AxisRole::DetectorArm)
         .expect("detector");
     assert!(
-        (detector.duration_s - (0.004 + 0.004 + 0.75 + 0.007)).abs() < 1e-12,
+        (detector.duration_s - (0.75 + 0.007)).abs() < 1e-12,
         "{detector:?}"
     );
-    // The tilt on its Zaber chain (3 ms exchanges at 115200 baud): get pos, move abs, then get pos at the end.
+    // The tilt on its Zaber chain (3 ms exchanges at 115200 baud): move abs, then get pos at the end.
     let tilt = m.phases[0]
         .iter()
         .find(|a| a.role == AxisRole::SampleTilt)
         .expect("tilt");
     let tilt_motion = trapezoid_time_s(10.0, 30.0, 120.0);
     assert!(
-        (tilt.duration_s - (0.003 + tilt_motion + 0.007)).abs() < 1e-12,
+        (tilt.duration_s - (tilt_motion + 0.007)).abs() < 1e-12,
         "{tilt:?}"
     );
     assert!((m.settle_s - 0.05).abs() < 1e-12, "{m:?}");
@@ -117,11 +117,11 @@ fn a_move_lasts_as_long_as_its_slowest_axis_plus_settle_and_backlash() {
         .expect("move");
     let light = &m.phases[0][0];
     assert_eq!(light.waypoints_deg, vec![-0.02, 0.0]);
-    // Alone, the light arm's driver reads where it is (4 ms), then two legs. The 32 ms overshoot leg is seen
-    // no sooner than the 65 ms pause after its PA and five exchanges.
+    // Alone, the light arm's driver plans the approach from where the axis came to rest (no read), then two
+    // legs. The 32 ms overshoot leg is seen no sooner than the 65 ms pause after its PA and five exchanges.
     let overshoot = trapezoid_time_s(0.02, 20.0, 80.0);
     assert!(overshoot < 0.04);
-    let expected = 0.004 + (0.004 + trapezoid_time_s(40.02, 20.0, 80.0) + 0.007) + (0.004 + 0.065 + 0.010);
+    let expected = (trapezoid_time_s(40.02, 20.0, 80.0) + 0.007) + (0.065 + 0.010);
     assert!((m.motion_s - expected).abs() < 1e-12, "{m:?}");
 }
 

@@ -273,7 +273,8 @@ fn a_sweep_takes_its_trapezoid_and_reads_throughout_back_and_forth_over_the_band
         // Around the motion, by hand from the drivers' exchanges (SMC100 at 57600 baud: 2 ms an exchange, a
         // 65 ms pause after a set command; Zaber at 115200: 3 ms): VA and AC set on the first sweep, VA alone on
         // the others (the driver knows the acceleration is the axis's), 67 ms each; the axis's own VA restored
-        // once, after the last (each band starts where the last ended); TP TP before PA, 4 ms. After the motion:
+        // once, after the last (each band starts where the last ended); nothing before PA (the driver knows where
+        // the axis came to rest). After the motion:
         // no reading is asked for that would run more than half its 6 ms past the end, so the last ends within
         // (-3, 4] ms of it. Before it (3 of 7), the driver's wait sees the stop 1 ms after the end and three
         // exchanges later, 7 ms; after it (4 of 7), 2 ms on average, then TS TP TP, 6 ms, and PT TS TP TP, 8 ms
@@ -281,7 +282,7 @@ fn a_sweep_takes_its_trapezoid_and_reads_throughout_back_and_forth_over_the_band
         let set = if k == 0 { 2.0 * 0.067 } else { 0.067 };
         let restore = if k + 1 == sched.steps.len() { 0.067 } else { 0.0 };
         let tail = 3.0 / 7.0 * 0.007 + 4.0 / 7.0 * (0.002 + 0.006 + 0.008);
-        let overhead = set + restore + 0.004 + tail;
+        let overhead = set + restore + tail;
         assert!(
             (step.sweep_s - step.motion_s - overhead).abs() < 1e-9,
             "{}",
