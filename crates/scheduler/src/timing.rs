@@ -158,11 +158,6 @@ impl TimeModel {
                     zero_offset_deg: axis.zero_offset_deg,
                     direction: f64::from(axis.direction),
                     leg: LegTiming::of_axis(instrument, index),
-                    chain: instrument
-                        .devices
-                        .iter()
-                        .position(|d| d.name == axis.device)
-                        .unwrap_or(usize::MAX),
                 });
             }
         }
@@ -268,14 +263,9 @@ impl TimeModel {
             }
         }
         let mut out = Vec::with_capacity(moving.len());
-        for (k, (m, a, waypoints)) in moving.iter().enumerate() {
-            let queued: f64 = moving[..k]
-                .iter()
-                .filter(|(o, _, _)| o.chain == m.chain)
-                .map(|(o, _, _)| o.leg.command_s)
-                .sum();
+        for (m, a, waypoints) in &moving {
             let segments = m.segments(*a, waypoints, 0.0);
-            let duration_s = queued + m.driven_time_s(*a, waypoints);
+            let duration_s = m.driven_time_s(*a, waypoints);
             out.push((
                 AxisMotion {
                     role: m.role,
@@ -490,28 +480,20 @@ impl TimeModel {
         // The same arithmetic as `phase` over one phase of every moving axis, without the waypoint vectors.
         let mut motion: f64 = 0.0;
         let mut total: f64 = 0.0;
-        let mut queued = [(usize::MAX, 0.0); 4];
         for (k, m) in self.axes.iter().enumerate() {
             let (Some(m), Some((a, b, reach))) = (m, legs[k]) else {
                 continue;
             };
-            let wait: f64 = queued[..k]
-                .iter()
-                .filter(|(c, _)| *c == m.chain)
-                .map(|(_, s)| s)
-                .sum();
-            queued[k] = (m.chain, m.leg.command_s);
-            let t = wait
-                + if reach > 0.0 {
-                    let via = b - reach;
-                    m.leg
-                        .leg_s(trapezoid_time_s(via - a, m.max_speed_deg_s, m.accel_deg_s2))
-                        + m.leg
-                            .leg_s(trapezoid_time_s(reach, m.max_speed_deg_s, m.accel_deg_s2))
-                } else {
-                    m.leg
-                        .leg_s(trapezoid_time_s(b - a, m.max_speed_deg_s, m.accel_deg_s2))
-                };
+            let t = if reach > 0.0 {
+                let via = b - reach;
+                m.leg
+                    .leg_s(trapezoid_time_s(via - a, m.max_speed_deg_s, m.accel_deg_s2))
+                    + m.leg
+                        .leg_s(trapezoid_time_s(reach, m.max_speed_deg_s, m.accel_deg_s2))
+            } else {
+                m.leg
+                    .leg_s(trapezoid_time_s(b - a, m.max_speed_deg_s, m.accel_deg_s2))
+            };
             motion = motion.max(t);
             total = total.max(t + m.settle_s);
         }

@@ -313,6 +313,32 @@ fn normal_draws(seed: u64, n: usize) -> Vec<f64> {
         .collect()
 }
 
+/// 64 points of a Lambertian sample of `albedo`, half near the normal (theta_o 10-16 deg, a cosine weight near 1)
+/// known to `near_rel` of the value, half near grazing (theta_o 84 deg, a cosine weight of 0.1) known to
+/// `grazing_rel`, each value with its stated noise drawn (seed `seed`).
+fn lambertian_near_and_grazing(albedo: f64, seed: u64, near_rel: f64, grazing_rel: f64) -> Vec<Point> {
+    let draws = normal_draws(seed, 64);
+    (0..64)
+        .map(|k| {
+            let near = k % 2 == 0;
+            let g = if near {
+                [5.0, 0.0, 10.0 + 0.1 * f64::from(k), 180.0]
+            } else {
+                [5.0, 0.0, 84.0, 3.0 * f64::from(k)]
+            };
+            let rel = if near { near_rel } else { grazing_rel };
+            let value = albedo / std::f64::consts::PI;
+            let mut p = Point::at(550.0, g, 0.0);
+            p.brdf_sr = Some(value * (1.0 + rel * draws[k as usize]));
+            let mut budget = Budget::default();
+            budget.add(components::SIGNAL_NOISE, rel * value, None);
+            p.brdf_u_sr = Some(budget.total_sr());
+            p.budget = budget;
+            p
+        })
+        .collect()
+}
+
 #[test]
 fn the_stated_parameter_uncertainty_covers_the_truth_over_noise_draws() {
     // A Lambertian sample (albedo 0.9), half its points near the normal and known to 1e-4, half near grazing
@@ -324,26 +350,7 @@ fn the_stated_parameter_uncertainty_covers_the_truth_over_noise_draws() {
     let albedo = 0.9;
     let mut z = Vec::new();
     for seed in 1..=40u64 {
-        let draws = normal_draws(seed, 64);
-        let points = (0..64)
-            .map(|k| {
-                let near = k % 2 == 0;
-                let g = if near {
-                    [5.0, 0.0, 10.0 + 0.1 * f64::from(k), 180.0]
-                } else {
-                    [5.0, 0.0, 84.0, 3.0 * f64::from(k)]
-                };
-                let rel = if near { 1e-4 } else { 1e-3 };
-                let value = albedo / std::f64::consts::PI;
-                let mut p = Point::at(550.0, g, 0.0);
-                p.brdf_sr = Some(value * (1.0 + rel * draws[k as usize]));
-                let mut budget = Budget::default();
-                budget.add(components::SIGNAL_NOISE, rel * value, None);
-                p.brdf_u_sr = Some(budget.total_sr());
-                p.budget = budget;
-                p
-            })
-            .collect();
+        let points = lambertian_near_and_grazing(albedo, seed, 1e-4, 1e-3);
         let report = fit(
             &dry_run_of("lambertian", points),
             &FitOptions::new(FitModel::Lambertian),
@@ -366,24 +373,7 @@ fn an_outlier_is_judged_by_its_own_noise_not_by_its_cosine_weight() {
     let albedo = 0.9;
     let (mut z, mut downweighted, mut points_fitted) = (Vec::new(), 0, 0);
     for seed in 101..=140u64 {
-        let draws = normal_draws(seed, 64);
-        let points: Vec<Point> = (0..64)
-            .map(|k| {
-                let g = if k % 2 == 0 {
-                    [5.0, 0.0, 10.0 + 0.1 * f64::from(k), 180.0]
-                } else {
-                    [5.0, 0.0, 84.0, 3.0 * f64::from(k)]
-                };
-                let value = albedo / std::f64::consts::PI;
-                let mut p = Point::at(550.0, g, 0.0);
-                p.brdf_sr = Some(value * (1.0 + 1e-4 * draws[k as usize]));
-                let mut budget = Budget::default();
-                budget.add(components::SIGNAL_NOISE, 1e-4 * value, None);
-                p.brdf_u_sr = Some(budget.total_sr());
-                p.budget = budget;
-                p
-            })
-            .collect();
+        let points = lambertian_near_and_grazing(albedo, seed, 1e-4, 1e-4);
         let report = fit(
             &dry_run_of("lambertian", points),
             &FitOptions::new(FitModel::Lambertian),

@@ -97,7 +97,7 @@ pub struct SweepCalibration<'a> {
 /// (with the acceleration the first time), and the axis's own restored before anything else moves, not between
 /// the pieces of a chain.
 pub fn sweep_time_s(m: &AxisModel, motion_s: f64, period_s: f64) -> f64 {
-    m.leg.command_s + motion_s.max(m.leg.start_return_s) + sweep_tail_s(m, period_s)
+    motion_s.max(m.leg.start_return_s) + sweep_tail_s(m, period_s)
 }
 
 /// What a sweep waits for after its motion, on average over where the readings fall (s). No reading is asked

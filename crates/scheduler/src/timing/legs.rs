@@ -2,8 +2,9 @@
 //! (`crates/driver`) make around every move, by protocol and line speed. The motion itself is the trapezoid of
 //! `profile`; this is everything the daemon waits for that is not motion.
 //!
-//! A leg of motion time `T` takes `command_s`, then `first_seen_s` when the motion is over by the driver's first
-//! question (`T <= first_question_s`), else `T + seen_after_s` ([`LegTiming::leg_s`]):
+//! A leg of motion time `T` takes `first_seen_s` when the motion is over by the driver's first question
+//! (`T <= first_question_s`), else `T + seen_after_s` ([`LegTiming::leg_s`]): the motion starts with the leg's
+//! first command (below):
 //! - **SMC100** (one command or query per line, `crates/driver/src/smc100`): the move is `PA`, then the
 //!   controller's pause after a set command ([`SMC100_SET_GAP_S`]) and `TE`; the wait then asks `PT TS` at once
 //!   (and the read-back `TP TP` with it when the move should be over by then), and otherwise `TS`, then `TP TP`,
@@ -68,8 +69,6 @@ pub fn exchange_after_s(reply_bytes: usize, baud: u32, latency_s: f64) -> f64 {
 /// The driver's time around each leg of one axis (module doc).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LegTiming {
-    /// From the start of the leg's exchanges to the start of the motion.
-    pub command_s: f64,
     /// From the end of the motion until the driver has seen it over, its position read back.
     pub seen_after_s: f64,
     /// From the start of the motion until the driver's first question about it goes out.
@@ -93,18 +92,16 @@ pub struct LegTiming {
 impl LegTiming {
     /// A leg whose motion takes `motion_s`, from its first exchange until the driver has seen it over.
     pub fn leg_s(&self, motion_s: f64) -> f64 {
-        self.command_s
-            + if motion_s <= self.first_question_s {
-                self.first_seen_s
-            } else {
-                (motion_s + self.seen_after_s).max(self.first_seen_s)
-            }
+        if motion_s <= self.first_question_s {
+            self.first_seen_s
+        } else {
+            (motion_s + self.seen_after_s).max(self.first_seen_s)
+        }
     }
 
     /// An axis on a protocol without a model here: the arrival seen one exchange after the motion.
     pub fn generic() -> LegTiming {
         LegTiming {
-            command_s: 0.0,
             seen_after_s: super::EXCHANGE_S,
             first_question_s: 0.0,
             first_seen_s: super::EXCHANGE_S,
@@ -122,7 +119,6 @@ impl LegTiming {
             Protocol::Smc100 => {
                 let e = exchange_after_s(SMC100_REPLY_BYTES, baud, latency_s);
                 LegTiming {
-                    command_s: 0.0,
                     seen_after_s: ARRIVAL_MARGIN_S + 3.0 * e,
                     // The pause, TE, then PT and TS; with TP TP when over.
                     first_question_s: SMC100_SET_GAP_S + 2.0 * e,
@@ -138,7 +134,6 @@ impl LegTiming {
             Protocol::ZaberAscii => {
                 let e = exchange_after_s(ZABER_REPLY_BYTES, baud, latency_s);
                 LegTiming {
-                    command_s: 0.0,
                     seen_after_s: ARRIVAL_MARGIN_S + 2.0 * e,
                     // The move abs reply, then get pos.
                     first_question_s: e,

@@ -21,8 +21,6 @@ pub struct AxisModel {
     pub direction: f64,
     /// What the axis's driver spends around each leg (`super::legs`).
     pub leg: LegTiming,
-    /// Index of the axis's device (controller chain) in the instrument file: axes on one chain share its line.
-    pub chain: usize,
 }
 
 impl AxisModel {
