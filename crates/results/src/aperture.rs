@@ -37,7 +37,7 @@ use gonio_brdf::integrate::{Region, Rule, Tolerance, integrate_adaptive};
 use gonio_brdf::radiometry::cone_solid_angle_sr;
 use gonio_brdf::{Brdf, Direction, Material, Wavelength};
 
-use crate::fit::{FitModel, FitOptions, FitReport, Loss, fit_unshared};
+use crate::fit::{Chi2Whole, FitModel, FitOptions, FitReport, Loss, fit_unshared};
 use crate::iso::directions;
 use crate::points::Point;
 use crate::run::Run;
@@ -175,7 +175,7 @@ pub fn corrections(run: &Run, optics: &Optics) -> Option<Corrections> {
     let mut fitted: Vec<Fitted> = crate::parallel::map(&MODELS, |&model| {
         let mut opts = FitOptions::new(model);
         opts.loss = Loss::None;
-        let report = fit_unshared(&subset, &opts).ok()?;
+        let report = fit_unshared(&subset, &opts, Chi2Whole::Skip).ok()?;
         fitted_of(report)
     })
     .into_iter()
@@ -373,28 +373,36 @@ fn correction(p: &Point, optics: &Optics, models: &[&Fitted]) -> Option<Correcti
             || unresolved_lobe(p, m, &wi, &wo, wavelength, optics)
     };
     let half_angle_rad = optics.aperture_half_angle_rad;
-    let factor_of = |m: &Fitted| factor(&m.material, &wi, &wo, wavelength, half_angle_rad);
+    // Each acceptable model's correction here and whether its lobe is too narrow to resolve here, once.
+    let here: Vec<(Option<f64>, bool)> = models
+        .iter()
+        .map(|m| {
+            (
+                factor(&m.material, &wi, &wo, wavelength, half_angle_rad),
+                too_narrow(m),
+            )
+        })
+        .collect();
     // Whether a model says no honest correction is possible here: its lobe too narrow, or its correction too
     // large (or none).
-    let unresolved_by =
-        |m: &Fitted| too_narrow(m) || factor_of(m).is_none_or(|c| (c - 1.0).abs() > NARROW_LIMIT);
+    let unresolved_by = |k: usize| {
+        let (c, narrow) = here[k];
+        narrow || c.is_none_or(|c| (c - 1.0).abs() > NARROW_LIMIT)
+    };
     // The best model corrects; where it says no honest correction is possible here but a model without a lobe
     // (Oren-Nayar) describes the data as acceptably and corrects here, the data do not ask for a lobe and that
     // model corrects instead. A spectralon grid of eight points (one lost to a stalled move) was fitted best, by
     // a hair (rms 3.8e-5 against 4.8e-5), by a Phong lobe of exponent near 0, a step across the hemisphere, and
     // the point on its step was flagged with its whole value as uncertainty while it was 4e-5 from the truth.
-    let first = *models.first()?;
-    let best = if unresolved_by(first) {
-        models
-            .iter()
-            .copied()
-            .find(|m| m.model == FitModel::OrenNayar && !unresolved_by(m))
-            .unwrap_or(first)
+    models.first()?;
+    let best = if unresolved_by(0) {
+        (0..models.len())
+            .find(|&k| models[k].model == FitModel::OrenNayar && !unresolved_by(k))
+            .unwrap_or(0)
     } else {
-        first
+        0
     };
-    let c = factor_of(best);
-    let lobe_too_narrow = too_narrow(best);
+    let (c, lobe_too_narrow) = here[best];
     let c = match c {
         Some(c) if !lobe_too_narrow && (c - 1.0).abs() <= NARROW_LIMIT => c,
         // At least the whole value, and twice the bias the model sees: fitted to point values, a lobe narrower
@@ -408,11 +416,10 @@ fn correction(p: &Point, optics: &Optics, models: &[&Fitted]) -> Option<Correcti
         // The model has nothing here (zero or not finite): nothing to correct with.
         None => return None,
     };
-    let spread = models
-        .iter()
-        // The other acceptable models that can correct here (one that cannot has no correction to compare).
-        .filter(|m| !std::ptr::eq(**m, best) && !unresolved_by(m))
-        .filter_map(|m| factor_of(m))
+    // The other acceptable models that can correct here (one that cannot has no correction to compare).
+    let spread = (0..models.len())
+        .filter(|&k| k != best && !unresolved_by(k))
+        .filter_map(|k| here[k].0)
         .map(|other| (other - c).abs() / c)
         .fold(0.0f64, f64::max);
     let floor = CORRECTION_U_FRACTION * (c - 1.0).abs();

@@ -239,7 +239,7 @@ pub struct FitReport {
 /// Fits the model to the run (module doc), each parameter with its uncertainty from the points' independent
 /// errors and, apart, from what they share ([`shared`]).
 pub fn fit(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
-    let mut report = fit_unshared(run, opts)?;
+    let mut report = fit_unshared(run, opts, Chi2Whole::Search)?;
     let shared = shared::shared_uncertainties(run, opts, &report);
     for (p, u) in report.params.iter_mut().zip(shared) {
         p.shared_uncertainty = u;
@@ -247,8 +247,17 @@ pub fn fit(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
     Ok(report)
 }
 
+/// Whether a fit searches its chi2/dof against the whole budget ([`ResidualStats::chi2_per_dof`]) or leaves it
+/// out (NaN): a search is up to [`shared::whole_budget_minimum`]'s steps of a Jacobian each, from two starts,
+/// and the aperture's model fits (crate::aperture) read only their parameters and rms residual.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Chi2Whole {
+    Search,
+    Skip,
+}
+
 /// The fit weighted by the points' independent uncertainties, without the shared part.
-pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, ResultsError> {
+pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions, chi2: Chi2Whole) -> Result<FitReport, ResultsError> {
     let fail = |message: String| ResultsError::Fit {
         model: opts.model.name().into(),
         origin: run.origin.clone(),
@@ -511,13 +520,13 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
     let expected = noise.iter().sum::<f64>() * dof / n;
     // With a robust loss the weighted cost understates the scatter (the weights are smallest where the residuals
     // are largest): the robust scale of the residuals standardised by their stated uncertainties instead.
-    let standardised: Vec<f64> = r
+    let standardised_abs: Vec<f64> = r
         .iter()
         .zip(&noise)
         .filter(|(_, v)| **v > 0.0)
         .map(|(r, v)| (r / v.sqrt()).abs())
         .collect();
-    let robust_scale = 1.4826 * median(standardised);
+    let robust_scale = 1.4826 * median(standardised_abs);
     let s2 = if opts.loss != Loss::None && robust_scale.is_finite() && robust_scale > 0.0 {
         robust_scale * robust_scale * n / dof
     } else if expected > 0.0 {
@@ -559,18 +568,17 @@ pub(crate) fn fit_unshared(run: &Run, opts: &FitOptions) -> Result<FitReport, Re
         .ok_or_else(|| fail("the fitted parameters do not make a valid material".into()))?;
     let m = predict(opts, &defs, &nat, &obs, &bands, true)
         .ok_or_else(|| fail("the model cannot be evaluated at the solution".into()))?;
-    let standardised_plain = |x: &[f64]| -> Option<Vec<f64>> {
-        let m = predict(opts, &defs, &natural(x), &obs, &bands, true)?;
-        Some(obs.iter().zip(&m).map(|(o, m)| (m - o.f) / o.u).collect())
-    };
     // The minimum over the parameters, from the fit's solution and from plain least squares' (a robust fit can
     // sit where the whole budget's sum has a local minimum of its own): the lower is the statistic.
-    let chi2_whole = [x.as_slice(), least_squares_x.as_slice()]
-        .into_iter()
-        .filter_map(|start| {
-            shared::whole_budget_minimum(run, &obs, start, &at_bound, (&lower, &upper), standardised_plain)
-        })
-        .min_by(f64::total_cmp);
+    let chi2_whole = match chi2 {
+        Chi2Whole::Search => [x.as_slice(), least_squares_x.as_slice()]
+            .into_iter()
+            .filter_map(|start| {
+                shared::whole_budget_minimum(run, &obs, start, &at_bound, (&lower, &upper), standardised)
+            })
+            .min_by(f64::total_cmp),
+        Chi2Whole::Skip => None,
+    };
     let residuals = residual_stats(&obs, &m, p, chi2_whole);
     let downweighted = weights.iter().filter(|w| **w < 0.5).count();
     let linear = jac

@@ -226,7 +226,8 @@ pub(super) fn chi2_whole_budget(
 /// shared groups' errors alone) falls, damped more when it does not. One undamped linearised step from the fit's
 /// solution was not enough where the fit sits far from that minimum: on realistic.toml's 16 instruments gold's
 /// fits read chi2/dof 3.23, 1.53 and 1.47 from it where the minimum is 1.23, 1.26 and 1.21, and on seed 2 the
-/// plain least squares' one step read 2.0 where the minimum is 11.2 (from both solutions).
+/// plain least squares' one step read 2.0 where the minimum is 11.2 from both solutions (measured by hand on
+/// the accuracy command's kept runs; docs/reference/uncertainty.md).
 pub(super) fn whole_budget_minimum(
     run: &Run,
     obs: &[Obs],
@@ -290,6 +291,8 @@ pub(super) fn whole_budget_minimum(
 
 /// At most this many steps towards the whole budget's minimum.
 const WHOLE_BUDGET_STEPS: usize = 60;
+/// The longest step, in the fit's internal units (log alpha, log eta, ...: 5 %), so that the search follows its
+/// own basin: undamped, a step from realistic gold's fit jumped to another eta/k pair of the same reflectance.
 const WHOLE_BUDGET_TRUST: f64 = 0.05;
 
 /// [`chi2_whole_budget`]'s answer.
